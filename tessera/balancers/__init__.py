@@ -1,0 +1,19 @@
+"""Balancer registry: names as used by ``--balancer``, ``PUT /api/balancer`` and the viewer."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from tessera.balancers.base import Balancer
+from tessera.balancers.static import StaticBalancer
+
+BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (StaticBalancer,)}
+
+
+def create_balancer(name: str, params: Mapping[str, Any] | None = None) -> Balancer:
+    """Instantiate a balancer by name; ValueError names the choices or the bad parameter."""
+    try:
+        cls = BALANCERS[name]
+    except KeyError:
+        raise ValueError(f"unknown balancer {name!r}; choose one of {sorted(BALANCERS)}") from None
+    return cls(**dict(params or {}))

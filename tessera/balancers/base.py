@@ -1,0 +1,144 @@
+"""The one small interface every balancer implements (Equalizer's equalizer.h habit).
+
+A balancer receives what the coordinator measured and returns the next partition. It never
+polls, never reads a clock (elapsed time comes in :class:`BalanceInput`), never does I/O, and is
+deterministic for the same sequence of inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from tessera.geometry import Rect
+
+
+@dataclass(frozen=True, slots=True)
+class Tile:
+    """A screen rect and the node that renders it (``None``: any node may pull it)."""
+
+    rect: Rect
+    node_id: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class Partition:
+    """The tiles of one frame, exact cover of the screen.
+
+    ``pull`` = False: each tile is pushed to its ``node_id``. ``pull`` = True (tile rotation):
+    tiles are handed out in list order to whichever node is free first.
+    """
+
+    tiles: tuple[Tile, ...]
+    pull: bool = False
+
+    @property
+    def rects(self) -> list[Rect]:
+        return [t.rect for t in self.tiles]
+
+
+@dataclass(frozen=True, slots=True)
+class TileTiming:
+    """Measured phases of one tile of the last complete frame, in milliseconds."""
+
+    rect: Rect
+    node_id: int
+    render_ms: float
+    readback_ms: float = 0.0
+    encode_ms: float = 0.0
+    send_ms: float = 0.0
+
+    @property
+    def busy_ms(self) -> float:
+        return self.render_ms + self.readback_ms + self.encode_ms + self.send_ms
+
+
+@dataclass(frozen=True, slots=True)
+class ProjectedGroups:
+    """Screen-space boxes of primitive groups (seed 003 DPBP), clipped to the screen.
+
+    ``boxes``: (K, 4) float64 pixel coordinates x0, y0, x1, y1 (origin top-left);
+    ``weights``: (K,) float64 primitive counts.
+    """
+
+    boxes: np.ndarray
+    weights: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class BalanceInput:
+    """Everything a balancer may use to make the next frame's partition."""
+
+    size: tuple[int, int]
+    node_ids: tuple[int, ...]
+    previous: Partition | None = None
+    timings: tuple[TileTiming, ...] = ()
+    weights: Mapping[int, float] = field(default_factory=dict)
+    elapsed_ms: float = 0.0
+    groups: ProjectedGroups | None = None
+
+    def weight(self, node_id: int) -> float:
+        return float(self.weights.get(node_id, 1.0))
+
+    def previous_matches(self) -> bool:
+        """True when ``previous`` was made for exactly the current nodes and screen size."""
+        if self.previous is None:
+            return False
+        owners = sorted(t.node_id for t in self.previous.tiles if t.node_id is not None)
+        if not self.previous.pull and owners != sorted(self.node_ids):
+            return False
+        width, height = self.size
+        return all(t.rect.x1 <= width and t.rect.y1 <= height for t in self.previous.tiles) and (
+            sum(t.rect.area for t in self.previous.tiles) == width * height
+        )
+
+
+def busy_by_node(timings: tuple[TileTiming, ...]) -> dict[int, float]:
+    """Total busy milliseconds per node over a frame's tiles."""
+    out: dict[int, float] = {}
+    for timing in timings:
+        out[timing.node_id] = out.get(timing.node_id, 0.0) + timing.busy_ms
+    return out
+
+
+def imbalance(busy_ms: Mapping[int, float]) -> float:
+    """max/mean of node busy times (1.0 = perfect balance; 1.0 when nothing was measured)."""
+    values = [v for v in busy_ms.values() if math.isfinite(v)]
+    mean = sum(values) / len(values) if values else 0.0
+    return max(values) / mean if mean > 0.0 else 1.0
+
+
+class Balancer(ABC):
+    """A balancing technique. Subclasses declare ``name`` and ``defaults`` (their parameters)."""
+
+    name: ClassVar[str]
+    defaults: ClassVar[Mapping[str, float | int | bool]] = {}
+
+    def __init__(self, **params: Any) -> None:
+        unknown = set(params) - set(self.defaults)
+        if unknown:
+            raise ValueError(f"balancer {self.name!r} has no parameters {sorted(unknown)}; "
+                             f"it takes {sorted(self.defaults)}")
+        merged = dict(self.defaults)
+        for key, value in params.items():
+            default = merged[key]
+            try:
+                value = type(default)(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"balancer parameter {key!r} must be {type(default).__name__}") from None
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"balancer parameter {key!r} must be finite")
+            merged[key] = value
+        self.params: dict[str, Any] = merged
+        self.validate_params()
+
+    def validate_params(self) -> None:
+        """Raise ValueError for parameter values out of range."""
+
+    @abstractmethod
+    def partition(self, inputs: BalanceInput) -> Partition:
+        """The next frame's partition."""

@@ -1,0 +1,220 @@
+"""Shared vocabulary: pixel rectangles, cameras and the camera matrices both sides use.
+
+Pure: numpy only, no GL, no I/O. Matrices are float64, row-major (``M @ v`` for column
+vectors); transpose before handing them to GL as column-major uniforms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+
+class CameraError(ValueError):
+    """A camera that cannot be rendered: NaN, degenerate or out of range."""
+
+
+@dataclass(frozen=True, slots=True)
+class Rect:
+    """Integer pixel rectangle, origin top-left, ``w``×``h`` pixels."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+    @property
+    def area(self) -> int:
+        return self.w * self.h
+
+    @property
+    def x1(self) -> int:
+        return self.x + self.w
+
+    @property
+    def y1(self) -> int:
+        return self.y + self.h
+
+    def as_list(self) -> list[int]:
+        return [self.x, self.y, self.w, self.h]
+
+    @classmethod
+    def from_seq(cls, values: Sequence[Any]) -> "Rect":
+        if len(values) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+            raise ValueError(f"a rect is four integers [x, y, w, h], got {values!r}")
+        return cls(*values)
+
+    def intersection_area(self, other: "Rect") -> int:
+        w = min(self.x1, other.x1) - max(self.x, other.x)
+        h = min(self.y1, other.y1) - max(self.y, other.y)
+        return max(w, 0) * max(h, 0)
+
+
+def _vec3(value: Any, name: str) -> tuple[float, float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise CameraError(f"camera {name} must be a list of 3 numbers, got {value!r}")
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise CameraError(f"camera {name} must be numbers, got {value!r}") from None
+    if not all(math.isfinite(v) for v in out):
+        raise CameraError(f"camera {name} is not finite: {value!r}")
+    return out  # type: ignore[return-value]
+
+
+def _finite(value: Any, name: str) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise CameraError(f"camera {name} must be a number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise CameraError(f"camera {name} is not finite: {value!r}")
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Camera:
+    """A pinhole camera: world-space eye, target, up; vertical field of view in degrees.
+
+    ``near``/``far`` are optional; when absent they come from :func:`near_far_from_bounds`.
+    """
+
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fovy_deg: float = 45.0
+    near: float | None = None
+    far: float | None = None
+
+    def __post_init__(self) -> None:
+        eye, target, up = (np.asarray(v, dtype=np.float64) for v in (self.eye, self.target, self.up))
+        forward = target - eye
+        distance = float(np.linalg.norm(forward))
+        scale = max(float(np.abs(eye).max()), float(np.abs(target).max()), 1.0)
+        if distance <= 1e-9 * scale:
+            raise CameraError("camera eye and target coincide")
+        up_norm = float(np.linalg.norm(up))
+        if up_norm == 0.0:
+            raise CameraError("camera up vector is zero")
+        if float(np.linalg.norm(np.cross(forward / distance, up / up_norm))) < 1e-6:
+            raise CameraError("camera up vector is parallel to the view direction")
+        if not 0.5 <= self.fovy_deg <= 179.0:
+            raise CameraError(f"camera fovy_deg must be in [0.5, 179], got {self.fovy_deg}")
+        if self.near is not None and self.near <= 0.0:
+            raise CameraError(f"camera near must be > 0, got {self.near}")
+        if self.far is not None and self.far <= (self.near or 0.0):
+            raise CameraError(f"camera far must be > near, got far={self.far} near={self.near}")
+
+    @classmethod
+    def from_json(cls, data: Any) -> "Camera":
+        """Parse and validate camera JSON (``eye``, ``target``, ``up``, ``fovy_deg``, ``near``, ``far``)."""
+        if not isinstance(data, Mapping):
+            raise CameraError(f"camera must be a JSON object, got {type(data).__name__}")
+        unknown = set(data) - {"eye", "target", "up", "fovy_deg", "near", "far"}
+        if unknown:
+            raise CameraError(f"unknown camera fields: {sorted(unknown)}")
+        for required in ("eye", "target"):
+            if required not in data:
+                raise CameraError(f"camera lacks {required!r}")
+        near = data.get("near")
+        far = data.get("far")
+        return cls(
+            eye=_vec3(data["eye"], "eye"),
+            target=_vec3(data["target"], "target"),
+            up=_vec3(data.get("up", [0.0, 1.0, 0.0]), "up"),
+            fovy_deg=_finite(data.get("fovy_deg", 45.0), "fovy_deg"),
+            near=None if near is None else _finite(near, "near"),
+            far=None if far is None else _finite(far, "far"),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "eye": list(self.eye),
+            "target": list(self.target),
+            "up": list(self.up),
+            "fovy_deg": self.fovy_deg,
+        }
+        if self.near is not None:
+            out["near"] = self.near
+        if self.far is not None:
+            out["far"] = self.far
+        return out
+
+
+def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float]) -> np.ndarray:
+    """World→view matrix (4×4 float64), right-handed, camera looking down −Z."""
+    eye_v = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye_v
+    forward /= np.linalg.norm(forward)
+    side = np.cross(forward, np.asarray(up, dtype=np.float64))
+    side /= np.linalg.norm(side)
+    true_up = np.cross(side, forward)
+    view = np.identity(4)
+    view[0, :3], view[1, :3], view[2, :3] = side, true_up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye_v
+    return view
+
+
+def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """View→clip matrix (4×4 float64), OpenGL conventions (NDC z in [−1, 1])."""
+    f = 1.0 / math.tan(math.radians(fovy_deg) / 2.0)
+    proj = np.zeros((4, 4))
+    proj[0, 0] = f / aspect
+    proj[1, 1] = f
+    proj[2, 2] = (far + near) / (near - far)
+    proj[2, 3] = 2.0 * far * near / (near - far)
+    proj[3, 2] = -1.0
+    return proj
+
+
+def near_far_from_bounds(camera: Camera, bounds: np.ndarray) -> tuple[float, float]:
+    """Clip distances for ``camera`` that enclose the scene's axis-aligned ``bounds`` (2×3).
+
+    Camera values win where given. Derived from the bounding sphere so that every process
+    computes the same numbers for the same camera and scene.
+    """
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+    eye = np.asarray(camera.eye, dtype=np.float64)
+    forward = np.asarray(camera.target, dtype=np.float64) - eye
+    forward /= np.linalg.norm(forward)
+    depth = float(np.dot(center - eye, forward))
+    far = camera.far if camera.far is not None else max(depth + radius * 1.01, radius * 0.02)
+    near = camera.near if camera.near is not None else max(depth - radius * 1.01, far * 1e-3)
+    return near, far
+
+
+def view_projection(camera: Camera, size: tuple[int, int], bounds: np.ndarray) -> np.ndarray:
+    """Full-frame world→clip matrix (4×4 float64) for a ``size`` = (width, height) image."""
+    near, far = near_far_from_bounds(camera, bounds)
+    width, height = size
+    return perspective(camera.fovy_deg, width / height, near, far) @ look_at(camera.eye, camera.target, camera.up)
+
+
+def tile_viewport(rect: Rect, size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """GL viewport (x, y, w, h) that draws the full frame shifted so ``rect`` lands on a
+    ``rect.w``×``rect.h`` framebuffer: the tile's pixels are exactly the full frame's.
+    """
+    width, height = size
+    return (-rect.x, rect.y + rect.h - height, width, height)
+
+
+#: Default clear colour, linear RGB in [0, 1]; coordinator and ``--render-once`` share it.
+DEFAULT_BACKGROUND = (0.11, 0.12, 0.15)
+
+
+def default_camera(bounds: np.ndarray, fovy_deg: float = 45.0) -> Camera:
+    """A camera that frames the scene's axis-aligned ``bounds`` (2×3) from the front (+Z),
+    slightly above, Y up."""
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+    distance = radius / math.sin(math.radians(fovy_deg) / 2.0) * 1.05
+    direction = np.array([0.35, 0.35, 1.0])
+    direction /= np.linalg.norm(direction)
+    eye = center + direction * distance
+    return Camera(eye=tuple(eye.tolist()), target=tuple(center.tolist()), up=(0.0, 1.0, 0.0), fovy_deg=fovy_deg)

@@ -1,0 +1,185 @@
+"""Wire format between nodes, coordinator and viewers (sans-I/O: bytes and dicts in and out).
+
+Text WebSocket messages are JSON objects with a ``type``. Binary messages start with a magic:
+
+* ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image.
+* ``TFRM`` complete frame, coordinator → viewer: :class:`FrameHeader`, then one
+  :class:`FrameTileEntry` per tile, then the tiles' encoded images in the same order.
+
+All integers little-endian.
+
+Control messages, node → coordinator:
+
+* ``hello`` {name, token, renderer (GL_RENDERER string), version, capabilities {codecs, slowdown}}
+* ``scene_progress`` {scene, fraction 0…1, message}
+* ``scene_ready`` {scene, triangles, meshes, bounds [[x,y,z],[x,y,z]], load_ms,
+  groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}  (world-space primitive groups)
+* ``scene_error`` {scene, message}
+* ``tile_sent`` {frame, tile, send_ms, stats {…}}  after each binary tile; ``stats`` carries the
+  node's per-tile counters (e.g. triangles submitted)
+* ``render_error`` {frame, tile, message}
+
+coordinator → node:
+
+* ``welcome`` {node_id}
+* ``load_scene`` {scene, background [r,g,b] in 0…1}
+* ``render`` {frame, camera {camera JSON}, size [W,H], codec "jpeg"|"png"|"raw", jpeg_quality,
+  tiles [{tile, rect [x,y,w,h]}, …]}  tiles are rendered in list order, each sent as soon as done
+
+A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason. ``web/protocol.js`` mirrors these constants and layouts; the golden
+byte strings in ``tests/test_protocol.py`` and ``tests/js/protocol.test.mjs`` pin both sides.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from tessera.codec import Codec
+from tessera.geometry import Rect
+
+PROTOCOL_VERSION = 1
+TILE_MAGIC = b"TTIL"
+FRAME_MAGIC = b"TFRM"
+#: Per-tile phases a node measures, in pipeline order (milliseconds).
+NODE_PHASES = ("render", "readback", "encode", "send")
+
+_TILE_HEADER = struct.Struct("<4sBBHIIIIIIfffI")
+_FRAME_HEADER = struct.Struct("<4sBBHIII")
+_FRAME_TILE = struct.Struct("<IIIIBBHI")
+
+MAX_JSON_BYTES = 1 << 20
+
+
+class ProtocolError(ValueError):
+    """A peer sent something that does not follow the protocol; the text says what."""
+
+
+@dataclass(frozen=True, slots=True)
+class TileHeader:
+    """A rendered tile: which frame and tile, where, how encoded, and the node's phase times (ms)."""
+
+    frame_id: int
+    tile_id: int
+    rect: Rect
+    codec: Codec
+    render_ms: float
+    readback_ms: float
+    encode_ms: float
+
+
+def pack_tile(header: TileHeader, payload: bytes) -> bytes:
+    """Binary tile message: 48-byte header + encoded image."""
+    r = header.rect
+    head = _TILE_HEADER.pack(
+        TILE_MAGIC, PROTOCOL_VERSION, int(header.codec), 0, header.frame_id, header.tile_id,
+        r.x, r.y, r.w, r.h, header.render_ms, header.readback_ms, header.encode_ms, len(payload),
+    )
+    return head + payload
+
+
+def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
+    """Parse a binary tile message; raises ProtocolError on anything malformed."""
+    if len(message) < _TILE_HEADER.size:
+        raise ProtocolError(f"tile message of {len(message)} bytes is shorter than its header")
+    (magic, version, codec, _, frame_id, tile_id, x, y, w, h, render_ms, readback_ms, encode_ms,
+     length) = _TILE_HEADER.unpack_from(message)
+    if magic != TILE_MAGIC:
+        raise ProtocolError(f"bad tile magic {magic!r}")
+    if version != PROTOCOL_VERSION:
+        raise ProtocolError(f"tile protocol version {version}, expected {PROTOCOL_VERSION}")
+    try:
+        codec_value = Codec(codec)
+    except ValueError:
+        raise ProtocolError(f"unknown tile codec {codec}") from None
+    if length != len(message) - _TILE_HEADER.size:
+        raise ProtocolError(f"tile payload length {length} != {len(message) - _TILE_HEADER.size} bytes received")
+    times = (render_ms, readback_ms, encode_ms)
+    if not all(math.isfinite(t) and t >= 0.0 for t in times):
+        raise ProtocolError(f"tile timings must be finite and >= 0, got {times}")
+    if w == 0 or h == 0:
+        raise ProtocolError("tile has zero size")
+    header = TileHeader(frame_id, tile_id, Rect(x, y, w, h), codec_value, render_ms, readback_ms, encode_ms)
+    return header, memoryview(message)[_TILE_HEADER.size:]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTileEntry:
+    """One tile of a published frame: where it goes, how it is encoded, which node drew it."""
+
+    rect: Rect
+    codec: Codec
+    node_index: int
+    length: int
+
+
+def pack_frame(frame_id: int, size: tuple[int, int], tiles: Iterable[tuple[Rect, Codec, int, bytes]]) -> bytes:
+    """Viewer frame message: header, tile table, then the tiles' encoded images (no re-encoding)."""
+    tiles = list(tiles)
+    parts = [_FRAME_HEADER.pack(FRAME_MAGIC, PROTOCOL_VERSION, 0, len(tiles), frame_id, size[0], size[1])]
+    for rect, codec, node_index, payload in tiles:
+        parts.append(_FRAME_TILE.pack(rect.x, rect.y, rect.w, rect.h, int(codec), node_index, 0, len(payload)))
+    parts.extend(payload for _, _, _, payload in tiles)
+    return b"".join(parts)
+
+
+def unpack_frame(message: bytes) -> tuple[int, tuple[int, int], list[tuple[FrameTileEntry, bytes]]]:
+    """Parse a viewer frame message into (frame_id, (w, h), [(entry, payload), …])."""
+    if len(message) < _FRAME_HEADER.size:
+        raise ProtocolError("frame message shorter than its header")
+    magic, version, _, count, frame_id, width, height = _FRAME_HEADER.unpack_from(message)
+    if magic != FRAME_MAGIC or version != PROTOCOL_VERSION:
+        raise ProtocolError(f"bad frame magic/version {magic!r}/{version}")
+    offset = _FRAME_HEADER.size
+    entries = []
+    for _ in range(count):
+        x, y, w, h, codec, node_index, _, length = _FRAME_TILE.unpack_from(message, offset)
+        entries.append(FrameTileEntry(Rect(x, y, w, h), Codec(codec), node_index, length))
+        offset += _FRAME_TILE.size
+    out = []
+    for entry in entries:
+        out.append((entry, bytes(message[offset:offset + entry.length])))
+        offset += entry.length
+    if offset != len(message):
+        raise ProtocolError("frame message length does not match its tile table")
+    return frame_id, (width, height), out
+
+
+def encode_json(message: dict[str, Any]) -> str:
+    return json.dumps(message, separators=(",", ":"), allow_nan=False)
+
+
+def decode_json(text: str | bytes, allowed_types: Iterable[str]) -> dict[str, Any]:
+    """Parse a JSON control message and check its ``type``; raises ProtocolError with the reason."""
+    if len(text) > MAX_JSON_BYTES:
+        raise ProtocolError(f"control message of {len(text)} bytes exceeds {MAX_JSON_BYTES}")
+    try:
+        message = json.loads(text, parse_constant=_reject_constant)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ProtocolError(f"malformed JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise ProtocolError("control message must be a JSON object")
+    kind = message.get("type")
+    allowed = tuple(allowed_types)
+    if kind not in allowed:
+        raise ProtocolError(f"unexpected message type {kind!r}; expected one of {list(allowed)}")
+    return message
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not allowed")
+
+
+def require(message: dict[str, Any], key: str, kind: type | tuple[type, ...]) -> Any:
+    """Fetch ``message[key]`` of the given JSON type or raise ProtocolError naming it."""
+    if key not in message:
+        raise ProtocolError(f"{message.get('type')} message lacks {key!r}")
+    value = message[key]
+    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
+        raise ProtocolError(f"{message.get('type')}.{key} has the wrong type")
+    if not isinstance(value, kind):
+        raise ProtocolError(f"{message.get('type')}.{key} has the wrong type: {type(value).__name__}")
+    return value
