@@ -1,0 +1,125 @@
+"""Shared test fixtures: where the real scenes are, one timeout scale, real coordinator processes.
+
+Integration tests start real processes on port 0 and wait for readiness; every timeout is a
+multiple of ``TIMEOUT_SCALE`` (raise ``TESSERA_TEST_TIMEOUT_SCALE`` on slow machines).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO.parent / "shared" / "scenes"
+TIMEOUT_SCALE = float(os.environ.get("TESSERA_TEST_TIMEOUT_SCALE", "1.0"))
+PYTHON = sys.executable
+
+
+def seconds(value: float) -> float:
+    """A timeout scaled by TIMEOUT_SCALE."""
+    return value * TIMEOUT_SCALE
+
+
+def scene_path(relative: str) -> Path:
+    """Path of a real scene under ../shared/scenes; fails the test clearly when it is missing."""
+    path = SCENES / relative
+    if not path.exists():
+        pytest.fail(f"scene {relative} not found: the tests read real scenes from {SCENES} "
+                    "(the shared/ folder beside the checkout)")
+    return path
+
+
+@dataclass
+class RunningProcess:
+    """A child process whose combined output is collected line by line in the background."""
+
+    process: subprocess.Popen
+    lines: deque = field(default_factory=lambda: deque(maxlen=2000))
+
+    def __post_init__(self) -> None:
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for_line(self, pattern: str, timeout: float) -> re.Match:
+        deadline = time.monotonic() + timeout
+        regex = re.compile(pattern)
+        while time.monotonic() < deadline:
+            for line in list(self.lines):
+                match = regex.search(line)
+                if match:
+                    return match
+            if self.process.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"no line matching {pattern!r} within {timeout:.0f}s; output:\n" + self.output())
+
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def stop(self, timeout: float = 20.0) -> int:
+        """SIGINT (like Ctrl-C), then SIGKILL if it does not exit in time; returns the exit code."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(timeout=seconds(timeout))
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        return self.process.returncode
+
+
+def start_process(args: list[str], env: dict[str, str] | None = None) -> RunningProcess:
+    full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
+    process = subprocess.Popen(
+        args, cwd=REPO, env=full_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True,
+    )
+    return RunningProcess(process)
+
+
+@dataclass
+class Coordinator:
+    """A running ``python -m server`` and the base URL it printed."""
+
+    proc: RunningProcess
+    url: str
+
+    @property
+    def ws_url(self) -> str:
+        return self.url.replace("http://", "ws://", 1).rstrip("/")
+
+
+def start_coordinator(*args: str, env: dict[str, str] | None = None) -> Coordinator:
+    """Start the coordinator on port 0 and wait until it prints its URL."""
+    proc = start_process([PYTHON, "-m", "server", "--port", "0", *args], env=env)
+    match = proc.wait_for_line(r"Tessera serving on (http://\S+)", seconds(60))
+    return Coordinator(proc, match.group(1).rstrip("/"))
+
+
+@pytest.fixture
+def coordinator_factory():
+    """Start coordinators with given CLI args; all are stopped at teardown."""
+    started: list[Coordinator] = []
+
+    def factory(*args: str, env: dict[str, str] | None = None) -> Coordinator:
+        coordinator = start_coordinator(*args, env=env)
+        started.append(coordinator)
+        return coordinator
+
+    yield factory
+    for coordinator in started:
+        coordinator.proc.stop()
