@@ -19,7 +19,7 @@ class Codec(IntEnum):
     PNG = 2
 
     @classmethod
-    def parse(cls, name: str) -> "Codec":
+    def parse(cls, name: str) -> Codec:
         try:
             return cls[name.upper()]
         except KeyError:

@@ -7,8 +7,9 @@ vectors); transpose before handing them to GL as column-major uniforms.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -42,12 +43,12 @@ class Rect:
         return [self.x, self.y, self.w, self.h]
 
     @classmethod
-    def from_seq(cls, values: Sequence[Any]) -> "Rect":
+    def from_seq(cls, values: Sequence[Any]) -> Rect:
         if len(values) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
             raise ValueError(f"a rect is four integers [x, y, w, h], got {values!r}")
         return cls(*values)
 
-    def intersection_area(self, other: "Rect") -> int:
+    def intersection_area(self, other: Rect) -> int:
         w = min(self.x1, other.x1) - max(self.x, other.x)
         h = min(self.y1, other.y1) - max(self.y, other.y)
         return max(w, 0) * max(h, 0)
@@ -109,7 +110,7 @@ class Camera:
             raise CameraError(f"camera far must be > near, got far={self.far} near={self.near}")
 
     @classmethod
-    def from_json(cls, data: Any) -> "Camera":
+    def from_json(cls, data: Any) -> Camera:
         """Parse and validate camera JSON (``eye``, ``target``, ``up``, ``fovy_deg``, ``near``, ``far``)."""
         if not isinstance(data, Mapping):
             raise CameraError(f"camera must be a JSON object, got {type(data).__name__}")

@@ -5,7 +5,7 @@ splitting of a length by weights, and the exact-cover check every balancer must 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -58,7 +58,7 @@ def strips_to_rects(size: tuple[int, int], heights: Sequence[int], widths: Seque
     """Row-major rects from strip heights and, per strip, tile widths."""
     rects = []
     y = 0
-    for height, row in zip(heights, widths):
+    for height, row in zip(heights, widths, strict=True):
         x = 0
         for width in row:
             rects.append(Rect(x, y, width, height))

@@ -3,7 +3,7 @@
 Text WebSocket messages are JSON objects with a ``type``. Binary messages start with a magic:
 
 * ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image.
-* ``TFRM`` complete frame, coordinator → viewer: :class:`FrameHeader`, then one
+* ``TFRM`` complete frame, coordinator → viewer: a 20-byte frame header, then one
   :class:`FrameTileEntry` per tile, then the tiles' encoded images in the same order.
 
 All integers little-endian.
@@ -13,7 +13,8 @@ Control messages, node → coordinator:
 * ``hello`` {name, token, renderer (GL_RENDERER string), version, capabilities {codecs, slowdown}}
 * ``scene_progress`` {scene, fraction 0…1, message}
 * ``scene_ready`` {scene, triangles, meshes, bounds [[x,y,z],[x,y,z]], load_ms,
-  groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}  (world-space primitive groups)
+  groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}
+  (world-space primitive groups)
 * ``scene_error`` {scene, message}
 * ``tile_sent`` {frame, tile, send_ms, stats {…}}  after each binary tile; ``stats`` carries the
   node's per-tile counters (e.g. triangles submitted)
@@ -26,8 +27,10 @@ coordinator → node:
 * ``render`` {frame, camera {camera JSON}, size [W,H], codec "jpeg"|"png"|"raw", jpeg_quality,
   tiles [{tile, rect [x,y,w,h]}, …]}  tiles are rendered in list order, each sent as soon as done
 
-A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason. ``web/protocol.js`` mirrors these constants and layouts; the golden
-byte strings in ``tests/test_protocol.py`` and ``tests/js/protocol.test.mjs`` pin both sides.
+A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason.
+
+``web/protocol.js`` mirrors these constants and layouts; one golden byte string, tested in
+``tests/test_protocol_golden.py`` and ``tests/js/protocol.test.mjs``, pins both sides.
 """
 
 from __future__ import annotations
@@ -35,8 +38,9 @@ from __future__ import annotations
 import json
 import math
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 from tessera.codec import Codec
 from tessera.geometry import Rect

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -136,7 +137,7 @@ class Balancer(ABC):
         self.params: dict[str, Any] = merged
         self.validate_params()
 
-    def validate_params(self) -> None:
+    def validate_params(self) -> None:  # noqa: B027 - optional hook, most techniques need no checks
         """Raise ValueError for parameter values out of range."""
 
     @abstractmethod

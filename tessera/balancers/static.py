@@ -4,13 +4,16 @@ tiles in the strips→tiles topology (Fig. 4.2), each node one tile, whatever wa
 
 from __future__ import annotations
 
-from tessera.balancers.base import Balancer, BalanceInput, Partition, Tile
+from collections.abc import Mapping
+from typing import ClassVar
+
+from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
 from tessera.partition import equal_strip_partition
 
 
 class StaticBalancer(Balancer):
     name = "static"
-    defaults = {"min_tile_px": 16}
+    defaults: ClassVar[Mapping[str, float | int | bool]] = {"min_tile_px": 16}
 
     def validate_params(self) -> None:
         if self.params["min_tile_px"] < 1:
@@ -18,8 +21,9 @@ class StaticBalancer(Balancer):
 
     def partition(self, inputs: BalanceInput) -> Partition:
         nodes = sorted(inputs.node_ids)
-        rects = equal_strip_partition(len(nodes), inputs.size, minimum_for(inputs.size, len(nodes), self.params["min_tile_px"]))
-        return Partition(tuple(Tile(rect, node) for rect, node in zip(rects, nodes)))
+        minimum = minimum_for(inputs.size, len(nodes), self.params["min_tile_px"])
+        rects = equal_strip_partition(len(nodes), inputs.size, minimum)
+        return Partition(tuple(Tile(rect, node) for rect, node in zip(rects, nodes, strict=True)))
 
 
 def minimum_for(size: tuple[int, int], count: int, wanted: int) -> int:

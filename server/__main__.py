@@ -1,0 +1,65 @@
+"""``python -m server``: run the coordinator (and ``--local-nodes N`` render nodes)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import sys
+
+import uvicorn
+
+from server.app import create_app
+from server.local_nodes import LocalNodes
+from server.settings import Settings, load_settings
+
+log = logging.getLogger("tessera.server")
+
+
+def bind_socket(host: str, port: int) -> socket.socket:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((host, port))
+    sock.set_inheritable(True)
+    return sock
+
+
+async def serve(settings: Settings) -> None:
+    sock = bind_socket(settings.host, settings.port)
+    port = sock.getsockname()[1]
+    config = uvicorn.Config(create_app(settings), log_level=settings.log_level, ws_max_size=64 << 20,
+                            ws_ping_interval=10, ws_ping_timeout=20, access_log=False, lifespan="on")
+    server = uvicorn.Server(config)
+    nodes = LocalNodes()
+    task = asyncio.create_task(server.serve(sockets=[sock]))
+    try:
+        while not server.started:
+            if task.done():
+                await task
+                return
+            await asyncio.sleep(0.05)
+        shown_host = "localhost" if settings.host in ("0.0.0.0", "::") else settings.host
+        print(f"Tessera serving on http://{shown_host}:{port}/", flush=True)
+        if settings.local_nodes:
+            nodes.spawn(settings.local_nodes, f"ws://127.0.0.1:{port}/ws/node", settings.token, settings.node_slowdowns)
+        await task
+    finally:
+        nodes.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    settings = load_settings(argv)
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        asyncio.run(serve(settings))
+    except KeyboardInterrupt:
+        pass
+    except OSError as exc:
+        print(f"tessera: cannot serve on {settings.host}:{settings.port}: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

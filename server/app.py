@@ -1,0 +1,32 @@
+"""``create_app(settings)``: the FastAPI app, one router per resource, the service on ``app.state``."""
+
+from __future__ import annotations
+
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from server.routes import balancer, camera, frames, health, node_ws, stats, viewer_ws, web
+from server.routes.web import WEB_DIR
+from server.service import RenderService
+from server.settings import Settings
+
+
+def create_app(settings: Settings) -> FastAPI:
+    service = RenderService(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        await service.start()
+        yield
+        await service.stop()
+
+    app = FastAPI(title="Tessera coordinator", version="0.1.0", lifespan=lifespan,
+                  description="Sort-first parallel rendering: nodes render tiles, the coordinator composites.")
+    app.state.service = service
+    app.state.settings = settings
+    for module in (health, stats, camera, frames, balancer, node_ws, viewer_ws, web):
+        app.include_router(module.router)
+    app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
+    return app

@@ -1,0 +1,130 @@
+"""Frames in flight: which tile each node owes, what has arrived, and the checks that keep a
+published frame whole (every tile, one camera, the right size).
+
+Pure bookkeeping (no sockets, no clocks: times are passed in), so it is tested directly.
+"""
+
+from __future__ import annotations
+
+import io
+from collections import deque
+from dataclasses import dataclass, field
+
+from PIL import Image
+
+from tessera.balancers.base import Partition, TileTiming
+from tessera.codec import Codec
+from tessera.geometry import Camera, Rect
+from tessera.protocol import ProtocolError, TileHeader
+
+
+@dataclass
+class TileJob:
+    """One tile of a frame: assigned node (None while waiting to be pulled), result when back."""
+
+    tile_id: int
+    rect: Rect
+    node_id: int | None
+    header: TileHeader | None = None
+    payload: bytes | None = None
+    rendered_by: int | None = None
+    send_ms: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.payload is not None
+
+
+@dataclass
+class FrameJob:
+    """A frame being rendered: one camera, one partition, every tile tracked."""
+
+    frame_id: int
+    camera: Camera
+    size: tuple[int, int]
+    codec: Codec
+    jpeg_quality: int
+    pull: bool
+    tiles: list[TileJob]
+    started_at: float
+    pull_queue: deque[int] = field(default_factory=deque)
+
+    @classmethod
+    def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
+               partition: Partition, started_at: float) -> FrameJob:
+        tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
+        job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at)
+        if partition.pull:
+            job.pull_queue.extend(range(len(tiles)))
+        return job
+
+    @property
+    def complete(self) -> bool:
+        return all(t.done for t in self.tiles)
+
+    @property
+    def timings_complete(self) -> bool:
+        return all(t.done and t.send_ms is not None for t in self.tiles)
+
+    def render_message(self, tile_ids: list[int]) -> dict:
+        """The ``render`` control message for some of this frame's tiles."""
+        return {
+            "type": "render",
+            "frame": self.frame_id,
+            "camera": self.camera.to_json(),
+            "size": list(self.size),
+            "codec": self.codec.name.lower(),
+            "jpeg_quality": self.jpeg_quality,
+            "tiles": [{"tile": i, "rect": self.tiles[i].rect.as_list()} for i in tile_ids],
+        }
+
+    def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob:
+        """Record a tile result after checking it is the tile this node owes; ProtocolError if not."""
+        if not 0 <= header.tile_id < len(self.tiles):
+            raise ProtocolError(f"frame {self.frame_id} has no tile {header.tile_id}")
+        tile = self.tiles[header.tile_id]
+        if tile.node_id != node_id:
+            raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was not assigned to this node")
+        if tile.done:
+            raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was already received")
+        if header.rect != tile.rect:
+            raise ProtocolError(
+                f"tile {header.tile_id} has rect {header.rect.as_list()}, expected {tile.rect.as_list()}")
+        if header.codec != self.codec:
+            raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
+        check_payload_size(payload, header.codec, tile.rect)
+        tile.header, tile.payload, tile.rendered_by = header, payload, node_id
+        return tile
+
+    def record_send(self, node_id: int, tile_id: int, send_ms: float) -> None:
+        if 0 <= tile_id < len(self.tiles) and self.tiles[tile_id].rendered_by == node_id:
+            self.tiles[tile_id].send_ms = send_ms
+
+    def owed_by(self, node_id: int) -> list[int]:
+        return [t.tile_id for t in self.tiles if t.node_id == node_id and not t.done]
+
+    def timings(self) -> tuple[TileTiming, ...]:
+        """Per-tile measured phases (ms) of a complete frame, attributed to the node that rendered each."""
+        out = []
+        for tile in self.tiles:
+            assert tile.header is not None and tile.rendered_by is not None
+            out.append(TileTiming(tile.rect, tile.rendered_by, tile.header.render_ms, tile.header.readback_ms,
+                                  tile.header.encode_ms, tile.send_ms or 0.0))
+        return tuple(out)
+
+
+def check_payload_size(payload: bytes, codec: Codec, rect: Rect) -> None:
+    """Cheap size check without decoding pixels: raw length, or the image header's dimensions."""
+    if codec is Codec.RAW:
+        if len(payload) != rect.w * rect.h * 3:
+            raise ProtocolError(f"raw tile of {len(payload)} bytes, expected {rect.w * rect.h * 3}")
+        return
+    try:
+        with Image.open(io.BytesIO(payload)) as image:
+            size, fmt = image.size, image.format
+    except Exception as exc:
+        raise ProtocolError(f"tile payload is not a readable {codec.name}: {exc}") from None
+    if fmt != codec.name:
+        raise ProtocolError(f"tile payload is {fmt}, expected {codec.name}")
+    if size != (rect.w, rect.h):
+        raise ProtocolError(f"tile image is {size[0]}x{size[1]}, expected {rect.w}x{rect.h}")

@@ -1,0 +1,49 @@
+"""``--local-nodes N``: render node processes on this machine, stopped with the coordinator.
+
+Each child gets PR_SET_PDEATHSIG so that it dies with the coordinator even if the coordinator is
+killed outright; a normal exit (Ctrl-C) terminates and reaps them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import logging
+import os
+import signal
+import subprocess
+import sys
+
+log = logging.getLogger("tessera.server")
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+class LocalNodes:
+    def __init__(self) -> None:
+        self.processes: list[subprocess.Popen] = []
+
+    def spawn(self, count: int, coordinator_url: str, token: str | None, slowdowns: tuple[float, ...]) -> None:
+        for index in range(count):
+            args = [sys.executable, "-m", "node", "--coordinator", coordinator_url, "--name", f"local-{index + 1}"]
+            if index < len(slowdowns) and slowdowns[index] != 1.0:
+                args += ["--slowdown", str(slowdowns[index])]
+            env = {**os.environ, "TESSERA_TOKEN": token} if token else dict(os.environ)
+            self.processes.append(subprocess.Popen(args, env=env, preexec_fn=_die_with_parent))
+        log.info("spawned %d local render nodes (pids %s)", count, [p.pid for p in self.processes])
+
+    def stop(self, timeout: float = 10.0) -> None:
+        for process in self.processes:
+            if process.poll() is None:
+                process.terminate()
+        for process in self.processes:
+            try:
+                process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        self.processes.clear()

@@ -1,0 +1,29 @@
+"""``GET /api/frame.png?after=K``: the first complete frame with id ≥ K, composited, lossless PNG."""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi.responses import Response
+
+from server.frame_store import composite_png
+from server.routes.deps import get_service, require_token
+from server.service import RenderService
+
+router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
+
+
+@router.get("/api/frame.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}}, 504: {"description": "no such frame in time"}})
+async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(None, gt=0, le=300),
+                    service: RenderService = Depends(get_service)) -> Response:
+    """Waits up to ``timeout`` seconds (default ``--frame-wait-s``). Header ``X-Frame-Id``. The image is
+    lossless PNG of the tiles as received: with ``--codec jpeg`` it carries the JPEG tiles' loss."""
+    frame = await service.store.wait_for(after, timeout or service.settings.frame_wait_s)
+    if frame is None:
+        raise HTTPException(status_code=504, detail=f"no complete frame with id >= {after} in time")
+    png = await asyncio.to_thread(composite_png, frame)
+    return Response(png, media_type="image/png",
+                    headers={"X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": service.settings.codec.name.lower(),
+                             "Cache-Control": "no-store"})

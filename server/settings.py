@@ -1,0 +1,124 @@
+"""The coordinator's one typed settings object, from the command line and ``TESSERA_<FLAG>``
+environment variables (a flag on the command line wins), validated at start-up."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from tessera.codec import Codec
+
+DEFAULT_SCENE = "builtin:cluster"
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'1280x720' → (1280, 720); both sides 16…8192 pixels."""
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 1280x720, got {text!r}") from None
+    if not (16 <= width <= 8192 and 16 <= height <= 8192):
+        raise argparse.ArgumentTypeError(f"size sides must be 16…8192 pixels, got {text!r}")
+    return width, height
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """'#1c1f26' or '0.1,0.1,0.12' → linear RGB floats in 0…1."""
+    try:
+        if text.startswith("#") and len(text) == 7:
+            values = tuple(int(text[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
+        else:
+            values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0…1, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class Settings:
+    host: str = "127.0.0.1"
+    port: int = 8000
+    scene: str = DEFAULT_SCENE
+    size: tuple[int, int] = (1280, 720)
+    balancer: str = "static"
+    token: str | None = None
+    local_nodes: int = 0
+    codec: Codec = Codec.JPEG
+    jpeg_quality: int = 85
+    max_in_flight: int = 2
+    max_fps: float = 60.0
+    tile_timeout_s: float = 20.0
+    frame_wait_s: float = 30.0
+    background: tuple[float, float, float] | None = None
+    node_slowdowns: tuple[float, ...] = ()
+    log_level: str = "info"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m server",
+        description="Tessera coordinator: partitions the screen, gathers tiles from render nodes, "
+        "serves the viewer. Every flag can also be set as TESSERA_<FLAG> (e.g. TESSERA_SCENE, TESSERA_LOCAL_NODES).",
+    )
+    parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
+    parser.add_argument("--port", type=_positive_int, help="port (default 8000; 0 picks a free one)")
+    parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
+    parser.add_argument("--size", type=parse_size, help="frame size WxH (default 1280x720)")
+    parser.add_argument("--balancer", help="load balancer (default static)")
+    parser.add_argument("--token", help="shared secret that nodes and viewers must present")
+    parser.add_argument("--local-nodes", type=_positive_int, help="spawn N render nodes on this machine")
+    parser.add_argument("--codec", type=Codec.parse, help="tile codec: jpeg (default), png (lossless) or raw")
+    parser.add_argument("--jpeg-quality", type=int, help="JPEG quality 1…100 (default 85)")
+    parser.add_argument("--max-in-flight", type=int, help="frames rendering at once (default 2)")
+    parser.add_argument("--max-fps", type=float, help="frame rate cap (default 60)")
+    parser.add_argument("--tile-timeout-s", type=float,
+                        help="seconds before a node that owes a tile is dropped (default 20)")
+    parser.add_argument("--frame-wait-s", type=float, help="longest wait of GET /api/frame.png (default 30)")
+    parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
+    parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")
+    parser.add_argument("--log-level", help="debug, info (default), warning")
+    return parser
+
+
+def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | None = None) -> Settings:
+    """Settings from ``argv`` over ``TESSERA_*`` variables over defaults; exits with a message on bad values."""
+    parser = build_parser()
+    env = os.environ if environ is None else environ
+    env_args: list[str] = []
+    for action in parser._actions:
+        if not action.option_strings or action.dest == "help":
+            continue
+        key = "TESSERA_" + action.dest.upper()
+        if env.get(key):
+            env_args += [action.option_strings[0], env[key]]
+    merged = vars(parser.parse_args(env_args))
+    merged.update({k: v for k, v in vars(parser.parse_args(argv)).items() if v is not None})
+    values = {k: v for k, v in merged.items() if v is not None}
+    if "node_slowdowns" in values:
+        try:
+            values["node_slowdowns"] = tuple(float(v) for v in values["node_slowdowns"].split(","))
+        except ValueError:
+            parser.error(f"--node-slowdowns must be numbers, got {values['node_slowdowns']!r}")
+        if any(v < 1.0 for v in values["node_slowdowns"]):
+            parser.error("--node-slowdowns must be >= 1")
+    settings = Settings(**values)
+    if not 1 <= settings.jpeg_quality <= 100:
+        parser.error("--jpeg-quality must be 1…100")
+    if settings.max_in_flight < 1 or settings.max_fps <= 0:
+        parser.error("--max-in-flight must be >= 1 and --max-fps > 0")
+    from tessera.balancers import BALANCERS
+
+    if settings.balancer not in BALANCERS:
+        parser.error(f"unknown balancer {settings.balancer!r}; choose one of {sorted(BALANCERS)}")
+    return settings

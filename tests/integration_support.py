@@ -1,0 +1,85 @@
+"""Helpers for the real-process integration tests: reference renders, image comparison, polling."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+from PIL import Image
+
+from tests.conftest import PYTHON, REPO, seconds
+
+
+def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path) -> np.ndarray:
+    """The single-node reference: ``python -m node --render-once``; (h, w, 3) uint8."""
+    index = len(list(workdir.glob("camera-*.json")))
+    camera_file = workdir / f"camera-{index}.json"
+    camera_file.write_text(json.dumps(camera))
+    out = workdir / f"reference-{index}.png"
+    result = subprocess.run(
+        [PYTHON, "-m", "node", "--render-once", str(out), "--scene", scene, "--camera", str(camera_file),
+         "--size", f"{size[0]}x{size[1]}"],
+        cwd=REPO, capture_output=True, text=True, timeout=seconds(180))
+    assert result.returncode == 0, f"render-once failed:\n{result.stdout}\n{result.stderr}"
+    return np.asarray(Image.open(out).convert("RGB"))
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0.0 else 10.0 * np.log10(255.0 ** 2 / mse)
+
+
+def assert_matches_reference(frame: np.ndarray, reference: np.ndarray, label: str) -> None:
+    """PSNR ≥ 50 dB and no pixel off by more than 8 levels outside 0.01 % of pixels."""
+    assert frame.shape == reference.shape, f"{label}: frame {frame.shape} vs reference {reference.shape}"
+    quality = psnr(frame, reference)
+    off = np.abs(frame.astype(np.int16) - reference.astype(np.int16)).max(axis=2) > 8
+    assert quality >= 50.0, f"{label}: PSNR {quality:.1f} dB < 50"
+    assert off.mean() <= 1e-4, f"{label}: {off.sum()} pixels off by > 8 levels"
+
+
+def wait_until(condition: Callable[[], Any], timeout: float, what: str, interval: float = 0.1) -> Any:
+    """Poll ``condition`` until it returns something truthy; fail naming ``what`` after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    last: Any = None
+    while time.monotonic() < deadline:
+        last = condition()
+        if last:
+            return last
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}; last value: {last!r}")
+
+
+def stats(client: httpx.Client) -> dict[str, Any]:
+    return client.get("/api/stats").raise_for_status().json()
+
+
+def ready_nodes(client: httpx.Client) -> list[dict[str, Any]]:
+    return [n for n in stats(client)["nodes"] if n["state"] == "ready"]
+
+
+def fetch_frame(client: httpx.Client, after: int) -> tuple[int, np.ndarray]:
+    response = client.get("/api/frame.png", params={"after": after}, timeout=seconds(120))
+    response.raise_for_status()
+    return int(response.headers["x-frame-id"]), np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
+
+
+def orbit_cameras(bounds: list[list[float]], count: int) -> list[dict[str, Any]]:
+    """``count`` cameras around the scene's bounds at different angles, heights and distances."""
+    lo, hi = np.asarray(bounds, dtype=float)
+    center = (lo + hi) / 2
+    radius = float(np.linalg.norm(hi - lo)) / 2
+    cameras = []
+    for i in range(count):
+        angle = 0.7 + 2.1 * i
+        distance = radius * (2.2 + 0.6 * (i % 2))
+        eye = center + distance * np.array([np.sin(angle), 0.25 + 0.2 * i, np.cos(angle)])
+        cameras.append({"eye": eye.tolist(), "target": center.tolist(), "up": [0, 1, 0], "fovy_deg": 40 + 5 * i})
+    return cameras

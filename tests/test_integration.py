@@ -1,0 +1,160 @@
+"""End to end on loopback: a real coordinator, real node processes over real WebSockets, real
+EGL rendering. Every composited frame must equal ``python -m node --render-once``."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import httpx
+import numpy as np
+import pytest
+
+from tests.conftest import PYTHON, scene_path, seconds, start_process
+from tests.integration_support import (
+    assert_matches_reference,
+    fetch_frame,
+    orbit_cameras,
+    ready_nodes,
+    render_once,
+    stats,
+    wait_until,
+)
+
+pytestmark = [pytest.mark.integration, pytest.mark.gl]
+
+SIZE = (320, 240)
+SCENES = {
+    "bunny": "bunny/bun_zipper.ply",
+    "dragon": "large_scan/stanford_dragon_vrip_res2_202k.ply",
+    "engine": "gltf_small/2CylinderEngine.glb",
+}
+
+
+def start_nodes(coordinator, count: int, *extra: str):
+    return [start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
+                           "--name", f"test-{i}", *extra]) for i in range(count)]
+
+
+@pytest.mark.parametrize("scene_key, nodes", [
+    ("bunny", 1), ("bunny", 2), ("bunny", 3), ("bunny", 4), ("dragon", 3), ("engine", 2), ("engine", 4),
+])
+def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, scene_key, nodes):
+    scene = str(scene_path(SCENES[scene_key]))
+    coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
+                                      "--local-nodes", str(nodes))
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: len(ready_nodes(client)) == nodes, seconds(120), f"{nodes} ready nodes")
+        wait_until(lambda: stats(client)["frame"] > 0, seconds(60), "a first frame")
+        scene_bounds = _scene_bounds(client)
+        for index, camera in enumerate(orbit_cameras(scene_bounds, 3)):
+            frame_after = client.put("/api/camera", json=camera).raise_for_status().json()["frame"]
+            frame_id, frame = fetch_frame(client, frame_after)
+            assert frame_id >= frame_after
+            reference = render_once(scene, camera, SIZE, tmp_path)
+            assert_matches_reference(frame, reference, f"{scene_key} x{nodes} camera {index}")
+            assert frame.std() > 2.0, "the frame is blank"
+        tiles = [t for n in stats(client)["nodes"] for t in n["tiles"]]
+        assert sum(w * h for _, _, w, h in tiles) == SIZE[0] * SIZE[1]
+        assert len({tuple(t) for t in tiles}) >= nodes
+
+
+def _scene_bounds(client: httpx.Client) -> list[list[float]]:
+    return wait_until(lambda: client.get("/api/camera").json()["bounds"], seconds(60), "scene bounds")
+
+
+def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, tmp_path):
+    scene = str(scene_path(SCENES["bunny"]))
+    coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png")
+    nodes = start_nodes(coordinator, 3)
+    try:
+        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+            wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+            cameras = orbit_cameras(_scene_bounds(client), 3)
+            before = client.put("/api/camera", json=cameras[0]).json()["frame"]
+            fetch_frame(client, before)
+            nodes[1].process.send_signal(signal.SIGKILL)
+            nodes[1].process.wait()
+            after_kill = client.put("/api/camera", json=cameras[1]).json()["frame"]
+            _, frame = fetch_frame(client, after_kill)
+            assert_matches_reference(frame, render_once(scene, cameras[1], SIZE, tmp_path), "after kill")
+            wait_until(lambda: len(stats(client)["nodes"]) == 2, seconds(30), "the dead node to leave")
+            last = stats(client)["frame"]
+            wait_until(lambda: stats(client)["frame"] > last + 5, seconds(60), "frames from the 2 survivors")
+            again = client.put("/api/camera", json=cameras[2]).json()["frame"]
+            _, frame = fetch_frame(client, again)
+            assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "2 nodes")
+            owners = stats(client)["nodes"]
+            assert all(n["tiles"] for n in owners), "every surviving node renders part of the screen"
+    finally:
+        for node in nodes:
+            node.stop()
+
+
+def test_node_joining_repartitions(coordinator_factory):
+    coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "256x192", "--codec", "png")
+    nodes = start_nodes(coordinator, 1)
+    try:
+        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+            wait_until(lambda: len(ready_nodes(client)) == 1, seconds(60), "one ready node")
+            wait_until(lambda: stats(client)["nodes"][0]["tiles"] == [[0, 0, 256, 192]], seconds(30),
+                       "the single node owning the whole screen")
+            nodes += start_nodes(coordinator, 1)
+            wait_until(lambda: len(ready_nodes(client)) == 2, seconds(60), "two ready nodes")
+            wait_until(lambda: all(len(n["tiles"]) == 1 and n["tiles"][0][2] < 256 for n in ready_nodes(client)),
+                       seconds(30), "the screen split between both nodes")
+    finally:
+        for node in nodes:
+            node.stop()
+
+
+def test_local_nodes_leave_no_orphans_on_ctrl_c(coordinator_factory):
+    coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "128x96", "--local-nodes", "2")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: len(ready_nodes(client)) == 2, seconds(60), "two local nodes")
+    children = _node_processes_of(coordinator.url)
+    assert len(children) == 2, f"expected 2 node processes, found {children}"
+    assert coordinator.proc.stop() == 0
+    wait_until(lambda: not any(os.path.exists(f"/proc/{pid}") and _alive(pid) for pid in children),
+               seconds(20), "local nodes to exit")
+
+
+def _node_processes_of(url: str) -> list[int]:
+    port = url.rsplit(":", 1)[1].strip("/")
+    pids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/cmdline", "rb") as file:
+                    cmdline = file.read().decode(errors="ignore")
+            except OSError:
+                continue
+            if "-m\0node" in cmdline and f":{port}/ws/node" in cmdline:
+                pids.append(int(entry))
+    return pids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(") ")[1][0] != "Z"
+    except OSError:
+        return False
+
+
+def test_frames_keep_one_camera_while_it_moves(coordinator_factory, tmp_path):
+    """Cameras change faster than frames complete: every published frame still matches exactly one camera."""
+    scene = str(scene_path(SCENES["bunny"]))
+    coordinator = coordinator_factory("--scene", scene, "--size", "160x120", "--codec", "png", "--local-nodes", "3")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+        cameras = orbit_cameras(_scene_bounds(client), 3)
+        first_ids = [client.put("/api/camera", json=camera).json()["frame"] for camera in cameras]
+        references = [render_once(scene, camera, (160, 120), tmp_path) for camera in cameras]
+        seen = 0
+        for after in range(first_ids[0], first_ids[0] + 6):
+            frame_id, frame = fetch_frame(client, after)
+            errors = [np.abs(frame.astype(int) - ref.astype(int)).max() for ref in references]
+            assert min(errors) <= 8, f"frame {frame_id} matches none of the cameras (torn?): {errors}"
+            seen += 1
+        assert seen == 6
