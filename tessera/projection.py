@@ -1,0 +1,46 @@
+"""Screen-space footprints of world-space boxes (seed 003 §3, DPBP: primitive groups' 3D boxes
+projected to 2D each frame and clipped to the screen). Pure numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tessera.balancers.base import ProjectedGroups
+from tessera.geometry import Camera, view_projection
+
+_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
+
+
+def project_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int], scene_bounds: np.ndarray) -> np.ndarray:
+    """Pixel rectangles (K, 4) float64 x0, y0, x1, y1 (origin top-left, clipped to the screen) of
+    world AABBs ``boxes`` (K, 6) x0, y0, z0, x1, y1, z1. A box reaching behind the eye covers
+    the whole screen (conservative); a box entirely behind it or off screen is empty (x0 == x1)."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
+    width, height = size
+    lo, hi = boxes[:, None, :3], boxes[:, None, 3:]
+    corners = lo + (hi - lo) * _CORNERS[None]
+    clip = np.einsum("ij,kcj->kci", view_projection(camera, size, scene_bounds),
+                     np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2))
+    w = clip[..., 3]
+    in_front = w > 1e-9
+    safe_w = np.where(in_front, w, 1.0)
+    px = (clip[..., 0] / safe_w * 0.5 + 0.5) * width
+    py = (0.5 - clip[..., 1] / safe_w * 0.5) * height
+    big = np.float64(np.finfo(np.float32).max)
+    out = np.stack([np.where(in_front, px, big).min(1), np.where(in_front, py, big).min(1),
+                    np.where(in_front, px, -big).max(1), np.where(in_front, py, -big).max(1)], axis=1)
+    straddles = in_front.any(1) & ~in_front.all(1)
+    out[straddles] = [0.0, 0.0, width, height]
+    out[:, [0, 2]] = np.clip(out[:, [0, 2]], 0.0, width)
+    out[:, [1, 3]] = np.clip(out[:, [1, 3]], 0.0, height)
+    empty = ~in_front.any(1) | (out[:, 2] <= out[:, 0]) | (out[:, 3] <= out[:, 1])
+    out[empty] = 0.0
+    return out
+
+
+def project_groups(boxes: np.ndarray, counts: np.ndarray, camera: Camera, size: tuple[int, int],
+                   scene_bounds: np.ndarray) -> ProjectedGroups:
+    """Projected, clipped boxes and their primitive counts, empty footprints dropped."""
+    rects = project_boxes(boxes, camera, size, scene_bounds)
+    keep = rects[:, 2] > rects[:, 0]
+    return ProjectedGroups(rects[keep], np.asarray(counts, dtype=np.float64).reshape(-1)[keep])
