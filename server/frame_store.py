@@ -88,6 +88,9 @@ class FrameStore:
 
     async def wait_for(self, frame_id: int, timeout: float) -> PublishedFrame | None:
         """The first kept frame with id ≥ ``frame_id``, waiting up to ``timeout`` seconds."""
+        kept = self.first_at_or_after(frame_id)
+        if kept is not None:
+            return kept
         async with self._changed:
             try:
                 await asyncio.wait_for(

@@ -147,7 +147,7 @@ class RenderService:
         if self.bounds is None:
             self.bounds = bounds
             if self.camera is None:
-                self.camera = default_camera(bounds)
+                self.camera = default_camera(bounds, aspect=self.size[0] / self.size[1])
             self.viewers.broadcast({"type": "scene", "bounds": bounds.tolist(), "camera": self.camera.to_json()})
         log.info("node %d (%s) ready: %d triangles", link.node_id, link.name, link.triangles)
         self.wake()

@@ -4,6 +4,7 @@ environment variables (a flag on the command line wins), validated at start-up."
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,11 +39,38 @@ def parse_background(text: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def _port(text: str) -> int:
+    value = _count(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"ports are 0…65535, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def _codec(text: str) -> Codec:
+    try:
+        return Codec.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -72,19 +100,19 @@ def build_parser() -> argparse.ArgumentParser:
         "serves the viewer. Every flag can also be set as TESSERA_<FLAG> (e.g. TESSERA_SCENE, TESSERA_LOCAL_NODES).",
     )
     parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
-    parser.add_argument("--port", type=_positive_int, help="port (default 8000; 0 picks a free one)")
+    parser.add_argument("--port", type=_port, help="port (default 8000; 0 picks a free one)")
     parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
     parser.add_argument("--size", type=parse_size, help="frame size WxH (default 1280x720)")
     parser.add_argument("--balancer", help="load balancer (default static)")
     parser.add_argument("--token", help="shared secret that nodes and viewers must present")
-    parser.add_argument("--local-nodes", type=_positive_int, help="spawn N render nodes on this machine")
-    parser.add_argument("--codec", type=Codec.parse, help="tile codec: jpeg (default), png (lossless) or raw")
+    parser.add_argument("--local-nodes", type=_count, help="spawn N render nodes on this machine")
+    parser.add_argument("--codec", type=_codec, help="tile codec: jpeg (default), png (lossless) or raw")
     parser.add_argument("--jpeg-quality", type=int, help="JPEG quality 1…100 (default 85)")
     parser.add_argument("--max-in-flight", type=int, help="frames rendering at once (default 2)")
-    parser.add_argument("--max-fps", type=float, help="frame rate cap (default 60)")
-    parser.add_argument("--tile-timeout-s", type=float,
+    parser.add_argument("--max-fps", type=_positive_float, help="frame rate cap (default 60)")
+    parser.add_argument("--tile-timeout-s", type=_positive_float,
                         help="seconds before a node that owes a tile is dropped (default 20)")
-    parser.add_argument("--frame-wait-s", type=float, help="longest wait of GET /api/frame.png (default 30)")
+    parser.add_argument("--frame-wait-s", type=_positive_float, help="longest wait of GET /api/frame.png (default 30)")
     parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
     parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")
     parser.add_argument("--log-level", help="debug, info (default), warning")
@@ -101,7 +129,7 @@ def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | N
             continue
         key = "TESSERA_" + action.dest.upper()
         if env.get(key):
-            env_args += [action.option_strings[0], env[key]]
+            env_args.append(f"{action.option_strings[0]}={env[key]}")
     merged = vars(parser.parse_args(env_args))
     merged.update({k: v for k, v in vars(parser.parse_args(argv)).items() if v is not None})
     values = {k: v for k, v in merged.items() if v is not None}
@@ -110,13 +138,13 @@ def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | N
             values["node_slowdowns"] = tuple(float(v) for v in values["node_slowdowns"].split(","))
         except ValueError:
             parser.error(f"--node-slowdowns must be numbers, got {values['node_slowdowns']!r}")
-        if any(v < 1.0 for v in values["node_slowdowns"]):
-            parser.error("--node-slowdowns must be >= 1")
+        if not all(math.isfinite(v) and v >= 1.0 for v in values["node_slowdowns"]):
+            parser.error("--node-slowdowns must be finite numbers >= 1")
     settings = Settings(**values)
     if not 1 <= settings.jpeg_quality <= 100:
         parser.error("--jpeg-quality must be 1…100")
-    if settings.max_in_flight < 1 or settings.max_fps <= 0:
-        parser.error("--max-in-flight must be >= 1 and --max-fps > 0")
+    if settings.max_in_flight < 1:
+        parser.error("--max-in-flight must be >= 1")
     from tessera.balancers import BALANCERS
 
     if settings.balancer not in BALANCERS:

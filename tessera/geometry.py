@@ -57,20 +57,13 @@ class Rect:
 def _vec3(value: Any, name: str) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise CameraError(f"camera {name} must be a list of 3 numbers, got {value!r}")
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise CameraError(f"camera {name} must be numbers, got {value!r}") from None
-    if not all(math.isfinite(v) for v in out):
-        raise CameraError(f"camera {name} is not finite: {value!r}")
-    return out  # type: ignore[return-value]
+    return (_finite(value[0], name), _finite(value[1], name), _finite(value[2], name))
 
 
 def _finite(value: Any, name: str) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise CameraError(f"camera {name} must be a number, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise CameraError(f"camera {name} must be numbers, got {value!r}")
+    out = float(value)
     if not math.isfinite(out):
         raise CameraError(f"camera {name} is not finite: {value!r}")
     return out
@@ -91,6 +84,13 @@ class Camera:
     far: float | None = None
 
     def __post_init__(self) -> None:
+        for name in ("eye", "target", "up"):
+            if not all(math.isfinite(v) for v in getattr(self, name)):
+                raise CameraError(f"camera {name} is not finite: {getattr(self, name)!r}")
+        for name in ("fovy_deg", "near", "far"):
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise CameraError(f"camera {name} is not finite: {value!r}")
         eye, target, up = (np.asarray(v, dtype=np.float64) for v in (self.eye, self.target, self.up))
         forward = target - eye
         distance = float(np.linalg.norm(forward))
@@ -184,8 +184,16 @@ def near_far_from_bounds(camera: Camera, bounds: np.ndarray) -> tuple[float, flo
     forward = np.asarray(camera.target, dtype=np.float64) - eye
     forward /= np.linalg.norm(forward)
     depth = float(np.dot(center - eye, forward))
-    far = camera.far if camera.far is not None else max(depth + radius * 1.01, radius * 0.02)
-    near = camera.near if camera.near is not None else max(depth - radius * 1.01, far * 1e-3)
+    far = max(depth + radius * 1.01, radius * 0.02)
+    if camera.far is not None:
+        far = camera.far
+    elif camera.near is not None and far <= camera.near:
+        far = camera.near + 2.02 * radius
+    near = max(depth - radius * 1.01, far * 1e-3)
+    if camera.near is not None:
+        near = camera.near
+    elif near >= far:
+        near = far * 1e-3
     return near, far
 
 
@@ -208,13 +216,15 @@ def tile_viewport(rect: Rect, size: tuple[int, int]) -> tuple[int, int, int, int
 DEFAULT_BACKGROUND = (0.11, 0.12, 0.15)
 
 
-def default_camera(bounds: np.ndarray, fovy_deg: float = 45.0) -> Camera:
+def default_camera(bounds: np.ndarray, fovy_deg: float = 45.0, aspect: float = 16 / 9) -> Camera:
     """A camera that frames the scene's axis-aligned ``bounds`` (2×3) from the front (+Z),
-    slightly above, Y up."""
+    slightly above, Y up, on an image of width/height ``aspect``."""
     lo, hi = np.asarray(bounds, dtype=np.float64)
     center = (lo + hi) / 2.0
     radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
-    distance = radius / math.sin(math.radians(fovy_deg) / 2.0) * 1.05
+    half_fov = math.radians(fovy_deg) / 2.0
+    narrowest = min(half_fov, math.atan(math.tan(half_fov) * aspect))
+    distance = radius / math.sin(narrowest) * 1.05
     direction = np.array([0.35, 0.35, 1.0])
     direction /= np.linalg.norm(direction)
     eye = center + direction * distance

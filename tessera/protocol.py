@@ -140,8 +140,14 @@ def unpack_frame(message: bytes) -> tuple[int, tuple[int, int], list[tuple[Frame
     offset = _FRAME_HEADER.size
     entries = []
     for _ in range(count):
+        if offset + _FRAME_TILE.size > len(message):
+            raise ProtocolError("frame message ends inside its tile table")
         x, y, w, h, codec, node_index, _, length = _FRAME_TILE.unpack_from(message, offset)
-        entries.append(FrameTileEntry(Rect(x, y, w, h), Codec(codec), node_index, length))
+        try:
+            codec_value = Codec(codec)
+        except ValueError:
+            raise ProtocolError(f"unknown tile codec {codec}") from None
+        entries.append(FrameTileEntry(Rect(x, y, w, h), codec_value, node_index, length))
         offset += _FRAME_TILE.size
     out = []
     for entry in entries:
@@ -161,8 +167,8 @@ def decode_json(text: str | bytes, allowed_types: Iterable[str]) -> dict[str, An
     if len(text) > MAX_JSON_BYTES:
         raise ProtocolError(f"control message of {len(text)} bytes exceeds {MAX_JSON_BYTES}")
     try:
-        message = json.loads(text, parse_constant=_reject_constant)
-    except (ValueError, UnicodeDecodeError) as exc:
+        message = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise ProtocolError(f"malformed JSON: {exc}") from None
     if not isinstance(message, dict):
         raise ProtocolError("control message must be a JSON object")
@@ -175,6 +181,13 @@ def decode_json(text: str | bytes, allowed_types: Iterable[str]) -> dict[str, An
 
 def _reject_constant(name: str) -> float:
     raise ValueError(f"{name} is not allowed")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text} overflows to infinity")
+    return value
 
 
 def require(message: dict[str, Any], key: str, kind: type | tuple[type, ...]) -> Any:

@@ -113,6 +113,24 @@ def imbalance(busy_ms: Mapping[int, float]) -> float:
     return max(values) / mean if mean > 0.0 else 1.0
 
 
+def _coerce_param(key: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default``: bools only from bools, ints only from whole numbers,
+    floats finite; anything else is a ValueError naming the parameter."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f"balancer parameter {key!r} must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"balancer parameter {key!r} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"balancer parameter {key!r} must be finite")
+    if isinstance(default, int):
+        if not float(value).is_integer():
+            raise ValueError(f"balancer parameter {key!r} must be a whole number, got {value!r}")
+        return int(value)
+    return float(value)
+
+
 class Balancer(ABC):
     """A balancing technique. Subclasses declare ``name`` and ``defaults`` (their parameters)."""
 
@@ -126,14 +144,7 @@ class Balancer(ABC):
                              f"it takes {sorted(self.defaults)}")
         merged = dict(self.defaults)
         for key, value in params.items():
-            default = merged[key]
-            try:
-                value = type(default)(value)
-            except (TypeError, ValueError):
-                raise ValueError(f"balancer parameter {key!r} must be {type(default).__name__}") from None
-            if isinstance(value, float) and not math.isfinite(value):
-                raise ValueError(f"balancer parameter {key!r} must be finite")
-            merged[key] = value
+            merged[key] = _coerce_param(key, value, merged[key])
         self.params: dict[str, Any] = merged
         self.validate_params()
 

@@ -1,0 +1,238 @@
+"""Wire format: binary tile and frame messages, JSON control messages (sans-I/O, no sockets).
+
+The TFRM golden byte string shared with the JS viewer lives in tests/test_protocol_golden.py.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tessera.codec import Codec
+from tessera.geometry import Rect
+from tessera.protocol import (
+    FRAME_MAGIC,
+    MAX_JSON_BYTES,
+    NODE_PHASES,
+    PROTOCOL_VERSION,
+    TILE_MAGIC,
+    ProtocolError,
+    TileHeader,
+    decode_json,
+    encode_json,
+    pack_frame,
+    pack_tile,
+    require,
+    unpack_frame,
+    unpack_tile,
+)
+
+#: The tile header layout, restated here so that a change to the wire format fails a test.
+TILE_LAYOUT = struct.Struct("<4sBBHIIIIIIfffI")
+FRAME_LAYOUT = struct.Struct("<4sBBHIII")
+FRAME_TILE_LAYOUT = struct.Struct("<IIIIBBHI")
+
+u32 = st.integers(0, 2**32 - 1)
+side = st.integers(1, 2**32 - 1)
+milliseconds = st.floats(0.0, 1e6, width=32)
+
+
+def tile_bytes(*, magic=TILE_MAGIC, version=PROTOCOL_VERSION, codec=1, frame=5, tile=2, rect=(0, 0, 4, 3),
+               times=(1.0, 0.5, 0.25), length=None, payload=b"0123456789") -> bytes:
+    """A tile message built field by field, so each field can be broken on its own."""
+    declared = len(payload) if length is None else length
+    return TILE_LAYOUT.pack(magic, version, codec, 0, frame, tile, *rect, *times, declared) + payload
+
+
+# ------------------------------------------------------------------------------------- tile messages
+
+
+def test_tile_header_is_48_bytes_and_little_endian():
+    header = TileHeader(0x01020304, 7, Rect(1, 2, 3, 4), Codec.PNG, 1.5, 0.25, 2.0)
+    message = pack_tile(header, b"xyz")
+    assert TILE_LAYOUT.size == 48 and len(message) == 51
+    assert message[:4] == b"TTIL" and message[8:12] == bytes([4, 3, 2, 1])
+    assert message == tile_bytes(codec=2, frame=0x01020304, tile=7, rect=(1, 2, 3, 4), times=(1.5, 0.25, 2.0),
+                                 payload=b"xyz")
+
+
+@settings(max_examples=100, deadline=None)
+@given(frame=u32, tile=u32, x=u32, y=u32, w=side, h=side, codec=st.sampled_from(list(Codec)),
+       times=st.tuples(milliseconds, milliseconds, milliseconds), payload=st.binary(max_size=300))
+def test_tile_round_trip(frame, tile, x, y, w, h, codec, times, payload):
+    header = TileHeader(frame, tile, Rect(x, y, w, h), codec, *times)
+    parsed, body = unpack_tile(pack_tile(header, payload))
+    assert parsed == header
+    assert isinstance(parsed.codec, Codec)
+    assert bytes(body) == payload
+
+
+@pytest.mark.parametrize(("message", "fragment"), [
+    pytest.param(b"", "shorter than its header", id="empty"),
+    pytest.param(tile_bytes()[:47], "shorter than its header", id="47-bytes"),
+    pytest.param(tile_bytes(magic=b"TFRM"), "magic", id="frame-magic"),
+    pytest.param(tile_bytes(magic=b"\0\0\0\0"), "magic", id="zero-magic"),
+    pytest.param(tile_bytes(version=0), "version", id="version-0"),
+    pytest.param(tile_bytes(version=2), "version", id="version-2"),
+    pytest.param(tile_bytes(codec=3), "codec", id="codec-3"),
+    pytest.param(tile_bytes(codec=255), "codec", id="codec-255"),
+    pytest.param(tile_bytes(length=11), "length", id="length-over"),
+    pytest.param(tile_bytes(length=9), "length", id="length-under"),
+    pytest.param(tile_bytes(length=0), "length", id="length-zero"),
+    pytest.param(tile_bytes()[:-1], "length", id="payload-cut"),
+    pytest.param(tile_bytes() + b"!", "length", id="payload-extra"),
+    pytest.param(tile_bytes(times=(float("nan"), 0.0, 0.0)), "timings", id="render-nan"),
+    pytest.param(tile_bytes(times=(0.0, float("inf"), 0.0)), "timings", id="readback-inf"),
+    pytest.param(tile_bytes(times=(0.0, 0.0, -float("inf"))), "timings", id="encode-minus-inf"),
+    pytest.param(tile_bytes(times=(0.0, -0.5, 0.0)), "timings", id="readback-negative"),
+    pytest.param(tile_bytes(rect=(0, 0, 0, 3)), "zero size", id="zero-width"),
+    pytest.param(tile_bytes(rect=(0, 0, 4, 0)), "zero size", id="zero-height"),
+])
+def test_unpack_tile_rejects_malformed_messages(message, fragment):
+    with pytest.raises(ProtocolError, match=fragment):
+        unpack_tile(message)
+
+
+def test_unpack_tile_accepts_an_empty_payload():
+    header, body = unpack_tile(tile_bytes(payload=b""))
+    assert header.rect == Rect(0, 0, 4, 3) and bytes(body) == b""
+
+
+# ------------------------------------------------------------------------------------ frame messages
+
+
+FRAME_TILES = [
+    (Rect(0, 0, 40, 30), Codec.JPEG, 0, b"\xff\xd8jpeg bytes\xff\xd9"),
+    (Rect(40, 0, 24, 30), Codec.PNG, 3, b"\x89PNG..." * 5),
+    (Rect(0, 30, 64, 18), Codec.RAW, 255, bytes(range(256)) * 2),
+    (Rect(0, 48, 64, 1), Codec.RAW, 1, b""),
+]
+
+
+def test_frame_round_trip_with_several_tiles():
+    message = pack_frame(123456, (64, 49), FRAME_TILES)
+    assert len(message) == FRAME_LAYOUT.size + 4 * FRAME_TILE_LAYOUT.size + sum(len(t[3]) for t in FRAME_TILES)
+    frame_id, size, tiles = unpack_frame(message)
+    assert (frame_id, size) == (123456, (64, 49))
+    assert len(tiles) == len(FRAME_TILES)
+    for (entry, payload), (rect, codec, node, original) in zip(tiles, FRAME_TILES, strict=True):
+        assert (entry.rect, entry.codec, entry.node_index, entry.length) == (rect, codec, node, len(original))
+        assert isinstance(payload, bytes) and payload == original
+
+
+def test_frame_with_no_tiles_round_trips():
+    assert unpack_frame(pack_frame(0, (16, 16), [])) == (0, (16, 16), [])
+
+
+def frame_bytes(*, magic=FRAME_MAGIC, version=PROTOCOL_VERSION, count=1, codec=1, length=3,
+                payload=b"abc") -> bytes:
+    header = FRAME_LAYOUT.pack(magic, version, 0, count, 9, 8, 8)
+    return header + FRAME_TILE_LAYOUT.pack(0, 0, 8, 8, codec, 0, 0, length) + payload
+
+
+@pytest.mark.parametrize("message", [
+    pytest.param(b"", id="empty"),
+    pytest.param(frame_bytes()[:19], id="short-header"),
+    pytest.param(frame_bytes(magic=b"TTIL"), id="bad-magic"),
+    pytest.param(frame_bytes(version=2), id="bad-version"),
+    pytest.param(frame_bytes(payload=b"ab"), id="payload-short"),
+    pytest.param(frame_bytes(payload=b"abcd"), id="trailing-byte"),
+    pytest.param(frame_bytes(length=2), id="length-too-small"),
+    pytest.param(frame_bytes(count=2), id="table-truncated-by-count"),
+    pytest.param(frame_bytes()[:30], id="table-truncated"),
+    pytest.param(frame_bytes(codec=7), id="unknown-codec"),
+])
+def test_unpack_frame_rejects_malformed_messages(message):
+    with pytest.raises(ProtocolError):
+        unpack_frame(message)
+
+
+# ----------------------------------------------------------------------------------- JSON messages
+
+
+def test_decode_json_accepts_text_and_bytes():
+    text = encode_json({"type": "hello", "name": "n1", "version": 1})
+    assert decode_json(text, ["hello"]) == {"type": "hello", "name": "n1", "version": 1}
+    assert decode_json(text.encode(), ("welcome", "hello"))["name"] == "n1"
+
+
+def test_encode_json_is_compact_and_refuses_nan():
+    assert encode_json({"type": "a", "v": [1, 2]}) == '{"type":"a","v":[1,2]}'
+    with pytest.raises(ValueError):
+        encode_json({"type": "a", "v": float("nan")})
+
+
+@pytest.mark.parametrize(("text", "fragment"), [
+    ("", "malformed"),
+    ("{", "malformed"),
+    ('{"type": "hello",}', "malformed"),
+    ("{'type': 'hello'}", "malformed"),
+    (b'{"type": "hello", "name": "\xff"}', "malformed"),
+    ('{"type": "hello", "x": NaN}', "NaN"),
+    ('{"type": "hello", "x": Infinity}', "Infinity"),
+    ('{"type": "hello", "x": [-Infinity]}', "Infinity"),
+    ("[]", "JSON object"),
+    ('"hello"', "JSON object"),
+    ("3", "JSON object"),
+    ("null", "JSON object"),
+    ('{"name": "n1"}', "type None"),
+    ('{"type": "render"}', "'render'"),
+    ('{"type": ["hello"]}', "type"),
+    ('{"type": "hello", "pad": "' + "x" * MAX_JSON_BYTES + '"}', "exceeds"),
+])
+def test_decode_json_rejects(text, fragment):
+    with pytest.raises(ProtocolError, match=fragment):
+        decode_json(text, ["hello"])
+
+
+def test_decode_json_lists_the_expected_types():
+    with pytest.raises(ProtocolError, match=r"expected one of \['hello', 'scene_ready'\]"):
+        decode_json('{"type": "nope"}', ["hello", "scene_ready"])
+
+
+@pytest.mark.parametrize("number", ["1e400", "-1e400"])
+def test_decode_json_rejects_numbers_that_overflow_to_infinity(number):
+    with pytest.raises(ProtocolError):
+        decode_json('{"type": "tile_sent", "send_ms": ' + number + "}", ["tile_sent"])
+
+
+def test_decode_json_turns_deep_nesting_into_a_protocol_error():
+    with pytest.raises(ProtocolError):
+        decode_json('{"type": "hello", "x": ' + "[" * 100_000 + "]" * 100_000 + "}", ["hello"])
+
+
+def test_decode_json_accepts_a_message_just_under_the_limit():
+    head = '{"type": "hello", "pad": "'
+    text = head + "x" * (MAX_JSON_BYTES - len(head) - 2) + '"}'
+    assert len(text) == MAX_JSON_BYTES
+    assert len(decode_json(text, ["hello"])["pad"]) == MAX_JSON_BYTES - len(head) - 2
+
+
+MESSAGE = {"type": "tile_sent", "frame": 3, "send_ms": 1.5, "ok": True, "stats": {}, "name": "n", "tiles": []}
+
+
+@pytest.mark.parametrize(("key", "kind"), [("frame", int), ("send_ms", float), ("send_ms", (int, float)),
+                                           ("frame", (int, float)), ("ok", bool), ("stats", dict),
+                                           ("name", str), ("tiles", list)])
+def test_require_returns_values_of_the_right_type(key, kind):
+    assert require(MESSAGE, key, kind) is MESSAGE[key]
+
+
+@pytest.mark.parametrize(("key", "kind"), [("frame", str), ("send_ms", int), ("name", (int, float)),
+                                           ("ok", int), ("ok", (int, float)), ("stats", list), ("tiles", dict)])
+def test_require_rejects_the_wrong_type_naming_the_field(key, kind):
+    with pytest.raises(ProtocolError, match=rf"tile_sent\.{key} has the wrong type"):
+        require(MESSAGE, key, kind)
+
+
+def test_require_names_a_missing_field():
+    with pytest.raises(ProtocolError, match="tile_sent message lacks 'tile'"):
+        require(MESSAGE, "tile", int)
+
+
+def test_node_phases_are_in_pipeline_order():
+    assert NODE_PHASES == ("render", "readback", "encode", "send")
+

@@ -1,0 +1,126 @@
+"""Viewer fan-out: a latest-frame slot per viewer; frames may be skipped, control messages never."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+from server.viewers import ViewerHub, ViewerSlot
+
+DEADLINE_S = 30.0
+
+
+async def settle() -> None:
+    """Let every ready task run until it blocks (a few event-loop turns, no wall-clock wait)."""
+    for _ in range(5):
+        await asyncio.sleep(0)
+
+
+def test_a_slow_consumer_sees_only_the_newest_frame():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        for i in range(5):
+            slot.put_frame(b"frame %d" % i)
+        assert await slot.next_message() == b"frame 4"
+        assert (slot.frames_dropped, slot.frames_sent) == (4, 1)
+        slot.put_frame(b"frame 5")
+        assert await slot.next_message() == b"frame 5"
+        assert (slot.frames_dropped, slot.frames_sent) == (4, 2)
+
+    asyncio.run(scenario())
+
+
+def test_a_consumer_that_never_reads_holds_one_frame():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        for i in range(1000):
+            slot.put_frame(bytes([i % 256]) * 100)
+        assert slot.frames_dropped == 999
+        assert await slot.next_message() == bytes([999 % 256]) * 100
+        waiter = asyncio.create_task(slot.next_message())
+        await settle()
+        assert not waiter.done(), "nothing is left after the newest frame"
+        waiter.cancel()
+
+    asyncio.run(scenario())
+
+
+def test_control_messages_come_first_in_order_and_are_never_dropped():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        slot.put_frame(b"old")
+        for i in range(100):
+            slot.put_control({"type": "camera", "seq": i})
+        slot.put_frame(b"new")
+        received = [await slot.next_message() for _ in range(101)]
+        assert [json.loads(m)["seq"] for m in received[:100]] == list(range(100))
+        assert all(isinstance(m, str) for m in received[:100])
+        assert received[100] == b"new"
+        assert (slot.frames_dropped, slot.frames_sent) == (1, 1)
+
+    asyncio.run(scenario())
+
+
+def test_a_waiting_consumer_wakes_for_a_frame_and_for_a_control_message():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        waiter = asyncio.create_task(slot.next_message())
+        await settle()
+        assert not waiter.done()
+        slot.put_frame(b"first")
+        assert await asyncio.wait_for(waiter, DEADLINE_S) == b"first"
+        waiter = asyncio.create_task(slot.next_message())
+        await settle()
+        assert not waiter.done(), "the slot was drained; the consumer must wait again"
+        slot.put_control({"type": "scene", "name": "x"})
+        assert json.loads(await asyncio.wait_for(waiter, DEADLINE_S)) == {"type": "scene", "name": "x"}
+
+    asyncio.run(scenario())
+
+
+def test_a_producer_never_waits_for_a_stalled_consumer():
+    async def scenario() -> None:
+        hub = ViewerHub()
+        stalled, reader = hub.join(), hub.join()
+        seen: list[bytes] = []
+
+        async def read() -> None:
+            while True:
+                message = await reader.next_message()
+                seen.append(message)
+                if message == b"last":
+                    return
+
+        task = asyncio.create_task(read())
+        for i in range(50):
+            hub.publish_frame(b"frame %d" % i)
+            await asyncio.sleep(0)
+        hub.publish_frame(b"last")
+        await asyncio.wait_for(task, DEADLINE_S)
+        numbers = [int(m.split()[1]) for m in seen[:-1]]
+        assert seen[-1] == b"last" and numbers == sorted(set(numbers)), "in order, no repeats"
+        assert stalled.frames_dropped == 50 and await stalled.next_message() == b"last"
+
+    asyncio.run(scenario())
+
+
+def test_hub_publishes_to_every_slot_and_broadcasts_with_exclusion():
+    async def scenario() -> None:
+        hub = ViewerHub()
+        hub.publish_frame(b"nobody")
+        assert hub.bytes_published == 0
+        first, second = hub.join(), hub.join()
+        hub.publish_frame(b"12345")
+        assert hub.bytes_published == 5
+        hub.broadcast({"type": "camera", "by": "first"}, exclude=first)
+        assert await second.next_message() == '{"type":"camera","by":"first"}'
+        assert await second.next_message() == b"12345"
+        assert await first.next_message() == b"12345"
+        assert not first.control
+        hub.leave(first)
+        hub.leave(first)
+        hub.publish_frame(b"67")
+        assert first.frame is None and await second.next_message() == b"67"
+        assert hub.slots == {second} and hub.bytes_published == 7
+
+    asyncio.run(scenario())
