@@ -1,0 +1,35 @@
+// web/panel.js: the timing bars' scale and stacked segment widths.
+import assert from "node:assert/strict";
+import { test } from "node:test";
+
+import { PHASES, niceScale, nodeDetail, segmentWidths } from "../../web/panel.js";
+
+test("phases are the node phases of tessera/protocol.py, in pipeline order", () => {
+  assert.deepEqual(PHASES, ["render", "readback", "encode", "send"]);
+});
+
+test("niceScale rounds up to 1, 2 or 5 × 10^k", () => {
+  assert.equal(niceScale(0.7), 1);
+  assert.equal(niceScale(1), 1);
+  assert.equal(niceScale(1.01), 2);
+  assert.equal(niceScale(13.4), 20);
+  assert.equal(niceScale(20), 20);
+  assert.equal(niceScale(37), 50);
+  assert.equal(niceScale(51), 100);
+  assert.equal(niceScale(0), 1);
+  assert.equal(niceScale(Number.NaN), 1);
+});
+
+test("segment widths are percentages of the full scale, missing phases count 0", () => {
+  const node = { render_ms: 10, readback_ms: 2.5, encode_ms: 5, send_ms: 2.5 };
+  assert.deepEqual(segmentWidths(node, 40), [25, 6.25, 12.5, 6.25]);
+  assert.deepEqual(segmentWidths({ render_ms: 4 }, 8), [50, 0, 0, 0]);
+  assert.deepEqual(segmentWidths({ render_ms: -3, send_ms: "x" }, 8), [0, 0, 0, 0]);
+});
+
+test("node detail: timings when ready, the loading state otherwise", () => {
+  const ready = { state: "ready", busy_ms: 12.345, tiles: [[0, 0, 1, 1], [1, 0, 1, 1]], speed: 0.8 };
+  assert.equal(nodeDetail(ready), "12.3 ms · 2 tiles · ×0.80");
+  assert.equal(nodeDetail({ busy_ms: 1, tiles: [[0, 0, 1, 1]], speed: 1 }), "1.0 ms · 1 tile · ×1.00");
+  assert.equal(nodeDetail({ state: "loading", scene_progress: 0.456 }), "loading 46%");
+});

@@ -1,0 +1,187 @@
+"""The viewer in headless Chromium against a real coordinator with two local render nodes.
+
+Uses Debian's /usr/bin/chromium through Playwright (never a downloaded browser). Missing
+Playwright or Chromium skips the test, except in CI (CI=true), where it fails. Set
+TESSERA_UPDATE_SCREENSHOT=1 to refresh docs/screenshot.png, the README's picture.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from tests.conftest import REPO, seconds
+
+pytestmark = pytest.mark.browser
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+VIEWPORT = {"width": 960, "height": 540}
+SCREENSHOT = REPO / "docs" / "screenshot.png"
+
+# Fraction of the frame canvas's pixels that differ clearly from its top-left (background) pixel.
+SCENE_FRACTION_JS = """() => {
+  const canvas = document.getElementById("frame");
+  if (!window.tessera.framesDrawn) return 0;
+  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+  const [r, g, b] = data;
+  let differing = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) > 48) differing++;
+  }
+  return differing / (canvas.width * canvas.height);
+}"""
+
+SNAPSHOT_JS = """() => {
+  const canvas = document.getElementById("frame");
+  window.testSnapshot = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+}"""
+
+# Mean absolute difference (0…255) between the frame canvas now and the snapshot.
+CHANGE_SINCE_SNAPSHOT_JS = """() => {
+  const canvas = document.getElementById("frame");
+  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+  const before = window.testSnapshot;
+  if (before.length !== data.length) return 255;
+  let sum = 0;
+  for (let i = 0; i < data.length; i++) sum += Math.abs(data[i] - before[i]);
+  return sum / data.length;
+}"""
+
+# Overlay pixels: the painted fraction, and how many distinct colours the strongest ones have.
+OVERLAY_JS = """() => {
+  const canvas = document.getElementById("overlay");
+  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+  let painted = 0;
+  const strokes = new Set();
+  for (let i = 0; i < data.length; i += 4) {
+    if (data[i + 3] > 0) painted++;
+    if (data[i + 3] > 200) strokes.add((data[i] << 16) | (data[i + 1] << 8) | data[i + 2]);
+  }
+  return {painted: painted / (canvas.width * canvas.height), strokeColours: strokes.size};
+}"""
+
+
+# Every node's timing bar shows its render segment and no bar is still animating.
+BARS_SETTLED_JS = """() =>
+  [...document.querySelectorAll("#nodes .seg.render")].every((seg) => seg.offsetWidth > 0) &&
+  document.getAnimations().every((animation) => animation.playState !== "running")"""
+
+
+def _unavailable(message: str) -> None:
+    if os.environ.get("CI") == "true":
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+@pytest.fixture
+def chromium(monkeypatch):
+    """Debian's Chromium driven by Playwright, with a fresh temporary profile."""
+    monkeypatch.setenv("PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD", "1")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _unavailable("playwright is not installed (pip install playwright; no browser download needed)")
+    if not CHROMIUM.exists():
+        _unavailable(f"{CHROMIUM} is missing (apt-get install chromium)")
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield browser
+        browser.close()
+
+
+def get_json(base_url: str, path: str) -> dict:
+    with urllib.request.urlopen(f"{base_url}{path}", timeout=seconds(10)) as response:
+        return json.load(response)
+
+
+def wait_for(condition, timeout: float, what: str):
+    """Poll ``condition()`` until it returns something truthy; fail with ``what`` at the deadline."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}")
+
+
+def same_camera(a: dict, b: dict) -> bool:
+    return all(math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-9)
+               for key in ("eye", "target", "up") for x, y in zip(a[key], b[key], strict=True))
+
+
+def drive_viewer(browser, base_url: str, screenshot: Path, nodes: int) -> None:
+    """Open the viewer, wait for the scene, orbit by mouse, toggle the overlay, take a screenshot."""
+    context = browser.new_context(viewport=VIEWPORT)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    wait_ms = seconds(60) * 1000
+    try:
+        page.goto(base_url + "/")
+        page.wait_for_function(f"() => ({SCENE_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
+        assert page.evaluate("window.tessera.connected") is True
+        assert page.locator("#status").get_attribute("data-state") == "open"
+
+        before = get_json(base_url, "/api/camera")["camera"]
+        frame_before = page.evaluate("window.tessera.frameId")
+        page.evaluate(SNAPSHOT_JS)
+        box = page.locator("#frame").bounding_box()
+        x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x + 120, y + 25, steps=12)
+        page.mouse.up()
+
+        viewer_camera = page.evaluate("window.tessera.camera")
+        assert not same_camera(viewer_camera, before), "dragging did not move the viewer's camera"
+        wait_for(lambda: same_camera(get_json(base_url, "/api/camera")["camera"], viewer_camera), seconds(30),
+                 "the coordinator to adopt the viewer's camera (GET /api/camera)")
+        page.wait_for_function(
+            f"() => window.tessera.frameId > {frame_before} && ({CHANGE_SINCE_SNAPSHOT_JS})() > 2",
+            timeout=wait_ms, polling=100,
+        )
+
+        page.check("#toggle-overlay")
+        overlay = page.evaluate(OVERLAY_JS)
+        assert overlay["painted"] > 0.2, f"the tile overlay covers too little of the view: {overlay}"
+        assert overlay["strokeColours"] >= min(nodes, 2), f"tiles of {nodes} nodes in one colour: {overlay}"
+        page.wait_for_function(f"() => document.querySelectorAll('#nodes li').length === {nodes}",
+                               timeout=wait_ms, polling=100)
+        page.wait_for_function("() => document.getElementById('fig-fps').textContent !== '–'",
+                               timeout=wait_ms, polling=100)
+        page.wait_for_function(BARS_SETTLED_JS, timeout=wait_ms, polling=50)
+        page.screenshot(path=str(screenshot))
+
+        page.uncheck("#toggle-overlay")
+        assert page.evaluate(OVERLAY_JS)["painted"] == 0
+
+        available = get_json(base_url, "/api/balancer")["available"]
+        assert page.locator("#balancer option").all_text_contents() == available
+        page.select_option("#balancer", available[-1])
+        wait_for(lambda: get_json(base_url, "/api/balancer")["name"] == available[-1], seconds(30),
+                 f"PUT /api/balancer to select {available[-1]!r}")
+        assert errors == [], f"errors in the page: {errors}"
+    finally:
+        context.close()
+
+
+def test_viewer_shows_scene_orbits_and_draws_tile_overlay(chromium, coordinator_factory, tmp_path):
+    coordinator = coordinator_factory("--local-nodes", "2", "--scene", "builtin:spheres", "--size", "640x360")
+    screenshot = tmp_path / "screenshot.png"
+    drive_viewer(chromium, coordinator.url, screenshot, nodes=2)
+    with Image.open(screenshot) as image:
+        assert image.size == (VIEWPORT["width"], VIEWPORT["height"])
+    if os.environ.get("TESSERA_UPDATE_SCREENSHOT") == "1":
+        SCREENSHOT.parent.mkdir(exist_ok=True)
+        shutil.copyfile(screenshot, SCREENSHOT)

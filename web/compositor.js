@@ -1,0 +1,112 @@
+// Turns parsed TFRM frames into pixels on a canvas: every tile of a frame is decoded first, then
+// all are drawn in one synchronous pass, so the canvas never shows a frame half old, half new.
+// Frames decode concurrently (the browser decodes images off the main thread); a decoded frame
+// is drawn only if no newer frame has been drawn meanwhile, otherwise it is dropped.
+
+import { Codec, ProtocolError } from "./protocol.js";
+
+/** Frames decoding at once; a frame arriving beyond this waits in a one-frame slot (latest wins). */
+const MAX_DECODING = 3;
+const MIME = { [Codec.JPEG]: "image/jpeg", [Codec.PNG]: "image/png" };
+
+/** Raw tile pixels (w×h×3 bytes, RGB, rows top-down) → RGBA bytes with alpha 255. */
+export function rgbToRgba(rgb, w, h) {
+  if (rgb.length !== w * h * 3) {
+    throw new ProtocolError(`raw tile has ${rgb.length} bytes, expected ${w * h * 3}`);
+  }
+  const rgba = new Uint8ClampedArray(w * h * 4);
+  for (let src = 0, dst = 0; src < rgb.length; src += 3, dst += 4) {
+    rgba[dst] = rgb[src];
+    rgba[dst + 1] = rgb[src + 1];
+    rgba[dst + 2] = rgb[src + 2];
+    rgba[dst + 3] = 255;
+  }
+  return rgba;
+}
+
+/** One tile → ImageData (raw) or ImageBitmap (JPEG, PNG). */
+async function decodeTile(tile) {
+  if (tile.codec === Codec.RAW) {
+    return new ImageData(rgbToRgba(tile.bytes, tile.w, tile.h), tile.w, tile.h);
+  }
+  return createImageBitmap(new Blob([tile.bytes], { type: MIME[tile.codec] }));
+}
+
+function release(images) {
+  for (const image of images) {
+    if (image && typeof image.close === "function") image.close();
+  }
+}
+
+export class Compositor {
+  /**
+   * @param {HTMLCanvasElement} canvas  resized to each frame's width × height
+   * @param {(frame: object) => void} onDrawn  called after a frame is on the canvas
+   * @param {(error: Error) => void} onError  a frame that could not be decoded (dropped)
+   */
+  constructor(canvas, onDrawn, onError) {
+    this.canvas = canvas;
+    this.context = canvas.getContext("2d", { alpha: false });
+    this.onDrawn = onDrawn;
+    this.onError = onError;
+    this.started = 0;
+    this.drawnSeq = 0;
+    this.decoding = 0;
+    this.waiting = null;
+    this.dropped = 0;
+  }
+
+  /** Queue a parsed frame (see protocol.parseFrame) for decoding and drawing. */
+  submit(frame) {
+    if (this.decoding >= MAX_DECODING) {
+      if (this.waiting) this.dropped++;
+      this.waiting = frame;
+      return;
+    }
+    this.decode(frame, ++this.started);
+  }
+
+  async decode(frame, seq) {
+    this.decoding++;
+    const pending = frame.tiles.map(decodeTile);
+    try {
+      const images = await Promise.all(pending);
+      if (seq > this.drawnSeq) {
+        this.draw(frame, images);
+        this.drawnSeq = seq;
+        this.onDrawn(frame);
+      } else {
+        this.dropped++;
+      }
+      release(images);
+    } catch (error) {
+      this.dropped++;
+      Promise.allSettled(pending).then((results) =>
+        release(results.map((r) => (r.status === "fulfilled" ? r.value : null))),
+      );
+      this.onError(error);
+    } finally {
+      this.decoding--;
+      if (this.waiting && this.decoding < MAX_DECODING) {
+        const next = this.waiting;
+        this.waiting = null;
+        this.submit(next);
+      }
+    }
+  }
+
+  draw(frame, images) {
+    if (this.canvas.width !== frame.width || this.canvas.height !== frame.height) {
+      this.canvas.width = frame.width;
+      this.canvas.height = frame.height;
+    }
+    frame.tiles.forEach((tile, i) => {
+      const image = images[i];
+      if (image instanceof ImageData) {
+        this.context.putImageData(image, tile.x, tile.y);
+      } else {
+        this.context.drawImage(image, tile.x, tile.y, tile.w, tile.h);
+      }
+    });
+  }
+}

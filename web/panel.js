@@ -1,0 +1,155 @@
+// Side panel: live figures and per-node timing bars from GET /api/stats (polled ~2×/s), and the
+// balancer selector backed by GET/PUT /api/balancer.
+
+import { nodeColor } from "./overlay.js";
+
+export const PHASES = ["render", "readback", "encode", "send"];
+const POLL_MS = 500;
+
+/** Smallest 1, 2 or 5 × 10^k that is ≥ `ms` (the timing bars' full-scale value, ms). */
+export function niceScale(ms) {
+  if (!(ms > 0)) return 1;
+  const power = 10 ** Math.floor(Math.log10(ms));
+  return [1, 2, 5, 10].map((m) => m * power).find((step) => step >= ms * (1 - 1e-9));
+}
+
+/** Percent widths of a node's stacked phase segments on a `scaleMs` full-scale bar. */
+export function segmentWidths(node, scaleMs) {
+  return PHASES.map((phase) => Math.max(0, (100 * (Number(node[`${phase}_ms`]) || 0)) / scaleMs));
+}
+
+function el(tag, className, text) {
+  const element = document.createElement(tag);
+  if (className) element.className = className;
+  if (text !== undefined) element.textContent = text;
+  return element;
+}
+
+const fixed = (value, digits) => (Number.isFinite(value) ? value.toFixed(digits) : "–");
+
+/** One line about a node: busy time, tile count and relative speed, or its state while not ready. */
+export function nodeDetail(node) {
+  if (node.state && node.state !== "ready") {
+    const progress = Number.isFinite(node.scene_progress) ? ` ${Math.round(node.scene_progress * 100)}%` : "";
+    return `${node.state}${progress}`;
+  }
+  const tiles = Array.isArray(node.tiles) ? node.tiles.length : 0;
+  return `${fixed(node.busy_ms, 1)} ms · ${tiles} tile${tiles === 1 ? "" : "s"} · ×${fixed(node.speed, 2)}`;
+}
+
+export class Panel {
+  /**
+   * @param {Document} doc  holds the panel's elements (ids in index.html)
+   * @param {(path: string, init?: object) => Promise<Response>} api  fetch with the viewer's token
+   * @param {(nodes: object[]) => void} onNodes  receives each stats poll's node list
+   */
+  constructor(doc, api, onNodes) {
+    this.api = api;
+    this.onNodes = onNodes;
+    this.figure = (name) => doc.getElementById(`fig-${name}`);
+    this.nodes = doc.getElementById("nodes");
+    this.scale = doc.getElementById("bar-scale");
+    this.select = doc.getElementById("balancer");
+    this.params = doc.getElementById("balancer-params");
+    this.message = doc.getElementById("panel-message");
+    this.balancer = null;
+    this.select.addEventListener("change", () => this.chooseBalancer(this.select.value));
+  }
+
+  start() {
+    this.loadBalancer();
+    this.poll();
+  }
+
+  async poll() {
+    try {
+      const response = await this.api("api/stats");
+      if (!response.ok) throw new Error(`stats: HTTP ${response.status}`);
+      this.showStats(await response.json());
+      this.message.textContent = "";
+    } catch (error) {
+      this.message.textContent = `stats unavailable (${error.message})`;
+    }
+    setTimeout(() => this.poll(), POLL_MS);
+  }
+
+  showStats(stats) {
+    this.figure("fps").textContent = fixed(stats.fps, 1);
+    this.figure("imbalance").textContent = fixed(stats.imbalance, 2);
+    this.figure("imbalance-avg").textContent = fixed(stats.imbalance_avg, 2);
+    this.figure("latency").textContent = fixed(stats.latency_ms, 0);
+    this.figure("frame").textContent = String(stats.frame ?? "–");
+    this.figure("size").textContent = Array.isArray(stats.size) ? stats.size.join("×") : "–";
+    this.showNodes(stats.nodes || []);
+    this.onNodes(stats.nodes || []);
+    if (stats.balancer && stats.balancer !== this.balancer) this.loadBalancer();
+  }
+
+  showNodes(nodes) {
+    const busiest = Math.max(0, ...nodes.map((n) => PHASES.reduce((sum, p) => sum + (Number(n[`${p}_ms`]) || 0), 0)));
+    const scaleMs = niceScale(busiest);
+    this.scale.textContent = `${scaleMs} ms`;
+    while (this.nodes.children.length > nodes.length) this.nodes.lastElementChild.remove();
+    while (this.nodes.children.length < nodes.length) this.nodes.append(this.nodeRow());
+    nodes.forEach((node, index) => {
+      const row = this.nodes.children[index];
+      row.querySelector(".swatch").style.background = nodeColor(node.id & 0xff);
+      row.querySelector(".name").textContent = node.name ?? `node ${node.id}`;
+      row.querySelector(".detail").textContent = nodeDetail(node);
+      const widths = segmentWidths(node, scaleMs);
+      row.querySelectorAll(".seg").forEach((segment, i) => {
+        segment.style.width = `${widths[i]}%`;
+        segment.title = `${PHASES[i]} ${fixed(Number(node[`${PHASES[i]}_ms`]), 2)} ms`;
+      });
+    });
+  }
+
+  nodeRow() {
+    const row = el("li", "node");
+    const head = el("div", "node-head");
+    head.append(el("span", "swatch"), el("span", "name"), el("span", "detail"));
+    const bar = el("div", "bar");
+    for (const phase of PHASES) bar.append(el("span", `seg ${phase}`));
+    row.append(head, bar);
+    return row;
+  }
+
+  async loadBalancer() {
+    try {
+      const response = await this.api("api/balancer");
+      if (!response.ok) throw new Error(`balancer: HTTP ${response.status}`);
+      this.showBalancer(await response.json());
+    } catch (error) {
+      this.message.textContent = `balancer unavailable (${error.message})`;
+    }
+  }
+
+  /** Fill the selector from {name, available} and show `params` when given. */
+  showBalancer({ name, params, available }) {
+    this.balancer = name;
+    const names = available && available.length ? available : [name];
+    if ([...this.select.options].map((o) => o.value).join() !== names.join()) {
+      this.select.replaceChildren(...names.map((n) => new Option(n, n)));
+    }
+    if (document.activeElement !== this.select) this.select.value = name;
+    if (params === undefined) return;
+    const entries = Object.entries(params);
+    this.params.textContent = entries.length ? entries.map(([k, v]) => `${k} = ${JSON.stringify(v)}`).join("\n") : "no parameters";
+  }
+
+  async chooseBalancer(name) {
+    try {
+      const response = await this.api("api/balancer", {
+        method: "PUT",
+        headers: { "Content-Type": "application/json" },
+        body: JSON.stringify({ name, params: {} }),
+      });
+      if (!response.ok) throw new Error(`${response.status} ${(await response.text()).slice(0, 200)}`);
+      this.message.textContent = "";
+    } catch (error) {
+      this.message.textContent = `could not switch balancer: ${error.message}`;
+    }
+    this.select.blur();
+    await this.loadBalancer();
+  }
+}

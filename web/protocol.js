@@ -1,0 +1,75 @@
+// Viewer frame format TFRM, mirroring tessera/protocol.py (same constant names and layouts).
+// Header `<4sBBHIII`: magic, version, reserved, tile_count, frame_id, width, height.
+// Tile entry `<IIIIBBHI`: x, y, w, h, codec, node_index, reserved, length.
+// Then the tiles' encoded bytes in table order. All integers little-endian.
+
+export const PROTOCOL_VERSION = 1;
+export const FRAME_MAGIC = "TFRM";
+export const FRAME_HEADER_SIZE = 20;
+export const FRAME_TILE_SIZE = 24;
+
+/** Tile codecs, as tessera.codec.Codec. */
+export const Codec = Object.freeze({ RAW: 0, JPEG: 1, PNG: 2 });
+const CODECS = new Set(Object.values(Codec));
+
+/** A frame message that does not follow the protocol; the message says what. */
+export class ProtocolError extends Error {
+  constructor(message) {
+    super(message);
+    this.name = "ProtocolError";
+  }
+}
+
+/**
+ * Parse one binary frame message.
+ * @param {ArrayBuffer} buffer
+ * @returns {{frameId: number, width: number, height: number,
+ *   tiles: {x: number, y: number, w: number, h: number, codec: number, nodeIndex: number,
+ *   bytes: Uint8Array}[]}} tile bytes are views into `buffer`, rects in pixels from the top-left
+ */
+export function parseFrame(buffer) {
+  if (buffer.byteLength < FRAME_HEADER_SIZE) {
+    throw new ProtocolError("frame message shorter than its header");
+  }
+  const view = new DataView(buffer);
+  const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
+  const version = view.getUint8(4);
+  if (magic !== FRAME_MAGIC || version !== PROTOCOL_VERSION) {
+    throw new ProtocolError(`bad frame magic/version ${JSON.stringify(magic)}/${version}`);
+  }
+  const count = view.getUint16(6, true);
+  const frameId = view.getUint32(8, true);
+  const width = view.getUint32(12, true);
+  const height = view.getUint32(16, true);
+  const tableEnd = FRAME_HEADER_SIZE + count * FRAME_TILE_SIZE;
+  if (buffer.byteLength < tableEnd) {
+    throw new ProtocolError("frame message shorter than its tile table");
+  }
+  const tiles = [];
+  let offset = tableEnd;
+  for (let i = 0; i < count; i++) {
+    const at = FRAME_HEADER_SIZE + i * FRAME_TILE_SIZE;
+    const length = view.getUint32(at + 20, true);
+    if (offset + length > buffer.byteLength) {
+      throw new ProtocolError("frame message length does not match its tile table");
+    }
+    const codec = view.getUint8(at + 16);
+    if (!CODECS.has(codec)) {
+      throw new ProtocolError(`unknown tile codec ${codec}`);
+    }
+    tiles.push({
+      x: view.getUint32(at, true),
+      y: view.getUint32(at + 4, true),
+      w: view.getUint32(at + 8, true),
+      h: view.getUint32(at + 12, true),
+      codec,
+      nodeIndex: view.getUint8(at + 17),
+      bytes: new Uint8Array(buffer, offset, length),
+    });
+    offset += length;
+  }
+  if (offset !== buffer.byteLength) {
+    throw new ProtocolError("frame message length does not match its tile table");
+  }
+  return { frameId, width, height, tiles };
+}

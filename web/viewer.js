@@ -1,0 +1,180 @@
+// Tessera viewer entry point: wires the WebSocket, the frame compositor, the overlay, the input
+// controls and the stats panel together, and exposes read-only state as `window.tessera`.
+
+import { Compositor } from "./compositor.js";
+import { Connection } from "./connection.js";
+import { Controls } from "./controls.js";
+import { frameBounds, minDistanceFor } from "./orbit.js";
+import { drawOverlay, fitFrame } from "./overlay.js";
+import { Panel } from "./panel.js";
+import { parseFrame } from "./protocol.js";
+
+const token = new URLSearchParams(location.search).get("token");
+
+/** Address relative to the page (so a path prefix in front of the coordinator still works),
+ * carrying the page's `?token=` for the coordinator. */
+function address(path, scheme) {
+  const url = new URL(path, document.baseURI);
+  if (scheme) url.protocol = scheme;
+  if (token) url.searchParams.set("token", token);
+  return url.href;
+}
+
+const api = (path, init) => fetch(address(path), init);
+
+const state = {
+  frameId: null,
+  camera: null,
+  framesDrawn: 0,
+  connected: false,
+  size: null,
+  bounds: null,
+  overlay: false,
+};
+const lastTiles = { width: 0, height: 0, tiles: [] };
+
+const $ = (id) => document.getElementById(id);
+const frameCanvas = $("frame");
+const overlayCanvas = $("overlay");
+
+// Read-only view of the state for tests and the console: each read returns a copy.
+Object.defineProperty(window, "tessera", {
+  value: Object.freeze(Object.defineProperties({}, {
+    ...Object.fromEntries(
+      Object.keys(state).map((key) => [key, { get: () => structuredClone(state[key]), enumerable: true }]),
+    ),
+    framesDropped: { get: () => compositor.dropped, enumerable: true },
+  })),
+});
+
+const nodeNames = new Map();
+
+function redrawOverlay() {
+  const tiles = state.overlay ? lastTiles.tiles : [];
+  drawOverlay(overlayCanvas, lastTiles.width, lastTiles.height, tiles, (index) => nodeNames.get(index) ?? `node ${index}`);
+}
+
+function setOverlay(on) {
+  state.overlay = on;
+  $("toggle-overlay").checked = on;
+  redrawOverlay();
+}
+
+function setSize(width, height) {
+  state.size = [width, height];
+  if (frameCanvas.width !== width || frameCanvas.height !== height) {
+    frameCanvas.width = width;
+    frameCanvas.height = height;
+  }
+}
+
+/** CSS pixel height of the image inside the letterboxed canvas element. */
+function viewHeight() {
+  const [w, h] = [frameCanvas.width, frameCanvas.height];
+  return Math.max(1, fitFrame(w, h, frameCanvas.clientWidth, frameCanvas.clientHeight).scale * h);
+}
+
+let sendScheduled = false;
+function setCamera(camera) {
+  state.camera = camera;
+  if (sendScheduled) return;
+  sendScheduled = true;
+  requestAnimationFrame(() => {
+    sendScheduled = false;
+    connection.send({ type: "camera", camera: state.camera });
+  });
+}
+
+const compositor = new Compositor(
+  frameCanvas,
+  (frame) => {
+    state.frameId = frame.frameId;
+    state.framesDrawn += 1;
+    if (!state.size || state.size[0] !== frame.width || state.size[1] !== frame.height) {
+      setSize(frame.width, frame.height);
+    }
+    lastTiles.width = frame.width;
+    lastTiles.height = frame.height;
+    lastTiles.tiles = frame.tiles.map(({ x, y, w, h, nodeIndex }) => ({ x, y, w, h, nodeIndex }));
+    if (state.overlay) redrawOverlay();
+    $("frame-badge").textContent = `frame ${frame.frameId}`;
+  },
+  (error) => console.warn("tessera: frame dropped:", error),
+);
+
+const controls = new Controls(frameCanvas, {
+  camera: () => state.camera,
+  setCamera,
+  viewHeight,
+  minDistance: () => minDistanceFor(state.bounds),
+});
+
+function adoptCamera(camera) {
+  if (camera && !controls.interacting && !sendScheduled) state.camera = camera;
+}
+
+function onText(message) {
+  switch (message.type) {
+    case "hello":
+      setSize(...message.size);
+      state.bounds = message.bounds;
+      adoptCamera(message.camera);
+      panel.showBalancer({ name: message.balancer, available: message.balancers });
+      break;
+    case "camera":
+      adoptCamera(message.camera);
+      break;
+    case "scene":
+      state.bounds = message.bounds;
+      adoptCamera(message.camera);
+      break;
+    case "error":
+      console.warn("tessera: coordinator says:", message.message);
+      break;
+    default:
+      console.warn("tessera: unknown message", message.type);
+  }
+}
+
+function onBinary(buffer) {
+  try {
+    compositor.submit(parseFrame(buffer));
+  } catch (error) {
+    console.warn("tessera: bad frame:", error);
+  }
+}
+
+function onState({ state: connectionState, detail }) {
+  state.connected = connectionState === "open";
+  $("status").dataset.state = connectionState;
+  document.body.dataset.connection = connectionState;
+  const label = { connecting: "connecting…", open: "live", closed: "disconnected" }[connectionState];
+  $("status-text").textContent = detail ? `${label} · ${detail}` : label;
+}
+
+function resetView() {
+  if (state.bounds) setCamera(frameBounds(state.bounds, state.camera?.fovy_deg ?? 45));
+}
+
+const panel = new Panel(document, api, (nodes) => {
+  nodeNames.clear();
+  for (const node of nodes) nodeNames.set(node.id & 0xff, node.name ?? `node ${node.id}`);
+});
+const connection = new Connection(address("ws/view", location.protocol === "https:" ? "wss:" : "ws:"), {
+  onText,
+  onBinary,
+  onState,
+});
+
+new ResizeObserver(() => state.overlay && redrawOverlay()).observe(overlayCanvas);
+$("toggle-overlay").addEventListener("change", (event) => setOverlay(event.target.checked));
+$("reset-view").addEventListener("click", resetView);
+frameCanvas.addEventListener("dblclick", resetView);
+document.addEventListener("keydown", (event) => {
+  if (event.target instanceof HTMLInputElement || event.target instanceof HTMLSelectElement) return;
+  if (event.key === "o" || event.key === "O") setOverlay(!state.overlay);
+  if (event.key === "r" || event.key === "R") resetView();
+});
+
+connection.start();
+panel.start();
