@@ -1,0 +1,115 @@
+"""Octree pre-split (seed 002 §3.4): every face in exactly one chunk, chunks under the limit,
+contiguous ranges, tight boxes, octree cells; on a synthetic mesh and on the 990k-triangle scan."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from node.octree_split import MAX_DEPTH, ChunkSplit, morton_codes, octree_split
+
+SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+
+
+def random_mesh(face_total: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Small triangles scattered in a box (positions (V, 3) float32, faces (F, 3) uint32)."""
+    rng = np.random.default_rng(seed)
+    anchors = rng.uniform([-2.0, 0.0, -1.0], [3.0, 1.0, 4.0], size=(face_total, 1, 3))
+    positions = (anchors + rng.normal(scale=0.02, size=(face_total, 3, 3))).reshape(-1, 3).astype(np.float32)
+    faces = rng.permutation(face_total * 3).astype(np.uint32).reshape(-1, 3)
+    return positions, faces
+
+
+def check_split(positions: np.ndarray, faces: np.ndarray, split: ChunkSplit, face_limit: int) -> None:
+    face_total = faces.shape[0]
+    assert np.array_equal(np.sort(split.face_order), np.arange(face_total)), "not a permutation of the faces"
+    assert split.starts[0] == 0 and split.ends[-1] == face_total
+    assert np.array_equal(split.starts[1:], split.ends[:-1]), "chunks are not contiguous ranges"
+    assert np.all(split.face_counts >= 1)
+    assert split.face_counts.max() <= face_limit
+    chunk_of_face = np.repeat(np.arange(split.chunk_count), split.face_counts)
+    corners = positions[split.reorder(faces)]                               # (F, 3, 3)
+    lo = np.full((split.chunk_count, 3), np.inf, np.float32)
+    hi = np.full((split.chunk_count, 3), -np.inf, np.float32)
+    np.minimum.at(lo, chunk_of_face, corners.min(axis=1))
+    np.maximum.at(hi, chunk_of_face, corners.max(axis=1))
+    assert np.array_equal(split.bounds[:, 0], lo), "chunk boxes are not the tight min of their faces"
+    assert np.array_equal(split.bounds[:, 1], hi), "chunk boxes are not the tight max of their faces"
+
+
+def check_octree_cells(positions: np.ndarray, faces: np.ndarray, split: ChunkSplit, face_limit: int) -> None:
+    """Each chunk is one octree cell, and it was split only because its parent was over the limit."""
+    corner_a, corner_b, corner_c = (positions[faces[:, k]] for k in range(3))
+    centroids = (corner_a + corner_b + corner_c) / np.float32(3.0)
+    codes = morton_codes(centroids, positions.min(axis=0), positions.max(axis=0))[split.face_order]
+    for chunk in range(split.chunk_count):
+        depth = int(split.depths[chunk])
+        prefixes = codes[split.starts[chunk]:split.ends[chunk]] >> np.uint64(3 * (MAX_DEPTH - depth))
+        assert np.all(prefixes == prefixes[0]), f"chunk {chunk} spans several level-{depth} cells"
+        if depth > 0:
+            parent = prefixes[0] >> np.uint64(3)
+            in_parent = np.count_nonzero((codes >> np.uint64(3 * (MAX_DEPTH - depth + 1))) == parent)
+            assert in_parent > face_limit, f"chunk {chunk}'s parent cell held only {in_parent} faces"
+
+
+def test_random_mesh_splits_into_octree_chunks_under_the_limit():
+    positions, faces = random_mesh(20_000)
+    split = octree_split(positions, faces, face_limit=700)
+    check_split(positions, faces, split, 700)
+    check_octree_cells(positions, faces, split, 700)
+    assert split.chunk_count >= 20_000 // 700
+
+
+def test_reordered_index_buffer_holds_the_same_triangles():
+    positions, faces = random_mesh(3_000, seed=1)
+    split = octree_split(positions, faces, face_limit=100)
+    reordered = split.reorder(faces)
+    assert reordered.dtype == faces.dtype
+    assert np.array_equal(reordered, faces[split.face_order])
+    assert np.array_equal(np.sort(reordered, axis=0), np.sort(faces, axis=0))
+
+
+def test_mesh_under_the_limit_is_one_chunk():
+    positions, faces = random_mesh(500, seed=2)
+    split = octree_split(positions, faces, face_limit=500)
+    assert split.chunk_count == 1 and split.depths.tolist() == [0]
+    check_split(positions, faces, split, 500)
+
+
+def test_faces_sharing_one_centroid_are_cut_into_limit_sized_pieces():
+    positions, faces = random_mesh(200, seed=3)
+    stacked = np.tile(np.array([[0, 1, 2]], np.uint32), (95, 1))  # 95 copies of one triangle
+    faces = np.concatenate([faces, stacked])
+    split = octree_split(positions, faces, face_limit=10)
+    check_split(positions, faces, split, 10)
+    copies = np.isin(split.face_order, np.arange(200, 295))
+    chunk_of_face = np.repeat(np.arange(split.chunk_count), split.face_counts)
+    copy_chunks = np.unique(chunk_of_face[copies])
+    assert copy_chunks.size == 10  # ⌈95 / 10⌉ pieces, all at the deepest level
+    assert np.all(split.depths[copy_chunks] == MAX_DEPTH)
+
+
+def test_empty_mesh_and_bad_limits():
+    positions, _ = random_mesh(10)
+    assert octree_split(positions, np.zeros((0, 3), np.uint32)).chunk_count == 0
+    with pytest.raises(ValueError):
+        octree_split(positions, np.zeros((1, 3), np.uint32), face_limit=0)
+    with pytest.raises(ValueError):
+        octree_split(positions, np.zeros((1, 4), np.uint32))
+
+
+def test_990k_scan_splits_into_chunks_under_the_limit():
+    path = SCENES / "large_scan" / "threedscans_pan_990k.ply"
+    if not path.exists():
+        pytest.fail(f"scene not found: the tests read real scenes from {SCENES}")
+    mesh = trimesh.load(path, force="mesh")
+    positions = np.asarray(mesh.vertices, dtype=np.float32)
+    faces = np.asarray(mesh.faces, dtype=np.uint32)
+    assert faces.shape[0] > 900_000
+    split = octree_split(positions, faces, face_limit=16384)
+    check_split(positions, faces, split, 16384)
+    assert split.chunk_count > faces.shape[0] // 16384
+    assert np.all(split.bounds[:, 0] >= positions.min(axis=0)) and np.all(split.bounds[:, 1] <= positions.max(axis=0))
