@@ -1,0 +1,405 @@
+"""The render node's network loop: connect to the coordinator, load the scene once (retained mode,
+seed 002), render assigned tiles, stream them back; reconnect with exponential back-off.
+
+Functional parallelism (seed 002 §4): three stages per tile run concurrently — drawing (the one GL
+thread), encoding (an encoder thread) and sending (the event loop's sender task), so tile i+1 is
+drawn while tile i is compressed and sent. moderngl keeps the GIL inside GL calls, so on CPython the
+overlap is the kernel's transfer of queued bytes and the encoder's GIL-free stretches.
+
+Messages follow the catalogue in :mod:`tessera.protocol`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import moderngl
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
+
+from node.gl_context import GLUnavailableError, create_gl_context, renderer_string
+from node.renderer import RenderedTile, TileRenderer
+from node.scene import ProgressCallback, SceneData, load_scene
+from node.settings import MAX_SIZE, NodeSettings
+from tessera.codec import Codec, encode
+from tessera.geometry import Camera, CameraError, Rect
+from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, decode_json, encode_json, pack_tile, require
+
+log = logging.getLogger("tessera.node")
+
+CODECS = ("raw", "jpeg", "png")
+MAX_MESSAGE_BYTES = 64 << 20
+BACKOFF_START_S = 0.2
+BACKOFF_MAX_S = 5.0
+CLOSE_BAD_TOKEN = 4401
+
+
+@dataclass(frozen=True, slots=True)
+class TileRequest:
+    tile: int
+    rect: Rect
+
+
+@dataclass(frozen=True, slots=True)
+class RenderJob:
+    """A parsed ``render`` message; ``camera_error`` is set (and ``camera`` None) for a bad camera."""
+
+    frame: int
+    camera: Camera | None
+    camera_error: str | None
+    size: tuple[int, int]
+    codec: Codec
+    jpeg_quality: int
+    tiles: tuple[TileRequest, ...]
+
+
+def parse_render(message: dict[str, Any]) -> RenderJob:
+    """Validate a ``render`` message; raises ProtocolError naming what is wrong."""
+    frame = require(message, "frame", int)
+    size = require(message, "size", list)
+    if len(size) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_SIZE
+                                 for v in size):
+        raise ProtocolError(f"render.size must be [W, H] in 1..{MAX_SIZE}, got {size!r}")
+    try:
+        codec = Codec.parse(require(message, "codec", str))
+    except ValueError as exc:
+        raise ProtocolError(str(exc)) from None
+    quality = message.get("jpeg_quality", 85)
+    if not isinstance(quality, int) or isinstance(quality, bool) or not 1 <= quality <= 100:
+        raise ProtocolError(f"render.jpeg_quality must be an integer 1..100, got {quality!r}")
+    tiles = []
+    for entry in require(message, "tiles", list):
+        if not isinstance(entry, dict) or not isinstance(entry.get("tile"), int):
+            raise ProtocolError(f"render.tiles entries are {{tile, rect}}, got {entry!r}")
+        try:
+            tiles.append(TileRequest(entry["tile"], Rect.from_seq(entry.get("rect", ()))))
+        except ValueError as exc:
+            raise ProtocolError(str(exc)) from None
+    camera, camera_error = None, None
+    try:
+        camera = Camera.from_json(message.get("camera"))
+    except CameraError as exc:
+        camera_error = f"bad camera: {exc}"
+    return RenderJob(frame, camera, camera_error, (size[0], size[1]), codec, quality, tuple(tiles))
+
+
+def parse_load_scene(message: dict[str, Any]) -> tuple[str, tuple[float, float, float] | None]:
+    """(scene spec, background RGB in 0…1 or None) of a ``load_scene`` message."""
+    spec = require(message, "scene", str)
+    background = message.get("background")
+    if background is None:
+        return spec, None
+    if not (isinstance(background, list) and len(background) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1 for v in background)):
+        raise ProtocolError(f"load_scene.background must be [r, g, b] in 0..1, got {background!r}")
+    return spec, (float(background[0]), float(background[1]), float(background[2]))
+
+
+def encode_tile(frame: int, tile: TileRequest, rendered: RenderedTile, render_ms: float,
+                codec: Codec, jpeg_quality: int) -> bytes:
+    """The binary tile message: header with the phase times + the encoded pixels."""
+    started = time.perf_counter()
+    payload = encode(rendered.pixels, codec, jpeg_quality)
+    encode_ms = (time.perf_counter() - started) * 1e3
+    header = TileHeader(frame, tile.tile, tile.rect, codec, render_ms, rendered.readback_ms, encode_ms)
+    return pack_tile(header, payload)
+
+
+class GLWorker:
+    """The one thread that owns the GL context: scenes are loaded, uploaded and drawn only there.
+
+    The loaded scene survives reconnects; asking for the same scene again reuses it.
+    """
+
+    def __init__(self) -> None:
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
+        self._ctx: moderngl.Context | None = None
+        self._renderer: TileRenderer | None = None
+        self.scene_spec: str | None = None
+
+    async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
+        return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
+
+    async def start(self) -> str:
+        """Create the context; returns the GL renderer string. Raises GLUnavailableError."""
+        return await self._call(self._start)
+
+    def _start(self) -> str:
+        self._ctx = create_gl_context()
+        return renderer_string(self._ctx)
+
+    async def load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback) -> SceneData:
+        """Load and upload ``spec`` (or reuse it when already loaded); raises SceneError."""
+        return await self._call(self._load, spec, background, progress)
+
+    def _load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback) -> SceneData:
+        assert self._ctx is not None
+        if self._renderer is not None and spec == self.scene_spec:
+            if background is not None:
+                self._renderer.background = background
+            return self._renderer.scene
+        self._release_scene()
+        scene = load_scene(spec, progress)
+        progress(0.9, f"uploading {scene.triangle_count} triangles")
+        if background is None:
+            self._renderer = TileRenderer(self._ctx, scene)
+        else:
+            self._renderer = TileRenderer(self._ctx, scene, background)
+        self.scene_spec = spec
+        return scene
+
+    async def render(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
+        return await self._call(self._render, camera, size, rect)
+
+    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
+        if self._renderer is None:
+            raise RuntimeError("no scene loaded")
+        return self._renderer.render_tile(camera, size, rect)
+
+    def _release_scene(self) -> None:
+        if self._renderer is not None:
+            self._renderer.release()
+        self._renderer, self.scene_spec = None, None
+
+    def _close(self) -> None:
+        self._release_scene()
+        if self._ctx is not None:
+            self._ctx.release()
+            self._ctx = None
+
+    def close(self) -> None:
+        """Free GL resources on the GL thread and stop it (waits for a running draw)."""
+        self._executor.submit(self._close)
+        self._executor.shutdown(wait=True)
+
+
+@dataclass(frozen=True, slots=True)
+class PendingTile:
+    """A tile whose encoding may still run; the sender awaits it in order."""
+
+    frame: int
+    tile: int
+    packed: asyncio.Future[bytes]
+    triangles: int
+
+
+class NodeClient:
+    """One render node: ``await NodeClient(settings).run(stop)`` until ``stop`` is set."""
+
+    def __init__(self, settings: NodeSettings, worker: GLWorker | None = None,
+                 sleep: Callable[[float], Awaitable[Any]] = asyncio.sleep) -> None:
+        self.settings = settings
+        self.worker = worker or GLWorker()
+        self._sleep = sleep
+        self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
+        self.renderer_name = ""
+        self.node_id: int | None = None
+        self._welcomed = False
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Start the GL thread, then stay connected (with back-off) until ``stop`` is set."""
+        try:
+            self.renderer_name = await self.worker.start()
+            print(f"Tessera node {self.settings.name}: GL renderer {self.renderer_name}", flush=True)
+            connecting = asyncio.create_task(self._connect_forever(stop))
+            stopping = asyncio.create_task(stop.wait())
+            await asyncio.wait([connecting, stopping], return_when=asyncio.FIRST_COMPLETED)
+            for task in (connecting, stopping):
+                task.cancel()
+            await asyncio.gather(connecting, stopping, return_exceptions=True)
+        finally:
+            self._encoder.shutdown(wait=True)
+            await asyncio.to_thread(self.worker.close)
+            log.info("node %s stopped", self.settings.name)
+
+    async def _connect_forever(self, stop: asyncio.Event) -> None:
+        delay = BACKOFF_START_S
+        while not stop.is_set():
+            self._welcomed = False
+            bad_token, why = await self._connect_once()
+            if self._welcomed:
+                delay = BACKOFF_START_S
+            (log.error if bad_token else log.warning)("%s; reconnecting in %.1f s", why, delay)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), delay)
+            delay = min(delay * 2.0, BACKOFF_MAX_S)
+
+    async def _connect_once(self) -> tuple[bool, str]:
+        """One connection, served until it ends; returns (token rejected, why it ended)."""
+        url = self.settings.coordinator
+        try:
+            async with connect(url, max_size=MAX_MESSAGE_BYTES, compression=None, proxy=None) as ws:
+                log.info("connected to %s", url)
+                await self._session(ws)
+        except InvalidStatus as exc:
+            return False, f"coordinator {url} refused the WebSocket: HTTP {exc.response.status_code}"
+        except (OSError, TimeoutError, InvalidHandshake, ConnectionClosed) as exc:
+            return False, f"cannot reach coordinator {url} ({exc or type(exc).__name__})"
+        if ws.close_code == CLOSE_BAD_TOKEN:
+            return True, (f"coordinator {url} rejected this node's token "
+                          f"(close {CLOSE_BAD_TOKEN}: {ws.close_reason or 'bad token'})")
+        return False, f"connection to {url} closed (code {ws.close_code}{': ' if ws.close_reason else ''}" \
+                      f"{ws.close_reason})"
+
+    def hello(self) -> dict[str, Any]:
+        return {
+            "type": "hello", "name": self.settings.name, "token": self.settings.token or "",
+            "renderer": self.renderer_name, "version": PROTOCOL_VERSION,
+            "capabilities": {"codecs": list(CODECS), "slowdown": self.settings.slowdown},
+        }
+
+    async def _session(self, ws: ClientConnection) -> None:
+        await ws.send(encode_json(self.hello()))
+        jobs: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        outbox: asyncio.Queue[str | PendingTile] = asyncio.Queue()
+        tasks = [asyncio.create_task(self._receive(ws, jobs)), asyncio.create_task(self._send_loop(ws, outbox)),
+                 asyncio.create_task(self._job_loop(jobs, outbox))]
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        for task in done:
+            error = None if task.cancelled() else task.exception()
+            if error is not None and not isinstance(error, ConnectionClosed):
+                log.error("node session failed", exc_info=error)
+                await ws.close(1011, "node error")
+
+    async def _receive(self, ws: ClientConnection, jobs: asyncio.Queue[dict[str, Any]]) -> None:
+        async for raw in ws:
+            if isinstance(raw, bytes):
+                log.warning("ignoring a binary message from the coordinator")
+                continue
+            try:
+                message = decode_json(raw, ("welcome", "load_scene", "render"))
+            except ProtocolError as exc:
+                log.warning("ignoring coordinator message: %s", exc)
+                continue
+            if message["type"] == "welcome":
+                self.node_id = message.get("node_id")
+                self._welcomed = True
+                log.info("registered as node %s", self.node_id)
+            else:
+                jobs.put_nowait(message)
+
+    async def _job_loop(self, jobs: asyncio.Queue[dict[str, Any]], outbox: asyncio.Queue[str | PendingTile]) -> None:
+        while True:
+            message = await jobs.get()
+            if message["type"] == "load_scene":
+                await self._load_scene(message, outbox)
+            else:
+                await self._render(message, outbox)
+
+    async def _load_scene(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
+        loop = asyncio.get_running_loop()
+        try:
+            spec, background = parse_load_scene(message)
+        except ProtocolError as exc:
+            outbox.put_nowait(encode_json({"type": "scene_error", "scene": str(message.get("scene")),
+                                           "message": str(exc)}))
+            return
+
+        def progress(fraction: float, text: str) -> None:
+            update = encode_json({"type": "scene_progress", "scene": spec, "fraction": fraction, "message": text})
+            loop.call_soon_threadsafe(outbox.put_nowait, update)
+
+        started = time.perf_counter()
+        try:
+            scene = await self.worker.load(spec, background, progress)
+        except Exception as exc:  # SceneError, or a GL failure while uploading
+            reason = " ".join(str(exc).split()) or type(exc).__name__
+            log.warning("scene %s failed: %s", spec, reason)
+            outbox.put_nowait(encode_json({"type": "scene_error", "scene": spec, "message": reason}))
+            return
+        load_ms = (time.perf_counter() - started) * 1e3
+        log.info("scene %s ready: %d triangles, %d meshes, %.0f ms", spec, scene.triangle_count,
+                 len(scene.batches), load_ms)
+        outbox.put_nowait(encode_json({
+            "type": "scene_ready", "scene": spec, "triangles": scene.triangle_count,
+            "meshes": len(scene.batches), "bounds": scene.bounds.tolist(), "load_ms": load_ms,
+            "groups": scene.groups.to_json(),
+        }))
+
+    async def _render(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
+        try:
+            job = parse_render(message)
+        except ProtocolError as exc:
+            log.warning("bad render message: %s", exc)
+            self._render_errors(outbox, message.get("frame"), _tile_ids(message), str(exc))
+            return
+        if job.camera is None:
+            self._render_errors(outbox, job.frame, [t.tile for t in job.tiles], job.camera_error or "bad camera")
+            return
+        loop = asyncio.get_running_loop()
+        slowdown = self.settings.slowdown
+        for request in job.tiles:
+            try:
+                rendered = await self.worker.render(job.camera, job.size, request.rect)
+            except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
+                self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
+                continue
+            render_ms = rendered.render_ms
+            if slowdown > 1.0:
+                await self._sleep((slowdown - 1.0) * render_ms / 1e3)
+                render_ms *= slowdown
+            packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
+                                          job.codec, job.jpeg_quality)
+            outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.triangles))
+
+    @staticmethod
+    def _render_errors(outbox: asyncio.Queue[str | PendingTile], frame: Any, tiles: list[int], reason: str) -> None:
+        for tile in tiles:
+            outbox.put_nowait(encode_json({"type": "render_error", "frame": frame, "tile": tile, "message": reason}))
+
+    async def _send_loop(self, ws: ClientConnection, outbox: asyncio.Queue[str | PendingTile]) -> None:
+        while True:
+            item = await outbox.get()
+            if isinstance(item, str):
+                await ws.send(item)
+                continue
+            try:
+                packed = await item.packed
+            except Exception as exc:
+                self._render_errors(outbox, item.frame, [item.tile], f"encoding failed: {exc}")
+                continue
+            started = time.perf_counter()
+            await ws.send(packed)
+            send_ms = (time.perf_counter() - started) * 1e3
+            await ws.send(encode_json({"type": "tile_sent", "frame": item.frame, "tile": item.tile,
+                                       "send_ms": send_ms, "stats": {"triangles": item.triangles}}))
+
+
+def _tile_ids(message: dict[str, Any]) -> list[int]:
+    """Tile ids of a malformed render message, as far as they can be read."""
+    tiles = message.get("tiles")
+    if not isinstance(tiles, list):
+        return []
+    return [t["tile"] for t in tiles if isinstance(t, dict) and isinstance(t.get("tile"), int)]
+
+
+def run_node(settings: NodeSettings) -> int:
+    """Run the node until SIGINT/SIGTERM; returns the exit code."""
+
+    async def main() -> int:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(signum, stop.set)
+        try:
+            await NodeClient(settings).run(stop)
+        except GLUnavailableError as exc:
+            log.error("%s", exc)
+            return 1
+        return 0
+
+    return asyncio.run(main())
+

@@ -1,0 +1,259 @@
+"""Retained-mode tile renderer (seed 002): the scene is uploaded once, then any screen tile of any
+camera is drawn and read back.
+
+A tile is drawn with the full frame's camera, projection and viewport into a frame-sized
+framebuffer, with the scissor box set to the tile (seeds 001/002: tiles join without seams).
+Rasterisation, attribute interpolation and texture LOD (which uses 2×2 pixel quads) are then the
+very same as in a full render, so a tile is bit-identical to that region of the full frame — a
+tile-sized framebuffer with a shifted viewport (``tessera.geometry.tile_viewport``) moves the
+quad grid and the interpolation origin by the tile offset and changes low bits. One framebuffer
+serves every tile of a frame size however the balancer reshapes the tiles.
+
+Geometry lives in one interleaved vertex buffer and one index buffer; each batch is an index range
+(``draw_ranges``) drawn with its own material uniforms, ready for finer per-chunk ranges.
+Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
+base colour × vertex colour × sRGB texture, output sRGB-encoded.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from node.scene import MeshBatch, SceneData
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
+
+GL_SRGB8_ALPHA8 = 0x8C43
+VERTEX_FORMAT = "3f 3f 2f 4f"
+AMBIENT = 0.16
+DIFFUSE = 0.9
+#: Headlight direction in view space (towards the light): from the eye, a little above and right,
+#: so that surfaces facing the viewer still show their relief.
+HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
+
+VERTEX_SHADER = """
+#version 330
+uniform mat4 u_view_projection;
+in vec3 in_position;
+in vec3 in_normal;
+in vec2 in_uv;
+in vec4 in_color;
+out vec3 v_normal;
+out vec2 v_uv;
+out vec4 v_color;
+void main() {
+    v_normal = in_normal;
+    v_uv = in_uv;
+    v_color = in_color;
+    gl_Position = u_view_projection * vec4(in_position, 1.0);
+}
+"""
+
+FRAGMENT_SHADER = f"""
+#version 330
+uniform vec3 u_light_direction;
+uniform vec4 u_base_color;
+uniform float u_alpha_cutoff;
+uniform sampler2D u_texture;
+in vec3 v_normal;
+in vec2 v_uv;
+in vec4 v_color;
+out vec4 f_color;
+vec3 linear_to_srgb(vec3 c) {{
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}}
+void main() {{
+    vec4 albedo = u_base_color * v_color * texture(u_texture, v_uv);
+    if (albedo.a < u_alpha_cutoff) discard;
+    float normal_length = length(v_normal);
+    float lambert = normal_length > 0.0 ? abs(dot(v_normal / normal_length, u_light_direction)) : 0.0;
+    vec3 lit = albedo.rgb * ({AMBIENT} + {DIFFUSE} * lambert);
+    f_color = vec4(linear_to_srgb(clamp(lit, 0.0, 1.0)), albedo.a);
+}}
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class RenderedTile:
+    """A tile's pixels (rect.h, rect.w, 3) uint8, row 0 at the top, and its measured phases (ms)."""
+
+    rect: Rect
+    pixels: np.ndarray
+    render_ms: float
+    readback_ms: float
+    triangles: int
+
+
+@dataclass(frozen=True, slots=True)
+class DrawRange:
+    """``count`` indices from ``first`` in the shared index buffer, drawn with batch ``batch``'s material."""
+
+    batch: int
+    first: int
+    count: int
+
+
+def interleave_vertices(batch: MeshBatch) -> np.ndarray:
+    """(N, 12) float32 rows of position, normal, uv (zeros if none), colour (ones if none)."""
+    count = batch.vertex_count
+    uvs = batch.uvs if batch.uvs is not None else np.zeros((count, 2), np.float32)
+    colors = batch.colors if batch.colors is not None else np.ones((count, 4), np.float32)
+    return np.concatenate([batch.positions, batch.normals, uvs, colors], axis=1, dtype=np.float32)
+
+
+def headlight_direction(camera: Camera) -> tuple[float, float, float]:
+    """World-space unit vector towards the camera-attached light (:data:`HEADLIGHT_VIEW`)."""
+    rotation = look_at(camera.eye, camera.target, camera.up)[:3, :3]
+    direction = rotation.T @ np.asarray(HEADLIGHT_VIEW, dtype=np.float64)
+    return tuple(float(v) for v in direction / np.linalg.norm(direction))
+
+
+def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
+    """Raise ValueError unless ``rect`` is non-empty and inside a ``size`` = (w, h) frame."""
+    width, height = size
+    if width <= 0 or height <= 0:
+        raise ValueError(f"frame size must be positive, got {width}x{height}")
+    if rect.w <= 0 or rect.h <= 0 or rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
+        raise ValueError(f"tile {rect.as_list()} is empty or outside the {width}x{height} frame")
+
+
+class TileRenderer:
+    """Draws tiles of ``scene`` on ``ctx``; use it only on the thread that owns ``ctx``."""
+
+    def __init__(self, ctx: moderngl.Context, scene: SceneData,
+                 background: Sequence[float] = DEFAULT_BACKGROUND) -> None:
+        self.ctx = ctx
+        self.scene = scene
+        self.background = background
+        self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
+        self.program["u_texture"].value = 0
+        vertices, indices, self.draw_ranges = self._pack(scene.batches)
+        self.vertex_buffer = ctx.buffer(vertices)
+        self.index_buffer = ctx.buffer(indices)
+        self.vertex_array = ctx.vertex_array(
+            self.program,
+            [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
+            index_buffer=self.index_buffer, index_element_size=4,
+        )
+        self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
+        self.textures = self._upload_textures(scene.batches)
+        self._framebuffer: moderngl.Framebuffer | None = None
+
+    @property
+    def background(self) -> tuple[float, float, float]:
+        return self._background
+
+    @background.setter
+    def background(self, value: Sequence[float]) -> None:
+        rgb = tuple(float(v) for v in value)
+        if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+            raise ValueError(f"background must be three numbers in 0..1, got {list(value)}")
+        self._background = rgb
+
+    @staticmethod
+    def _pack(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray, list[DrawRange]]:
+        vertex_parts, index_parts, ranges = [], [], []
+        base_vertex = first_index = 0
+        for number, batch in enumerate(batches):
+            vertex_parts.append(interleave_vertices(batch))
+            index_parts.append(batch.faces.reshape(-1) + np.uint32(base_vertex))
+            ranges.append(DrawRange(number, first_index, batch.triangle_count * 3))
+            base_vertex += batch.vertex_count
+            first_index += batch.triangle_count * 3
+        return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32), ranges
+
+    def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[int, moderngl.Texture]:
+        """One sRGB mipmapped GL texture per distinct image, keyed by the image array's id."""
+        textures: dict[int, moderngl.Texture] = {}
+        for batch in batches:
+            image = batch.texture
+            if image is None or id(image) in textures:
+                continue
+            height, width = image.shape[:2]
+            # Image row 0 is the top; GL's t = 0 is the bottom row (uvs have origin bottom-left).
+            texture = self.ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]).tobytes(),
+                                       internal_format=GL_SRGB8_ALPHA8)
+            texture.build_mipmaps()
+            texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            textures[id(image)] = texture
+        return textures
+
+    def _framebuffer_for(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        framebuffer = self._framebuffer
+        if framebuffer is None or framebuffer.size != size:
+            if framebuffer is not None:
+                for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
+                    attachment.release()
+                framebuffer.release()
+            framebuffer = self._framebuffer = self.ctx.framebuffer(
+                color_attachments=[self.ctx.renderbuffer(size, 4)],
+                depth_attachment=self.ctx.depth_renderbuffer(size),
+            )
+        return framebuffer
+
+    def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
+        """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera``."""
+        validate_rect(rect, size)
+        width, height = size
+        started = time.perf_counter()
+        matrix = view_projection(camera, size, self.scene.bounds)
+        framebuffer = self._framebuffer_for((width, height))
+        gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
+        framebuffer.viewport = (0, 0, width, height)
+        framebuffer.scissor = gl_box
+        framebuffer.use()
+        framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
+        self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
+        self.program["u_light_direction"].value = headlight_direction(camera)
+        triangles = self._draw(framebuffer)
+        self.ctx.finish()
+        drawn = time.perf_counter()
+        data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
+        pixels = np.ascontiguousarray(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 3)[::-1])
+        read = time.perf_counter()
+        return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3, triangles)
+
+    def render_frame(self, camera: Camera, size: tuple[int, int]) -> RenderedTile:
+        """The whole ``size`` = (w, h) frame."""
+        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]))
+
+    def _draw(self, framebuffer: moderngl.Framebuffer) -> int:
+        """Issue the draw calls (opaque and masked first, blended last); returns triangles submitted."""
+        ctx = self.ctx
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        triangles = 0
+        blending = False
+        for draw in self.draw_ranges:
+            batch = self.scene.batches[draw.batch]
+            if batch.alpha_mode == "BLEND" and not blending:
+                blending = True
+                ctx.enable(moderngl.BLEND)
+                ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+                framebuffer.depth_mask = False
+            self.program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
+            self.program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
+            texture = self.textures.get(id(batch.texture), self.white) if batch.texture is not None else self.white
+            texture.use(0)
+            self.vertex_array.render(moderngl.TRIANGLES, vertices=draw.count, first=draw.first)
+            triangles += draw.count // 3
+        if blending:
+            framebuffer.depth_mask = True
+            ctx.disable(moderngl.BLEND)
+        return triangles
+
+    def release(self) -> None:
+        """Free the GL objects (the context stays the caller's)."""
+        if self._framebuffer is not None:
+            for attachment in (*self._framebuffer.color_attachments, self._framebuffer.depth_attachment):
+                attachment.release()
+            self._framebuffer.release()
+            self._framebuffer = None
+        for texture in self.textures.values():
+            texture.release()
+        for resource in (self.white, self.vertex_array, self.index_buffer, self.vertex_buffer, self.program):
+            resource.release()

@@ -1,0 +1,268 @@
+"""Scene data for retained-mode rendering (seed 002): every node loads the whole scene once.
+
+Loads glTF/GLB (with external .bin/.png), OBJ, PLY and STL through trimesh, or a generated
+``builtin:NAME`` scene, into world-space mesh batches ready for upload. No GL here.
+
+glTF node transforms and instancing are baked: each (node, mesh) pair of the scene graph becomes
+one :class:`MeshBatch` with world-space positions and normals (normals by the inverse-transpose).
+Scans without normals get smooth, area-weighted vertex normals. Colours are linear RGBA in 0…1;
+textures stay sRGB-encoded bytes (the renderer samples them as sRGB).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+BUILTIN_PREFIX = "builtin:"
+SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+#: Linear base colour of meshes that carry no material (scans): a warm light grey.
+DEFAULT_BASE_COLOR = (0.60, 0.57, 0.52, 1.0)
+
+#: ``progress(fraction 0…1, message)``: called while a scene loads.
+ProgressCallback = Callable[[float, str], None]
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message is one line naming the file and the reason."""
+
+
+@dataclass(frozen=True, eq=False)
+class MeshBatch:
+    """One drawable mesh in world space (one material, one draw call over an index range).
+
+    ``positions`` (N, 3) float32, ``normals`` (N, 3) float32 unit length, ``faces`` (F, 3) uint32,
+    ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
+    float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
+    sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
+    """
+
+    name: str
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    base_color: np.ndarray = field(default_factory=lambda: np.asarray(DEFAULT_BASE_COLOR, np.float32))
+    texture: np.ndarray | None = None
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.faces)
+
+    @property
+    def vertex_count(self) -> int:
+        return len(self.positions)
+
+    def bounds(self) -> np.ndarray:
+        """World-space AABB (2, 3) float64 of the vertices the faces use."""
+        used = np.zeros(len(self.positions), dtype=bool)
+        used[self.faces.reshape(-1)] = True
+        points = self.positions[used]
+        return np.stack([points.min(axis=0), points.max(axis=0)]).astype(np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class PrimitiveGroups:
+    """World-space primitive groups for seed 003's DPBP estimate: one per batch.
+
+    ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles.
+    """
+
+    boxes: np.ndarray
+    counts: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        return {"boxes": self.boxes.tolist(), "counts": self.counts.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class SceneData:
+    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64."""
+
+    name: str
+    batches: tuple[MeshBatch, ...]
+    bounds: np.ndarray
+    triangle_count: int
+    groups: PrimitiveGroups
+
+    @classmethod
+    def from_batches(cls, name: str, batches: list[MeshBatch]) -> SceneData:
+        """Drop empty batches, order blended ones last, compute bounds and groups."""
+        kept = [b for b in batches if b.triangle_count > 0]
+        if not kept:
+            raise SceneError(f"{name}: no triangles")
+        kept.sort(key=lambda b: b.alpha_mode == "BLEND")
+        boxes = np.array([b.bounds().reshape(6) for b in kept], dtype=np.float64)
+        counts = np.array([b.triangle_count for b in kept], dtype=np.int64)
+        bounds = np.stack([boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)])
+        return cls(name, tuple(kept), bounds, int(counts.sum()), PrimitiveGroups(boxes, counts))
+
+    @property
+    def vertex_count(self) -> int:
+        return sum(b.vertex_count for b in self.batches)
+
+
+def load_scene(spec: str, progress: ProgressCallback | None = None) -> SceneData:
+    """Load ``spec`` (a file path or ``builtin:NAME``); raises SceneError with a one-line reason."""
+    report = progress or (lambda fraction, message: None)
+    if spec.startswith(BUILTIN_PREFIX):
+        from node.builtin_scenes import build_builtin_scene
+
+        report(0.0, f"generating {spec}")
+        return build_builtin_scene(spec[len(BUILTIN_PREFIX):])
+    path = Path(spec)
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise SceneError(f"{spec}: unsupported file type {suffix or '(none)'!r}; "
+                         f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
+    if not path.is_file():
+        raise SceneError(f"{spec}: no such file")
+    report(0.0, f"reading {path.name}")
+    started = time.perf_counter()
+    try:
+        import trimesh
+
+        loaded = trimesh.load(str(path), force="scene", process=False)
+    except FileNotFoundError as exc:
+        raise SceneError(f"{spec}: a file it refers to is missing ({_one_line(exc)})") from None
+    except Exception as exc:  # trimesh and its parsers raise many types for corrupt input
+        raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
+    report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances")
+    try:
+        batches = batches_from_trimesh(loaded)
+    except SceneError as exc:
+        raise SceneError(f"{spec}: {exc}") from None
+    except Exception as exc:
+        raise SceneError(f"{spec}: corrupt geometry ({_one_line(exc)})") from None
+    return SceneData.from_batches(spec, batches)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
+def batches_from_trimesh(scene: Any) -> list[MeshBatch]:
+    """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh)."""
+    import trimesh
+
+    textures: dict[int, np.ndarray] = {}
+    batches = []
+    for node_name in scene.graph.nodes_geometry:
+        transform, geometry_name = scene.graph[node_name]
+        mesh = scene.geometry[geometry_name]
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            continue
+        batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures))
+    return batches
+
+
+def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray]) -> MeshBatch:
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
+        raise SceneError("face indices out of range")
+    # Normals the file provides are in trimesh's cache; otherwise compute smooth ones.
+    given_normals = "vertex_normals" in mesh._cache
+    normals = np.asarray(mesh.vertex_normals, dtype=np.float64) if given_normals else None
+    uvs = colors = texture = None
+    base_color = np.asarray(DEFAULT_BASE_COLOR, dtype=np.float32)
+    alpha_mode, alpha_cutoff = "OPAQUE", 0.5
+    visual = mesh.visual
+    if visual.kind == "texture" and getattr(visual, "material", None) is not None:
+        material = visual.material
+        if not hasattr(material, "baseColorFactor") and hasattr(material, "to_pbr"):
+            material = material.to_pbr()
+        factor = getattr(material, "baseColorFactor", None)
+        base_color = np.ones(4, np.float32) if factor is None else np.asarray(factor, np.float32) / 255.0
+        image = getattr(material, "baseColorTexture", None)
+        if image is not None and visual.uv is not None and len(visual.uv) == len(vertices):
+            uvs = np.asarray(visual.uv, dtype=np.float32)
+            texture = textures.get(id(image))
+            if texture is None:
+                texture = textures[id(image)] = np.ascontiguousarray(np.asarray(image.convert("RGBA")))
+        alpha_mode = str(getattr(material, "alphaMode", None) or "OPAQUE").upper()
+        cutoff = getattr(material, "alphaCutoff", None)
+        alpha_cutoff = 0.5 if cutoff is None else float(cutoff)
+        attribute_colors = visual.vertex_attributes.get("color")
+        if attribute_colors is not None and len(attribute_colors) == len(vertices):
+            colors = _linear_rgba(np.asarray(attribute_colors))
+    elif visual.kind == "vertex":
+        colors = _linear_rgba(np.asarray(visual.vertex_colors))
+    elif visual.kind == "face":
+        face_colors = _linear_rgba(np.asarray(visual.face_colors))
+        if normals is None:
+            normals = smooth_vertex_normals(vertices, faces)
+        vertices, normals = vertices[faces].reshape(-1, 3), normals[faces].reshape(-1, 3)
+        colors = np.repeat(face_colors, 3, axis=0)
+        faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
+    world = vertices @ transform[:3, :3].T + transform[:3, 3]
+    faces = _drop_nonfinite_faces(world, faces)
+    if normals is None:
+        world_normals = smooth_vertex_normals(world, faces)
+    else:
+        world_normals = _normalize(normals @ np.linalg.inv(transform[:3, :3]))
+    return MeshBatch(
+        name=name,
+        positions=world.astype(np.float32),
+        normals=world_normals.astype(np.float32),
+        faces=faces.astype(np.uint32),
+        uvs=uvs,
+        colors=colors,
+        base_color=base_color,
+        texture=texture,
+        alpha_mode=alpha_mode if alpha_mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
+        alpha_cutoff=alpha_cutoff,
+    )
+
+
+def _drop_nonfinite_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    finite = np.isfinite(positions).all(axis=1)
+    if finite.all():
+        return faces
+    return faces[finite[faces].all(axis=1)]
+
+
+def _normalize(vectors: np.ndarray) -> np.ndarray:
+    lengths = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return np.divide(vectors, lengths, out=np.zeros_like(vectors), where=lengths > 0.0)
+
+
+def smooth_vertex_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted smooth normals (N, 3) float64 for ``positions`` (N, 3) and ``faces`` (F, 3)."""
+    corners = positions[faces]
+    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    summed = np.zeros((len(positions), 3))
+    for axis in range(3):
+        for corner in range(3):
+            summed[:, axis] += np.bincount(faces[:, corner], weights=face_normals[:, axis],
+                                           minlength=len(positions))
+    return _normalize(summed)
+
+
+def _linear_rgba(colors: np.ndarray) -> np.ndarray:
+    """(N, 3|4) colours to linear RGBA float32: 8-bit values are sRGB-decoded, floats kept."""
+    if colors.dtype == np.uint8:
+        rgba = colors.astype(np.float32) / 255.0
+        rgba[:, :3] = srgb_to_linear(rgba[:, :3])
+    elif np.issubdtype(colors.dtype, np.integer):
+        rgba = colors.astype(np.float32) / float(np.iinfo(colors.dtype).max)
+    else:
+        rgba = np.clip(colors.astype(np.float32), 0.0, 1.0)
+    if rgba.shape[1] == 3:
+        rgba = np.concatenate([rgba, np.ones((len(rgba), 1), np.float32)], axis=1)
+    return np.ascontiguousarray(rgba[:, :4])
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """sRGB-encoded 0…1 values to linear 0…1 (same shape, float32)."""
+    values = np.asarray(values, dtype=np.float32)
+    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)

@@ -1,0 +1,120 @@
+"""The render node's settings: one typed object, parsed once at start-up from argv and the
+environment (every ``--flag`` is also ``TESSERA_<FLAG>``; the command line wins)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import socket
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tessera.geometry import DEFAULT_BACKGROUND
+
+DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
+DEFAULT_SCENE = "builtin:cluster"
+DEFAULT_SIZE = (1280, 720)
+MAX_SIZE = 16384
+ENV_PREFIX = "TESSERA_"
+
+
+def default_name() -> str:
+    """``hostname-pid``: unique per process, readable in the coordinator's stats."""
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+@dataclass(frozen=True, slots=True)
+class NodeSettings:
+    """Everything the node process is configured with."""
+
+    coordinator: str = DEFAULT_COORDINATOR
+    name: str = field(default_factory=default_name)
+    token: str | None = None
+    slowdown: float = 1.0
+    render_once: Path | None = None
+    scene: str = DEFAULT_SCENE
+    camera: Path | None = None
+    size: tuple[int, int] = DEFAULT_SIZE
+    background: tuple[float, float, float] = DEFAULT_BACKGROUND
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``WxH`` → (w, h), each 1…16384."""
+    parts = text.lower().split("x")
+    try:
+        width, height = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 1280x720, got {text!r}") from None
+    if not (1 <= width <= MAX_SIZE and 1 <= height <= MAX_SIZE):
+        raise argparse.ArgumentTypeError(f"size {width}x{height} out of range 1..{MAX_SIZE}")
+    return width, height
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """``#rrggbb`` or ``r,g,b`` with components in 0…1 → an RGB triple in 0…1."""
+    text = text.strip()
+    try:
+        if text.startswith("#") and len(text) == 7:
+            rgb = tuple(int(text[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
+        else:
+            rgb = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rgb):
+        raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0..1, got {text!r}")
+    return rgb  # type: ignore[return-value]
+
+
+def parse_slowdown(text: str) -> float:
+    """A finite factor ≥ 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 1.0):
+        raise argparse.ArgumentTypeError(f"slowdown must be a number >= 1, got {text!r}")
+    return value
+
+
+def parse_coordinator(text: str) -> str:
+    if not text.startswith(("ws://", "wss://")):
+        raise argparse.ArgumentTypeError(f"coordinator must be a ws:// or wss:// URL, got {text!r}")
+    return text
+
+
+def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
+    """The ``python -m node`` parser; defaults come from ``TESSERA_<FLAG>`` variables in ``environ``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m node",
+        description="Tessera render node: renders tiles for a coordinator, or one frame with --render-once.",
+        epilog="Every flag can also be set as an environment variable TESSERA_<FLAG>, e.g. TESSERA_TOKEN.",
+    )
+
+    def add(flag: str, default: object, help_text: str, **kwargs: object) -> None:
+        env_name = ENV_PREFIX + flag.lstrip("-").replace("-", "_").upper()
+        parser.add_argument(flag, default=environ.get(env_name, default),
+                            help=f"{help_text} [env {env_name}]", **kwargs)  # type: ignore[arg-type]
+
+    add("--coordinator", DEFAULT_COORDINATOR, "coordinator URL, ws://HOST:PORT/ws/node", type=parse_coordinator)
+    add("--name", None, "node name shown in the coordinator's stats (default hostname-pid)")
+    add("--token", None, "shared secret the coordinator expects")
+    add("--slowdown", 1.0, "emulate a node this many times slower (sleeps (F-1) x render time per tile)",
+        type=parse_slowdown)
+    add("--render-once", None, "render one full frame to this PNG and exit (no coordinator)", type=Path,
+        metavar="OUT.png")
+    add("--scene", DEFAULT_SCENE, "scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME, for --render-once")
+    add("--camera", None, "camera JSON file for --render-once (default: frame the whole scene)", type=Path)
+    add("--size", DEFAULT_SIZE, "frame size WxH for --render-once", type=parse_size)
+    add("--background", DEFAULT_BACKGROUND, "clear colour '#rrggbb' or 'r,g,b' in 0..1 for --render-once",
+        type=parse_background)
+    return parser
+
+
+def parse_settings(argv: Sequence[str] | None = None, environ: Mapping[str, str] | None = None) -> NodeSettings:
+    """Settings from ``argv`` (default ``sys.argv[1:]``) over ``environ`` (default ``os.environ``);
+    exits with a usage message on invalid values, as argparse does."""
+    args = build_parser(os.environ if environ is None else environ).parse_args(argv)
+    values = {key: value for key, value in vars(args).items() if value is not None and value != ""}
+    return NodeSettings(**values)

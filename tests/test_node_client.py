@@ -1,0 +1,179 @@
+"""The node process: its settings (argv over ``TESSERA_*`` environment), and its network loop
+against a tiny fake coordinator (a real websockets server on port 0): hello, scene loading, tiles in
+order with their ``tile_sent``, errors, slowdown, reconnection."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+
+import numpy as np
+import pytest
+from websockets.asyncio.server import ServerConnection, serve
+
+from node.client import NodeClient
+from node.gl_context import create_gl_context
+from node.renderer import TileRenderer
+from node.scene import load_scene
+from node.settings import NodeSettings, parse_settings
+from tessera.codec import Codec, decode
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
+from tessera.protocol import unpack_tile
+from tests.conftest import seconds
+
+SIZE = (96, 64)
+BACKGROUND = (0.2, 0.4, 0.6)
+CAMERA = {"eye": [0.5, 1.6, 3.2], "target": [-0.2, 0.4, 0.0], "fovy_deg": 45}
+SLOWDOWN = 3.0
+
+
+class FakeCoordinator:
+    """Hands each accepted node connection to the test, which then plays the coordinator."""
+
+    def __init__(self) -> None:
+        self.connections: asyncio.Queue[ServerConnection] = asyncio.Queue()
+
+    async def handler(self, ws: ServerConnection) -> None:
+        self.connections.put_nowait(ws)
+        await ws.wait_closed()
+
+    async def accept(self) -> ServerConnection:
+        return await asyncio.wait_for(self.connections.get(), seconds(20))
+
+
+async def receive(ws: ServerConnection) -> str | bytes:
+    return await asyncio.wait_for(ws.recv(), seconds(30))
+
+
+async def receive_json(ws: ServerConnection) -> dict:
+    message = await receive(ws)
+    assert isinstance(message, str), "expected a JSON control message"
+    return json.loads(message)
+
+
+async def send(ws: ServerConnection, **message) -> None:
+    await ws.send(json.dumps(message))
+
+
+async def receive_tile(ws: ServerConnection, frame: int, tile: int, triangles: int):
+    """A binary tile and the ``tile_sent`` right after it."""
+    binary = await receive(ws)
+    assert isinstance(binary, bytes), f"expected tile {tile}, got {binary!r}"
+    header, payload = unpack_tile(binary)
+    assert (header.frame_id, header.tile_id, header.codec) == (frame, tile, Codec.PNG)
+    sent = await receive_json(ws)
+    assert sent["type"] == "tile_sent" and (sent["frame"], sent["tile"]) == (frame, tile)
+    assert sent["send_ms"] >= 0.0 and sent["stats"] == {"triangles": triangles}
+    return header, decode(bytes(payload), header.codec, header.rect.w, header.rect.h)
+
+
+async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tuple[np.ndarray, list[float]]:
+    """The whole conversation; returns the stitched frame-1 image and its tiles' render_ms."""
+    ws = await coordinator.accept()
+    hello = await receive_json(ws)
+    assert hello["type"] == "hello" and hello["name"] == "tester" and hello["token"] == "s3cret"
+    assert hello["version"] == 1 and hello["renderer"]
+    assert hello["capabilities"] == {"codecs": ["raw", "jpeg", "png"], "slowdown": SLOWDOWN}
+    await send(ws, type="welcome", node_id=7)
+    await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
+    progress = []
+    while (message := await receive_json(ws))["type"] == "scene_progress":
+        progress.append(message["fraction"])
+    assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
+    assert message["triangles"] == triangles and message["meshes"] == 5 and message["load_ms"] >= 0
+    assert len(message["groups"]["boxes"]) == len(message["groups"]["counts"]) == 5
+
+    tiles = [{"tile": 0, "rect": [0, 0, 50, 64]}, {"tile": 1, "rect": [50, 0, 46, 64]}]
+    await send(ws, type="render", frame=1, camera=CAMERA, size=list(SIZE), codec="png", jpeg_quality=80, tiles=tiles)
+    stitched = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
+    render_ms = []
+    for tile in (0, 1):
+        header, pixels = await receive_tile(ws, 1, tile, triangles)
+        stitched[header.rect.y:header.rect.y1, header.rect.x:header.rect.x1] = pixels
+        render_ms.append(header.render_ms)
+
+    await send(ws, type="render", frame=2, camera={"eye": [1, 1, 1], "target": [1, 1, 1]}, size=list(SIZE),
+               codec="png", tiles=tiles)
+    for tile in (0, 1):
+        error = await receive_json(ws)
+        assert error["type"] == "render_error" and (error["frame"], error["tile"]) == (2, tile)
+        assert "camera" in error["message"]
+
+    await send(ws, type="render", frame=3, camera=CAMERA, size=list(SIZE), codec="png",
+               tiles=[{"tile": 0, "rect": [90, 0, 10, 10]}, {"tile": 1, "rect": [0, 0, 8, 8]}])
+    error = await receive_json(ws)
+    assert error["type"] == "render_error" and (error["frame"], error["tile"]) == (3, 0)
+    await receive_tile(ws, 3, 1, triangles)
+
+    await ws.close(4401, "wrong token")
+    ws = await coordinator.accept()
+    assert (await receive_json(ws))["type"] == "hello"
+    await send(ws, type="welcome", node_id=8)
+    await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
+    assert (await receive_json(ws))["type"] == "scene_ready", "the loaded scene must be reused, not reloaded"
+    return stitched, render_ms
+
+
+async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float]]:
+    coordinator = FakeCoordinator()
+    slept: list[float] = []
+
+    async def record_sleep(duration: float) -> None:
+        slept.append(duration)
+
+    async with serve(coordinator.handler, "127.0.0.1", 0) as server:
+        port = server.sockets[0].getsockname()[1]
+        settings = NodeSettings(coordinator=f"ws://127.0.0.1:{port}/ws/node", name="tester", token="s3cret",
+                                slowdown=SLOWDOWN)
+        stop = asyncio.Event()
+        node = asyncio.create_task(NodeClient(settings, sleep=record_sleep).run(stop))
+        try:
+            stitched, render_ms = await play_coordinator(coordinator, load_scene("builtin:spheres").triangle_count)
+        finally:
+            stop.set()
+            await asyncio.wait_for(node, seconds(30))
+    return stitched, render_ms, slept
+
+
+def test_settings_come_from_environment_and_argv_wins():
+    environ = {"TESSERA_COORDINATOR": "ws://render-hub:9000/ws/node", "TESSERA_TOKEN": "t0k", "TESSERA_NAME": "gpu-7",
+               "TESSERA_SLOWDOWN": "2.5", "TESSERA_SIZE": "640x360", "TESSERA_BACKGROUND": "#1c1f26"}
+    settings = parse_settings([], environ)
+    assert settings == NodeSettings(coordinator="ws://render-hub:9000/ws/node", name="gpu-7", token="t0k",
+                                    slowdown=2.5, size=(640, 360), background=(28 / 255, 31 / 255, 38 / 255))
+    overridden = parse_settings(["--slowdown", "1", "--background", "0.2,0.4,0.6", "--render-once", "x.png"], environ)
+    assert overridden.slowdown == 1.0 and overridden.background == (0.2, 0.4, 0.6)
+    assert str(overridden.render_once) == "x.png" and overridden.token == "t0k"
+
+
+def test_settings_defaults():
+    settings = parse_settings([], {})
+    assert settings.token is None and settings.slowdown == 1.0 and settings.render_once is None
+    assert settings.background == DEFAULT_BACKGROUND and settings.scene == "builtin:cluster"
+    assert settings.name.endswith(f"-{os.getpid()}")
+
+
+@pytest.mark.parametrize("argv", [["--slowdown", "0.5"], ["--slowdown", "nan"], ["--size", "0x10"],
+                                  ["--size", "big"], ["--background", "#12345"], ["--background", "0,0,2"],
+                                  ["--coordinator", "http://host:8000/ws/node"]])
+def test_settings_refuse_bad_values(argv, capsys):
+    with pytest.raises(SystemExit) as exited:
+        parse_settings(argv, {})
+    assert exited.value.code != 0
+    assert argv[0] in capsys.readouterr().err
+
+
+@pytest.mark.gl
+def test_node_serves_a_fake_coordinator():
+    stitched, render_ms, slept = asyncio.run(run_node_against_fake())
+    # Slowdown: each tile waits (F - 1) x its render time and reports F x it.
+    assert len(slept) == 3
+    for reported, wait_s in zip(render_ms, slept[:2], strict=True):
+        assert reported == pytest.approx(wait_s * 1e3 * SLOWDOWN / (SLOWDOWN - 1.0), rel=1e-4)
+    ctx = create_gl_context()
+    renderer = TileRenderer(ctx, load_scene("builtin:spheres"), BACKGROUND)
+    reference = renderer.render_tile(Camera.from_json(CAMERA), SIZE, Rect(0, 0, *SIZE)).pixels
+    renderer.release()
+    ctx.release()
+    assert np.array_equal(stitched, reference), "the tiles do not compose the node's own full frame"
