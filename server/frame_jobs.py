@@ -29,6 +29,7 @@ class TileJob:
     payload: bytes | None = None
     rendered_by: int | None = None
     send_ms: float | None = None
+    counters: dict[str, float | str] = field(default_factory=dict)
 
     @property
     def done(self) -> bool:
@@ -96,9 +97,27 @@ class FrameJob:
         tile.header, tile.payload, tile.rendered_by = header, payload, node_id
         return tile
 
-    def record_send(self, node_id: int, tile_id: int, send_ms: float) -> None:
+    def record_send(self, node_id: int, tile_id: int, send_ms: float,
+                    counters: dict[str, float | str] | None = None) -> None:
+        """The node's ``tile_sent``: send time (ms) and its per-tile counters (e.g. triangles drawn)."""
         if 0 <= tile_id < len(self.tiles) and self.tiles[tile_id].rendered_by == node_id:
             self.tiles[tile_id].send_ms = send_ms
+            self.tiles[tile_id].counters = dict(counters or {})
+
+    def counters_by_node(self) -> dict[int, dict[str, float | str]]:
+        """Per-node sums of the tiles' numeric counters (text counters: the last tile's value)."""
+        out: dict[int, dict[str, float | str]] = {}
+        for tile in self.tiles:
+            if tile.rendered_by is None:
+                continue
+            sums = out.setdefault(tile.rendered_by, {})
+            for key, value in tile.counters.items():
+                previous = sums.get(key, 0)
+                if isinstance(value, str) or isinstance(previous, str):
+                    sums[key] = value
+                else:
+                    sums[key] = previous + value
+        return out
 
     def owed_by(self, node_id: int) -> list[int]:
         return [t.tile_id for t in self.tiles if t.node_id == node_id and not t.done]

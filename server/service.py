@@ -126,12 +126,13 @@ class RenderService:
             frame_id, tile_id = require(message, "frame", int), require(message, "tile", int)
             send_ms = require(message, "send_ms", (int, float))
             job = self.in_flight.get(frame_id) or self._awaiting_send.get(frame_id)
-            if job is not None:
-                job.record_send(link.node_id, tile_id, max(float(send_ms), 0.0))
-                self._maybe_take_timings(job)
             stats = message.get("stats")
-            if isinstance(stats, dict):
-                link.counters.update({k: v for k, v in stats.items() if isinstance(v, (int, float, str))})
+            counters = ({str(k)[:40]: v if not isinstance(v, str) else v[:40] for k, v in stats.items()
+                         if isinstance(v, (int, float, str)) and not isinstance(v, bool)}
+                        if isinstance(stats, dict) else {})
+            if job is not None:
+                job.record_send(link.node_id, tile_id, max(float(send_ms), 0.0), counters)
+                self._maybe_take_timings(job)
         elif kind == "render_error":
             raise ProtocolError(f"node failed to render: {str(message.get('message'))[:300]}")
 
@@ -295,10 +296,12 @@ class RenderService:
             phases["encode"] += t.encode_ms
             phases["send"] += t.send_ms
             rects.setdefault(t.node_id, []).append(t.rect.as_list())
+        counters = job.counters_by_node()
         for node_id, phases in per_node.items():
             link = self.nodes.get(node_id)
             if link is not None:
                 link.last_phases, link.last_tiles = phases, rects[node_id]
+                link.counters = counters.get(node_id, {})
         self.stats.record_balance({n: sum(p.values()) for n, p in per_node.items()})
 
     def _publish(self, job: FrameJob) -> None:

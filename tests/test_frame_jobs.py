@@ -303,3 +303,14 @@ def test_imbalance_last_and_average_over_the_window():
     assert stats.imbalance_avg == pytest.approx(1.5), "old frames leave the window"
     stats.reset_imbalance()
     assert stats.imbalance_avg == 1.0
+
+
+def test_node_counters_are_summed_per_frame_and_text_keeps_the_last_value():
+    rects = [Rect(0, 0, 2, 2), Rect(2, 0, 2, 2), Rect(0, 2, 4, 2)]
+    partition = Partition(tuple(Tile(r, node) for r, node in zip(rects, (7, 7, 9), strict=True)))
+    job = FrameJob.create(1, Camera(eye=(0, 0, 3), target=(0, 0, 0)), (4, 4), Codec.RAW, 85, partition, 0.0)
+    for tile_id, (rect, node) in enumerate(zip(rects, (7, 7, 9), strict=True)):
+        header = TileHeader(1, tile_id, rect, Codec.RAW, 1.0, 0.1, 0.2)
+        job.accept(node, header, bytes(rect.w * rect.h * 3))
+        job.record_send(node, tile_id, 0.5, {"triangles": 100 * (tile_id + 1), "cull_path": f"p{tile_id}"})
+    assert job.counters_by_node() == {7: {"triangles": 300, "cull_path": "p1"}, 9: {"triangles": 300, "cull_path": "p2"}}
