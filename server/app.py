@@ -7,7 +7,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
-from server.routes import balancer, camera, frames, health, node_ws, stats, viewer_ws, web
+from server.routes import balancer, camera, frames, health, node_ws, nodes, stats, viewer_ws, web
 from server.routes.web import WEB_DIR
 from server.service import RenderService
 from server.settings import Settings
@@ -26,7 +26,7 @@ def create_app(settings: Settings) -> FastAPI:
                   description="Sort-first parallel rendering: nodes render tiles, the coordinator composites.")
     app.state.service = service
     app.state.settings = settings
-    for module in (health, stats, camera, frames, balancer, node_ws, viewer_ws, web):
+    for module in (health, stats, camera, frames, balancer, nodes, node_ws, viewer_ws, web):
         app.include_router(module.router)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

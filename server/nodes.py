@@ -29,6 +29,8 @@ class NodeLink:
     bounds: np.ndarray | None = None
     groups: dict[str, Any] | None = None
     speed: float = 1.0
+    can_calibrate: bool = False
+    calibration_ms: float | None = None
     idle_since: float = 0.0
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
@@ -62,6 +64,7 @@ class NodeLink:
             "send_ms": round(phases.get("send", 0.0), 3),
             "busy_ms": round(sum(phases.values()), 3),
             "speed": round(self.speed, 4),
+            "calibration_ms": None if self.calibration_ms is None else round(self.calibration_ms, 3),
             "slowdown": self.slowdown,
             "tiles_rendered": self.tiles_rendered,
             "outstanding": len(self.outstanding),

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from server.calibration import CalibrationQueue, calibrate_message, speeds_from_times
 from server.frame_jobs import FrameJob
 from server.frame_store import FrameStore, PublishedFrame
 from server.nodes import NodeLink
@@ -27,6 +28,7 @@ from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, TileTiming
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
+from tessera.projection import project_groups
 from tessera.protocol import ProtocolError, TileHeader, require, unpack_tile
 
 log = logging.getLogger("tessera.server")
@@ -54,6 +56,7 @@ class RenderService:
         self._tasks: list[asyncio.Task] = []
         self._awaiting_send: dict[int, FrameJob] = {}
         self.cpu_ms = {"receive": 0.0, "publish": 0.0}
+        self.calibration = CalibrationQueue()
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -76,7 +79,7 @@ class RenderService:
         slowdown = capabilities.get("slowdown", 1.0)
         link = NodeLink(self._next_node_id, name, renderer, close,
                         slowdown=float(slowdown) if isinstance(slowdown, (int, float)) else 1.0,
-                        idle_since=time.monotonic())
+                        can_calibrate=capabilities.get("calibrate") is True, idle_since=time.monotonic())
         self._next_node_id += 1
         self.nodes[link.node_id] = link
         link.send({"type": "welcome", "node_id": link.node_id})
@@ -90,6 +93,8 @@ class RenderService:
             return
         log.info("node %d (%s) left; %d tiles owed are re-dispatched", link.node_id, link.name, len(link.outstanding))
         link.outstanding.clear()
+        self.calibration.forget(link.node_id)
+        self._start_calibration()
         ready = self.ready_nodes()
         for job in list(self.in_flight.values()):
             owed = job.owed_by(link.node_id)
@@ -133,6 +138,8 @@ class RenderService:
             if job is not None:
                 job.record_send(link.node_id, tile_id, max(float(send_ms), 0.0), counters)
                 self._maybe_take_timings(job)
+        elif kind == "calibration":
+            self._on_calibration(link, require(message, "ms", (int, float)))
         elif kind == "render_error":
             raise ProtocolError(f"node failed to render: {str(message.get('message'))[:300]}")
 
@@ -151,7 +158,40 @@ class RenderService:
                 self.camera = default_camera(bounds, aspect=self.size[0] / self.size[1])
             self.viewers.broadcast({"type": "scene", "bounds": bounds.tolist(), "camera": self.camera.to_json()})
         log.info("node %d (%s) ready: %d triangles", link.node_id, link.name, link.triangles)
+        if link.can_calibrate:
+            self.calibration.request(link.node_id)
+            self._start_calibration()
         self.wake()
+
+    # ----------------------------------------------------------------- calibration (seed 003 §1)
+    def calibrate_all(self) -> list[int]:
+        """Queue every ready node that can calibrate; returns their ids."""
+        ids = [n.node_id for n in self.ready_nodes() if n.can_calibrate]
+        for node_id in ids:
+            self.calibration.request(node_id)
+        self._start_calibration()
+        return ids
+
+    def _start_calibration(self) -> None:
+        if self.camera is None:
+            return
+        node_id = self.calibration.next_to_start(time.monotonic())
+        if node_id is not None and node_id in self.nodes:
+            self.nodes[node_id].send(calibrate_message(self.camera, self.size))
+
+    def _on_calibration(self, link: NodeLink, ms: float) -> None:
+        if not self.calibration.finished(link.node_id):
+            raise ProtocolError("calibration result without a calibrate request")
+        if not ms > 0.0:
+            raise ProtocolError(f"calibration time must be > 0 ms, got {ms}")
+        link.calibration_ms = float(ms)
+        speeds = speeds_from_times({n.node_id: n.calibration_ms for n in self.nodes.values()
+                                    if n.calibration_ms is not None})
+        for node_id, speed in speeds.items():
+            self.nodes[node_id].speed = speed
+        log.info("node %d (%s) calibrated: %.2f ms; speeds %s", link.node_id, link.name, ms,
+                 {k: round(v, 3) for k, v in speeds.items()})
+        self._start_calibration()
 
     def ready_nodes(self) -> list[NodeLink]:
         return [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready]
@@ -211,7 +251,8 @@ class RenderService:
         elapsed_ms = 0.0 if self._last_partition_at is None else (now - self._last_partition_at) * 1000.0
         inputs = BalanceInput(
             size=self.size, node_ids=tuple(n.node_id for n in ready), previous=self._last_partition,
-            timings=self._last_timings, weights={n.node_id: n.speed for n in ready}, elapsed_ms=elapsed_ms)
+            timings=self._last_timings, weights={n.node_id: n.speed for n in ready}, elapsed_ms=elapsed_ms,
+            groups=self._projected_groups(ready) if self.balancer.uses_groups else None)
         try:
             partition = self.balancer.partition(inputs)
             self._check_partition(partition, inputs)
@@ -220,6 +261,20 @@ class RenderService:
             partition = StaticBalancer().partition(inputs)
         self._last_partition, self._last_partition_at = partition, now
         return partition
+
+    def _projected_groups(self, ready: list[NodeLink]):
+        """The scene's primitive groups (reported by a node at load) projected for this frame's camera."""
+        groups = next((n.groups for n in ready if n.groups), None)
+        if groups is None or self.camera is None or self.bounds is None:
+            return None
+        try:
+            boxes = np.asarray(groups["boxes"], dtype=np.float64).reshape(-1, 6)
+            counts = np.asarray(groups["counts"], dtype=np.float64).reshape(-1)
+        except (KeyError, TypeError, ValueError):
+            return None
+        if len(boxes) != len(counts) or not np.isfinite(boxes).all():
+            return None
+        return project_groups(boxes, counts, self.camera, self.size, self.bounds)
 
     def _check_partition(self, partition: Partition, inputs: BalanceInput) -> None:
         width, height = self.size
@@ -321,6 +376,7 @@ class RenderService:
         """Drop a node that owes a tile for longer than ``tile_timeout_s``: its tiles move on."""
         while True:
             await asyncio.sleep(1.0)
+            self._start_calibration()
             deadline = time.monotonic() - self.settings.tile_timeout_s
             for link in list(self.nodes.values()):
                 if link.outstanding and min(link.outstanding.values()) < deadline:

@@ -20,7 +20,7 @@ def project_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int], scen
     lo, hi = boxes[:, None, :3], boxes[:, None, 3:]
     corners = lo + (hi - lo) * _CORNERS[None]
     clip = np.einsum("ij,kcj->kci", view_projection(camera, size, scene_bounds),
-                     np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2))
+                     np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=2))
     w = clip[..., 3]
     in_front = w > 1e-9
     safe_w = np.where(in_front, w, 1.0)

@@ -10,7 +10,8 @@ All integers little-endian.
 
 Control messages, node → coordinator:
 
-* ``hello`` {name, token, renderer (GL_RENDERER string), version, capabilities {codecs, slowdown}}
+* ``hello`` {name, token, renderer (GL_RENDERER string), version,
+  capabilities {codecs, slowdown, calibrate (bool)}}
 * ``scene_progress`` {scene, fraction 0…1, message}
 * ``scene_ready`` {scene, triangles, meshes, bounds [[x,y,z],[x,y,z]], load_ms,
   groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}
@@ -19,6 +20,8 @@ Control messages, node → coordinator:
 * ``tile_sent`` {frame, tile, send_ms, stats {…}}  after each binary tile; ``stats`` carries the
   node's per-tile counters (e.g. triangles submitted)
 * ``render_error`` {frame, tile, message}
+* ``calibration`` {ms}  answer to ``calibrate``: the best of ``repeats`` renders of ``rect``, no
+  output sent, slowdown included
 
 coordinator → node:
 
@@ -26,6 +29,7 @@ coordinator → node:
 * ``load_scene`` {scene, background [r,g,b] in 0…1}
 * ``render`` {frame, camera {camera JSON}, size [W,H], codec "jpeg"|"png"|"raw", jpeg_quality,
   tiles [{tile, rect [x,y,w,h]}, …]}  tiles are rendered in list order, each sent as soon as done
+* ``calibrate`` {camera, size [W,H], rect [x,y,w,h], repeats}  (seed 003 §1), in order with renders
 
 A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason.
 

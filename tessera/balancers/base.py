@@ -136,6 +136,8 @@ class Balancer(ABC):
 
     name: ClassVar[str]
     defaults: ClassVar[Mapping[str, float | int | bool]] = {}
+    #: True when the technique reads ``BalanceInput.groups`` (the coordinator projects them per frame).
+    uses_groups: ClassVar[bool] = False
 
     def __init__(self, **params: Any) -> None:
         unknown = set(params) - set(self.defaults)
