@@ -1,5 +1,6 @@
 """Node calibration for heterogeneous clusters (seed 003 §1): every node renders the same central
-screen region without output; its time tᵢ gives the performance Pᵢ = t_max / tᵢ (slowest = 1).
+screen region without output; its time tᵢ gives the performance Pᵢ = t_max / tᵢ (slowest = 1,
+:func:`tessera.balancers.hetero.calibration_weights`).
 
 Nodes are calibrated one at a time so that nodes sharing a machine do not blur each other's
 times. Pure bookkeeping: the service sends the messages and passes clock readings in.
@@ -8,32 +9,17 @@ times. Pure bookkeeping: the service sends the messages and passes clock reading
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
 
-from tessera.geometry import Camera, Rect
+from tessera.balancers.hetero import calibration_region
+from tessera.geometry import Camera
 
 CALIBRATION_REPEATS = 3
 CALIBRATION_TIMEOUT_S = 30.0
 
 
-def central_region(size: tuple[int, int]) -> Rect:
-    """The calibration region A: the middle half of the screen in each direction."""
-    width, height = size
-    return Rect(width // 4, height // 4, max(width // 2, 1), max(height // 2, 1))
-
-
-def speeds_from_times(times_ms: Mapping[int, float]) -> dict[int, float]:
-    """Pᵢ = t_max / tᵢ for every node with a positive time (the slowest node gets 1.0)."""
-    valid = {node: t for node, t in times_ms.items() if t > 0.0}
-    if not valid:
-        return {}
-    slowest = max(valid.values())
-    return {node: slowest / t for node, t in valid.items()}
-
-
 def calibrate_message(camera: Camera, size: tuple[int, int]) -> dict:
     return {"type": "calibrate", "camera": camera.to_json(), "size": list(size),
-            "rect": central_region(size).as_list(), "repeats": CALIBRATION_REPEATS}
+            "rect": calibration_region(size).as_list(), "repeats": CALIBRATION_REPEATS}
 
 
 class CalibrationQueue:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from server.calibration import CalibrationQueue, calibrate_message, speeds_from_times
+from server.calibration import CalibrationQueue, calibrate_message
 from server.frame_jobs import FrameJob
 from server.frame_store import FrameStore, PublishedFrame
 from server.nodes import NodeLink
@@ -26,6 +26,7 @@ from server.stats import FrameStats
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, TileTiming
+from tessera.balancers.hetero import calibration_weights
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
 from tessera.projection import project_groups
@@ -185,7 +186,7 @@ class RenderService:
         if not ms > 0.0:
             raise ProtocolError(f"calibration time must be > 0 ms, got {ms}")
         link.calibration_ms = float(ms)
-        speeds = speeds_from_times({n.node_id: n.calibration_ms for n in self.nodes.values()
+        speeds = calibration_weights({n.node_id: n.calibration_ms for n in self.nodes.values()
                                     if n.calibration_ms is not None})
         for node_id, speed in speeds.items():
             self.nodes[node_id].speed = speed
@@ -295,8 +296,9 @@ class RenderService:
         link.send(job.render_message(tile_ids))
 
     def _pump_pull(self) -> None:
-        """Tile rotation (seed 000 §4.3): each idle node pulls the next tile, oldest frame first."""
-        idle = sorted((n for n in self.ready_nodes() if not n.outstanding), key=lambda n: n.idle_since)
+        """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
+        first; when several are idle at once the fastest gets the heaviest, then the first freed."""
+        idle = sorted((n for n in self.ready_nodes() if not n.outstanding), key=lambda n: (-n.speed, n.idle_since))
         for job in sorted(self.in_flight.values(), key=lambda j: j.frame_id):
             while job.pull_queue and idle:
                 self._push(job, idle.pop(0), [job.pull_queue.popleft()])

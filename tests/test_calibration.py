@@ -2,18 +2,7 @@
 
 from __future__ import annotations
 
-from server.calibration import CALIBRATION_TIMEOUT_S, CalibrationQueue, central_region, speeds_from_times
-from tessera.geometry import Rect
-
-
-def test_speeds_are_slowest_time_over_own_time():
-    assert speeds_from_times({1: 10.0, 2: 20.0, 3: 40.0}) == {1: 4.0, 2: 2.0, 3: 1.0}
-    assert speeds_from_times({1: 0.0, 2: 5.0}) == {2: 1.0}
-    assert speeds_from_times({}) == {}
-
-
-def test_central_region_is_the_middle_half():
-    assert central_region((640, 480)) == Rect(160, 120, 320, 240)
+from server.calibration import CALIBRATION_TIMEOUT_S, CalibrationQueue
 
 
 def test_queue_runs_one_node_at_a_time_and_skips_a_silent_one():

@@ -5,10 +5,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from tessera.balancers.adaptive import AdaptiveBalancer
+from tessera.balancers.adaptive_fit import AdaptiveFitBalancer
 from tessera.balancers.base import Balancer
+from tessera.balancers.eq_load import EqLoadBalancer
+from tessera.balancers.grid import GridBalancer
+from tessera.balancers.hetero import HeteroBalancer
+from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import StaticBalancer
 
-BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (StaticBalancer,)}
+BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (
+    StaticBalancer, AdaptiveBalancer, RotateBalancer, GridBalancer, HeteroBalancer, EqLoadBalancer,
+    AdaptiveFitBalancer)}
 
 
 def create_balancer(name: str, params: Mapping[str, Any] | None = None) -> Balancer:
