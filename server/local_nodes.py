@@ -1,5 +1,7 @@
 """``--local-nodes N``: render node processes on this machine, stopped with the coordinator.
 
+The nodes share this machine's cores: each gets ``LP_NUM_THREADS`` = cores / N (unless set), so
+that N llvmpipe renderers do not fight over more threads than there are cores.
 Each child gets PR_SET_PDEATHSIG so that it dies with the coordinator even if the coordinator is
 killed outright; a normal exit (Ctrl-C) terminates and reaps them.
 """
@@ -23,6 +25,12 @@ def _die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def llvmpipe_threads_per_node(count: int) -> int:
+    """Mesa llvmpipe raster threads for each of ``count`` nodes sharing this machine's cores, so
+    that local nodes do not oversubscribe the CPU (ignored by GPU drivers)."""
+    return max(1, (os.cpu_count() or 1) // count)
+
+
 class LocalNodes:
     def __init__(self) -> None:
         self.processes: list[subprocess.Popen] = []
@@ -32,7 +40,10 @@ class LocalNodes:
             args = [sys.executable, "-m", "node", "--coordinator", coordinator_url, "--name", f"local-{index + 1}"]
             if index < len(slowdowns) and slowdowns[index] != 1.0:
                 args += ["--slowdown", str(slowdowns[index])]
-            env = {**os.environ, "TESSERA_TOKEN": token} if token else dict(os.environ)
+            env = dict(os.environ)
+            if token:
+                env["TESSERA_TOKEN"] = token
+            env.setdefault("LP_NUM_THREADS", str(llvmpipe_threads_per_node(count)))
             self.processes.append(subprocess.Popen(args, env=env, preexec_fn=_die_with_parent))
         log.info("spawned %d local render nodes (pids %s)", count, [p.pid for p in self.processes])
 

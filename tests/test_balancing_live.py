@@ -1,0 +1,57 @@
+"""Balancers switched at run time on a real coordinator with 3 real nodes, one emulating a 3×
+slower machine: every adaptive technique beats the static split's imbalance, and frames stay
+equal to ``--render-once`` under every balancer."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from tessera.balancers import BALANCERS
+from tests.conftest import seconds
+from tests.integration_support import (
+    assert_matches_reference,
+    fetch_frame,
+    ready_nodes,
+    render_once,
+    stats,
+    wait_until,
+)
+
+pytestmark = [pytest.mark.integration, pytest.mark.gl]
+
+SIZE = (320, 240)
+SCENE = "builtin:cluster"
+SETTLE_FRAMES = 40
+MEASURE_FRAMES = 40
+
+
+def imbalance_after_switch(client: httpx.Client, name: str) -> float:
+    """Switch to ``name``, let it settle, then the mean imbalance over the next frames."""
+    client.put("/api/balancer", json={"name": name, "params": {}}).raise_for_status()
+    start = stats(client)["frame"]
+    wait_until(lambda: stats(client)["frame"] >= start + SETTLE_FRAMES, seconds(120), f"{name} to settle")
+    client.put("/api/balancer", json={"name": name, "params": {}}).raise_for_status()
+    start = stats(client)["frame"]
+    wait_until(lambda: stats(client)["frame"] >= start + MEASURE_FRAMES, seconds(120), f"{name} frames")
+    return stats(client)["imbalance_avg"]
+
+
+def test_adaptive_balancers_beat_static_with_a_slow_node(coordinator_factory, tmp_path):
+    coordinator = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
+                                      "--local-nodes", "3", "--node-slowdowns", "1,1,3")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+        assert sorted(n["slowdown"] for n in stats(client)["nodes"]) == [1.0, 1.0, 3.0]
+        camera = client.get("/api/camera").json()["camera"]
+        reference = render_once(SCENE, camera, SIZE, tmp_path)
+        figures = {"static": imbalance_after_switch(client, "static")}
+        assert figures["static"] > 1.3, f"the slow node should unbalance the static split: {figures}"
+        for name in sorted(set(BALANCERS) - {"static"}):
+            figures[name] = imbalance_after_switch(client, name)
+            frame_after = client.put("/api/camera", json=camera).json()["frame"]
+            _, frame = fetch_frame(client, frame_after)
+            assert_matches_reference(frame, reference, f"balancer {name}")
+        print("imbalance_avg by balancer:", figures)
+        worse = {name: value for name, value in figures.items() if value >= figures["static"] and name != "static"}
+        assert not worse, f"balancers not better than static ({figures['static']:.3f}): {worse}"
