@@ -18,28 +18,13 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
+from tests.browser_support import DRAWN_FRACTION_JS, chromium_context
 from tests.conftest import REPO, seconds
 
 pytestmark = pytest.mark.browser
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
 VIEWPORT = {"width": 960, "height": 540}
 SCREENSHOT = REPO / "docs" / "screenshot.png"
-
-# Fraction of the frame canvas's pixels that differ clearly from its top-left (background) pixel.
-SCENE_FRACTION_JS = """() => {
-  const canvas = document.getElementById("frame");
-  if (!window.tessera.framesDrawn) return 0;
-  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
-  const [r, g, b] = data;
-  let differing = 0;
-  for (let i = 0; i < data.length; i += 4) {
-    if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) > 48) differing++;
-  }
-  return differing / (canvas.width * canvas.height);
-}"""
 
 SNAPSHOT_JS = """() => {
   const canvas = document.getElementById("frame");
@@ -77,26 +62,11 @@ BARS_SETTLED_JS = """() =>
   document.getAnimations().every((animation) => animation.playState !== "running")"""
 
 
-def _unavailable(message: str) -> None:
-    if os.environ.get("CI") == "true":
-        pytest.fail(message)
-    pytest.skip(message)
-
-
 @pytest.fixture
-def chromium(monkeypatch):
-    """Debian's Chromium driven by Playwright, with a fresh temporary profile."""
-    monkeypatch.setenv("PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD", "1")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        _unavailable("playwright is not installed (pip install playwright; no browser download needed)")
-    if not CHROMIUM.exists():
-        _unavailable(f"{CHROMIUM} is missing (apt-get install chromium)")
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield browser
-        browser.close()
+def chromium(tmp_path):
+    """Debian's Chromium driven by Playwright, with a fresh profile and the test viewport."""
+    with chromium_context(tmp_path / "chromium-profile", viewport=VIEWPORT) as context:
+        yield context
 
 
 def get_json(base_url: str, path: str) -> dict:
@@ -120,16 +90,15 @@ def same_camera(a: dict, b: dict) -> bool:
                for key in ("eye", "target", "up") for x, y in zip(a[key], b[key], strict=True))
 
 
-def drive_viewer(browser, base_url: str, screenshot: Path, nodes: int) -> None:
+def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
     """Open the viewer, wait for the scene, orbit by mouse, toggle the overlay, take a screenshot."""
-    context = browser.new_context(viewport=VIEWPORT)
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
     wait_ms = seconds(60) * 1000
     try:
         page.goto(base_url + "/")
-        page.wait_for_function(f"() => ({SCENE_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
         assert page.evaluate("window.tessera.connected") is True
         assert page.locator("#status").get_attribute("data-state") == "open"
 
@@ -173,7 +142,7 @@ def drive_viewer(browser, base_url: str, screenshot: Path, nodes: int) -> None:
                  f"PUT /api/balancer to select {available[-1]!r}")
         assert errors == [], f"errors in the page: {errors}"
     finally:
-        context.close()
+        page.close()
 
 
 def test_viewer_shows_scene_orbits_and_draws_tile_overlay(chromium, coordinator_factory, tmp_path):

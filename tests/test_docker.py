@@ -17,11 +17,11 @@ import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import httpx
 import pytest
 
+from tests.browser_support import DRAWN_FRACTION_JS, chromium_context, unavailable
 from tests.conftest import REPO, SCENES, scene_path, seconds
 from tests.integration_support import (
     assert_matches_reference,
@@ -38,21 +38,6 @@ pytestmark = [pytest.mark.docker, pytest.mark.timeout(1500)]
 SIZE = (320, 240)
 TOKEN = "docker-test-token"
 SCENE = "bunny/bun_zipper.ply"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
-# Pixels of the viewer's frame canvas that differ clearly from its top-left (background) pixel.
-DRAWN_FRACTION_JS = """() => {
-  const canvas = document.getElementById("frame");
-  if (!window.tessera || !window.tessera.framesDrawn) return 0;
-  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
-  const [r, g, b] = data;
-  let differing = 0;
-  for (let i = 0; i < data.length; i += 4) {
-    if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) > 48) differing++;
-  }
-  return differing / (canvas.width * canvas.height);
-}"""
 
 
 def run(args: list[str], env: dict[str, str] | None = None, timeout: float = 120.0) -> str:
@@ -70,13 +55,6 @@ def report(request: pytest.FixtureRequest, line: str) -> None:
     if capture is not None and terminal is not None:
         with capture.global_and_fixture_disabled():
             terminal.write_line(f"[docker] {line}")
-
-
-def unavailable(message: str) -> None:
-    """Skip for a missing tool, except in CI (CI=true), where the test must run."""
-    if os.environ.get("CI") == "true":
-        pytest.fail(message)
-    pytest.skip(message)
 
 
 def compose_command() -> list[str] | None:
@@ -192,24 +170,12 @@ def test_three_containers_composite_the_reference_frame(deployment, tmp_path):
                "every container's healthcheck to pass")
 
 
-def test_viewer_from_the_host_draws_a_frame(deployment, tmp_path, monkeypatch):
-    monkeypatch.setenv("PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD", "1")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        unavailable("playwright is not installed (pip install playwright; no browser download needed)")
-    if not CHROMIUM.exists():
-        unavailable(f"{CHROMIUM} is missing (apt-get install chromium)")
-    with sync_playwright() as playwright:
-        context = playwright.chromium.launch_persistent_context(
-            str(tmp_path / "chromium-profile"), executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        try:
-            page = context.new_page()
-            page.goto(f"{deployment.client.base_url}/?token={TOKEN}")
-            page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
-            assert page.evaluate("window.tessera.framesDrawn") > 0
-        finally:
-            context.close()
+def test_viewer_from_the_host_draws_a_frame(deployment, tmp_path):
+    with chromium_context(tmp_path / "chromium-profile") as context:
+        page = context.new_page()
+        page.goto(f"{deployment.client.base_url}/?token={TOKEN}")
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
+        assert page.evaluate("window.tessera.framesDrawn") > 0
 
 
 def test_killed_node_container_frames_resume_and_it_rejoins(deployment, tmp_path, request):
