@@ -135,3 +135,35 @@ def test_invalid_camera_input_is_refused_with_reasons(serving):
         assert "malformed JSON" in next_json(ws, "error")["message"]
         ws.send(json.dumps({"type": "camera", "camera": client.get("/api/camera").json()["camera"]}))
     assert_still_serving(client)
+
+
+def test_broken_scene_file_is_reported_and_the_coordinator_stays_up(coordinator_factory, tmp_path):
+    broken = tmp_path / "broken.ply"
+    broken.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99999\n\x00\x01 garbage")
+    coordinator = coordinator_factory("--scene", str(broken), "--size", "64x48", "--local-nodes", "1")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        node = wait_until(lambda: next((n for n in client.get("/api/stats").json()["nodes"]
+                                        if n["state"] == "error"), None), seconds(60), "the node's scene error")
+        assert "broken.ply" in node["scene_message"] and "\n" not in node["scene_message"]
+        assert client.get("/healthz").status_code == 200
+        assert client.get("/api/stats").json()["frame"] == 0
+    assert "broken.ply" in coordinator.proc.output()
+
+
+def test_documented_endpoints_are_served(serving):
+    _, client = serving
+    assert client.get("/docs").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    for path in ("/healthz", "/api/stats", "/api/camera", "/api/frame.png", "/api/balancer", "/metrics"):
+        assert path in paths, path
+    assert "put" in paths["/api/camera"] and "put" in paths["/api/balancer"]
+    metrics = client.get("/metrics").text
+    assert "tessera_fps " in metrics and 'tessera_node_phase_ms{node="1",phase="render"}' in metrics
+    page = client.get("/")
+    assert page.status_code == 200 and "web/viewer.js" in page.text
+    assert client.get("/web/viewer.js").status_code == 200
+    stats = client.get("/api/stats").json()
+    for key in ("frame", "fps", "size", "balancer", "imbalance", "imbalance_avg", "latency_ms", "nodes"):
+        assert key in stats, key
+    for key in ("id", "name", "tiles", "render_ms", "readback_ms", "encode_ms", "send_ms", "busy_ms", "speed"):
+        assert key in stats["nodes"][0], key
