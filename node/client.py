@@ -25,7 +25,9 @@ import moderngl
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
+from node.culling_state import CullMode
 from node.gl_context import GLUnavailableError, create_gl_context, renderer_string
+from node.octree_split import DEFAULT_FACE_LIMIT
 from node.renderer import RenderedTile, TileRenderer
 from node.scene import ProgressCallback, SceneData, load_scene
 from node.settings import MAX_SIZE, NodeSettings
@@ -114,16 +116,18 @@ def encode_tile(frame: int, tile: TileRequest, rendered: RenderedTile, render_ms
 
 
 class GLWorker:
-    """The one thread that owns the GL context: scenes are loaded, uploaded and drawn only there.
+    """The one thread that owns the GL context: scenes are loaded (split into chunks of at most
+    ``face_limit`` faces), uploaded and drawn (with ``culling``) only there.
 
     The loaded scene survives reconnects; asking for the same scene again reuses it.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, culling: CullMode = CullMode.HYBRID, face_limit: int = DEFAULT_FACE_LIMIT) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._ctx: moderngl.Context | None = None
         self._renderer: TileRenderer | None = None
         self.scene_spec: str | None = None
+        self.culling, self.face_limit = culling, face_limit
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
@@ -147,22 +151,23 @@ class GLWorker:
                 self._renderer.background = background
             return self._renderer.scene
         self._release_scene()
-        scene = load_scene(spec, progress)
-        progress(0.9, f"uploading {scene.triangle_count} triangles")
+        scene = load_scene(spec, progress, self.face_limit)
+        progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         if background is None:
-            self._renderer = TileRenderer(self._ctx, scene)
+            self._renderer = TileRenderer(self._ctx, scene, culling=self.culling)
         else:
-            self._renderer = TileRenderer(self._ctx, scene, background)
+            self._renderer = TileRenderer(self._ctx, scene, background, culling=self.culling)
         self.scene_spec = spec
         return scene
 
-    async def render(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
-        return await self._call(self._render, camera, size, rect)
+    async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: int) -> RenderedTile:
+        """Render ``rect``; ``slot`` (the tile id) keys the tile's hybrid culling switch."""
+        return await self._call(self._render, camera, size, rect, slot)
 
-    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
+    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: int) -> RenderedTile:
         if self._renderer is None:
             raise RuntimeError("no scene loaded")
-        return self._renderer.render_tile(camera, size, rect)
+        return self._renderer.render_tile(camera, size, rect, slot)
 
     def _release_scene(self) -> None:
         if self._renderer is not None:
@@ -183,12 +188,13 @@ class GLWorker:
 
 @dataclass(frozen=True, slots=True)
 class PendingTile:
-    """A tile whose encoding may still run; the sender awaits it in order."""
+    """A tile whose encoding may still run; the sender awaits it in order. ``stats``: its
+    ``tile_sent`` counters (:meth:`RenderedTile.stats`)."""
 
     frame: int
     tile: int
     packed: asyncio.Future[bytes]
-    triangles: int
+    stats: dict[str, Any]
 
 
 class NodeClient:
@@ -197,7 +203,7 @@ class NodeClient:
     def __init__(self, settings: NodeSettings, worker: GLWorker | None = None,
                  sleep: Callable[[float], Awaitable[Any]] = asyncio.sleep) -> None:
         self.settings = settings
-        self.worker = worker or GLWorker()
+        self.worker = worker or GLWorker(settings.culling, settings.face_limit)
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
         self.renderer_name = ""
@@ -321,12 +327,12 @@ class NodeClient:
             outbox.put_nowait(encode_json({"type": "scene_error", "scene": spec, "message": reason}))
             return
         load_ms = (time.perf_counter() - started) * 1e3
-        log.info("scene %s ready: %d triangles, %d meshes, %.0f ms", spec, scene.triangle_count,
-                 len(scene.batches), load_ms)
+        log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
+                 len(scene.batches), scene.chunks.chunk_count, load_ms)
         outbox.put_nowait(encode_json({
             "type": "scene_ready", "scene": spec, "triangles": scene.triangle_count,
-            "meshes": len(scene.batches), "bounds": scene.bounds.tolist(), "load_ms": load_ms,
-            "groups": scene.groups.to_json(),
+            "meshes": len(scene.batches), "chunks": scene.chunks.chunk_count, "bounds": scene.bounds.tolist(),
+            "load_ms": load_ms, "groups": scene.groups.to_json(),
         }))
 
     async def _render(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
@@ -343,7 +349,7 @@ class NodeClient:
         slowdown = self.settings.slowdown
         for request in job.tiles:
             try:
-                rendered = await self.worker.render(job.camera, job.size, request.rect)
+                rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile)
             except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
                 self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
                 continue
@@ -353,7 +359,7 @@ class NodeClient:
                 render_ms *= slowdown
             packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
                                           job.codec, job.jpeg_quality)
-            outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.triangles))
+            outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
 
     @staticmethod
     def _render_errors(outbox: asyncio.Queue[str | PendingTile], frame: Any, tiles: list[int], reason: str) -> None:
@@ -375,7 +381,7 @@ class NodeClient:
             await ws.send(packed)
             send_ms = (time.perf_counter() - started) * 1e3
             await ws.send(encode_json({"type": "tile_sent", "frame": item.frame, "tile": item.tile,
-                                       "send_ms": send_ms, "stats": {"triangles": item.triangles}}))
+                                       "send_ms": send_ms, "stats": item.stats}))
 
 
 def _tile_ids(message: dict[str, Any]) -> list[int]:

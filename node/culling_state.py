@@ -27,6 +27,15 @@ import enum
 from dataclasses import dataclass, replace
 
 
+class CullMode(enum.Enum):
+    """A node's ``--culling``: none, always on the CPU, always on the GPU, or this switch."""
+
+    OFF = "off"
+    CPU = "cpu"
+    GPU = "gpu"
+    HYBRID = "hybrid"
+
+
 class CullDevice(enum.Enum):
     """Which processor culls a frame."""
 

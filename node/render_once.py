@@ -1,5 +1,6 @@
 """``python -m node --render-once OUT.png``: one full frame rendered alone, no coordinator — the
-reference image every composited frame is checked against."""
+reference image every composited frame is checked against. ``--face-limit`` and ``--culling`` apply
+as on a serving node; neither changes the image."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from node.gl_context import GLUnavailableError, create_gl_context
 from node.renderer import TileRenderer
 from node.scene import SceneError, load_scene
 from node.settings import NodeSettings
+from node.tile_culling import CullingUnavailableError
 from tessera.codec import encode_png
 from tessera.geometry import Camera, CameraError, default_camera
 
@@ -39,13 +41,13 @@ def render_once(settings: NodeSettings) -> int:
     assert settings.render_once is not None
     try:
         camera = read_camera(settings.camera) if settings.camera is not None else None
-        scene = load_scene(settings.scene)
+        scene = load_scene(settings.scene, face_limit=settings.face_limit)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
-        renderer = TileRenderer(ctx, scene, settings.background)
+        renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling)
         frame = renderer.render_frame(camera, settings.size)
         settings.render_once.write_bytes(encode_png(frame.pixels))
-    except (CameraError, SceneError, GLUnavailableError) as exc:
+    except (CameraError, SceneError, GLUnavailableError, CullingUnavailableError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except moderngl.Error as exc:
@@ -55,6 +57,7 @@ def render_once(settings: NodeSettings) -> int:
         print(f"error: cannot write {settings.render_once}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     width, height = settings.size
-    print(f"wrote {settings.render_once} ({width}x{height}, {scene.triangle_count} triangles, "
+    print(f"wrote {settings.render_once} ({width}x{height}, {scene.triangle_count} triangles in "
+          f"{scene.chunks.chunk_count} chunks, {frame.triangles} drawn, {frame.cull_path} culling, "
           f"render {frame.render_ms:.1f} ms)")
     return 0

@@ -9,8 +9,19 @@ tile-sized framebuffer with a shifted viewport (``tessera.geometry.tile_viewport
 quad grid and the interpolation origin by the tile offset and changes low bits. One framebuffer
 serves every tile of a frame size however the balancer reshapes the tiles.
 
-Geometry lives in one interleaved vertex buffer and one index buffer; each batch is an index range
-(``draw_ranges``) drawn with its own material uniforms, ready for finer per-chunk ranges.
+Geometry lives in one interleaved vertex buffer and one index buffer (batches in order, each
+batch's faces in chunk order, :mod:`node.chunking`). Each tile is culled first
+(:class:`node.tile_culling.TileCuller`: off, CPU, GPU or hybrid, seed 001) against the tile's
+sub-frustum of the same full-frame matrix the tile is drawn with; then each batch with something in
+the tile gets its material uniforms once and draws its kept index ranges. Culled chunks lie wholly
+outside the (padded) tile frustum, so they would not have written a pixel of the tile: culling
+never changes the image.
+
+Both culling paths hand over a buffer of indirect draw commands (the CPU writes one per run of
+touching visible chunks, the GPU one per chunk, zero-count where culled), and each batch is drawn
+with one ``render_indirect`` (glMultiDrawElementsIndirect) over its slice: see
+:mod:`node.tile_culling` for why this beat one ``render(first=, vertices=)`` per run on llvmpipe.
+Below GL 4.3 (no multi-draw-indirect, no GPU culling) the runs are drawn one call each.
 Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
 base colour × vertex colour × sRGB texture, output sRGB-encoded.
 """
@@ -18,13 +29,16 @@ base colour × vertex colour × sRGB texture, output sRGB-encoded.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import moderngl
 import numpy as np
 
+from node.culling_state import CullMode, SwitchParams
 from node.scene import MeshBatch, SceneData
+from node.tile_culling import TileCull, TileCuller
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 
 GL_SRGB8_ALPHA8 = 0x8C43
@@ -79,22 +93,24 @@ void main() {{
 
 @dataclass(frozen=True, slots=True)
 class RenderedTile:
-    """A tile's pixels (rect.h, rect.w, 3) uint8, row 0 at the top, and its measured phases (ms)."""
+    """A tile's pixels (rect.h, rect.w, 3) uint8, row 0 at the top, its measured phases (ms,
+    ``render_ms`` includes culling), and what culling did: ``triangles`` submitted, chunks drawn
+    and culled (of the scene's chunks), ``cull_ms``, ``cull_path`` "off", "cpu" or "gpu"."""
 
     rect: Rect
     pixels: np.ndarray
     render_ms: float
     readback_ms: float
     triangles: int
+    chunks_drawn: int
+    chunks_culled: int
+    cull_ms: float
+    cull_path: str
 
-
-@dataclass(frozen=True, slots=True)
-class DrawRange:
-    """``count`` indices from ``first`` in the shared index buffer, drawn with batch ``batch``'s material."""
-
-    batch: int
-    first: int
-    count: int
+    def stats(self) -> dict[str, Any]:
+        """The per-tile counters a node reports in ``tile_sent.stats``."""
+        return {"triangles": self.triangles, "chunks_drawn": self.chunks_drawn, "chunks_culled": self.chunks_culled,
+                "cull_ms": round(self.cull_ms, 4), "cull_path": self.cull_path}
 
 
 def interleave_vertices(batch: MeshBatch) -> np.ndarray:
@@ -122,16 +138,19 @@ def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
 
 
 class TileRenderer:
-    """Draws tiles of ``scene`` on ``ctx``; use it only on the thread that owns ``ctx``."""
+    """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``); use it
+    only on the thread that owns ``ctx``. Raises CullingUnavailableError for gpu culling without
+    GL 4.3."""
 
     def __init__(self, ctx: moderngl.Context, scene: SceneData,
-                 background: Sequence[float] = DEFAULT_BACKGROUND) -> None:
+                 background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.HYBRID,
+                 switch_params: SwitchParams = SwitchParams()) -> None:
         self.ctx = ctx
         self.scene = scene
         self.background = background
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
         self.program["u_texture"].value = 0
-        vertices, indices, self.draw_ranges = self._pack(scene.batches)
+        vertices, indices = self._pack(scene.batches)
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
         self.vertex_array = ctx.vertex_array(
@@ -141,7 +160,11 @@ class TileRenderer:
         )
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)
+        self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
+        #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
+        self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
+        self._blending = False
 
     @property
     def background(self) -> tuple[float, float, float]:
@@ -155,16 +178,15 @@ class TileRenderer:
         self._background = rgb
 
     @staticmethod
-    def _pack(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray, list[DrawRange]]:
-        vertex_parts, index_parts, ranges = [], [], []
-        base_vertex = first_index = 0
-        for number, batch in enumerate(batches):
+    def _pack(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray]:
+        """(V, 12) float32 vertices and (3F,) uint32 indices of all batches, in order."""
+        vertex_parts, index_parts = [], []
+        base_vertex = 0
+        for batch in batches:
             vertex_parts.append(interleave_vertices(batch))
             index_parts.append(batch.faces.reshape(-1) + np.uint32(base_vertex))
-            ranges.append(DrawRange(number, first_index, batch.triangle_count * 3))
             base_vertex += batch.vertex_count
-            first_index += batch.triangle_count * 3
-        return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32), ranges
+        return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32)
 
     def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[int, moderngl.Texture]:
         """One sRGB mipmapped GL texture per distinct image, keyed by the image array's id."""
@@ -195,12 +217,15 @@ class TileRenderer:
             )
         return framebuffer
 
-    def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect) -> RenderedTile:
-        """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera``."""
+    def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
+                    slot: Hashable | None = None) -> RenderedTile:
+        """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera``. ``slot`` names
+        the tile for the hybrid culling switch (default: the rect itself)."""
         validate_rect(rect, size)
         width, height = size
         started = time.perf_counter()
         matrix = view_projection(camera, size, self.scene.bounds)
+        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         framebuffer = self._framebuffer_for((width, height))
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
         framebuffer.viewport = (0, 0, width, height)
@@ -209,42 +234,55 @@ class TileRenderer:
         framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
         self.program["u_light_direction"].value = headlight_direction(camera)
-        triangles = self._draw(framebuffer)
+        self._draw(framebuffer, culled)
         self.ctx.finish()
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
         pixels = np.ascontiguousarray(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 3)[::-1])
         read = time.perf_counter()
-        return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3, triangles)
+        counts = self.culler.counts(culled)
+        return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3, counts.triangles,
+                            counts.chunks_drawn, self.scene.chunks.chunk_count - counts.chunks_drawn,
+                            culled.cull_ms, culled.path)
 
     def render_frame(self, camera: Camera, size: tuple[int, int]) -> RenderedTile:
         """The whole ``size`` = (w, h) frame."""
         return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]))
 
-    def _draw(self, framebuffer: moderngl.Framebuffer) -> int:
-        """Issue the draw calls (opaque and masked first, blended last); returns triangles submitted."""
+    def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull) -> None:
+        """Issue the draw calls batch by batch (opaque and masked first, blended last): one
+        multi-draw-indirect over each batch's commands, or without :attr:`multi_draw` one draw per
+        index run."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        triangles = 0
-        blending = False
-        for draw in self.draw_ranges:
-            batch = self.scene.batches[draw.batch]
-            if batch.alpha_mode == "BLEND" and not blending:
-                blending = True
-                ctx.enable(moderngl.BLEND)
-                ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
-                framebuffer.depth_mask = False
-            self.program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
-            self.program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
-            texture = self.textures.get(id(batch.texture), self.white) if batch.texture is not None else self.white
-            texture.use(0)
-            self.vertex_array.render(moderngl.TRIANGLES, vertices=draw.count, first=draw.first)
-            triangles += draw.count // 3
-        if blending:
+        self._blending = False
+        if not self.multi_draw:
+            assert culled.runs is not None, "GPU culling draws its commands by multi-draw-indirect"
+            firsts, counts = culled.runs.first.tolist(), culled.runs.count.tolist()
+        for number, first, count in culled.batches:
+            self._use_material(framebuffer, number)
+            if self.multi_draw:
+                self.vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
+                continue
+            for run in range(first, first + count):
+                self.vertex_array.render(moderngl.TRIANGLES, vertices=counts[run], first=firsts[run])
+        if self._blending:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
-        return triangles
+
+    def _use_material(self, framebuffer: moderngl.Framebuffer, number: int) -> None:
+        """Set batch ``number``'s uniforms and texture; the first blended batch turns blending on."""
+        batch = self.scene.batches[number]
+        if batch.alpha_mode == "BLEND" and not self._blending:
+            self._blending = True
+            self.ctx.enable(moderngl.BLEND)
+            self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+            framebuffer.depth_mask = False
+        self.program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
+        self.program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
+        texture = self.textures.get(id(batch.texture), self.white) if batch.texture is not None else self.white
+        texture.use(0)
 
     def release(self) -> None:
         """Free the GL objects (the context stays the caller's)."""
@@ -253,6 +291,7 @@ class TileRenderer:
                 attachment.release()
             self._framebuffer.release()
             self._framebuffer = None
+        self.culler.release()
         for texture in self.textures.values():
             texture.release()
         for resource in (self.white, self.vertex_array, self.index_buffer, self.vertex_buffer, self.program):

@@ -7,6 +7,9 @@ glTF node transforms and instancing are baked: each (node, mesh) pair of the sce
 one :class:`MeshBatch` with world-space positions and normals (normals by the inverse-transpose).
 Scans without normals get smooth, area-weighted vertex normals. Colours are linear RGBA in 0…1;
 textures stay sRGB-encoded bytes (the renderer samples them as sRGB).
+
+Batches over the face limit are pre-split into octree chunks as they are gathered into a
+:class:`SceneData` (seed 002 §3.4, :mod:`node.chunking`).
 """
 
 from __future__ import annotations
@@ -18,6 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from node.chunking import PrimitiveGroups, SceneChunks, split_batches
+from node.octree_split import DEFAULT_FACE_LIMIT
 
 BUILTIN_PREFIX = "builtin:"
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
@@ -70,54 +76,54 @@ class MeshBatch:
 
 
 @dataclass(frozen=True, eq=False)
-class PrimitiveGroups:
-    """World-space primitive groups for seed 003's DPBP estimate: one per batch.
-
-    ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles.
-    """
-
-    boxes: np.ndarray
-    counts: np.ndarray
-
-    def to_json(self) -> dict[str, Any]:
-        return {"boxes": self.boxes.tolist(), "counts": self.counts.tolist()}
-
-
-@dataclass(frozen=True, eq=False)
 class SceneData:
-    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64."""
+    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64, its
+    ``chunks`` (batches over the face limit are split; their faces are in chunk order) and the
+    primitive ``groups`` sent to the coordinator (chunk boxes and triangle counts)."""
 
     name: str
     batches: tuple[MeshBatch, ...]
     bounds: np.ndarray
     triangle_count: int
     groups: PrimitiveGroups
+    chunks: SceneChunks
 
     @classmethod
-    def from_batches(cls, name: str, batches: list[MeshBatch]) -> SceneData:
-        """Drop empty batches, order blended ones last, compute bounds and groups."""
+    def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> SceneData:
+        """Drop empty batches, order blended ones last, split by octree, compute bounds and groups."""
         kept = [b for b in batches if b.triangle_count > 0]
         if not kept:
             raise SceneError(f"{name}: no triangles")
         kept.sort(key=lambda b: b.alpha_mode == "BLEND")
-        boxes = np.array([b.bounds().reshape(6) for b in kept], dtype=np.float64)
-        counts = np.array([b.triangle_count for b in kept], dtype=np.int64)
-        bounds = np.stack([boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)])
-        return cls(name, tuple(kept), bounds, int(counts.sum()), PrimitiveGroups(boxes, counts))
+        split, chunks = split_batches(kept, face_limit)
+        boxes = np.array([b.bounds() for b in split], dtype=np.float64)
+        bounds = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+        triangles = sum(b.triangle_count for b in split)
+        return cls(name, tuple(split), bounds, triangles, chunks.primitive_groups(), chunks)
+
+    def with_face_limit(self, face_limit: int) -> SceneData:
+        """The same scene split with another face limit (itself when the limit is the same)."""
+        if face_limit == self.chunks.face_limit:
+            return self
+        return SceneData.from_batches(self.name, list(self.batches), face_limit)
 
     @property
     def vertex_count(self) -> int:
         return sum(b.vertex_count for b in self.batches)
 
 
-def load_scene(spec: str, progress: ProgressCallback | None = None) -> SceneData:
-    """Load ``spec`` (a file path or ``builtin:NAME``); raises SceneError with a one-line reason."""
+def load_scene(spec: str, progress: ProgressCallback | None = None,
+               face_limit: int = DEFAULT_FACE_LIMIT) -> SceneData:
+    """Load ``spec`` (a file path or ``builtin:NAME``), split into chunks of at most ``face_limit``
+    faces; raises SceneError with a one-line reason."""
     report = progress or (lambda fraction, message: None)
+    if face_limit < 1:
+        raise SceneError(f"{spec}: face limit must be ≥ 1, got {face_limit}")
     if spec.startswith(BUILTIN_PREFIX):
         from node.builtin_scenes import build_builtin_scene
 
         report(0.0, f"generating {spec}")
-        return build_builtin_scene(spec[len(BUILTIN_PREFIX):])
+        return build_builtin_scene(spec[len(BUILTIN_PREFIX):]).with_face_limit(face_limit)
     path = Path(spec)
     suffix = path.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
@@ -135,14 +141,14 @@ def load_scene(spec: str, progress: ProgressCallback | None = None) -> SceneData
         raise SceneError(f"{spec}: a file it refers to is missing ({_one_line(exc)})") from None
     except Exception as exc:  # trimesh and its parsers raise many types for corrupt input
         raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
-    report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances")
+    report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances, splitting")
     try:
         batches = batches_from_trimesh(loaded)
     except SceneError as exc:
         raise SceneError(f"{spec}: {exc}") from None
     except Exception as exc:
         raise SceneError(f"{spec}: corrupt geometry ({_one_line(exc)})") from None
-    return SceneData.from_batches(spec, batches)
+    return SceneData.from_batches(spec, batches, face_limit)
 
 
 def _one_line(exc: BaseException) -> str:

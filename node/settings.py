@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from node.culling_state import CullMode
+from node.octree_split import DEFAULT_FACE_LIMIT
 from tessera.geometry import DEFAULT_BACKGROUND
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
@@ -38,6 +40,8 @@ class NodeSettings:
     camera: Path | None = None
     size: tuple[int, int] = DEFAULT_SIZE
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
+    culling: CullMode = CullMode.HYBRID
+    face_limit: int = DEFAULT_FACE_LIMIT
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -78,6 +82,26 @@ def parse_slowdown(text: str) -> float:
     return value
 
 
+def parse_culling(text: str) -> CullMode:
+    """One of hybrid, cpu, gpu, off."""
+    try:
+        return CullMode(text.strip().lower())
+    except ValueError:
+        choices = ", ".join(mode.value for mode in CullMode)
+        raise argparse.ArgumentTypeError(f"culling must be one of {choices}, got {text!r}") from None
+
+
+def parse_face_limit(text: str) -> int:
+    """An integer ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"face limit must be an integer >= 1, got {text!r}")
+    return value
+
+
 def parse_coordinator(text: str) -> str:
     if not text.startswith(("ws://", "wss://")):
         raise argparse.ArgumentTypeError(f"coordinator must be a ws:// or wss:// URL, got {text!r}")
@@ -109,6 +133,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--size", DEFAULT_SIZE, "frame size WxH for --render-once", type=parse_size)
     add("--background", DEFAULT_BACKGROUND, "clear colour '#rrggbb' or 'r,g,b' in 0..1 for --render-once",
         type=parse_background)
+    add("--culling", CullMode.HYBRID.value, "per-tile frustum culling: hybrid (CPU, GPU when CPU culling is slow; "
+        "seed 001), cpu, gpu or off", type=parse_culling)
+    add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into octree chunks of at most this many faces at load "
+        "(seed 002)", type=parse_face_limit)
     return parser
 
 

@@ -1,5 +1,7 @@
-"""GPU culling with temporal coherence (seed 001 §6.1.2) and the hybrid culler (§6.2), on llvmpipe:
-the GPU keeps exactly the CPU's chunks, its commands draw exactly the tile's pixels."""
+"""GPU culling with temporal coherence (seed 001 §6.1.2), on llvmpipe: the GPU keeps exactly the
+CPU's chunks, its commands draw exactly the tile's pixels, one command per batch a visible node
+touches, and big trees are culled whole despite llvmpipe's shader loop limit. (The hybrid switch
+in the renderer is tested in test_culled_rendering.py.)"""
 
 from __future__ import annotations
 
@@ -10,17 +12,19 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.culling_state import CullDevice, SwitchParams
 from node.frustum_culling import (
     build_chunk_bvh,
+    classify_boxes,
     cull,
+    cull_flat,
+    frustum_planes_from_matrix,
     indirect_commands,
     merge_ranges,
     range_members,
     tile_frustum_planes,
 )
 from node.gl_context import create_gl_context
-from node.gpu_culling import GpuBvh, GpuCuller, HybridCuller
+from node.gpu_culling import MAX_SUBTREE_LEVELS, GpuBvh, GpuCuller
 from node.octree_split import octree_split
 from tessera.geometry import Camera, Rect, tile_viewport, view_projection
 
@@ -91,8 +95,21 @@ def test_gpu_keeps_the_same_chunks_as_the_cpu_along_camera_paths(bunny):
     assert 0 < visible_total < 0.5 * len(path) * len(GRID_TILES) * bvh.chunk_count
 
 
-def test_still_camera_input_settles_on_the_cpu_terminal_nodes(bunny):
+def one_level_traversal_stops(bvh, planes: np.ndarray) -> np.ndarray:
+    """(T,) sorted nodes where a one-level-at-a-time traversal from the root stops: culled, wholly
+    inside every plane, or leaves, with no such node above them."""
+    outside, inside = classify_boxes(bvh.lo, bvh.hi, planes)
+    stop = outside.any(axis=1) | inside.all(axis=1) | bvh.is_leaf
+    reached = np.zeros(bvh.node_count, bool)
+    reached[0] = True
+    for node in range(1, bvh.node_count):   # breadth-first order: parents first
+        reached[node] = reached[bvh.parent[node]] and not stop[bvh.parent[node]]
+    return np.flatnonzero(reached & stop)
+
+
+def test_still_camera_input_settles_on_the_traversal_stops(bunny):
     _, _, _, bvh, bounds, gpu_bvh = bunny
+    assert gpu_bvh.ceiling_depth == 0  # a small tree: inputs may climb to the root
     camera = orbit(bounds, 1, seed=4)[0]
     culler = GpuCuller(gpu_bvh)
     for rect in GRID_TILES[5], GRID_TILES[10]:
@@ -100,7 +117,7 @@ def test_still_camera_input_settles_on_the_cpu_terminal_nodes(bunny):
         expected = cull(bvh, planes)
         for _ in range(12):
             culler.cull(planes)
-        assert np.array_equal(culler.read_input_nodes(), np.sort(expected.terminal_nodes))
+        assert np.array_equal(culler.read_input_nodes(), one_level_traversal_stops(bvh, planes))
         culler.seed(expected.terminal_nodes)  # the seed's hand-over: the CPU's last nodes
         culler.cull(planes)
         assert np.array_equal(culler.read_visible_chunks(), expected.visible_chunks)
@@ -180,22 +197,54 @@ def test_indirect_commands_draw_exactly_the_tile_pixels(ctx, bunny, bunny_vao):
     assert drawn_tiles >= 4 and culled_tiles >= 4
 
 
-def test_hybrid_culler_switches_to_the_gpu_and_back(bunny):
-    _, _, split, bvh, bounds, gpu_bvh = bunny
-    always_slow = SwitchParams(threshold_s=1e-12, frames_to_switch=3, gpu_frames=4, check_frames=2)
-    hybrid = HybridCuller(gpu_bvh, always_slow)
-    devices = []
-    for camera in orbit(bounds, 10, seed=3):
-        planes = tile_frustum_planes(camera, SIZE, GRID_TILES[6], bounds)
-        draw = hybrid.cull("tile-6", planes)
-        devices.append(draw.device)
-        expected = cull(bvh, planes).visible_chunks
-        commands = np.frombuffer(draw.indirect.read(), np.uint32).reshape(-1, 5)[:draw.command_count]
-        drawn = commands[commands[:, 0] > 0]
-        chunks = range_members(np.searchsorted(split.index_starts, drawn[:, 2]),
-                               np.searchsorted(split.index_starts, drawn[:, 2].astype(np.int64) + drawn[:, 0]))
-        assert np.array_equal(np.sort(chunks), expected)
-        if draw.device is CullDevice.CPU:
-            assert draw.ranges == merge_ranges(expected, split.index_starts, split.index_ends)
-    cpu, gpu = CullDevice.CPU, CullDevice.GPU
-    assert devices == [cpu] * 3 + [gpu] * 4 + [cpu] + [gpu] * 2
+def box_grid(count: int) -> np.ndarray:
+    """(count, 2, 3) unit-spaced little boxes on a square grid in the z = 0 plane, row by row."""
+    side = int(np.ceil(np.sqrt(count)))
+    rows, cols = np.divmod(np.arange(count), side)
+    centers = np.stack([cols, rows, np.zeros(count)], axis=1).astype(np.float64)
+    return np.stack([centers - 0.3, centers + 0.3], axis=1)
+
+
+def test_big_trees_are_culled_whole_despite_the_shader_loop_limit(ctx):
+    """40 000 chunks cut by the near plane: every node is partly visible, so a traversal from the
+    root would loop 80 000 times, and llvmpipe ends a shader loop after 32768 iterations."""
+    boxes = box_grid(40_000)
+    bvh = build_chunk_bvh(boxes)
+    starts = np.arange(bvh.chunk_count) * 3
+    gpu_bvh = GpuBvh(ctx, bvh, starts, starts + 3)
+    assert gpu_bvh.ceiling_depth == int(bvh.depth.max()) - MAX_SUBTREE_LEVELS > 0
+    bounds = np.array([[-1.0, -1.0, -1.0], [201.0, 201.0, 1.0]])
+    size = (400, 300)
+    slicing = Camera(eye=(100.0, 100.0, 260.0), target=(100.0, 100.0, 0.0), fovy_deg=60.0, near=260.0, far=900.0)
+    plain = Camera(eye=(100.0, 100.0, 260.0), target=(100.0, 100.0, 0.0), fovy_deg=60.0)
+    culler = GpuCuller(gpu_bvh)
+    for camera, rect in ((slicing, Rect(0, 0, 400, 300)), (plain, Rect(20, 30, 200, 150)),
+                         (plain, Rect(180, 130, 10, 10)), (slicing, Rect(0, 0, 400, 300))):
+        planes = frustum_planes_from_matrix(view_projection(camera, size, bounds), size, rect)
+        culler.cull(planes)
+        expected = cull_flat(bvh, planes)
+        assert expected.size > 0
+        assert np.array_equal(culler.read_visible_chunks(), expected), f"GPU lost chunks in {rect}"
+        inputs = culler.read_input_nodes()
+        assert_is_cut(bvh, inputs)
+        assert bvh.depth[inputs].min() >= gpu_bvh.ceiling_depth or bvh.is_leaf[inputs].all()
+
+
+def test_a_visible_node_gets_one_command_per_batch(ctx):
+    boxes = box_grid(64)
+    bvh = build_chunk_bvh(boxes)
+    batch_starts = np.array([0, 5, 6, 30, 64])                  # four batches of 5, 1, 24 and 34 chunks
+    batch_end = np.repeat(batch_starts[1:], np.diff(batch_starts))
+    starts = np.arange(65) * 6
+    gpu_bvh = GpuBvh(ctx, bvh, starts[:-1], starts[1:], batch_end)
+    culler = GpuCuller(gpu_bvh)
+    camera = Camera(eye=(3.5, 3.5, 40.0), target=(3.5, 3.5, 0.0), fovy_deg=40.0)
+    bounds = np.array([[-1.0, -1.0, -1.0], [8.0, 8.0, 1.0]])
+    culler.cull(tile_frustum_planes(camera, (64, 64), Rect(0, 0, 64, 64), bounds))   # root wholly inside
+    commands = culler.read_commands()
+    heads = np.flatnonzero(commands[:, 0])
+    assert heads.tolist() == batch_starts[:-1].tolist()
+    assert commands[heads, 0].tolist() == (np.diff(batch_starts) * 6).tolist()
+    assert commands[heads, 2].tolist() == (batch_starts[:-1] * 6).tolist()
+    with pytest.raises(ValueError):
+        GpuBvh(ctx, bvh, starts[:-1], starts[1:], np.zeros(64, np.int64))

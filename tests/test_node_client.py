@@ -13,9 +13,10 @@ import pytest
 from websockets.asyncio.server import ServerConnection, serve
 
 from node.client import NodeClient
+from node.culling_state import CullMode
 from node.gl_context import create_gl_context
 from node.renderer import TileRenderer
-from node.scene import load_scene
+from node.scene import DEFAULT_FACE_LIMIT, load_scene
 from node.settings import NodeSettings, parse_settings
 from tessera.codec import Codec, decode
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
@@ -56,16 +57,22 @@ async def send(ws: ServerConnection, **message) -> None:
     await ws.send(json.dumps(message))
 
 
-async def receive_tile(ws: ServerConnection, frame: int, tile: int, triangles: int):
-    """A binary tile and the ``tile_sent`` right after it."""
+async def receive_tile(ws: ServerConnection, frame: int, tile: int, scene: dict):
+    """A binary tile and the ``tile_sent`` right after it, whose culling counters fit ``scene``
+    (the ``scene_ready`` message); returns (header, pixels, stats)."""
     binary = await receive(ws)
     assert isinstance(binary, bytes), f"expected tile {tile}, got {binary!r}"
     header, payload = unpack_tile(binary)
     assert (header.frame_id, header.tile_id, header.codec) == (frame, tile, Codec.PNG)
     sent = await receive_json(ws)
     assert sent["type"] == "tile_sent" and (sent["frame"], sent["tile"]) == (frame, tile)
-    assert sent["send_ms"] >= 0.0 and sent["stats"] == {"triangles": triangles}
-    return header, decode(bytes(payload), header.codec, header.rect.w, header.rect.h)
+    stats = sent["stats"]
+    assert sent["send_ms"] >= 0.0 and set(stats) == {"triangles", "chunks_drawn", "chunks_culled", "cull_ms",
+                                                     "cull_path"}
+    assert stats["chunks_drawn"] + stats["chunks_culled"] == scene["chunks"]
+    assert 0 <= stats["triangles"] <= scene["triangles"] and stats["cull_ms"] >= 0.0
+    assert stats["cull_path"] in ("cpu", "gpu")  # the default culling is hybrid
+    return header, decode(bytes(payload), header.codec, header.rect.w, header.rect.h), stats
 
 
 async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tuple[np.ndarray, list[float]]:
@@ -82,16 +89,22 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
         progress.append(message["fraction"])
     assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
     assert message["triangles"] == triangles and message["meshes"] == 5 and message["load_ms"] >= 0
-    assert len(message["groups"]["boxes"]) == len(message["groups"]["counts"]) == 5
+    scene = message
+    assert scene["chunks"] > 5, "the spheres' meshes are split into octree chunks"
+    assert len(scene["groups"]["boxes"]) == len(scene["groups"]["counts"]) == scene["chunks"]
+    assert sum(scene["groups"]["counts"]) == triangles
 
     tiles = [{"tile": 0, "rect": [0, 0, 50, 64]}, {"tile": 1, "rect": [50, 0, 46, 64]}]
     await send(ws, type="render", frame=1, camera=CAMERA, size=list(SIZE), codec="png", jpeg_quality=80, tiles=tiles)
     stitched = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
     render_ms = []
+    drawn = []
     for tile in (0, 1):
-        header, pixels = await receive_tile(ws, 1, tile, triangles)
+        header, pixels, stats = await receive_tile(ws, 1, tile, scene)
         stitched[header.rect.y:header.rect.y1, header.rect.x:header.rect.x1] = pixels
         render_ms.append(header.render_ms)
+        drawn.append(stats["triangles"])
+    assert sum(drawn) > 0 and max(drawn) < triangles, "each half of the frame draws only part of the scene"
 
     await send(ws, type="render", frame=2, camera={"eye": [1, 1, 1], "target": [1, 1, 1]}, size=list(SIZE),
                codec="png", tiles=tiles)
@@ -104,7 +117,7 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
                tiles=[{"tile": 0, "rect": [90, 0, 10, 10]}, {"tile": 1, "rect": [0, 0, 8, 8]}])
     error = await receive_json(ws)
     assert error["type"] == "render_error" and (error["frame"], error["tile"]) == (3, 0)
-    await receive_tile(ws, 3, 1, triangles)
+    await receive_tile(ws, 3, 1, scene)
 
     await ws.close(4401, "wrong token")
     ws = await coordinator.accept()
@@ -152,11 +165,20 @@ def test_settings_defaults():
     assert settings.token is None and settings.slowdown == 1.0 and settings.render_once is None
     assert settings.background == DEFAULT_BACKGROUND and settings.scene == "builtin:cluster"
     assert settings.name.endswith(f"-{os.getpid()}")
+    assert settings.culling is CullMode.HYBRID and settings.face_limit == DEFAULT_FACE_LIMIT
+
+
+def test_culling_settings_from_environment_and_argv():
+    environ = {"TESSERA_CULLING": "gpu", "TESSERA_FACE_LIMIT": "512"}
+    assert (parse_settings([], environ).culling, parse_settings([], environ).face_limit) == (CullMode.GPU, 512)
+    overridden = parse_settings(["--culling", "off", "--face-limit", "64", "--render-once", "x.png"], environ)
+    assert (overridden.culling, overridden.face_limit) == (CullMode.OFF, 64)
 
 
 @pytest.mark.parametrize("argv", [["--slowdown", "0.5"], ["--slowdown", "nan"], ["--size", "0x10"],
                                   ["--size", "big"], ["--background", "#12345"], ["--background", "0,0,2"],
-                                  ["--coordinator", "http://host:8000/ws/node"]])
+                                  ["--coordinator", "http://host:8000/ws/node"], ["--culling", "sometimes"],
+                                  ["--face-limit", "0"], ["--face-limit", "1.5"]])
 def test_settings_refuse_bad_values(argv, capsys):
     with pytest.raises(SystemExit) as exited:
         parse_settings(argv, {})

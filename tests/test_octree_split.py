@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.octree_split import MAX_DEPTH, ChunkSplit, morton_codes, octree_split
+from node.octree_split import MAX_DEPTH, ChunkSplit, morton_codes, octree_root, octree_split
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 
@@ -44,7 +44,7 @@ def check_octree_cells(positions: np.ndarray, faces: np.ndarray, split: ChunkSpl
     """Each chunk is one octree cell, and it was split only because its parent was over the limit."""
     corner_a, corner_b, corner_c = (positions[faces[:, k]] for k in range(3))
     centroids = (corner_a + corner_b + corner_c) / np.float32(3.0)
-    codes = morton_codes(centroids, positions.min(axis=0), positions.max(axis=0))[split.face_order]
+    codes = morton_codes(centroids, *octree_root(positions))[split.face_order]
     for chunk in range(split.chunk_count):
         depth = int(split.depths[chunk])
         prefixes = codes[split.starts[chunk]:split.ends[chunk]] >> np.uint64(3 * (MAX_DEPTH - depth))

@@ -10,8 +10,12 @@ import pytest
 import trimesh
 
 from node.builtin_scenes import BUILTIN_SCENES, CLUSTER_CENTER, build_builtin_scene
+from node.chunking import MAX_GROUPS
 from node.scene import MeshBatch, SceneData, SceneError, load_scene, smooth_vertex_normals
 from tests.conftest import scene_path
+
+#: A face limit no mesh reaches: batches stay unsplit, in file order.
+UNSPLIT = 1 << 40
 
 #: The README table: file, triangles (instances counted), drawn mesh instances.
 SHARED_SCENES = [
@@ -32,9 +36,12 @@ def shared_scene(relative: str) -> SceneData:
 
 
 def check_layout(scene: SceneData) -> None:
-    """The SceneData contract: dtypes, shapes, unit normals, consistent bounds and groups."""
+    """The SceneData contract: dtypes, shapes, unit normals, consistent bounds, chunks and groups."""
     assert np.isfinite(scene.bounds).all() and (scene.bounds[0] < scene.bounds[1]).all()
-    assert scene.groups.boxes.shape == (len(scene.batches), 6)
+    groups = len(scene.groups.counts)
+    assert scene.groups.boxes.shape == (groups, 6)
+    assert groups == scene.chunks.chunk_count or groups <= MAX_GROUPS < scene.chunks.chunk_count
+    assert scene.chunks.index_bounds[-1] == 3 * scene.triangle_count
     assert scene.groups.counts.sum() == scene.triangle_count == sum(b.triangle_count for b in scene.batches)
     assert np.allclose(scene.groups.boxes[:, :3].min(axis=0), scene.bounds[0])
     assert np.allclose(scene.groups.boxes[:, 3:].max(axis=0), scene.bounds[1])
@@ -99,7 +106,7 @@ def test_gltf_node_transform_is_baked_into_positions_and_normals(tmp_path):
     rotation = trimesh.transformations.rotation_matrix(0.7, [1.0, 2.0, 0.5])
     transform = trimesh.transformations.translation_matrix([3.0, -1.0, 2.0]) @ rotation @ np.diag([2.0, 1.0, 3.0, 1.0])
     path, local_vertices, local_normals = export_rotated_glb(tmp_path, transform)
-    (batch,) = load_scene(str(path)).batches
+    (batch,) = load_scene(str(path), face_limit=UNSPLIT).batches   # splitting would re-order the vertices
     expected = local_vertices @ transform[:3, :3].T + transform[:3, 3]
     assert np.allclose(batch.positions, expected, atol=1e-4)
     world_normals = local_normals @ np.linalg.inv(transform[:3, :3])

@@ -1,0 +1,112 @@
+"""Camera paths for benchmarks, in the DESIGN.md format ``{"dt_ms": 33.3, "frames": [camera, …]}``.
+
+``python -m bench.paths --scene PATH [--kinds orbit flythrough zoom] [--frames 60] [--dt-ms 33.3]
+[--out-dir bench/paths] [--name NAME]`` writes ``NAME_KIND.json`` for each kind.
+
+Kinds, for a scene's world ``bounds`` (2, 3):
+
+- ``orbit``: one turn around the centre at the distance that frames the bounding sphere
+  (as :func:`tessera.geometry.default_camera`), 19° above it, starting at the default view.
+- ``flythrough``: the eye flies along a straight line from −x to +x, 0.6 bounding radii in front of
+  the centre (grazing or crossing the model's surface), looking half ahead, half at the centre.
+- ``zoom``: from the default view straight towards a ``focus`` point, ending at 1/8 of the
+  starting distance, the target gliding from the centre to the focus (eased at both ends). The
+  command line focuses on the scene's vertex nearest the default eye: a surface point in view.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tessera.geometry import Camera, default_camera
+
+KINDS = ("orbit", "flythrough", "zoom")
+DEFAULT_FRAMES = 60
+DEFAULT_DT_MS = 33.3
+ELEVATION_RAD = math.atan2(0.35, math.hypot(0.35, 1.0))   # default_camera's direction (0.35, 0.35, 1)
+ZOOM_END = 1.0 / 8.0
+
+
+def _ease(t: np.ndarray) -> np.ndarray:
+    """Smoothstep 0…1 → 0…1 with zero speed at both ends."""
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _camera(eye: np.ndarray, target: np.ndarray) -> dict[str, Any]:
+    camera = Camera(eye=tuple(np.round(eye, 6).tolist()), target=tuple(np.round(target, 6).tolist()), fovy_deg=45.0)
+    return camera.to_json()
+
+
+def make_path(kind: str, bounds: np.ndarray, frames: int = DEFAULT_FRAMES, dt_ms: float = DEFAULT_DT_MS,
+              focus: np.ndarray | None = None) -> dict[str, Any]:
+    """A camera path of ``kind`` (:data:`KINDS`) with ``frames`` cameras ``dt_ms`` apart around the
+    scene ``bounds`` (2, 3); ``focus`` (3,) is the zoom's end point (default: the centre)."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown path kind {kind!r}; choose from {', '.join(KINDS)}")
+    if frames < 2 or not dt_ms > 0.0:
+        raise ValueError(f"need at least 2 frames and dt_ms > 0, got {frames} and {dt_ms}")
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+    start = default_camera(np.stack([lo, hi]))
+    start_eye = np.asarray(start.eye)
+    distance = float(np.linalg.norm(start_eye - center))
+    t = np.linspace(0.0, 1.0, frames)
+    cameras = []
+    if kind == "orbit":
+        yaw0 = math.atan2(0.35, 1.0)
+        for angle in yaw0 + 2.0 * math.pi * t * (frames - 1) / frames:  # the last frame stops short of the first
+            direction = np.array([math.sin(angle) * math.cos(ELEVATION_RAD), math.sin(ELEVATION_RAD),
+                                  math.cos(angle) * math.cos(ELEVATION_RAD)])
+            cameras.append(_camera(center + direction * distance, center))
+    elif kind == "flythrough":
+        for s in t:
+            eye = center + radius * np.array([3.2 * s - 1.6, 0.15, 0.6])
+            inward = (center - eye) / np.linalg.norm(center - eye)
+            ahead = 0.5 * np.array([1.0, 0.0, 0.0]) + inward
+            cameras.append(_camera(eye, eye + radius * ahead / np.linalg.norm(ahead)))
+    else:
+        point = center if focus is None else np.asarray(focus, dtype=np.float64)
+        for s in _ease(t):
+            eye = point + (start_eye - point) * (1.0 - s * (1.0 - ZOOM_END))
+            cameras.append(_camera(eye, center + (point - center) * s))
+    return {"dt_ms": dt_ms, "frames": cameras}
+
+
+def surface_focus(positions: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """(3,) the vertex of ``positions`` (N, 3) nearest the default camera's eye for ``bounds``."""
+    eye = np.asarray(default_camera(bounds).eye)
+    return np.asarray(positions[int(np.argmin(np.linalg.norm(positions - eye, axis=1)))], dtype=np.float64)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.paths", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", required=True, help="scene file or builtin:NAME")
+    parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES)
+    parser.add_argument("--dt-ms", type=float, default=DEFAULT_DT_MS)
+    parser.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent / "paths")
+    parser.add_argument("--name", help="file name prefix (default: the scene file's stem)")
+    args = parser.parse_args(argv)
+    from node.scene import load_scene
+
+    scene = load_scene(args.scene, face_limit=1 << 62)
+    positions = np.concatenate([b.positions for b in scene.batches]).astype(np.float64)
+    name = args.name or Path(args.scene.removeprefix("builtin:")).stem
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    for kind in args.kinds:
+        path = make_path(kind, scene.bounds, args.frames, args.dt_ms, surface_focus(positions, scene.bounds))
+        out = args.out_dir / f"{name}_{kind}.json"
+        out.write_text(json.dumps(path, separators=(",", ":")) + "\n")
+        print(f"wrote {out} ({len(path['frames'])} frames, {out.stat().st_size} bytes)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

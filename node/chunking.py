@@ -1,0 +1,179 @@
+"""Scene chunks (seed 002 §3.4): at load time every batch over the face limit is pre-split by
+octree (:func:`node.octree_split.octree_split`), and all chunks of the scene go into one
+bounding-volume tree (:func:`node.frustum_culling.build_chunk_bvh`) for per-tile culling (seed 001).
+No GL here.
+
+Splitting only re-orders a batch's faces, and its vertices into the order the re-ordered faces
+first use them (so a chunk's vertices sit together in memory: on llvmpipe that made culled tiles of
+the 990k pan 10–20 % faster); attribute values and materials stay. The renderer's one index buffer
+(batches in order, 3 indices per face) holds every chunk as a contiguous index range. Chunks are
+numbered in that buffer's order, so chunk i + 1 starts where chunk i ends.
+
+The split must never change the image. Under the depth test, opaque and alpha-masked triangles give
+the same pixels in any order, except exactly coplanar overlaps (z-fighting), where the first drawn
+wins; blending depends on draw order everywhere. So blended batches keep their face order and stay
+one chunk each (they are still culled as a whole).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from node.frustum_culling import ChunkBVH, build_chunk_bvh
+from node.octree_split import DEFAULT_FACE_LIMIT, octree_split
+
+if TYPE_CHECKING:
+    from node.scene import MeshBatch
+
+#: Most primitive groups sent to the coordinator (seed 003's DPBP): 4000 boxes stay near 0.5 MB of JSON.
+MAX_GROUPS = 4000
+
+
+@dataclass(frozen=True, eq=False)
+class PrimitiveGroups:
+    """World-space primitive groups for seed 003's DPBP estimate (chunks, or runs of chunks).
+
+    ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles.
+    """
+
+    boxes: np.ndarray
+    counts: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        return {"boxes": self.boxes.tolist(), "counts": self.counts.tolist()}
+
+
+@dataclass(frozen=True, slots=True)
+class DrawRuns:
+    """Index ranges to draw, in draw order, none across a batch boundary.
+
+    ``batch`` (R,) int64 batch of each run; ``first`` (R,) int64 first index in the scene's index
+    buffer; ``count`` (R,) int64 indices (3 per triangle); ``chunks``: how many chunks they cover.
+    """
+
+    batch: np.ndarray
+    first: np.ndarray
+    count: np.ndarray
+    chunks: int
+
+    @property
+    def triangles(self) -> int:
+        return int(self.count.sum()) // 3
+
+    def batch_slices(self) -> list[tuple[int, int, int]]:
+        """(batch, first run, run count) for each batch that has runs, in draw order."""
+        if self.batch.size == 0:
+            return []
+        starts = np.flatnonzero(np.concatenate(([True], self.batch[1:] != self.batch[:-1])))
+        counts = np.diff(np.append(starts, self.batch.size))
+        return [(int(b), int(s), int(c)) for b, s, c in zip(self.batch[starts], starts, counts, strict=True)]
+
+
+@dataclass(frozen=True, eq=False)
+class SceneChunks:
+    """The chunks of a scene and their tree.
+
+    ``batch`` (C,) int64: the batch each chunk belongs to; ``index_bounds`` (C + 1,) int64: chunk i
+    is indices [index_bounds[i], index_bounds[i + 1]) of the scene's index buffer; ``batch_bounds``
+    (B + 1,) int64: batch b is chunks [batch_bounds[b], batch_bounds[b + 1]); ``boxes`` (C, 2, 3)
+    float32 world-space [min, max] of each chunk's faces; ``bvh`` the tree over ``boxes``;
+    ``face_limit`` the limit the batches were split with.
+    """
+
+    batch: np.ndarray
+    index_bounds: np.ndarray
+    batch_bounds: np.ndarray
+    boxes: np.ndarray
+    bvh: ChunkBVH
+    face_limit: int
+
+    @property
+    def chunk_count(self) -> int:
+        return int(self.batch.size)
+
+    @property
+    def face_counts(self) -> np.ndarray:
+        """(C,) int64 triangles per chunk."""
+        return np.diff(self.index_bounds) // 3
+
+    def runs(self, first_chunks: np.ndarray, end_chunks: np.ndarray) -> DrawRuns:
+        """Draw runs for the disjoint chunk ranges [first_chunks[i], end_chunks[i]) (R,), sorted:
+        each range becomes one index range per batch it touches."""
+        first = np.asarray(first_chunks, dtype=np.int64)
+        end = np.asarray(end_chunks, dtype=np.int64)
+        if first.size == 0:
+            empty = np.zeros(0, np.int64)
+            return DrawRuns(empty, empty, empty, 0)
+        first_batch, last_batch = self.batch[first], self.batch[end - 1]
+        pieces = last_batch - first_batch + 1
+        owner = np.repeat(np.arange(first.size), pieces)
+        batch = first_batch[owner] + np.arange(owner.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        piece_first = np.maximum(first[owner], self.batch_bounds[batch])
+        piece_end = np.minimum(end[owner], self.batch_bounds[batch + 1])
+        index_first = self.index_bounds[piece_first]
+        return DrawRuns(batch, index_first, self.index_bounds[piece_end] - index_first, int((end - first).sum()))
+
+    def all_runs(self) -> DrawRuns:
+        """One run per batch: the whole scene, as drawn without culling."""
+        return self.runs(np.zeros(1, np.int64), np.array([self.chunk_count]))
+
+    def primitive_groups(self, max_groups: int = MAX_GROUPS) -> PrimitiveGroups:
+        """Chunk boxes and triangle counts; above ``max_groups`` chunks, consecutive chunks (octree
+        neighbours) are merged into equal runs so that at most ``max_groups`` groups remain."""
+        per_group = -(-self.chunk_count // max_groups)
+        starts = np.arange(0, self.chunk_count, per_group)
+        lo = np.minimum.reduceat(self.boxes[:, 0], starts, axis=0)
+        hi = np.maximum.reduceat(self.boxes[:, 1], starts, axis=0)
+        counts = np.add.reduceat(self.face_counts, starts)
+        return PrimitiveGroups(np.concatenate([lo, hi], axis=1).astype(np.float64), counts.astype(np.int64))
+
+
+def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> tuple[
+        list[MeshBatch], SceneChunks]:
+    """Split every non-blended batch over ``face_limit`` faces by octree; returns the batches (faces
+    re-ordered into chunk order where split) and their :class:`SceneChunks`."""
+    if face_limit < 1:
+        raise ValueError(f"face limit must be ≥ 1, got {face_limit}")
+    out, chunk_batch, face_counts, boxes = [], [], [], []
+    for number, batch in enumerate(batches):
+        if batch.alpha_mode == "BLEND" or batch.triangle_count <= face_limit:
+            out.append(batch)
+            counts, batch_boxes = np.array([batch.triangle_count]), batch.bounds()[None].astype(np.float32)
+        else:
+            split = octree_split(batch.positions, batch.faces, face_limit)
+            out.append(_vertices_in_first_use_order(dataclasses.replace(batch, faces=split.reorder(batch.faces))))
+            counts, batch_boxes = split.face_counts, split.bounds
+        chunk_batch.append(np.full(counts.size, number, np.int64))
+        face_counts.append(counts)
+        boxes.append(batch_boxes)
+    chunk_faces = np.concatenate(face_counts).astype(np.int64)
+    chunk_boxes = np.concatenate(boxes).astype(np.float32)
+    batch_sizes = np.array([len(c) for c in face_counts], np.int64)
+    chunks = SceneChunks(
+        batch=np.concatenate(chunk_batch),
+        index_bounds=np.concatenate(([0], np.cumsum(chunk_faces * 3))),
+        batch_bounds=np.concatenate(([0], np.cumsum(batch_sizes))),
+        boxes=chunk_boxes,
+        bvh=build_chunk_bvh(chunk_boxes),
+        face_limit=face_limit,
+    )
+    return out, chunks
+
+
+def _vertices_in_first_use_order(batch: MeshBatch) -> MeshBatch:
+    """``batch`` with its vertices renumbered in the order its faces first use them (unused ones last)."""
+    used, first_use = np.unique(batch.faces.reshape(-1), return_index=True)
+    order = np.concatenate([used[np.argsort(first_use)],
+                            np.setdiff1d(np.arange(batch.vertex_count), used, assume_unique=True)])
+    new_index = np.empty_like(order)
+    new_index[order] = np.arange(order.size)
+    return dataclasses.replace(
+        batch, positions=batch.positions[order], normals=batch.normals[order],
+        uvs=None if batch.uvs is None else batch.uvs[order],
+        colors=None if batch.colors is None else batch.colors[order],
+        faces=new_index[batch.faces].astype(np.uint32))

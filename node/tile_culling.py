@@ -1,0 +1,173 @@
+"""Per-tile culling for the renderer (seed 001 §6): off, CPU, GPU, or hybrid — the CPU↔GPU switch of
+Fig. 6.4 (:class:`node.culling_state.HybridCullingSwitch`, the seed's parameters by default) run
+per tile slot, because the coordinator hands a node the same tile slot frame after frame and the
+switch needs one tile's timings over consecutive frames.
+
+- CPU: :func:`node.frustum_culling.cull` over the scene's chunk tree; the kept chunk ranges become
+  index runs cut per batch (:meth:`node.chunking.SceneChunks.runs`), written as indirect draw
+  commands. Its time (tree test + runs, perf_counter) is what the hybrid switch reads as the CPU
+  culling time.
+- GPU: a :class:`node.gpu_culling.GpuCuller` per tile slot writes one indirect command per chunk;
+  its cull time is the CPU-side time of the two dispatches (on llvmpipe the compute shaders run
+  on the CPU). When the switch hands a slot over to the GPU, the slot's GPU input is seeded with
+  the CPU's last terminal nodes (seed 001 §6.1.2).
+- Hybrid: CPU until the switch says GPU, and back.
+
+Either way a tile is drawn the same way (:class:`TileCull`): per batch, one
+glMultiDrawElementsIndirect over its slice of a command buffer. On llvmpipe that ties with one
+``render(first=, vertices=)`` per run (``bench/culling.py`` row ``cpu-ranges``; 990k pan orbit,
+960 tiles of 16 per frame, two runs: 13.43 vs 13.70 and 12.19 vs 12.11 ms per tile) — Mesa loops
+over the commands in C at about 10 µs a draw either way. Multi-draw is kept: one draw path for both
+culling devices and no Python call per run.
+
+On llvmpipe the GPU path loses. Its compute shaders run on the same CPU cores; on the 990k pan
+(12 084 chunks, 1280x720, 16 tiles) GPU culling costs 0.67–0.78 ms per tile against 0.27–0.40 ms
+for CPU culling, and tiles take 3–6 % longer (orbit 12.87 vs 12.19 ms, zoom 15.15 vs 14.73,
+fly-through 12.10 vs 11.74). With the seed's 0.3 ms threshold, which the CPU cull time straddles on
+a shared 2-core machine, hybrid sends 37–86 % of the tiles to the GPU and ends 3–5 % slower than
+``cpu``. The seed's parameters stay the defaults (a real GPU is what they were chosen for); on
+llvmpipe prefer ``--culling cpu``.
+
+What ran is reported per tile: the path, chunks drawn, triangles submitted and the culling time. On
+the GPU path the counts are read back from the command buffer after drawing.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from node.chunking import DrawRuns, SceneChunks
+from node.culling_state import CullDevice, CullMode, HybridCullingSwitch, SwitchParams
+from node.frustum_culling import cull, frustum_planes_from_matrix, indirect_commands
+from node.gpu_culling import GpuBvh, GpuCuller
+from tessera.geometry import Rect
+
+
+class CullingUnavailableError(RuntimeError):
+    """``--culling gpu`` on a context without GL 4.3 compute shaders."""
+
+
+@dataclass(frozen=True, slots=True)
+class TileCull:
+    """One tile's culling outcome, ready to draw: for each ``(batch, first, count)`` in ``batches``
+    (draw order), ``count`` DrawElementsIndirectCommand rows of ``commands`` from row ``first``.
+    ``path`` is "off", "cpu" or "gpu"; ``cull_ms`` the culling time; ``runs`` the index runs the
+    commands hold (off and CPU paths; None on the GPU path, whose commands stay on the GPU)."""
+
+    path: str
+    cull_ms: float
+    commands: moderngl.Buffer
+    batches: list[tuple[int, int, int]]
+    runs: DrawRuns | None
+
+
+@dataclass(frozen=True, slots=True)
+class CullCounts:
+    """What a tile drew: ``chunks_drawn`` (of the scene's chunks) and ``triangles`` submitted."""
+
+    chunks_drawn: int
+    triangles: int
+
+
+@dataclass
+class _Slot:
+    switch: HybridCullingSwitch
+    gpu: GpuCuller | None = field(default=None)
+
+
+class TileCuller:
+    """Culls tiles of one scene on one GL context (the renderer's thread) in ``mode``; per tile
+    slot it keeps the hybrid switch and, once the slot has culled on the GPU, its GPU culler.
+
+    GPU and hybrid culling need GL 4.3 compute shaders: without them ``mode`` gpu raises
+    CullingUnavailableError and hybrid stays on the CPU (its switch is not fed).
+    """
+
+    def __init__(self, ctx: moderngl.Context, chunks: SceneChunks, mode: CullMode = CullMode.HYBRID,
+                 params: SwitchParams = SwitchParams()) -> None:
+        if mode is CullMode.GPU and ctx.version_code < 430:
+            raise CullingUnavailableError(f"--culling gpu needs GL 4.3 compute shaders; this context is GL "
+                                          f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")
+        self.chunks, self.mode, self.params = chunks, mode, params
+        self._slots: dict[Hashable, _Slot] = {}
+        self._cpu_commands = ctx.buffer(reserve=20 * chunks.chunk_count)   # runs never outnumber chunks
+        self._all_runs = chunks.all_runs()
+        self._all_commands = ctx.buffer(indirect_commands(_run_spans(self._all_runs)).tobytes())
+        bounds = chunks.batch_bounds
+        self._gpu_batches = [(b, int(bounds[b]), int(bounds[b + 1] - bounds[b])) for b in range(bounds.size - 1)]
+        self.gpu_bvh: GpuBvh | None = None
+        if mode in (CullMode.GPU, CullMode.HYBRID) and ctx.version_code >= 430:
+            index = chunks.index_bounds
+            self.gpu_bvh = GpuBvh(ctx, chunks.bvh, index[:-1], index[1:], bounds[chunks.batch + 1])
+
+    def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect) -> TileCull:
+        """Cull tile ``slot`` (any key: the tile's id), the ``rect`` part of a ``size`` frame drawn
+        with the full-frame ``view_proj`` (4, 4) world→clip matrix."""
+        if self.mode is CullMode.OFF:
+            return TileCull("off", 0.0, self._all_commands, self._all_runs.batch_slices(), self._all_runs)
+        planes = frustum_planes_from_matrix(view_proj, size, rect)
+        state = self._slots.get(slot)
+        if state is None:
+            state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
+        if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
+            return self._cull_gpu(state, planes)
+        return self._cull_cpu(state, planes)
+
+    def _gpu_culler(self) -> GpuCuller:
+        assert self.gpu_bvh is not None
+        return GpuCuller(self.gpu_bvh)
+
+    def _cull_cpu(self, state: _Slot, planes: np.ndarray) -> TileCull:
+        started = time.perf_counter()
+        result = cull(self.chunks.bvh, planes)
+        runs = self.chunks.runs(result.visible_first, result.visible_end)
+        elapsed = time.perf_counter() - started
+        if self.mode is CullMode.HYBRID and self.gpu_bvh is not None:
+            state.switch = state.switch.step(elapsed)
+            if state.switch.device is CullDevice.GPU:
+                state.gpu = state.gpu or self._gpu_culler()
+                state.gpu.seed(result.terminal_nodes)
+        if runs.batch.size:
+            self._cpu_commands.write(indirect_commands(_run_spans(runs)).tobytes())
+        return TileCull("cpu", elapsed * 1e3, self._cpu_commands, runs.batch_slices(), runs)
+
+    def _cull_gpu(self, state: _Slot, planes: np.ndarray) -> TileCull:
+        state.gpu = state.gpu or self._gpu_culler()
+        started = time.perf_counter()
+        state.gpu.cull(planes)
+        elapsed = time.perf_counter() - started
+        if self.mode is CullMode.HYBRID:
+            state.switch = state.switch.step(None)
+        return TileCull("gpu", elapsed * 1e3, state.gpu.commands, self._gpu_batches, None)
+
+    def counts(self, tile: TileCull) -> CullCounts:
+        """Chunks drawn and triangles submitted by ``tile`` (reads a GPU tile's commands back)."""
+        if tile.runs is not None:
+            return CullCounts(tile.runs.chunks, tile.runs.triangles)
+        commands = np.frombuffer(tile.commands.read(), np.uint32).reshape(-1, 5)
+        heads = np.flatnonzero(commands[:, 0])
+        counts = commands[heads, 0].astype(np.int64)
+        ends = np.searchsorted(self.chunks.index_bounds, commands[heads, 2].astype(np.int64) + counts)
+        return CullCounts(int((ends - heads).sum()), int(counts.sum()) // 3)
+
+    def release(self) -> None:
+        """Free the command buffers and the GPU culling buffers and shaders."""
+        for state in self._slots.values():
+            if state.gpu is not None:
+                state.gpu.release()
+        self._slots.clear()
+        if self.gpu_bvh is not None:
+            self.gpu_bvh.release()
+            self.gpu_bvh = None
+        self._cpu_commands.release()
+        self._all_commands.release()
+
+
+def _run_spans(runs: DrawRuns) -> np.ndarray:
+    """(R, 2) int64 (first index, index count) of ``runs``."""
+    return np.stack([runs.first, runs.count], axis=1)
