@@ -44,6 +44,10 @@ BACKOFF_MAX_S = 5.0
 CLOSE_BAD_TOKEN = 4401
 
 
+#: Culling-state key of calibration renders, apart from every tile's own slot.
+CALIBRATION_SLOT = "calibration"
+
+
 @dataclass(frozen=True, slots=True)
 class TileRequest:
     tile: int
@@ -259,7 +263,7 @@ class NodeClient:
         return {
             "type": "hello", "name": self.settings.name, "token": self.settings.token or "",
             "renderer": self.renderer_name, "version": PROTOCOL_VERSION,
-            "capabilities": {"codecs": list(CODECS), "slowdown": self.settings.slowdown},
+            "capabilities": {"codecs": list(CODECS), "slowdown": self.settings.slowdown, "calibrate": True},
         }
 
     async def _session(self, ws: ClientConnection) -> None:
@@ -286,7 +290,7 @@ class NodeClient:
                 log.warning("ignoring a binary message from the coordinator")
                 continue
             try:
-                message = decode_json(raw, ("welcome", "load_scene", "render"))
+                message = decode_json(raw, ("welcome", "load_scene", "render", "calibrate"))
             except ProtocolError as exc:
                 log.warning("ignoring coordinator message: %s", exc)
                 continue
@@ -302,6 +306,8 @@ class NodeClient:
             message = await jobs.get()
             if message["type"] == "load_scene":
                 await self._load_scene(message, outbox)
+            elif message["type"] == "calibrate":
+                await self._calibrate(message, outbox)
             else:
                 await self._render(message, outbox)
 
@@ -360,6 +366,29 @@ class NodeClient:
             packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
                                           job.codec, job.jpeg_quality)
             outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
+
+    async def _calibrate(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
+        """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and
+        report the best time (× slowdown, after sleeping the emulated extra, like a tile)."""
+        try:
+            job = parse_render({**message, "type": "render", "frame": 0, "codec": "raw",
+                                "tiles": [{"tile": 0, "rect": message.get("rect")}]})
+            repeats = message.get("repeats", 3)
+            if not isinstance(repeats, int) or isinstance(repeats, bool) or not 1 <= repeats <= 20:
+                raise ProtocolError(f"calibrate.repeats must be 1..20, got {repeats!r}")
+            if job.camera is None:
+                raise ProtocolError(job.camera_error or "bad camera")
+            times = [(await self.worker.render(job.camera, job.size, job.tiles[0].rect, CALIBRATION_SLOT)).render_ms
+                     for _ in range(repeats)]
+        except Exception as exc:  # a malformed request, no scene, or a GL failure: report, keep serving
+            log.warning("calibration failed: %s", exc)
+            outbox.put_nowait(encode_json({"type": "render_error", "frame": 0, "tile": 0,
+                                           "message": f"calibration failed: {' '.join(str(exc).split())}"}))
+            return
+        best = min(times)
+        if self.settings.slowdown > 1.0:
+            await self._sleep((self.settings.slowdown - 1.0) * best / 1e3)
+        outbox.put_nowait(encode_json({"type": "calibration", "ms": best * self.settings.slowdown}))
 
     @staticmethod
     def _render_errors(outbox: asyncio.Queue[str | PendingTile], frame: Any, tiles: list[int], reason: str) -> None:

@@ -13,12 +13,12 @@ Control messages, node → coordinator:
 * ``hello`` {name, token, renderer (GL_RENDERER string), version,
   capabilities {codecs, slowdown, calibrate (bool)}}
 * ``scene_progress`` {scene, fraction 0…1, message}
-* ``scene_ready`` {scene, triangles, meshes, bounds [[x,y,z],[x,y,z]], load_ms,
+* ``scene_ready`` {scene, triangles, meshes, chunks, bounds [[x,y,z],[x,y,z]], load_ms,
   groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}
-  (world-space primitive groups)
+  (world-space primitive groups: the octree chunks' boxes, merged to a few thousand)
 * ``scene_error`` {scene, message}
-* ``tile_sent`` {frame, tile, send_ms, stats {…}}  after each binary tile; ``stats`` carries the
-  node's per-tile counters (e.g. triangles submitted)
+* ``tile_sent`` {frame, tile, send_ms, stats {triangles, chunks_drawn, chunks_culled, cull_ms,
+  cull_path}}  after each binary tile: the node's per-tile counters
 * ``render_error`` {frame, tile, message}
 * ``calibration`` {ms}  answer to ``calibrate``: the best of ``repeats`` renders of ``rect``, no
   output sent, slowdown included

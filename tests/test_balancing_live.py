@@ -22,8 +22,8 @@ pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
 SIZE = (320, 240)
 SCENE = "builtin:cluster"
-SETTLE_FRAMES = 40
-MEASURE_FRAMES = 40
+SETTLE_FRAMES = 30
+MEASURE_FRAMES = 30
 
 
 def imbalance_after_switch(client: httpx.Client, name: str) -> float:
@@ -43,6 +43,10 @@ def test_adaptive_balancers_beat_static_with_a_slow_node(coordinator_factory, tm
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
         assert sorted(n["slowdown"] for n in stats(client)["nodes"]) == [1.0, 1.0, 3.0]
+        nodes = wait_until(lambda: all(n["calibration_ms"] for n in stats(client)["nodes"])
+                           and stats(client)["nodes"], seconds(60), "every node calibrated (seed 003 §1)")
+        slow = next(n for n in nodes if n["slowdown"] == 3.0)
+        assert slow["speed"] == 1.0 and all(n["speed"] > 1.5 for n in nodes if n is not slow), nodes
         camera = client.get("/api/camera").json()["camera"]
         reference = render_once(SCENE, camera, SIZE, tmp_path)
         figures = {"static": imbalance_after_switch(client, "static")}
