@@ -13,12 +13,14 @@ from pathlib import Path
 
 from node.culling_state import CullMode
 from node.octree_split import DEFAULT_FACE_LIMIT
+from tessera.cli_values import parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"
 DEFAULT_SIZE = (1280, 720)
 MAX_SIZE = 16384
+parse_size = size_parser(1, MAX_SIZE)
 ENV_PREFIX = "TESSERA_"
 
 
@@ -42,33 +44,6 @@ class NodeSettings:
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
     culling: CullMode = CullMode.HYBRID
     face_limit: int = DEFAULT_FACE_LIMIT
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """``WxH`` → (w, h), each 1…16384."""
-    parts = text.lower().split("x")
-    try:
-        width, height = (int(p) for p in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 1280x720, got {text!r}") from None
-    if not (1 <= width <= MAX_SIZE and 1 <= height <= MAX_SIZE):
-        raise argparse.ArgumentTypeError(f"size {width}x{height} out of range 1..{MAX_SIZE}")
-    return width, height
-
-
-def parse_background(text: str) -> tuple[float, float, float]:
-    """``#rrggbb`` or ``r,g,b`` with components in 0…1 → an RGB triple in 0…1."""
-    text = text.strip()
-    try:
-        if text.startswith("#") and len(text) == 7:
-            rgb = tuple(int(text[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
-        else:
-            rgb = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        rgb = ()
-    if len(rgb) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rgb):
-        raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0..1, got {text!r}")
-    return rgb  # type: ignore[return-value]
 
 
 def parse_slowdown(text: str) -> float:

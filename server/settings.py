@@ -9,34 +9,11 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from tessera.cli_values import parse_background, size_parser
 from tessera.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'1280x720' → (1280, 720); both sides 16…8192 pixels."""
-    try:
-        width, height = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 1280x720, got {text!r}") from None
-    if not (16 <= width <= 8192 and 16 <= height <= 8192):
-        raise argparse.ArgumentTypeError(f"size sides must be 16…8192 pixels, got {text!r}")
-    return width, height
-
-
-def parse_background(text: str) -> tuple[float, float, float]:
-    """'#1c1f26' or '0.1,0.1,0.12' → linear RGB floats in 0…1."""
-    try:
-        if text.startswith("#") and len(text) == 7:
-            values = tuple(int(text[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
-        else:
-            values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
-        raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0…1, got {text!r}")
-    return values  # type: ignore[return-value]
+parse_size = size_parser(16, 8192)
 
 
 def _count(text: str) -> int:

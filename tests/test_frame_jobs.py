@@ -313,4 +313,5 @@ def test_node_counters_are_summed_per_frame_and_text_keeps_the_last_value():
         header = TileHeader(1, tile_id, rect, Codec.RAW, 1.0, 0.1, 0.2)
         job.accept(node, header, bytes(rect.w * rect.h * 3))
         job.record_send(node, tile_id, 0.5, {"triangles": 100 * (tile_id + 1), "cull_path": f"p{tile_id}"})
-    assert job.counters_by_node() == {7: {"triangles": 300, "cull_path": "p1"}, 9: {"triangles": 300, "cull_path": "p2"}}
+    assert job.counters_by_node() == {7: {"triangles": 300, "cull_path": "p1"},
+                                      9: {"triangles": 300, "cull_path": "p2"}}

@@ -81,7 +81,7 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
     hello = await receive_json(ws)
     assert hello["type"] == "hello" and hello["name"] == "tester" and hello["token"] == "s3cret"
     assert hello["version"] == 1 and hello["renderer"]
-    assert hello["capabilities"] == {"codecs": ["raw", "jpeg", "png"], "slowdown": SLOWDOWN}
+    assert hello["capabilities"] == {"codecs": ["raw", "jpeg", "png"], "slowdown": SLOWDOWN, "calibrate": True}
     await send(ws, type="welcome", node_id=7)
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
     progress = []
@@ -118,6 +118,11 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
     error = await receive_json(ws)
     assert error["type"] == "render_error" and (error["frame"], error["tile"]) == (3, 0)
     await receive_tile(ws, 3, 1, scene)
+
+    await send(ws, type="calibrate", camera=CAMERA, size=list(SIZE), rect=[24, 16, 48, 32], repeats=2)
+    calibration = await receive_json(ws)
+    assert calibration["type"] == "calibration" and calibration["ms"] > 0.0
+    render_ms.append(calibration["ms"])
 
     await ws.close(4401, "wrong token")
     ws = await coordinator.accept()
@@ -189,9 +194,9 @@ def test_settings_refuse_bad_values(argv, capsys):
 @pytest.mark.gl
 def test_node_serves_a_fake_coordinator():
     stitched, render_ms, slept = asyncio.run(run_node_against_fake())
-    # Slowdown: each tile waits (F - 1) x its render time and reports F x it.
-    assert len(slept) == 3
-    for reported, wait_s in zip(render_ms, slept[:2], strict=True):
+    # Slowdown: each tile and the calibration wait (F - 1) x their render time and report F x it.
+    assert len(slept) == 4
+    for reported, wait_s in zip(render_ms, [*slept[:2], slept[3]], strict=True):
         assert reported == pytest.approx(wait_s * 1e3 * SLOWDOWN / (SLOWDOWN - 1.0), rel=1e-4)
     ctx = create_gl_context()
     renderer = TileRenderer(ctx, load_scene("builtin:spheres"), BACKGROUND)

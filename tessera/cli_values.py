@@ -1,0 +1,38 @@
+"""Command-line values both processes accept (``--size``, ``--background``): parsers for argparse
+that raise ``ArgumentTypeError`` with a message a user can act on."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def size_parser(minimum: int, maximum: int) -> Callable[[str], tuple[int, int]]:
+    """A parser of ``WxH`` (e.g. 1280x720) → (w, h), each side in ``minimum``…``maximum`` pixels."""
+
+    def parse_size(text: str) -> tuple[int, int]:
+        try:
+            width, height = (int(part) for part in text.lower().split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 1280x720, got {text!r}") from None
+        if not (minimum <= width <= maximum and minimum <= height <= maximum):
+            raise argparse.ArgumentTypeError(f"size sides must be {minimum}…{maximum} pixels, got {text!r}")
+        return width, height
+
+    return parse_size
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """``#rrggbb`` or ``r,g,b`` with components in 0…1 → an RGB triple in 0…1."""
+    text = text.strip()
+    try:
+        if text.startswith("#") and len(text) == 7:
+            rgb = tuple(int(text[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
+        else:
+            rgb = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rgb):
+        raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0…1, got {text!r}")
+    return rgb  # type: ignore[return-value]
