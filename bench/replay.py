@@ -1,0 +1,155 @@
+"""Serial replay of a balancer over a camera path, with node times from a tile-cost function (pure).
+
+The frame loop feeds a balancer exactly as the live coordinator (``server/service.py``) does:
+the previous partition, the per-tile timings of the last *complete* frame, the node speed weights
+from calibration, the elapsed time between partition calls (the path's ``dt_ms``) and, for
+techniques that read them, the projected primitive groups. Tile costs come from ``measure(frame,
+rects)`` — real renders in ``bench/balance.py``, a cost map in the tests — in milliseconds on a
+speed-1 node; node i's times are multiplied by its slowdown sᵢ (sᵢ = 2: twice as slow, like
+``python -m node --slowdown 2``).
+
+Timing lag: the coordinator keeps 2 frames in flight, so when it partitions frame f the newest
+complete frame is f − 2. ``lag`` L feeds frame f the timings of frame f − 1 − L (L = 1: as live;
+L = 0: every frame sees its predecessor's timings). Frames with no complete frame yet get none.
+
+Push partitions: a node's time is the sum of its tiles' costs × sᵢ. Pull partitions (tile
+rotation): :func:`tessera.balancers.rotate.pull_schedule` hands the tiles out in list order to
+the node free first, node speeds 1/sᵢ; the timings fed back name the node that pulled each tile.
+
+Per frame: imbalance = max/mean of node times; frame time = the slowest node (the makespan for
+pull); work = Σ tile costs at speed 1; ideal = work / Σ 1/sᵢ (the frame time if the work were
+spread in proportion to node speed with no overhead); efficiency = ideal / frame time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, TileTiming, imbalance
+from tessera.balancers.rotate import pull_schedule
+from tessera.geometry import Rect
+from tessera.partition import check_exact_cover
+
+
+@dataclass(frozen=True, slots=True)
+class Phases:
+    """A tile's measured phases on a speed-1 node, milliseconds."""
+
+    render_ms: float
+    readback_ms: float = 0.0
+    encode_ms: float = 0.0
+
+    @property
+    def busy_ms(self) -> float:
+        return self.render_ms + self.readback_ms + self.encode_ms
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One replayed frame: its partition, each node's time (ms, slowdowns applied), frame time
+    (ms), work (ms at speed 1), ideal frame time (ms), max/mean imbalance and efficiency."""
+
+    partition: Partition
+    node_ms: dict[int, float]
+    frame_ms: float
+    work_ms: float
+    ideal_ms: float
+    imbalance: float
+    efficiency: float
+
+
+#: ``measure(frame, rects)`` → each tile's phases at speed 1 (one frame's tiles measured together)
+Measure = Callable[[int, Sequence[Rect]], Sequence[Phases]]
+
+
+def dispatch(partition: Partition, phases: Sequence[Phases], node_ids: Sequence[int],
+             slowdowns: Mapping[int, float]) -> tuple[tuple[TileTiming, ...], dict[int, float], float]:
+    """Run one frame: the tile timings (each tile's phases × its node's slowdown, attributed to the
+    node that rendered it), each node's busy ms and the frame time (ms)."""
+    nodes = sorted(node_ids)
+    owners: list[int | None]
+    if partition.pull:
+        costs = [p.busy_ms for p in phases]
+        assignment, makespan = pull_schedule(costs, [1.0 / slowdowns.get(n, 1.0) for n in nodes])
+        owners = [nodes[i] for i in assignment]
+    else:
+        owners = [t.node_id for t in partition.tiles]
+    node_ms = dict.fromkeys(nodes, 0.0)
+    timings = []
+    for tile, owner, p in zip(partition.tiles, owners, phases, strict=True):
+        if owner is None or owner not in node_ms:
+            raise ValueError(f"tile {tile.rect} pushed to unknown node {owner}")
+        s = slowdowns.get(owner, 1.0)
+        timing = TileTiming(tile.rect, owner, p.render_ms * s, p.readback_ms * s, p.encode_ms * s)
+        node_ms[owner] += timing.busy_ms
+        timings.append(timing)
+    frame_ms = makespan if partition.pull else max(node_ms.values())
+    return tuple(timings), node_ms, frame_ms
+
+
+def ideal_ms(work_ms: float, slowdowns: Sequence[float]) -> float:
+    """The frame time of ``work_ms`` (speed-1 ms) spread over nodes by speed: work / Σ 1/sᵢ."""
+    return work_ms / sum(1.0 / s for s in slowdowns)
+
+
+def replay(balancer: Balancer, frames: int, size: tuple[int, int], node_ids: Sequence[int], measure: Measure,
+           slowdowns: Mapping[int, float] | None = None, weights: Mapping[int, float] | None = None,
+           dt_ms: float = 1000.0 / 30.0, lag: int = 1,
+           groups_at: Callable[[int], ProjectedGroups] | None = None,
+           on_frame: Callable[[int, FrameRecord], None] | None = None) -> list[FrameRecord]:
+    """Replay ``frames`` frames of ``balancer`` (see the module docstring); ``groups_at(f)`` is
+    frame f's projected groups, passed only to balancers that use them. A partition that is not an
+    exact cover of the screen raises ValueError (the live coordinator would fall back to static)."""
+    if lag < 0:
+        raise ValueError("lag must be >= 0")
+    nodes = tuple(sorted(node_ids))
+    slow = {n: float((slowdowns or {}).get(n, 1.0)) for n in nodes}
+    if any(not s > 0.0 for s in slow.values()):
+        raise ValueError("slowdowns must be > 0")
+    history: list[tuple[TileTiming, ...]] = []
+    previous: Partition | None = None
+    records = []
+    for frame in range(frames):
+        source = frame - 1 - lag
+        inputs = BalanceInput(size=size, node_ids=nodes, previous=previous,
+                              timings=history[source] if source >= 0 else (), weights=dict(weights or {}),
+                              elapsed_ms=dt_ms if frame else 0.0,
+                              groups=groups_at(frame) if groups_at and balancer.uses_groups else None)
+        partition = balancer.partition(inputs)
+        check_exact_cover(partition.rects, size)
+        phases = measure(frame, partition.rects)
+        timings, node_ms, frame_ms = dispatch(partition, phases, nodes, slow)
+        work = sum(p.busy_ms for p in phases)
+        ideal = ideal_ms(work, list(slow.values()))
+        record = FrameRecord(partition, node_ms, frame_ms, work, ideal, imbalance(node_ms),
+                             ideal / frame_ms if frame_ms > 0.0 else 1.0)
+        records.append(record)
+        history.append(timings)
+        previous = partition
+        if on_frame is not None:
+            on_frame(frame, record)
+    return records
+
+
+def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int], int | None]]:
+    """The partition's (rect, node) pairs, order ignored (a pull list re-sorted is the same tiles)."""
+    return frozenset(((t.rect.x, t.rect.y, t.rect.w, t.rect.h), t.node_id) for t in partition.tiles)
+
+
+def summarize(records: Sequence[FrameRecord], skip: int = 10) -> dict[str, float | int]:
+    """Figures over the frames after the first ``skip``: mean and 95th percentile of imbalance,
+    mean efficiency, repartitions (frames whose tiles differ from the frame before's), frames, and
+    mean frame time and work (ms)."""
+    kept = list(records[skip:])
+    if not kept:
+        raise ValueError(f"need more than {skip} frames to summarize, got {len(records)}")
+    ratios = np.array([r.imbalance for r in kept])
+    repartitions = sum(tile_set(records[i].partition) != tile_set(records[i - 1].partition)
+                       for i in range(max(skip, 1), len(records)))
+    return {"imbalance_mean": float(ratios.mean()), "imbalance_p95": float(np.percentile(ratios, 95)),
+            "efficiency": float(np.mean([r.efficiency for r in kept])), "repartitions": int(repartitions),
+            "frames": len(kept), "frame_ms": float(np.mean([r.frame_ms for r in kept])),
+            "work_ms": float(np.mean([r.work_ms for r in kept]))}
