@@ -21,7 +21,8 @@ from tessera.balancers import create_balancer
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, Tile, TileTiming
 from tessera.balancers.hetero import calibration_weights
-from tessera.balancers.predict import AdaptivePredictBalancer, LoadModel, group_features, nonnegative_fit
+from tessera.balancers.load import LoadField
+from tessera.balancers.predict import AdaptivePredictBalancer, BoxField, LoadModel, group_features, nonnegative_fit
 from tessera.balancers.simulate import rect_sums, run, summed_area
 from tessera.geometry import Rect
 
@@ -60,6 +61,24 @@ def test_group_features_hand_made() -> None:
     rects = np.array([[0.0, 0.0, 5.0, 10.0], [5.0, 0.0, 10.0, 10.0], [20.0, 0.0, 30.0, 10.0]])
     assert group_features(groups, rects) == pytest.approx(np.array([[50.0, 50.0], [55.0, 100.0], [0.0, 0.0]]))
     assert group_features(None, rects).shape == (3, 2) and not group_features(None, rects).any()
+
+
+def test_box_field_sweeps_like_load_field() -> None:
+    """The sorted-event sweep gives LoadField's answers (random boxes, some densities negative
+    where others make up for them)."""
+    rng = np.random.default_rng(7)
+    corners = rng.uniform(0, 300, (60, 2, 2))
+    boxes = np.concatenate([np.array([[0.0, 0.0, 320.0, 180.0]]), np.column_stack([
+        corners[:, 0].min(axis=1), corners[:, 1].min(axis=1) * 0.6, corners[:, 0].max(axis=1),
+        corners[:, 1].max(axis=1) * 0.6])])
+    density = np.concatenate([[5.0], rng.uniform(-0.05, 1.0, 60)])
+    fast, slow = BoxField(boxes, density), LoadField(boxes, density)
+    for axis, span, band in ((0, (0.0, 320.0), (0.0, 180.0)), (1, (0.0, 180.0), (40.0, 75.5)),
+                             (0, (0.0, 320.0), (100.0, 101.0))):
+        fractions = [0.1, 0.37, 0.5, 0.93]
+        assert fast.positions(axis, span, band, fractions) == pytest.approx(
+            slow.positions(axis, span, band, fractions), abs=1e-6)
+    assert fast.total((10.0, 20.0, 250.0, 90.0)) == pytest.approx(slow.total((10.0, 20.0, 250.0, 90.0)))
 
 
 def test_nonnegative_fit() -> None:
