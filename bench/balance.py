@@ -27,8 +27,13 @@ figures, run it as its own process: in a process that already made a GL context 
 ``LP_NUM_THREADS`` it sets may not take effect.
 
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
-``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms},
-"meta": {...}}`` over the frames after the first ``--skip`` (10).
+``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms,
+efficiency_pipelined, frame_ms_pipelined}, "meta": {...}}`` over the frames after the first
+``--skip`` (10). ``efficiency`` scores each frame alone (a pull list by its one-frame makespan);
+``efficiency_pipelined`` runs the same tiles through the live coordinator's timeline with
+``--lag`` + 1 frames in flight, where a node done with its part of a frame starts on the next
+(:class:`bench.replay.Pipeline`), counting the work done between the last left-out frame's
+completion and the last frame's.
 """
 
 from __future__ import annotations
@@ -200,9 +205,10 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> lis
 
 
 def format_table(results: dict[str, dict[str, float | int]]) -> str:
-    columns = ("imbalance_mean", "imbalance_p95", "efficiency", "repartitions", "frames", "frame_ms", "work_ms")
+    columns = ("imbalance_mean", "imbalance_p95", "efficiency", "efficiency_pipelined", "repartitions", "frames",
+               "frame_ms", "frame_ms_pipelined", "work_ms")
     width = max(len("balancer"), *(len(n) for n in results))
-    lines = [f"{'balancer':<{width}}  " + "  ".join(f"{c:>14}" for c in columns)]
+    lines = [f"{'balancer':<{width}}  " + "  ".join(f"{c.replace('_pipelined', '_pipe'):>14}" for c in columns)]
     for name, row in results.items():
         cells = [f"{row[c]:>14d}" if isinstance(row[c], int) else f"{row[c]:>14.3f}" for c in columns]
         lines.append(f"{name:<{width}}  " + "  ".join(cells))
@@ -286,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
         results[name] = summarize(records, args.skip)
         print(f"  [{name}] {len(records)} frames in {time.perf_counter() - balancer_started:.1f} s, "
               f"{timer.renders - renders_before} renders (memo {len(timer.cache)} tiles, {timer.hits} hits); "
-              f"imbalance_mean {results[name]['imbalance_mean']:.3f}", flush=True)
+              f"imbalance_mean {results[name]['imbalance_mean']:.3f}, efficiency {results[name]['efficiency']:.3f}, "
+              f"pipelined {results[name]['efficiency_pipelined']:.3f}", flush=True)
     noise = None
     if args.noise_check:
         equal = StaticBalancer().partition(BalanceInput(size=size, node_ids=tuple(node_ids))).rects

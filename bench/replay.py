@@ -19,6 +19,18 @@ the node free first, node speeds 1/sᵢ; the timings fed back name the node that
 Per frame: imbalance = max/mean of node times; frame time = the slowest node (the makespan for
 pull); work = Σ tile costs at speed 1; ideal = work / Σ 1/sᵢ (the frame time if the work were
 spread in proportion to node speed with no overhead); efficiency = ideal / frame time.
+
+Pipelined: the frames also run through :class:`Pipeline`, the live coordinator's timeline with
+L + 1 frames in flight, where a node that finished its part of a frame starts on the next one
+(pushed tiles queue per node in frame order; pulled tiles go to whichever node is free first,
+oldest frame first — seed 000 §4.3's "the fastest node is asked for a new frame"). Each record's
+``done_ms`` is when its frame completed there and ``spans`` when each of its tiles ran;
+:func:`summarize` reports ``efficiency_pipelined``: the work done between the last left-out
+frame's completion and the one before the last completion, as ideal time, over that elapsed time
+(a window between two completions, so work done ahead of it at the start is matched by work done
+ahead of its end; never above 1). The timings fed back are
+the per-frame ones above (for pull, the node that pulled a tile in the one-frame schedule; with
+equal speeds the same costs).
 """
 
 from __future__ import annotations
@@ -50,7 +62,9 @@ class Phases:
 @dataclass(frozen=True)
 class FrameRecord:
     """One replayed frame: its partition, each node's time (ms, slowdowns applied), frame time
-    (ms), work (ms at speed 1), ideal frame time (ms), max/mean imbalance and efficiency."""
+    (ms), work (ms at speed 1), ideal frame time (ms), max/mean imbalance, efficiency, and when
+    the frame completed in the pipelined timeline (ms from the first dispatch; NaN when not run)
+    and each tile's (begin ms, end ms, speed-1 cost ms) there."""
 
     partition: Partition
     node_ms: dict[int, float]
@@ -59,6 +73,8 @@ class FrameRecord:
     ideal_ms: float
     imbalance: float
     efficiency: float
+    done_ms: float = float("nan")
+    spans: tuple[tuple[float, float, float], ...] = ()
 
 
 #: ``measure(frame, rects)`` → each tile's phases at speed 1 (one frame's tiles measured together)
@@ -90,6 +106,47 @@ def dispatch(partition: Partition, phases: Sequence[Phases], node_ids: Sequence[
     return tuple(timings), node_ms, frame_ms
 
 
+class Pipeline:
+    """The live coordinator's frame timeline: at most ``in_flight`` frames dispatched and not yet
+    complete; each node works through its tiles in the order they reach it.
+
+    ``node_ids`` with ``slowdowns`` sᵢ (a tile of speed-1 cost c takes c × sᵢ on node i).
+    """
+
+    def __init__(self, node_ids: Sequence[int], slowdowns: Mapping[int, float], in_flight: int) -> None:
+        if in_flight < 1:
+            raise ValueError("in_flight must be >= 1")
+        self.nodes = sorted(node_ids)
+        self.slowdown = np.array([float(slowdowns.get(n, 1.0)) for n in self.nodes])
+        self.rank = np.argsort(self.slowdown, kind="stable")
+        self.free_at = np.zeros(len(self.nodes))
+        self.in_flight = in_flight
+        self.done: list[float] = []
+        self.started = 0.0
+
+    def run(self, partition: Partition,
+            phases: Sequence[Phases]) -> tuple[float, tuple[tuple[float, float, float], ...]]:
+        """Dispatch the next frame (tiles with their speed-1 phases) once a slot is free; when it
+        completes (ms from the first dispatch) and each tile's (begin, end, speed-1 cost) ms."""
+        frame = len(self.done)
+        if frame >= self.in_flight:
+            self.started = max(self.started, sorted(self.done)[frame - self.in_flight])
+        done = self.started
+        spans = []
+        for tile, p in zip(partition.tiles, phases, strict=True):
+            if partition.pull:
+                ready = np.maximum(self.free_at, self.started)
+                node = int(self.rank[np.argmin(ready[self.rank])])
+            else:
+                node = self.nodes.index(tile.node_id)
+            begin = max(float(self.free_at[node]), self.started)
+            self.free_at[node] = begin + p.busy_ms * self.slowdown[node]
+            spans.append((begin, float(self.free_at[node]), p.busy_ms))
+            done = max(done, float(self.free_at[node]))
+        self.done.append(done)
+        return done, tuple(spans)
+
+
 def ideal_ms(work_ms: float, slowdowns: Sequence[float]) -> float:
     """The frame time of ``work_ms`` (speed-1 ms) spread over nodes by speed: work / Σ 1/sᵢ."""
     return work_ms / sum(1.0 / s for s in slowdowns)
@@ -110,6 +167,7 @@ def replay(balancer: Balancer, frames: int, size: tuple[int, int], node_ids: Seq
     if any(not s > 0.0 for s in slow.values()):
         raise ValueError("slowdowns must be > 0")
     history: list[tuple[TileTiming, ...]] = []
+    pipeline = Pipeline(nodes, slow, lag + 1)
     previous: Partition | None = None
     records = []
     for frame in range(frames):
@@ -125,7 +183,7 @@ def replay(balancer: Balancer, frames: int, size: tuple[int, int], node_ids: Seq
         work = sum(p.busy_ms for p in phases)
         ideal = ideal_ms(work, list(slow.values()))
         record = FrameRecord(partition, node_ms, frame_ms, work, ideal, imbalance(node_ms),
-                             ideal / frame_ms if frame_ms > 0.0 else 1.0)
+                             ideal / frame_ms if frame_ms > 0.0 else 1.0, *pipeline.run(partition, phases))
         records.append(record)
         history.append(timings)
         previous = partition
@@ -141,15 +199,27 @@ def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int],
 
 def summarize(records: Sequence[FrameRecord], skip: int = 10) -> dict[str, float | int]:
     """Figures over the frames after the first ``skip``: mean and 95th percentile of imbalance,
-    mean efficiency, repartitions (frames whose tiles differ from the frame before's), frames, and
-    mean frame time and work (ms)."""
+    mean efficiency, repartitions (frames whose tiles differ from the frame before's), frames,
+    mean frame time and work (ms), and the pipelined efficiency and frame time over the window
+    from the last left-out frame's completion to the last but one completion (frames are shown in
+    order, so a frame counts as done when it and all before it are): the kept tiles' work inside
+    the window as ideal ms (a tile's cost × its frame's ideal / work, the part of its span inside)
+    over the window; NaN without ``done_ms`` or with fewer than 2 kept frames."""
     kept = list(records[skip:])
     if not kept:
         raise ValueError(f"need more than {skip} frames to summarize, got {len(records)}")
     ratios = np.array([r.imbalance for r in kept])
+    shown = np.maximum.accumulate([r.done_ms for r in records])
+    start = float(shown[skip - 1]) if skip else 0.0
+    stop = float(shown[-2]) if len(kept) > 1 and np.isfinite(shown[-1]) else start
+    elapsed = stop - start
+    ideal_inside = sum(cost * r.ideal_ms / r.work_ms * max(min(end, stop) - max(begin, start), 0.0) / (end - begin)
+                       for r in kept if r.work_ms > 0.0 for begin, end, cost in r.spans if end > begin)
     repartitions = sum(tile_set(records[i].partition) != tile_set(records[i - 1].partition)
                        for i in range(max(skip, 1), len(records)))
     return {"imbalance_mean": float(ratios.mean()), "imbalance_p95": float(np.percentile(ratios, 95)),
             "efficiency": float(np.mean([r.efficiency for r in kept])), "repartitions": int(repartitions),
             "frames": len(kept), "frame_ms": float(np.mean([r.frame_ms for r in kept])),
-            "work_ms": float(np.mean([r.work_ms for r in kept]))}
+            "work_ms": float(np.mean([r.work_ms for r in kept])),
+            "efficiency_pipelined": ideal_inside / elapsed if elapsed > 0.0 else float("nan"),
+            "frame_ms_pipelined": elapsed / (len(kept) - 1) if elapsed > 0.0 else float("nan")}

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bench.paths import make_path
-from bench.replay import FrameRecord, Phases, dispatch, ideal_ms, replay, summarize
+from bench.replay import FrameRecord, Phases, Pipeline, dispatch, ideal_ms, replay, summarize
 from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile
 from tessera.balancers.simulate import rect_sums, summed_area
@@ -67,6 +67,69 @@ def test_ideal_and_efficiency() -> None:
     assert slow[-1].imbalance == pytest.approx(20.0 / 15.0)
     assert slow[-1].ideal_ms == pytest.approx(20.0 / 1.5)
     assert slow[-1].efficiency == pytest.approx((20.0 / 1.5) / 20.0)
+
+
+def pull_frame(count: int) -> Partition:
+    return Partition(tuple(Tile(Rect(10 * i, 0, 10, 10), None) for i in range(count)), pull=True)
+
+
+def test_pipeline_one_frame_in_flight_adds_up_frame_times() -> None:
+    """With one frame in flight a frame starts when the last one is done: done = Σ frame times."""
+    pipeline = Pipeline([1, 2], {1: 1.0, 2: 2.0}, in_flight=1)
+    phases = [Phases(8.0, 1.0, 1.0), Phases(4.0, 0.5, 0.5)]
+    assert [pipeline.run(halves(), phases)[0] for _ in range(3)] == [10.0, 20.0, 30.0]
+
+
+def test_pipeline_push_is_bound_by_the_slowest_node() -> None:
+    """Two frames in flight: the light node runs a frame ahead but cannot run further; the frame
+    period settles at the slow node's 10 ms."""
+    pipeline = Pipeline([1, 2], {}, in_flight=2)
+    done = [pipeline.run(halves(), [Phases(10.0), Phases(2.0)])[0] for _ in range(6)]
+    assert done == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    assert pipeline.free_at.tolist() == [60.0, 42.0]
+
+
+def test_pipeline_pull_fills_gaps_with_the_next_frame() -> None:
+    """Tiles 6 and 2 ms on two equal nodes: one frame alone takes 6 ms (efficiency 4/6), but a node
+    that finishes early pulls from the next frame, so the period falls to the ideal 4 ms."""
+    pipeline = Pipeline([1, 2], {}, in_flight=2)
+    runs = [pipeline.run(pull_frame(2), [Phases(6.0), Phases(2.0)]) for _ in range(4)]
+    assert [done for done, _ in runs] == [6.0, 8.0, 14.0, 16.0]
+    assert runs[1][1] == ((2.0, 8.0, 6.0), (6.0, 8.0, 2.0))
+    single = Pipeline([1, 2], {}, in_flight=1)
+    assert [single.run(pull_frame(2), [Phases(6.0), Phases(2.0)])[0] for _ in range(2)] == [6.0, 12.0]
+
+
+def test_pipelined_efficiency_in_summary() -> None:
+    """summarize: the kept frames' work inside the window from the last skipped frame's completion
+    to the last but one, as ideal ms, over the window; one frame in flight gives the per-frame
+    figure."""
+    measure = map_measure(np.full((10, 100), 0.02))
+    slow = replay(StaticBalancer(), 12, (100, 10), [1, 2], measure, slowdowns={1: 1.0, 2: 2.0}, lag=0)
+    summary = summarize(slow, skip=2)
+    assert summary["efficiency_pipelined"] == pytest.approx(summary["efficiency"])
+    assert summary["frame_ms_pipelined"] == pytest.approx(summary["frame_ms"]) == pytest.approx(20.0)
+    records = [FrameRecord(halves(), {}, 10.0, 20.0, 10.0, 1.0, 1.0, 10.0, ((0.0, 10.0, 10.0), (0.0, 10.0, 10.0))),
+               FrameRecord(halves(), {}, 20.0, 30.0, 15.0, 1.0, 0.75, 30.0, ((5.0, 15.0, 10.0), (10.0, 30.0, 20.0))),
+               FrameRecord(halves(), {}, 20.0, 25.0, 12.5, 1.0, 0.75, 40.0, ((20.0, 35.0, 15.0), (30.0, 40.0, 10.0)))]
+    pipelined = summarize(records, skip=1)
+    assert pipelined["frame_ms_pipelined"] == pytest.approx(20.0)
+    assert pipelined["efficiency_pipelined"] == pytest.approx((2.5 + 10.0 + 5.0) / 20.0)
+    assert np.isnan(summarize([*records[:2], FrameRecord(halves(), {}, 1.0, 1.0, 1.0, 1.0, 1.0)],
+                              skip=1)["efficiency_pipelined"])
+
+
+def test_rotate_pipelined_beats_one_frame_makespan() -> None:
+    """Tile rotation over frames in flight keeps nodes busy: its pipelined efficiency is at least
+    its per-frame one, and static's stays bound by the slowest node."""
+    cost = np.ones((60, 80))
+    cost[:20, :30] = 20.0
+    measure = map_measure(cost / cost.sum() * 30.0)
+    rotate = summarize(replay(create_balancer("rotate"), 30, (80, 60), [1, 2, 3], measure))
+    static = summarize(replay(StaticBalancer(), 30, (80, 60), [1, 2, 3], measure))
+    assert rotate["efficiency"] < rotate["efficiency_pipelined"] <= 1.0 + 1e-9
+    assert rotate["efficiency_pipelined"] > 0.97
+    assert static["efficiency_pipelined"] == pytest.approx(static["efficiency"])
 
 
 class Recorder(Balancer):
@@ -149,7 +212,7 @@ def test_benchmark_runs_end_to_end(tmp_path, monkeypatch) -> None:
         assert {"imbalance_mean", "imbalance_p95", "efficiency", "repartitions", "frames"} <= set(row)
         assert row["frames"] == 4
         assert 1.0 <= row["imbalance_mean"] <= row["imbalance_p95"]
-        assert 0.0 < row["efficiency"] <= 1.0001
+        assert 0.0 < row["efficiency"] <= 1.0001 and 0.0 < row["efficiency_pipelined"] <= 1.0001
         assert 0 <= row["repartitions"] <= 4
     meta = figures["meta"]
     assert meta["nodes"] == 2 and meta["size"] == [160, 120] and meta["speeds"] == [1.0, 2.0] and meta["lag"] == 1
