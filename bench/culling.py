@@ -17,6 +17,11 @@ Figures: ``redundancy`` = triangles submitted over all tiles / triangles submitt
 frame, both with culling; ``psnr_min`` = worst PSNR of the stitched tiles (culling on) against the
 unculled whole frame, 100 standing for identical; ``cull_speedup`` = summed tile render time
 without culling / with ``--culling``.
+
+llvmpipe rasterizes on ``LP_NUM_THREADS`` threads (unset: one per core) but transforms and sets up
+triangles on the calling thread, so the figure depends on it: culling removes vertex work from
+every tile, and what is left of a culled tile is mostly rasterization. The thread count is printed
+and written to the report.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -124,6 +130,7 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
         "scene": scene_spec, "size": list(size), "tiles": tiles, "frames": frames, "repeats": repeats,
         "face_limit": face_limit, "chunks": chunk_total, "triangles": scene.triangle_count,
         "load_s": round(load_s, 2), "renderer": renderer_name, "culling": culling,
+        "lp_num_threads": os.environ.get("LP_NUM_THREADS", "unset"),
         "redundancy": round(tile_tris / float(np.sum(whole["on_tris"])), 4),
         "psnr_min": modes[culling]["psnr_min"],
         "cull_speedup": round(modes["off"]["tile_ms_sum"] / modes[culling]["tile_ms_sum"], 3),
@@ -144,7 +151,8 @@ def goal_met(report: dict[str, Any], name: str) -> bool:
 def print_report(report: dict[str, Any]) -> None:
     print(f"{report['scene']}: {report['triangles']} triangles in {report['chunks']} chunks "
           f"(face limit {report['face_limit']}), {report['frames']} frames x {report['tiles']} tiles at "
-          f"{report['size'][0]}x{report['size'][1]}, min of {report['repeats']} repeats; {report['renderer']}")
+          f"{report['size'][0]}x{report['size'][1]}, min of {report['repeats']} repeats; {report['renderer']}; "
+          f"LP_NUM_THREADS {report['lp_num_threads']}")
     print(f"{'tiles drawn with':<16}{'sum ms':>10}{'ms/tile':>9}{'p90':>8}{'cull ms':>9}{'tris/frame':>12}"
           f"{'chunks/tile':>12}{'psnr min':>9}  paths")
     for mode, row in report["modes"].items():
