@@ -5,7 +5,6 @@ Convergence (``test_converges_on_uneven_map``): 480×270 screen whose top-left 3
 stated. Observed, for N = 2, 3, 4, 7, 16 — first frame with max/mean ≤ 1.05 (frame 0 is the
 equal split, max/mean 3.2–5.0), first frame from which it stays ≤ 1.05, final max/mean:
   adaptive                       21 25 23 36 38 | 21 25 23 38 38 | ≤ 1.010
-  adaptive-fit                    6  5  7  7  8 |  6  5  7  7  8 | ≤ 1.010
   grid (1 px cells, thr. 1.05)    2  3  3  4  3 |  2  3  3  4  3 | ≤ 1.034
   eq-load                         6  7  8 12 11 |  6  7  8 12 11 | ≤ 1.044
   hetero (no groups: area cut)    3  4  9 13 17 |  3  4  9 13 17 | ≤ 1.044
@@ -42,7 +41,6 @@ def corner_map(size: tuple[int, int], factor: float = 20.0, total_ms: float = 30
 
 CONVERGENCE = [
     ("adaptive", {}, 45),
-    ("adaptive-fit", {}, 12),
     ("grid", {"cell_px": 1, "threshold": 1.05}, 8),
     ("eq-load", {}, 16),
     ("hetero", {}, 22),
@@ -74,16 +72,16 @@ def moving_hotspot(size: tuple[int, int], period_frames: int, amplitude: float =
     return cost_at
 
 
-def test_moving_camera_needs_the_improved_balancers() -> None:
+def test_moving_camera_damped_edges_lag_rotation_keeps_nodes_busy() -> None:
     """8 nodes, 8 s orbit at 30 frames/s, mean over frames 60–179 (seen: adaptive 1.106,
-    adaptive-fit 1.047, eq-load 1.047, rotate 1.015, static 2.125): the seed's 200 ms damping
-    lags the goal of 1.08; adaptive-fit meets it, rotate keeps nodes ≥ 96 % busy."""
+    eq-load 1.047, rotate 1.015, static 2.125): the seed's 200 ms damping lags the goal of 1.08,
+    rotation keeps nodes ≥ 96 % busy."""
     cost_at = moving_hotspot((320, 180), 240)
 
     def mean_imbalance(name: str) -> float:
         return float(np.mean([r.imbalance for r in run(create_balancer(name), cost_at, list(range(8)), 180)[60:]]))
 
-    assert mean_imbalance("adaptive-fit") <= 1.08 < mean_imbalance("adaptive")
+    assert mean_imbalance("adaptive") > 1.08
     assert 1.0 / mean_imbalance("rotate") >= 0.96
 
 
@@ -152,7 +150,7 @@ def test_missing_and_zero_timings_keep_a_cover() -> None:
     unmeasured tile is assumed to cost the mean."""
     previous = StaticBalancer().partition(BalanceInput(size=(300, 100), node_ids=(1, 2, 3)))
     timings = (TileTiming(previous.tiles[0].rect, 1, 0.0), TileTiming(previous.tiles[1].rect, 2, 20.0))
-    for name in ("adaptive", "adaptive-fit", "rotate", "eq-load", "grid", "hetero"):
+    for name in ("adaptive", "rotate", "eq-load", "grid", "hetero"):
         inputs = BalanceInput(size=(300, 100), node_ids=(1, 2, 3), previous=previous, timings=timings,
                               elapsed_ms=1000.0)
         check_exact_cover(create_balancer(name).partition(inputs).rects, (300, 100))

@@ -6,7 +6,6 @@ from collections.abc import Mapping
 from typing import Any
 
 from tessera.balancers.adaptive import AdaptiveBalancer
-from tessera.balancers.adaptive_fit import AdaptiveFitBalancer
 from tessera.balancers.base import Balancer
 from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.grid import GridBalancer
@@ -17,7 +16,7 @@ from tessera.balancers.static import StaticBalancer
 
 BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (
     StaticBalancer, AdaptiveBalancer, RotateBalancer, GridBalancer, HeteroBalancer, EqLoadBalancer,
-    AdaptiveFitBalancer, AdaptivePredictBalancer, RotatePredictBalancer)}
+    AdaptivePredictBalancer, RotatePredictBalancer)}
 
 
 def create_balancer(name: str, params: Mapping[str, Any] | None = None) -> Balancer:

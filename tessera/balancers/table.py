@@ -1,6 +1,6 @@
 """The load-weight table of seed 002 §3.2: a fine uniform grid of screen cells, each holding the
 effort (ms at speed 1) last measured over it (pure; the balancer that owns it keeps it between
-frames). Used by ``grid`` (median cut) and ``adaptive-fit`` (strip edges).
+frames). Used by ``grid`` (median cut).
 
 Every cell starts at weight 1 (per pixel). After a frame, each measured tile's effort is spread
 over the cells under its rect; the part ``memory`` of it follows the shape the table already has
@@ -36,8 +36,7 @@ def _cells(edges: np.ndarray, start: float, end: float) -> tuple[slice, np.ndarr
 
 
 class LoadTable:
-    """Cells of about ``cell_px`` pixels over a ``size`` screen; ``values`` (rows, cols) effort.
-    A :class:`tessera.balancers.load.Field`: cells cut by a box or band count by area."""
+    """Cells of about ``cell_px`` pixels over a ``size`` screen; ``values`` (rows, cols) effort."""
 
     def __init__(self, size: tuple[int, int], cell_px: int) -> None:
         width, height = size
@@ -87,26 +86,3 @@ class LoadTable:
         table = np.zeros((self.values.shape[0] + 1, self.values.shape[1] + 1))
         table[1:, 1:] = self.values.cumsum(0).cumsum(1)
         return table
-
-    def _profile(self, axis: int, band: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-        """Cell edges along ``axis`` and the load of each cell column (axis 0) or row (axis 1)
-        restricted to ``band`` across it, cells cut by the band counted by area."""
-        across_edges, along_edges = (self.ys, self.xs) if axis == 0 else (self.xs, self.ys)
-        cut = _overlaps(np.array([band[0]], dtype=np.float64), np.array([band[1]], dtype=np.float64),
-                        across_edges)[0] / np.diff(across_edges)
-        loads = cut @ self.values if axis == 0 else self.values @ cut
-        return along_edges, loads
-
-    def total(self, box: tuple[float, float, float, float]) -> float:
-        edges, loads = self._profile(0, (box[1], box[3]))
-        cut = _overlaps(np.array([box[0]], dtype=np.float64), np.array([box[2]], dtype=np.float64), edges)[0]
-        return float(cut / np.diff(edges) @ loads)
-
-    def positions(self, axis: int, span: tuple[float, float], band: tuple[float, float],
-                  fractions: Sequence[float] | np.ndarray) -> np.ndarray:
-        edges, loads = self._profile(axis, band)
-        cumulative = np.concatenate([[0.0], np.cumsum(loads)])
-        at = np.interp(np.asarray(span, dtype=np.float64), edges, cumulative)
-        if at[1] <= at[0]:
-            return span[0] + np.asarray(fractions, dtype=np.float64) * (span[1] - span[0])
-        return np.interp(at[0] + np.asarray(fractions, dtype=np.float64) * (at[1] - at[0]), cumulative, edges)
