@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from node.culling_state import CullMode
+from node.culling_state import CullMode, resolve_culling
 from node.gl_context import create_gl_context, renderer_string
 from node.renderer import TileRenderer
 from node.scene import DEFAULT_FACE_LIMIT, load_scene
@@ -70,6 +70,7 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
     scene = load_scene(scene_spec, face_limit=face_limit)
     load_s = time.perf_counter() - started
     ctx = create_gl_context()
+    asked, culling = culling, resolve_culling(CullMode(culling), ctx.info["GL_RENDERER"]).value
     renderer = TileRenderer(ctx, scene, culling=CullMode.OFF)
     ranges = TileRenderer(ctx, scene, culling=CullMode.CPU)
     ranges.multi_draw = False
@@ -129,7 +130,7 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
     return {
         "scene": scene_spec, "size": list(size), "tiles": tiles, "frames": frames, "repeats": repeats,
         "face_limit": face_limit, "chunks": chunk_total, "triangles": scene.triangle_count,
-        "load_s": round(load_s, 2), "renderer": renderer_name, "culling": culling,
+        "load_s": round(load_s, 2), "renderer": renderer_name, "culling": culling, "culling_asked": asked,
         "lp_num_threads": os.environ.get("LP_NUM_THREADS", "unset"),
         "redundancy": round(tile_tris / float(np.sum(whole["on_tris"])), 4),
         "psnr_min": modes[culling]["psnr_min"],
@@ -175,8 +176,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tiles", type=int, default=16)
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--face-limit", type=int, default=DEFAULT_FACE_LIMIT)
-    parser.add_argument("--culling", choices=("hybrid", "cpu", "gpu"), default="hybrid",
-                        help="the culling mode the figures are for (all modes are measured)")
+    parser.add_argument("--culling", choices=("auto", "hybrid", "cpu", "gpu"), default="auto",
+                        help="the culling mode the figures are for, as the node's --culling (default auto: "
+                             "hybrid on a hardware GPU, cpu on llvmpipe); all modes are measured")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--frames", type=int, help="use this many evenly spaced frames of the path")
     parser.add_argument("--json", type=Path, help="write the report here")

@@ -126,7 +126,7 @@ class GLWorker:
     The loaded scene survives reconnects; asking for the same scene again reuses it.
     """
 
-    def __init__(self, culling: CullMode = CullMode.HYBRID, face_limit: int = DEFAULT_FACE_LIMIT) -> None:
+    def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._ctx: moderngl.Context | None = None
         self._renderer: TileRenderer | None = None

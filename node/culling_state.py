@@ -28,12 +28,29 @@ from dataclasses import dataclass, replace
 
 
 class CullMode(enum.Enum):
-    """A node's ``--culling``: none, always on the CPU, always on the GPU, or this switch."""
+    """A node's ``--culling``: none, always on the CPU, always on the GPU, this switch, or ``auto``:
+    the switch on a hardware GPU, the CPU on a software rasterizer (:func:`resolve_culling`)."""
 
     OFF = "off"
     CPU = "cpu"
     GPU = "gpu"
     HYBRID = "hybrid"
+    AUTO = "auto"
+
+
+#: GL_RENDERER names of rasterizers that run on the CPU (Mesa's llvmpipe, softpipe, swrast)
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast")
+
+
+def resolve_culling(mode: CullMode, gl_renderer: str) -> CullMode:
+    """The mode that runs for ``mode`` on the GL renderer named ``gl_renderer``: ``auto`` is
+    ``cpu`` on a software rasterizer — its "GPU" culling is compute shaders on the same CPU cores,
+    so handing culling over cannot relieve the CPU, which is the seed's premise, and it measured
+    slower (node/tile_culling.py) — and ``hybrid`` otherwise; other modes are themselves."""
+    if mode is not CullMode.AUTO:
+        return mode
+    software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)
+    return CullMode.CPU if software else CullMode.HYBRID
 
 
 class CullDevice(enum.Enum):

@@ -143,7 +143,7 @@ class TileRenderer:
     GL 4.3."""
 
     def __init__(self, ctx: moderngl.Context, scene: SceneData,
-                 background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.HYBRID,
+                 background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.AUTO,
                  switch_params: SwitchParams = SwitchParams()) -> None:
         self.ctx = ctx
         self.scene = scene

@@ -42,7 +42,7 @@ class NodeSettings:
     camera: Path | None = None
     size: tuple[int, int] = DEFAULT_SIZE
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
-    culling: CullMode = CullMode.HYBRID
+    culling: CullMode = CullMode.AUTO
     face_limit: int = DEFAULT_FACE_LIMIT
 
 
@@ -108,8 +108,8 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--size", DEFAULT_SIZE, "frame size WxH for --render-once", type=parse_size)
     add("--background", DEFAULT_BACKGROUND, "clear colour '#rrggbb' or 'r,g,b' in 0..1 for --render-once",
         type=parse_background)
-    add("--culling", CullMode.HYBRID.value, "per-tile frustum culling: hybrid (CPU, GPU when CPU culling is slow; "
-        "seed 001), cpu, gpu or off", type=parse_culling)
+    add("--culling", CullMode.AUTO.value, "per-tile frustum culling: hybrid (CPU, GPU when CPU culling is slow; "
+        "seed 001), cpu, gpu, off, or auto (hybrid on a hardware GPU, cpu on llvmpipe)", type=parse_culling)
     add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into octree chunks of at most this many faces at load "
         "(seed 002)", type=parse_face_limit)
     return parser

@@ -12,6 +12,8 @@ switch needs one tile's timings over consecutive frames.
   on the CPU). When the switch hands a slot over to the GPU, the slot's GPU input is seeded with
   the CPU's last terminal nodes (seed 001 §6.1.2).
 - Hybrid: CPU until the switch says GPU, and back.
+- Auto (the default): hybrid on a hardware GPU, CPU on a software rasterizer
+  (:func:`node.culling_state.resolve_culling`).
 
 Either way a tile is drawn the same way (:class:`TileCull`): per batch, one
 glMultiDrawElementsIndirect over its slice of a command buffer. On llvmpipe that ties with one
@@ -25,8 +27,8 @@ On llvmpipe the GPU path loses. Its compute shaders run on the same CPU cores; o
 for CPU culling, and tiles take 3–6 % longer (orbit 12.87 vs 12.19 ms, zoom 15.15 vs 14.73,
 fly-through 12.10 vs 11.74). With the seed's 0.3 ms threshold, which the CPU cull time straddles on
 a shared 2-core machine, hybrid sends 37–86 % of the tiles to the GPU and ends 3–5 % slower than
-``cpu``. The seed's parameters stay the defaults (a real GPU is what they were chosen for); on
-llvmpipe prefer ``--culling cpu``.
+``cpu``. The seed's parameters stay the defaults (a real GPU is what they were chosen for), and
+the default mode ``auto`` culls on the CPU on llvmpipe.
 
 What ran is reported per tile: the path, chunks drawn, triangles submitted and the culling time. On
 the GPU path the counts are read back from the command buffer after drawing.
@@ -42,7 +44,7 @@ import moderngl
 import numpy as np
 
 from node.chunking import DrawRuns, SceneChunks
-from node.culling_state import CullDevice, CullMode, HybridCullingSwitch, SwitchParams
+from node.culling_state import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
 from node.frustum_culling import cull, frustum_planes_from_matrix, indirect_commands
 from node.gpu_culling import GpuBvh, GpuCuller
 from tessera.geometry import Rect
@@ -85,11 +87,13 @@ class TileCuller:
     slot it keeps the hybrid switch and, once the slot has culled on the GPU, its GPU culler.
 
     GPU and hybrid culling need GL 4.3 compute shaders: without them ``mode`` gpu raises
-    CullingUnavailableError and hybrid stays on the CPU (its switch is not fed).
+    CullingUnavailableError and hybrid stays on the CPU (its switch is not fed). ``mode`` auto is
+    resolved for ``ctx``'s renderer; :attr:`mode` is what runs.
     """
 
-    def __init__(self, ctx: moderngl.Context, chunks: SceneChunks, mode: CullMode = CullMode.HYBRID,
+    def __init__(self, ctx: moderngl.Context, chunks: SceneChunks, mode: CullMode = CullMode.AUTO,
                  params: SwitchParams = SwitchParams()) -> None:
+        mode = resolve_culling(mode, ctx.info["GL_RENDERER"])
         if mode is CullMode.GPU and ctx.version_code < 430:
             raise CullingUnavailableError(f"--culling gpu needs GL 4.3 compute shaders; this context is GL "
                                           f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")

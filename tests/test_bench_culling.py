@@ -26,6 +26,7 @@ def test_culling_benchmark_reports_its_figures(tmp_path, monkeypatch, capsys) ->
                  "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     assert report["frames"] == 2 and report["tiles"] == 4 and report["lp_num_threads"] == "1"
+    assert report["culling"] == "cpu" and report["culling_asked"] == "cpu"
     assert report["psnr_min"] >= 50.0 and report["redundancy"] >= 1.0
     assert report["cull_speedup"] > 0.0 and set(report["cull_speedup_by_mode"]) >= {"cpu", "gpu", "hybrid"}
     assert report["modes"]["cpu"]["chunks_drawn_per_tile"] < report["chunks"]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from node.culling_state import CullMode, SwitchParams
+from node.culling_state import CullMode, SwitchParams, resolve_culling
 from node.gl_context import create_gl_context
 from node.renderer import TileRenderer
 from node.scene import load_scene
@@ -189,3 +189,15 @@ def test_render_once_is_the_same_image_with_any_culling(tmp_path, bunny_spec, re
         image = render_once(tmp_path, f"{mode}.png", *args, "--culling", mode, "--face-limit", str(FACE_LIMIT))
         assert np.array_equal(image, reference), f"--culling {mode} changed the reference image"
     assert np.array_equal(renderers[CullMode.GPU].render_frame(Camera.from_json(camera), SIZE).pixels, reference)
+
+
+def test_default_culling_is_auto_resolved_for_the_context(ctx, bunny):
+    """The renderer's default culling runs what ``auto`` means for this GL renderer (the CPU on
+    llvmpipe), and a tile says so."""
+    renderer = TileRenderer(ctx, bunny)
+    expected = resolve_culling(CullMode.AUTO, ctx.info["GL_RENDERER"])
+    assert renderer.culler.mode is expected and expected is not CullMode.AUTO
+    camera = default_camera(bunny.bounds, aspect=SIZE[0] / SIZE[1])
+    tile = renderer.render_tile(camera, SIZE, Rect(0, 0, 80, 120), "left")
+    assert tile.cull_path in (("cpu",) if expected is CullMode.CPU else ("cpu", "gpu"))
+    renderer.release()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from node.culling_state import CullDevice, CullState, HybridCullingSwitch, SwitchParams
+from node.culling_state import CullDevice, CullMode, CullState, HybridCullingSwitch, SwitchParams, resolve_culling
 
 FAST = 1e-4   # below the seed's 3×10⁻⁴ s threshold
 SLOW = 5e-4   # above it
@@ -93,3 +93,15 @@ def test_the_fed_frame_must_match_the_device():
         on_gpu().step(SLOW)
     with pytest.raises(ValueError):
         SwitchParams(frames_to_switch=0)
+
+
+@pytest.mark.parametrize("renderer,expected", [
+    ("llvmpipe (LLVM 15.0.6, 256 bits)", CullMode.CPU),
+    ("softpipe", CullMode.CPU),
+    ("NVIDIA H100 80GB HBM3/PCIe/SSE2", CullMode.HYBRID),
+    ("AMD Radeon RX 7900 XTX (radeonsi, navi31, LLVM 15.0.7, DRM 3.54)", CullMode.HYBRID),
+])
+def test_auto_culls_on_the_cpu_only_on_a_software_rasterizer(renderer, expected):
+    assert resolve_culling(CullMode.AUTO, renderer) is expected
+    for mode in (CullMode.OFF, CullMode.CPU, CullMode.GPU, CullMode.HYBRID):
+        assert resolve_culling(mode, renderer) is mode
