@@ -10,13 +10,13 @@ from tessera.balancers.base import Balancer
 from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.grid import GridBalancer
 from tessera.balancers.hetero import HeteroBalancer
-from tessera.balancers.predict import AdaptivePredictBalancer, RotatePredictBalancer
+from tessera.balancers.predict import AdaptivePredictBalancer, RotatePredictBalancer, TreePredictBalancer
 from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import StaticBalancer
 
 BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (
     StaticBalancer, AdaptiveBalancer, RotateBalancer, GridBalancer, HeteroBalancer, EqLoadBalancer,
-    AdaptivePredictBalancer, RotatePredictBalancer)}
+    AdaptivePredictBalancer, RotatePredictBalancer, TreePredictBalancer)}
 
 
 def create_balancer(name: str, params: Mapping[str, Any] | None = None) -> Balancer:

@@ -63,6 +63,10 @@ class EqLoadBalancer(Balancer):
         if self.params["min_tile_px"] < 1:
             raise ValueError("min_tile_px must be >= 1")
 
+    def field(self, inputs: BalanceInput) -> Field:
+        """Where last frame's load lies: each tile's time spread uniformly over it."""
+        return LoadField.from_timings(inputs.size, inputs.timings, inputs.weights)
+
     def partition(self, inputs: BalanceInput) -> Partition:
         width, height = inputs.size
         tree = build_tree(inputs.node_ids, inputs.weights)
@@ -71,8 +75,7 @@ class EqLoadBalancer(Balancer):
         matches = previous is not None and not previous.pull and inputs.previous_matches()
         if previous is not None and matches and not inputs.timings:
             return previous
-        field = LoadField.from_timings(inputs.size, inputs.timings, inputs.weights) if matches \
-            else LoadField.uniform(inputs.size)
+        field = self.field(inputs) if matches else LoadField.uniform(inputs.size)
         rects = {t.node_id: t.rect for t in previous.tiles if t.node_id is not None} if previous and matches else {}
         split_at = damped_area_cut(field, rects, self.params["damping"])
         return to_partition(split_boxes(tree, (0, 0, width, height), (minimum, minimum), split_at))

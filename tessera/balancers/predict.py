@@ -1,6 +1,7 @@
-"""``adaptive-predict`` and ``rotate-predict`` — our improvement: seed 000 §4.2 / §4.3 edges placed
-on a load field *predicted for the frame being partitioned* from its projected primitive groups
-(seed 003 §3, DPBP), calibrated by the measured tile times.
+"""``adaptive-predict``, ``rotate-predict`` and ``tree-predict`` — our improvement: seed 000 §4.2 /
+§4.3 edges, and the binary cut tree of seed 002 and Equalizer, placed on a load field *predicted
+for the frame being partitioned* from its projected primitive groups (seed 003 §3, DPBP),
+calibrated by the measured tile times.
 
 Why: ``adaptive`` and ``rotate`` spread each tile's measured time uniformly over the tile. On a real
 scan the load sits where the model projects (Lucy: a narrow upright figure in mid-screen), so
@@ -28,7 +29,13 @@ does not overshoot) acts on what the measurements changed. On a synthetic moving
 is the model (tests/test_balancer_predict.py) that takes max/mean from 1.11 to 1.02; on Lucy, whose
 chunk boxes are a coarse model (a box reaching behind the eye covers the screen), ``follow`` on and
 off were within the measurement noise of each other (two runs each, orbit and fly-through).
-Without groups, or before a fit, the balancers are their seed's (adaptive's field and edges).
+Tree: ``tree-predict`` is ``eq-load``'s tree (nodes by speed weight, each region cut along its
+longer side where the load reaches the left subtree's share) on the predicted field, undamped
+(``damping`` 0: damping lags the camera; synthetic moving figure 1.017 at 0, 1.090 at Equalizer's
+0.5; Lucy orbit 1.046 and 1.035, within the noise). It answers ``grid`` and ``eq-load``, which
+spread a tile's time evenly over the tile: on Lucy the load is a thin column under the first cut,
+so their cuts overshoot across it and oscillate. Without groups, or before a fit, the balancers are their seed's (adaptive's field
+and edges, eq-load's field).
 Run time: with Lucy's 2 070 groups about 8 ms (adaptive-predict) and 11 ms (rotate-predict) per
 partition on the 2-core development machine — the field holds a box per group and per group–tile
 overlap, swept by :class:`BoxField` in O(R log R).
@@ -47,6 +54,7 @@ import numpy as np
 
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, TileTiming
+from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.load import FLOOR, Field, measured_ms, speed_of
 from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import minimum_for
@@ -286,3 +294,9 @@ class RotatePredictBalancer(_Predicted, RotateBalancer):
     name = "rotate-predict"
     defaults: ClassVar[Mapping[str, float | int | bool]] = {
         "tau_ms": 50.0, "min_tile_px": 16, "tiles_per_node": 3, "history": 8, "correction": 1.0, "follow": True}
+
+
+class TreePredictBalancer(_Predicted, EqLoadBalancer):
+    name = "tree-predict"
+    defaults: ClassVar[Mapping[str, float | int | bool]] = {
+        "damping": 0.0, "min_tile_px": 16, "history": 8, "correction": 1.0}
