@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,31 +44,42 @@ class RunningProcess:
 
     process: subprocess.Popen
     lines: deque = field(default_factory=lambda: deque(maxlen=2000))
+    _ended: bool = False
 
     def __post_init__(self) -> None:
+        self._changed = threading.Condition()
         self._reader = threading.Thread(target=self._pump, daemon=True)
         self._reader.start()
 
     def _pump(self) -> None:
+        """Collect output lines, waking waiters on each line and when the output ends."""
         assert self.process.stdout is not None
         for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
+            with self._changed:
+                self.lines.append(line.rstrip("\n"))
+                self._changed.notify_all()
+        with self._changed:
+            self._ended = True
+            self._changed.notify_all()
 
     def wait_for_line(self, pattern: str, timeout: float) -> re.Match:
-        deadline = time.monotonic() + timeout
+        """The first output line matching ``pattern``, waiting for new lines until ``timeout`` s or
+        the end of the output."""
         regex = re.compile(pattern)
-        while time.monotonic() < deadline:
-            for line in list(self.lines):
-                match = regex.search(line)
-                if match:
-                    return match
-            if self.process.poll() is not None:
-                break
-            time.sleep(0.05)
+
+        def found() -> re.Match | None:
+            return next((m for m in map(regex.search, self.lines) if m), None)
+
+        with self._changed:
+            self._changed.wait_for(lambda: found() or self._ended, timeout)
+            match = found()
+        if match:
+            return match
         raise AssertionError(f"no line matching {pattern!r} within {timeout:.0f}s; output:\n" + self.output())
 
     def output(self) -> str:
-        return "\n".join(self.lines)
+        with self._changed:
+            return "\n".join(self.lines)
 
     def stop(self, timeout: float = 20.0) -> int:
         """SIGINT (like Ctrl-C), then SIGKILL if it does not exit in time; returns the exit code."""

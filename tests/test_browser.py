@@ -11,7 +11,6 @@ import json
 import math
 import os
 import shutil
-import time
 import urllib.request
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from PIL import Image
 
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context
 from tests.conftest import REPO, seconds
+from tests.integration_support import wait_until
 
 pytestmark = pytest.mark.browser
 
@@ -74,17 +74,6 @@ def get_json(base_url: str, path: str) -> dict:
         return json.load(response)
 
 
-def wait_for(condition, timeout: float, what: str):
-    """Poll ``condition()`` until it returns something truthy; fail with ``what`` at the deadline."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}")
-
-
 def same_camera(a: dict, b: dict) -> bool:
     return all(math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-9)
                for key in ("eye", "target", "up") for x, y in zip(a[key], b[key], strict=True))
@@ -114,7 +103,7 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
 
         viewer_camera = page.evaluate("window.tessera.camera")
         assert not same_camera(viewer_camera, before), "dragging did not move the viewer's camera"
-        wait_for(lambda: same_camera(get_json(base_url, "/api/camera")["camera"], viewer_camera), seconds(30),
+        wait_until(lambda: same_camera(get_json(base_url, "/api/camera")["camera"], viewer_camera), seconds(30),
                  "the coordinator to adopt the viewer's camera (GET /api/camera)")
         page.wait_for_function(
             f"() => window.tessera.frameId > {frame_before} && ({CHANGE_SINCE_SNAPSHOT_JS})() > 2",
@@ -138,7 +127,7 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
         available = get_json(base_url, "/api/balancer")["available"]
         assert page.locator("#balancer option").all_text_contents() == available
         page.select_option("#balancer", available[-1])
-        wait_for(lambda: get_json(base_url, "/api/balancer")["name"] == available[-1], seconds(30),
+        wait_until(lambda: get_json(base_url, "/api/balancer")["name"] == available[-1], seconds(30),
                  f"PUT /api/balancer to select {available[-1]!r}")
         assert errors == [], f"errors in the page: {errors}"
     finally:
