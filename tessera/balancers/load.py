@@ -12,7 +12,7 @@ and the position where it reaches a fraction of a region's load is found exactly
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -33,6 +33,11 @@ def speed_of(weights: Mapping[int, float], node_id: int) -> float:
     """A node's speed weight; missing, non-finite or non-positive weights count as 1."""
     value = float(weights.get(node_id, 1.0))
     return value if np.isfinite(value) and value > 0.0 else 1.0
+
+
+def rect_array(timings: Sequence[TileTiming]) -> np.ndarray:
+    """(T, 4) float64 x0, y0, x1, y1 of the timings' rects."""
+    return np.array([[t.rect.x, t.rect.y, t.rect.x1, t.rect.y1] for t in timings], dtype=np.float64).reshape(-1, 4)
 
 
 def node_times(timings: Sequence[TileTiming], render_only: bool = False) -> dict[int, float]:
@@ -60,11 +65,14 @@ class LoadField:
     """Piecewise-constant effort density: the sum of R axis-aligned boxes.
 
     ``boxes``: (R, 4) float64 pixel coordinates x0, y0, x1, y1; ``density``: (R,) effort
-    milliseconds per pixel. Box 0 covers the whole screen (unmeasured area and the floor).
+    milliseconds per pixel, summing to ≥ 0 everywhere. From timings, box 0 covers the whole screen
+    (unmeasured area and the floor). R may be thousands (predicted fields: a box per primitive
+    group and per group–tile overlap), hence the sorted sweep.
     """
 
     boxes: np.ndarray
     density: np.ndarray
+    _orders: dict[int, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def uniform(cls, size: tuple[int, int]) -> LoadField:
@@ -77,7 +85,7 @@ class LoadField:
         """The field of last frame's tiles (clipped to the screen); unmeasured area gets the mean
         measured density, so a missing tile (dead node) neither attracts nor repels edges."""
         width, height = size
-        rects = np.array([[t.rect.x, t.rect.y, t.rect.x1, t.rect.y1] for t in timings], dtype=np.float64)
+        rects = rect_array(timings)
         effort = np.array([measured_ms(t, render_only) * speed_of(weights, t.node_id)
                            for t in timings], dtype=np.float64)
         if rects.size == 0:
@@ -95,30 +103,28 @@ class LoadField:
         return cls(np.vstack([screen, rects]),
                    np.concatenate([[fill + FLOOR * mean], effort / area - fill]))
 
-    def _axis(self, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(start, end) along ``axis`` (0 = x, 1 = y) and (start, end) across it."""
-        b = self.boxes
-        return (b[:, 0], b[:, 2], b[:, 1], b[:, 3]) if axis == 0 else (b[:, 1], b[:, 3], b[:, 0], b[:, 2])
-
-    def cumulative(self, axis: int, band: tuple[float, float], positions: np.ndarray) -> np.ndarray:
-        """Load of the band [band0, band1) across ``axis`` from 0 to each of ``positions`` (P,)."""
-        a0, a1, c0, c1 = self._axis(axis)
-        across = np.clip(np.minimum(c1, band[1]) - np.maximum(c0, band[0]), 0.0, None)
-        along = np.clip(np.asarray(positions, dtype=np.float64)[:, None] - a0[None, :], 0.0, (a1 - a0)[None, :])
-        return along @ (self.density * across)
-
     def total(self, box: tuple[float, float, float, float]) -> float:
-        ends = self.cumulative(0, (box[1], box[3]), np.array([box[0], box[2]]))
-        return float(ends[1] - ends[0])
+        b = self.boxes
+        across_x = np.clip(np.minimum(b[:, 2], box[2]) - np.maximum(b[:, 0], box[0]), 0.0, None)
+        across_y = np.clip(np.minimum(b[:, 3], box[3]) - np.maximum(b[:, 1], box[1]), 0.0, None)
+        return float((across_x * across_y) @ self.density)
 
     def positions(self, axis: int, span: tuple[float, float], band: tuple[float, float],
                   fractions: Sequence[float] | np.ndarray) -> np.ndarray:
+        """The sweep over the boxes' start and end events sorted along ``axis``: O(R log R), the
+        sort done once per axis (clipping to a span keeps the order)."""
         lo, hi = span
-        a0, a1, _, _ = self._axis(axis)
-        breaks = np.unique(np.concatenate([a0, a1, [lo, hi]]))
-        breaks = breaks[(breaks >= lo) & (breaks <= hi)]
-        load = self.cumulative(axis, band, breaks)
-        load -= load[0]
+        b = self.boxes
+        across = np.clip(np.minimum(b[:, 3 - axis], band[1]) - np.maximum(b[:, 1 - axis], band[0]), 0.0, None)
+        slope = self.density * across
+        events = np.concatenate([b[:, axis], b[:, axis + 2]])
+        if axis not in self._orders:
+            self._orders[axis] = np.argsort(events, kind="stable")
+        order = self._orders[axis]
+        at = np.concatenate([[lo], np.clip(events[order], lo, hi), [hi]])
+        rate = np.concatenate([[0.0], np.cumsum(np.concatenate([slope, -slope])[order])])
+        load = np.maximum.accumulate(np.concatenate([[0.0], np.cumsum(np.maximum(rate, 0.0) * np.diff(at))]))
+        wanted = np.asarray(fractions, dtype=np.float64)
         if load[-1] <= 0.0:
-            return lo + np.asarray(fractions, dtype=np.float64) * (hi - lo)
-        return np.interp(np.asarray(fractions, dtype=np.float64) * load[-1], load, breaks)
+            return lo + wanted * (hi - lo)
+        return np.interp(wanted * load[-1], load, at)

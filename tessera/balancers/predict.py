@@ -34,20 +34,20 @@ longer side where the load reaches the left subtree's share) on the predicted fi
 (``damping`` 0: damping lags the camera; synthetic moving figure 1.017 at 0, 1.090 at Equalizer's
 0.5; Lucy orbit 1.046 and 1.035, within the noise). It answers ``grid`` and ``eq-load``, which
 spread a tile's time evenly over the tile: on Lucy the load is a thin column under the first cut,
-so their cuts overshoot across it and oscillate. Without groups, or before a fit, the balancers are their seed's (adaptive's field
-and edges, eq-load's field).
+so their cuts overshoot across it and oscillate.
+
+Without groups, or before a fit, the balancers are their seed's (adaptive's field and edges,
+eq-load's field).
 Run time: with Lucy's 2 070 groups about 8 ms (adaptive-predict) and 11 ms (rotate-predict) per
 partition on the 2-core development machine — the field holds a box per group and per group–tile
-overlap, swept by :class:`BoxField` in O(R log R).
+overlap, swept by :class:`tessera.balancers.load.LoadField` in O(R log R).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -55,7 +55,7 @@ import numpy as np
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, TileTiming
 from tessera.balancers.eq_load import EqLoadBalancer
-from tessera.balancers.load import FLOOR, Field, measured_ms, speed_of
+from tessera.balancers.load import FLOOR, Field, LoadField, measured_ms, rect_array, speed_of
 from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import minimum_for
 from tessera.balancers.strips import StripEdges, damping_fraction, edges_of, place
@@ -65,11 +65,6 @@ from tessera.partition import strip_counts
 CORRECTION_RANGE = (0.25, 4.0)
 
 RectKey = frozenset[tuple[int, int, int, int]]
-
-
-def rect_array(timings: tuple[TileTiming, ...]) -> np.ndarray:
-    """(T, 4) float64 x0, y0, x1, y1 of the timings' rects."""
-    return np.array([[t.rect.x, t.rect.y, t.rect.x1, t.rect.y1] for t in timings], dtype=np.float64).reshape(-1, 4)
 
 
 def group_features(groups: ProjectedGroups | None, rects: np.ndarray) -> np.ndarray:
@@ -103,42 +98,6 @@ def nonnegative_fit(features: np.ndarray, target: np.ndarray) -> np.ndarray:
                 best[list(subset)] = coef
                 best_residual = residual
     return best / scale
-
-
-@dataclass(frozen=True)
-class BoxField:
-    """A :class:`tessera.balancers.load.Field` that is a sum of R boxes of constant density, like
-    :class:`~tessera.balancers.load.LoadField`, with the sweep done by sorting the boxes' start and
-    end events: O(R log R) per query instead of O(R²) (R is thousands here: one box per group and
-    per group-tile overlap). ``boxes`` (R, 4) float64 x0, y0, x1, y1 pixels; ``density`` (R,) effort
-    ms per pixel; the summed density is ≥ 0 everywhere."""
-
-    boxes: np.ndarray
-    density: np.ndarray
-    _orders: dict[int, np.ndarray] = dataclasses.field(default_factory=dict, repr=False, compare=False)
-
-    def total(self, box: tuple[float, float, float, float]) -> float:
-        b = self.boxes
-        across_x = np.clip(np.minimum(b[:, 2], box[2]) - np.maximum(b[:, 0], box[0]), 0.0, None)
-        across_y = np.clip(np.minimum(b[:, 3], box[3]) - np.maximum(b[:, 1], box[1]), 0.0, None)
-        return float((across_x * across_y) @ self.density)
-
-    def positions(self, axis: int, span: tuple[float, float], band: tuple[float, float],
-                  fractions: Sequence[float] | np.ndarray) -> np.ndarray:
-        lo, hi = span
-        b = self.boxes
-        across = np.clip(np.minimum(b[:, 3 - axis], band[1]) - np.maximum(b[:, 1 - axis], band[0]), 0.0, None)
-        slope = self.density * across
-        if axis not in self._orders:  # clipping to a span keeps the order: sort once per axis
-            self._orders[axis] = np.argsort(np.concatenate([b[:, axis], b[:, axis + 2]]), kind="stable")
-        order = self._orders[axis]
-        at = np.concatenate([[lo], np.clip(np.concatenate([b[:, axis], b[:, axis + 2]])[order], lo, hi), [hi]])
-        rate = np.concatenate([[0.0], np.cumsum(np.concatenate([slope, -slope])[order])])
-        load = np.maximum.accumulate(np.concatenate([[0.0], np.cumsum(np.maximum(rate, 0.0) * np.diff(at))]))
-        wanted = np.asarray(fractions, dtype=np.float64)
-        if load[-1] <= 0.0:
-            return lo + wanted * (hi - lo)
-        return np.interp(wanted * load[-1], load, at)
 
 
 class LoadModel:
@@ -219,7 +178,7 @@ class LoadModel:
         density = np.concatenate(parts_density)
         floor = FLOOR * max(per_pixel, float(group_density.mean()) if group_density.size else 0.0, 1e-12)
         density[0] += floor
-        return BoxField(np.vstack(parts_boxes), density)
+        return LoadField(np.vstack(parts_boxes), density)
 
 
 class _Predicted:
