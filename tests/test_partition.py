@@ -300,3 +300,11 @@ def test_previous_matches_only_the_same_nodes_and_screen():
     assert not BalanceInput((100, 100), (1, 2)).previous_matches()
     pulled = Partition(tuple(Tile(t.rect, None) for t in tiles), pull=True)
     assert BalanceInput((100, 100), (1, 2, 3), previous=pulled).previous_matches()
+
+
+def test_check_exact_cover_rejects_an_overlap_plus_a_hole_of_equal_area():
+    """Areas summing to the screen are not enough: the tiles overlap where a strip stays uncovered."""
+    with pytest.raises(ValueError, match="exactly once"):
+        check_exact_cover([Rect(0, 0, 6, 4), Rect(5, 0, 5, 4)], (11, 4))
+    with pytest.raises(ValueError, match="exactly once"):
+        check_exact_cover([Rect(0, 0, 6, 2), Rect(5, 0, 5, 2), Rect(0, 2, 9, 2)], (10, 4))
