@@ -16,6 +16,7 @@ import contextlib
 import logging
 import signal
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -39,6 +40,8 @@ log = logging.getLogger("tessera.node")
 
 CODECS = ("raw", "jpeg", "png")
 MAX_MESSAGE_BYTES = 64 << 20
+#: Cancelled frame ids a node remembers (its queue never holds more frames than this).
+CANCELLED_MEMORY = 256
 BACKOFF_START_S = 0.2
 BACKOFF_MAX_S = 5.0
 CLOSE_BAD_TOKEN = 4401
@@ -213,6 +216,8 @@ class NodeClient:
         self.renderer_name = ""
         self.node_id: int | None = None
         self._welcomed = False
+        self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
+        self.tiles_dropped = 0
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the GL thread, then stay connected (with back-off) until ``stop`` is set."""
@@ -290,11 +295,15 @@ class NodeClient:
                 log.warning("ignoring a binary message from the coordinator")
                 continue
             try:
-                message = decode_json(raw, ("welcome", "load_scene", "render", "calibrate"))
+                message = decode_json(raw, ("welcome", "load_scene", "render", "calibrate", "cancel"))
             except ProtocolError as exc:
                 log.warning("ignoring coordinator message: %s", exc)
                 continue
-            if message["type"] == "welcome":
+            if message["type"] == "cancel":
+                frames = message.get("frames")
+                if isinstance(frames, list):
+                    self._cancelled.extend(f for f in frames if isinstance(f, int) and not isinstance(f, bool))
+            elif message["type"] == "welcome":
                 self.node_id = message.get("node_id")
                 self._welcomed = True
                 log.info("registered as node %s", self.node_id)
@@ -353,7 +362,11 @@ class NodeClient:
             return
         loop = asyncio.get_running_loop()
         slowdown = self.settings.slowdown
+        dropped: list[int] = []
         for request in job.tiles:
+            if job.frame in self._cancelled:
+                dropped.append(request.tile)
+                continue
             try:
                 rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile)
             except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
@@ -366,6 +379,10 @@ class NodeClient:
             packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
                                           job.codec, job.jpeg_quality)
             outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
+        if dropped:
+            self.tiles_dropped += len(dropped)
+            log.debug("frame %d superseded: %d queued tiles dropped", job.frame, len(dropped))
+            outbox.put_nowait(encode_json({"type": "tiles_dropped", "frame": job.frame, "tiles": dropped}))
 
     async def _calibrate(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and

@@ -2,7 +2,8 @@
 the numpy compositor used when someone asks for a whole image (``GET /api/frame.png``).
 
 Frames are kept as the nodes' encoded tiles; the viewer message is their concatenation
-(no re-encoding) and the composite is only built on request.
+(no re-encoding; each viewer's copy differs only in the input number it answers) and the
+composite is only built on request.
 """
 
 from __future__ import annotations
@@ -10,32 +11,41 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from tessera.codec import Codec, decode, encode_png
 from tessera.geometry import Camera, Rect
-from tessera.protocol import pack_frame
+from tessera.protocol import pack_frame, with_input_seq
 
 
 @dataclass
 class PublishedFrame:
-    """A complete frame: every tile of one camera. ``tiles`` = (rect, codec, node_id, payload)."""
+    """A complete frame: every tile of one camera. ``tiles`` = (rect, codec, node slot, payload);
+    ``still``: the lossless frame after motion stopped; ``inputs``: viewer id → the newest input
+    sequence number of that viewer the frame accounts for."""
 
     frame_id: int
     camera: Camera
     size: tuple[int, int]
     tiles: list[tuple[Rect, Codec, int, bytes]]
     published_at: float
+    still: bool = False
+    inputs: dict[object, int] = field(default_factory=dict)
     _viewer_message: bytes | None = field(default=None, repr=False)
 
     @property
     def viewer_message(self) -> bytes:
+        """The TFRM message (input number 0)."""
         if self._viewer_message is None:
-            self._viewer_message = pack_frame(
-                self.frame_id, self.size, ((r, c, node & 0xFF, p) for r, c, node, p in self.tiles))
+            self._viewer_message = pack_frame(self.frame_id, self.size, self.tiles, still=self.still)
         return self._viewer_message
+
+    def message_for(self, viewer_id: object) -> bytes:
+        """The TFRM message as viewer ``viewer_id`` gets it: with its own input number."""
+        return with_input_seq(self.viewer_message, self.inputs.get(viewer_id, 0))
 
 
 def composite(frame: PublishedFrame) -> np.ndarray:
@@ -57,12 +67,13 @@ def composite_png(frame: PublishedFrame) -> tuple[bytes, float, float]:
 
 
 class FrameStore:
-    """The newest ``capacity`` published frames, in id order."""
+    """The newest ``capacity`` published frames, in id order; :meth:`add` is synchronous, so a frame
+    is visible (and ``last_id`` current) the moment it is published."""
 
     def __init__(self, capacity: int = 16) -> None:
         self._frames: OrderedDict[int, PublishedFrame] = OrderedDict()
         self._capacity = capacity
-        self._changed = asyncio.Condition()
+        self._waiters: list[tuple[Callable[[PublishedFrame], bool], asyncio.Future[PublishedFrame]]] = []
 
     @property
     def latest(self) -> PublishedFrame | None:
@@ -73,28 +84,39 @@ class FrameStore:
         latest = self.latest
         return latest.frame_id if latest else -1
 
-    async def add(self, frame: PublishedFrame) -> None:
+    def add(self, frame: PublishedFrame) -> None:
+        """Keep ``frame`` (ids increase) and wake the waiters it satisfies."""
+        if frame.frame_id <= self.last_id:
+            raise ValueError(f"frame {frame.frame_id} published after frame {self.last_id}")
         self._frames[frame.frame_id] = frame
         while len(self._frames) > self._capacity:
             self._frames.popitem(last=False)
-        async with self._changed:
-            self._changed.notify_all()
+        waiting = []
+        for wanted, future in self._waiters:
+            if future.done():
+                continue
+            if wanted(frame):
+                future.set_result(frame)
+            else:
+                waiting.append((wanted, future))
+        self._waiters = waiting
 
-    def first_at_or_after(self, frame_id: int) -> PublishedFrame | None:
+    def first_at_or_after(self, frame_id: int, still: bool = False) -> PublishedFrame | None:
+        """The first kept frame with id ≥ ``frame_id`` (and, with ``still``, a still frame)."""
         for frame in self._frames.values():
-            if frame.frame_id >= frame_id:
+            if frame.frame_id >= frame_id and (frame.still or not still):
                 return frame
         return None
 
-    async def wait_for(self, frame_id: int, timeout: float) -> PublishedFrame | None:
-        """The first kept frame with id ≥ ``frame_id``, waiting up to ``timeout`` seconds."""
-        kept = self.first_at_or_after(frame_id)
+    async def wait_for(self, frame_id: int, timeout: float, still: bool = False) -> PublishedFrame | None:
+        """The first frame with id ≥ ``frame_id`` (a still frame with ``still``), waiting up to
+        ``timeout`` seconds for it to be published; None when none came in time."""
+        kept = self.first_at_or_after(frame_id, still)
         if kept is not None:
             return kept
-        async with self._changed:
-            try:
-                await asyncio.wait_for(
-                    self._changed.wait_for(lambda: self.first_at_or_after(frame_id) is not None), timeout)
-            except TimeoutError:
-                return None
-        return self.first_at_or_after(frame_id)
+        future: asyncio.Future[PublishedFrame] = asyncio.get_running_loop().create_future()
+        self._waiters.append((lambda f: f.frame_id >= frame_id and (f.still or not still), future))
+        try:
+            return await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            return None

@@ -1,4 +1,5 @@
-"""A connected render node as the coordinator sees it: identity, scene state, outbox, work owed."""
+"""A connected render node as the coordinator's adapter sees it: identity, scene state, outbox.
+What it owes and its timings live in the scheduler's :class:`tessera.scheduler.NodeSchedule`."""
 
 from __future__ import annotations
 
@@ -10,12 +11,12 @@ from typing import Any
 import numpy as np
 
 from tessera.protocol import encode_json
+from tessera.scheduler import NodeSchedule
 
 
 @dataclass
 class NodeLink:
-    """One node's connection state. ``outstanding`` maps (frame_id, tile_id) → monotonic
-    dispatch time for every tile the node owes."""
+    """One node's connection state."""
 
     node_id: int
     name: str
@@ -27,17 +28,10 @@ class NodeLink:
     progress: float = 0.0
     triangles: int = 0
     bounds: np.ndarray | None = None
-    groups: dict[str, Any] | None = None
-    speed: float = 1.0
     can_calibrate: bool = False
     calibration_ms: float | None = None
-    idle_since: float = 0.0
-    outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
+    tiles_dropped: int = 0
     outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
-    last_tiles: list[list[int]] = field(default_factory=list)
-    last_phases: dict[str, float] = field(default_factory=dict)
-    counters: dict[str, Any] = field(default_factory=dict)
-    tiles_rendered: int = 0
 
     @property
     def ready(self) -> bool:
@@ -47,26 +41,28 @@ class NodeLink:
         """Queue a control message; the connection's writer task sends it in order."""
         self.outbox.put_nowait(encode_json(message))
 
-    def describe(self) -> dict[str, Any]:
-        phases = self.last_phases
+    def describe(self, schedule: NodeSchedule) -> dict[str, Any]:
+        phases = schedule.last_phases
         return {
             "id": self.node_id,
+            "slot": schedule.slot,
             "name": self.name,
             "renderer": self.renderer,
             "state": self.state,
             "scene_progress": round(self.progress, 3),
             "scene_message": self.scene_message,
             "triangles": self.triangles,
-            "tiles": self.last_tiles,
+            "tiles": schedule.last_tiles,
             "render_ms": round(phases.get("render", 0.0), 3),
             "readback_ms": round(phases.get("readback", 0.0), 3),
             "encode_ms": round(phases.get("encode", 0.0), 3),
             "send_ms": round(phases.get("send", 0.0), 3),
             "busy_ms": round(sum(phases.values()), 3),
-            "speed": round(self.speed, 4),
+            "speed": round(schedule.speed, 4),
             "calibration_ms": None if self.calibration_ms is None else round(self.calibration_ms, 3),
             "slowdown": self.slowdown,
-            "tiles_rendered": self.tiles_rendered,
-            "outstanding": len(self.outstanding),
-            **self.counters,
+            "tiles_rendered": schedule.tiles_rendered,
+            "tiles_dropped": self.tiles_dropped,
+            "outstanding": len(schedule.outstanding),
+            **schedule.counters,
         }

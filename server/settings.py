@@ -50,6 +50,21 @@ def _codec(text: str) -> Codec:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+NO_STILL = "none"
+
+
+def _still_codec(text: str) -> Codec | str:
+    """A codec for the still frame, or ``none`` (kept as the string: None means "not given")."""
+    return NO_STILL if text.strip().lower() == NO_STILL else _codec(text)
+
+
+def _quality(text: str) -> int:
+    value = _count(text)
+    if not 1 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"JPEG quality is 1…100, got {value}")
+    return value
+
+
 @dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
@@ -60,7 +75,11 @@ class Settings:
     token: str | None = None
     local_nodes: int = 0
     codec: Codec = Codec.JPEG
-    jpeg_quality: int = 85
+    interactive_quality: int = 60
+    still_codec: Codec | None = Codec.PNG
+    still_quality: int = 95
+    still_delay_ms: float = 200.0
+    settle_frames: int = 2
     max_in_flight: int = 2
     max_fps: float = 60.0
     tile_timeout_s: float = 20.0
@@ -83,8 +102,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--balancer", help="load balancer (default static)")
     parser.add_argument("--token", help="shared secret that nodes and viewers must present")
     parser.add_argument("--local-nodes", type=_count, help="spawn N render nodes on this machine")
-    parser.add_argument("--codec", type=_codec, help="tile codec: jpeg (default), png (lossless) or raw")
-    parser.add_argument("--jpeg-quality", type=int, help="JPEG quality 1…100 (default 85)")
+    parser.add_argument("--codec", type=_codec,
+                        help="tile codec while the picture changes: jpeg (default), png (lossless) or raw")
+    parser.add_argument("--interactive-quality", "--jpeg-quality", dest="interactive_quality", type=_quality,
+                        help="JPEG quality 1…100 of interactive frames (default 60; --jpeg-quality is the old name)")
+    parser.add_argument("--still-codec", type=_still_codec,
+                        help="codec of the still frame rendered once nothing changed for --still-delay-ms: "
+                             "png (default, lossless), raw, jpeg, or none for no still frame")
+    parser.add_argument("--still-quality", type=_quality, help="JPEG quality of a jpeg still frame (default 95)")
+    parser.add_argument("--still-delay-ms", type=_positive_float,
+                        help="quiet time before the still frame, ms (default 200)")
+    parser.add_argument("--settle-frames", type=_count,
+                        help="at most this many frames more after a change while the balancer's partition "
+                             "still moves (default 2)")
     parser.add_argument("--max-in-flight", type=int, help="frames rendering at once (default 2)")
     parser.add_argument("--max-fps", type=_positive_float, help="frame rate cap (default 60)")
     parser.add_argument("--tile-timeout-s", type=_positive_float,
@@ -99,7 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
 def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | None = None) -> Settings:
     """Settings from ``argv`` over ``TESSERA_*`` variables over defaults; exits with a message on bad values."""
     parser = build_parser()
-    env = os.environ if environ is None else environ
+    env = dict(os.environ if environ is None else environ)
+    if env.get("TESSERA_JPEG_QUALITY") and not env.get("TESSERA_INTERACTIVE_QUALITY"):
+        env["TESSERA_INTERACTIVE_QUALITY"] = env["TESSERA_JPEG_QUALITY"]
     env_args: list[str] = []
     for action in parser._actions:
         if not action.option_strings or action.dest == "help":
@@ -117,9 +149,9 @@ def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | N
             parser.error(f"--node-slowdowns must be numbers, got {values['node_slowdowns']!r}")
         if not all(math.isfinite(v) and v >= 1.0 for v in values["node_slowdowns"]):
             parser.error("--node-slowdowns must be finite numbers >= 1")
+    if values.get("still_codec") == NO_STILL:
+        values["still_codec"] = None
     settings = Settings(**values)
-    if not 1 <= settings.jpeg_quality <= 100:
-        parser.error("--jpeg-quality must be 1…100")
     if settings.max_in_flight < 1:
         parser.error("--max-in-flight must be >= 1")
     from tessera.balancers import BALANCERS

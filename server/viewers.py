@@ -1,23 +1,33 @@
 """Viewer fan-out: every viewer has a latest-frame slot and its own sender task, so a slow
 browser only ever skips frames and never stalls the frame loop (websockets' broadcast pattern).
-Control messages (camera, scene) are queued, never dropped."""
+Control messages (camera, scene) are queued, never dropped. Each viewer's copy of a frame says
+which of that viewer's inputs it answers; each viewer reports its own input → display latency."""
 
 from __future__ import annotations
 
 import asyncio
+import itertools
 from collections import deque
-from typing import Any
+from typing import Any, Protocol
 
 from tessera.protocol import encode_json
 
 
+class ViewerMessages(Protocol):
+    """A published frame as each viewer gets it (``PublishedFrame``)."""
+
+    def message_for(self, viewer_id: object) -> bytes: ...
+
+
 class ViewerSlot:
-    def __init__(self) -> None:
+    def __init__(self, viewer_id: int = 0) -> None:
+        self.viewer_id = viewer_id
         self.frame: bytes | None = None
         self.control: deque[str] = deque()
         self.ready = asyncio.Event()
         self.frames_dropped = 0
         self.frames_sent = 0
+        self.latency: dict[str, float] = {}
 
     def put_frame(self, message: bytes) -> None:
         if self.frame is not None:
@@ -41,27 +51,40 @@ class ViewerSlot:
             self.ready.clear()
             await self.ready.wait()
 
+    def describe(self) -> dict[str, Any]:
+        """This viewer in ``/api/stats``: frames sent and skipped, and the input → display latency
+        it measured itself (``p50_ms``, ``p90_ms``, ``samples``, ``interval_ms``; empty until it reports)."""
+        return {"id": self.viewer_id, "frames_sent": self.frames_sent, "frames_dropped": self.frames_dropped,
+                "input_latency": dict(self.latency)}
+
 
 class ViewerHub:
     def __init__(self) -> None:
         self.slots: set[ViewerSlot] = set()
         self.bytes_published = 0
+        self._ids = itertools.count(1)
 
     def join(self) -> ViewerSlot:
-        slot = ViewerSlot()
+        slot = ViewerSlot(next(self._ids))
         self.slots.add(slot)
         return slot
 
     def leave(self, slot: ViewerSlot) -> None:
         self.slots.discard(slot)
 
-    def publish_frame(self, message: bytes) -> None:
+    def publish_frame(self, frame: ViewerMessages) -> None:
+        """Put ``frame`` in every slot; ``bytes_published`` counts each frame once."""
+        length = 0
         for slot in self.slots:
+            message = frame.message_for(slot.viewer_id)
             slot.put_frame(message)
-        if self.slots:
-            self.bytes_published += len(message)
+            length = len(message)
+        self.bytes_published += length
 
     def broadcast(self, message: dict[str, Any], exclude: ViewerSlot | None = None) -> None:
         for slot in self.slots:
             if slot is not exclude:
                 slot.put_control(message)
+
+    def describe(self) -> list[dict[str, Any]]:
+        return [slot.describe() for slot in sorted(self.slots, key=lambda s: s.viewer_id)]

@@ -1,7 +1,9 @@
 """Frames in flight: which tile each node owes, what has arrived, and the checks that keep a
 published frame whole (every tile, one camera, the right size).
 
-Pure bookkeeping (no sockets, no clocks: times are passed in), so it is tested directly.
+Pure bookkeeping (no sockets, no clocks: times are passed in), so it is tested directly. The
+payload bytes are opaque here; :func:`check_payload_size` is the coordinator's cheap check of
+them before a tile is accepted.
 """
 
 from __future__ import annotations
@@ -38,7 +40,13 @@ class TileJob:
 
 @dataclass
 class FrameJob:
-    """A frame being rendered: one camera, one partition, every tile tracked."""
+    """A frame being rendered: one camera, one partition, every tile tracked.
+
+    ``still``: the lossless frame rendered once motion stopped (else an interactive frame);
+    ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
+    (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
+    it accounts for.
+    """
 
     frame_id: int
     camera: Camera
@@ -49,12 +57,20 @@ class FrameJob:
     tiles: list[TileJob]
     started_at: float
     pull_queue: deque[int] = field(default_factory=deque)
+    partition: Partition | None = None
+    still: bool = False
+    version: int = 0
+    changed_at: float = 0.0
+    inputs: dict[object, int] = field(default_factory=dict)
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
-               partition: Partition, started_at: float) -> FrameJob:
+               partition: Partition, started_at: float, *, still: bool = False, version: int = 0,
+               changed_at: float = 0.0, inputs: dict[object, int] | None = None) -> FrameJob:
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
-        job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at)
+        job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
+                  partition=partition, still=still, version=version, changed_at=changed_at,
+                  inputs=dict(inputs or {}))
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -80,7 +96,8 @@ class FrameJob:
         }
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob:
-        """Record a tile result after checking it is the tile this node owes; ProtocolError if not."""
+        """Record a tile result after checking it is the tile this node owes; ProtocolError if not.
+        The payload is kept as it is (see :func:`check_payload_size`)."""
         if not 0 <= header.tile_id < len(self.tiles):
             raise ProtocolError(f"frame {self.frame_id} has no tile {header.tile_id}")
         tile = self.tiles[header.tile_id]
@@ -93,7 +110,6 @@ class FrameJob:
                 f"tile {header.tile_id} has rect {header.rect.as_list()}, expected {tile.rect.as_list()}")
         if header.codec != self.codec:
             raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
-        check_payload_size(payload, header.codec, tile.rect)
         tile.header, tile.payload, tile.rendered_by = header, payload, node_id
         return tile
 

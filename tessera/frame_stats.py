@@ -16,9 +16,12 @@ class FrameStats:
         self._imbalances: deque[float] = deque(maxlen=WINDOW_FRAMES)
         self.frames_published = 0
 
-    def record_publish(self, now: float, latency_s: float) -> None:
+    def record_publish(self, now: float, latency_s: float | None) -> None:
+        """A frame published at ``now`` (s); ``latency_s``: input → publish time when it is the first
+        frame to show a new input, None for frames that only re-render (settling, still)."""
         self._published.append(now)
-        self._latencies.append(latency_s * 1000.0)
+        if latency_s is not None:
+            self._latencies.append(latency_s * 1000.0)
         self.frames_published += 1
 
     def record_balance(self, busy_ms_by_node: dict[int, float]) -> None:
@@ -36,7 +39,7 @@ class FrameStats:
 
     @property
     def latency_ms(self) -> float:
-        """Mean dispatch → publish time of the recent frames."""
+        """Mean input → publish time (ms) of the recent frames that answered a new input."""
         return sum(self._latencies) / len(self._latencies) if self._latencies else 0.0
 
     @property

@@ -3,8 +3,10 @@
 Text WebSocket messages are JSON objects with a ``type``. Binary messages start with a magic:
 
 * ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image.
-* ``TFRM`` complete frame, coordinator → viewer: a 20-byte frame header, then one
-  :class:`FrameTileEntry` per tile, then the tiles' encoded images in the same order.
+* ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
+  still frame; ``input_seq``: the viewer's newest input sequence number the frame accounts for,
+  0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
+  small index reused after a node leaves, u16), then the tiles' encoded images in the same order.
 
 All integers little-endian.
 
@@ -20,6 +22,7 @@ Control messages, node → coordinator:
 * ``tile_sent`` {frame, tile, send_ms, stats {triangles, chunks_drawn, chunks_culled, cull_ms,
   cull_path}}  after each binary tile: the node's per-tile counters
 * ``render_error`` {frame, tile, message}
+* ``tiles_dropped`` {frame, tiles [tile, …]}  tiles of a cancelled frame skipped unrendered
 * ``calibration`` {ms}  answer to ``calibrate``: the best of ``repeats`` renders of ``rect``, no
   output sent, slowdown included
 
@@ -30,6 +33,10 @@ coordinator → node:
 * ``render`` {frame, camera {camera JSON}, size [W,H], codec "jpeg"|"png"|"raw", jpeg_quality,
   tiles [{tile, rect [x,y,w,h]}, …]}  tiles are rendered in list order, each sent as soon as done
 * ``calibrate`` {camera, size [W,H], rect [x,y,w,h], repeats}  (seed 003 §1), in order with renders
+* ``cancel`` {frames [frame, …]}  the frames were superseded: skip their tiles not begun yet
+
+viewer → coordinator: ``camera`` {camera, seq (optional input sequence number, 0…2³²−1)},
+``latency`` {p50_ms, p90_ms, samples, interval_ms}: the viewer's own input → display figures.
 
 A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason.
 
@@ -49,14 +56,17 @@ from typing import Any
 from tessera.codec import Codec
 from tessera.geometry import Rect
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 TILE_MAGIC = b"TTIL"
 FRAME_MAGIC = b"TFRM"
 #: Per-tile phases a node measures, in pipeline order (milliseconds).
 NODE_PHASES = ("render", "readback", "encode", "send")
 
 _TILE_HEADER = struct.Struct("<4sBBHIIIIIIfffI")
-_FRAME_HEADER = struct.Struct("<4sBBHIII")
+_FRAME_HEADER = struct.Struct("<4sBBHIIII")
+_INPUT_SEQ_OFFSET = 20
+#: Frame header flag: the lossless still frame shown once motion stopped.
+FRAME_STILL = 0x01
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
 
 MAX_JSON_BYTES = 1 << 20
@@ -116,29 +126,52 @@ def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
 
 @dataclass(frozen=True, slots=True)
 class FrameTileEntry:
-    """One tile of a published frame: where it goes, how it is encoded, which node drew it."""
+    """One tile of a published frame: where it goes, how it is encoded, which node (slot) drew it."""
 
     rect: Rect
     codec: Codec
-    node_index: int
+    node: int
     length: int
 
 
-def pack_frame(frame_id: int, size: tuple[int, int], tiles: Iterable[tuple[Rect, Codec, int, bytes]]) -> bytes:
-    """Viewer frame message: header, tile table, then the tiles' encoded images (no re-encoding)."""
+@dataclass(frozen=True, slots=True)
+class ViewerFrame:
+    """A parsed ``TFRM`` message."""
+
+    frame_id: int
+    size: tuple[int, int]
+    still: bool
+    input_seq: int
+    tiles: list[tuple[FrameTileEntry, bytes]]
+
+
+def pack_frame(frame_id: int, size: tuple[int, int], tiles: Iterable[tuple[Rect, Codec, int, bytes]], *,
+               still: bool = False, input_seq: int = 0) -> bytes:
+    """Viewer frame message: header, tile table, then the tiles' encoded images (no re-encoding).
+    ``tiles``: (rect, codec, node slot, payload)."""
     tiles = list(tiles)
-    parts = [_FRAME_HEADER.pack(FRAME_MAGIC, PROTOCOL_VERSION, 0, len(tiles), frame_id, size[0], size[1])]
-    for rect, codec, node_index, payload in tiles:
-        parts.append(_FRAME_TILE.pack(rect.x, rect.y, rect.w, rect.h, int(codec), node_index, 0, len(payload)))
+    parts = [_FRAME_HEADER.pack(FRAME_MAGIC, PROTOCOL_VERSION, FRAME_STILL if still else 0, len(tiles), frame_id,
+                                size[0], size[1], input_seq)]
+    for rect, codec, node, payload in tiles:
+        parts.append(_FRAME_TILE.pack(rect.x, rect.y, rect.w, rect.h, int(codec), 0, node, len(payload)))
     parts.extend(payload for _, _, _, payload in tiles)
     return b"".join(parts)
 
 
-def unpack_frame(message: bytes) -> tuple[int, tuple[int, int], list[tuple[FrameTileEntry, bytes]]]:
-    """Parse a viewer frame message into (frame_id, (w, h), [(entry, payload), …])."""
+def with_input_seq(message: bytes, input_seq: int) -> bytes:
+    """A copy of a packed frame message answering viewer input ``input_seq`` (one viewer's copy)."""
+    if message[_INPUT_SEQ_OFFSET:_INPUT_SEQ_OFFSET + 4] == struct.pack("<I", input_seq):
+        return message
+    copy = bytearray(message)
+    struct.pack_into("<I", copy, _INPUT_SEQ_OFFSET, input_seq)
+    return bytes(copy)
+
+
+def unpack_frame(message: bytes) -> ViewerFrame:
+    """Parse a viewer frame message; raises ProtocolError on anything malformed."""
     if len(message) < _FRAME_HEADER.size:
         raise ProtocolError("frame message shorter than its header")
-    magic, version, _, count, frame_id, width, height = _FRAME_HEADER.unpack_from(message)
+    magic, version, flags, count, frame_id, width, height, input_seq = _FRAME_HEADER.unpack_from(message)
     if magic != FRAME_MAGIC or version != PROTOCOL_VERSION:
         raise ProtocolError(f"bad frame magic/version {magic!r}/{version}")
     offset = _FRAME_HEADER.size
@@ -146,12 +179,12 @@ def unpack_frame(message: bytes) -> tuple[int, tuple[int, int], list[tuple[Frame
     for _ in range(count):
         if offset + _FRAME_TILE.size > len(message):
             raise ProtocolError("frame message ends inside its tile table")
-        x, y, w, h, codec, node_index, _, length = _FRAME_TILE.unpack_from(message, offset)
+        x, y, w, h, codec, _, node, length = _FRAME_TILE.unpack_from(message, offset)
         try:
             codec_value = Codec(codec)
         except ValueError:
             raise ProtocolError(f"unknown tile codec {codec}") from None
-        entries.append(FrameTileEntry(Rect(x, y, w, h), codec_value, node_index, length))
+        entries.append(FrameTileEntry(Rect(x, y, w, h), codec_value, node, length))
         offset += _FRAME_TILE.size
     out = []
     for entry in entries:
@@ -159,7 +192,7 @@ def unpack_frame(message: bytes) -> tuple[int, tuple[int, int], list[tuple[Frame
         offset += entry.length
     if offset != len(message):
         raise ProtocolError("frame message length does not match its tile table")
-    return frame_id, (width, height), out
+    return ViewerFrame(frame_id, (width, height), bool(flags & FRAME_STILL), input_seq, out)
 
 
 def encode_json(message: dict[str, Any]) -> str:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import subprocess
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -83,3 +85,34 @@ def orbit_cameras(bounds: list[list[float]], count: int) -> list[dict[str, Any]]
         eye = center + distance * np.array([np.sin(angle), 0.25 + 0.2 * i, np.cos(angle)])
         cameras.append({"eye": eye.tolist(), "target": center.tolist(), "up": [0, 1, 0], "fovy_deg": 40 + 5 * i})
     return cameras
+
+
+def turned(camera: dict[str, Any], angle: float) -> dict[str, Any]:
+    """``camera`` with its eye turned by ``angle`` radians about the vertical axis through its target."""
+    eye, target = np.asarray(camera["eye"], dtype=float), np.asarray(camera["target"], dtype=float)
+    x, z = (eye - target)[0], (eye - target)[2]
+    c, s = np.cos(angle), np.sin(angle)
+    return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
+
+
+@contextlib.contextmanager
+def camera_moving(base_url: str, camera: dict[str, Any], hz: float = 30.0, token: str | None = None) -> Iterator[None]:
+    """While inside, a user turns ``camera`` slowly (PUT /api/camera ``hz`` times a second, its own
+    connection and thread): the coordinator keeps rendering, as it does only while input comes."""
+    stop = threading.Event()
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+
+    def move() -> None:
+        with httpx.Client(base_url=base_url, timeout=seconds(30), headers=headers) as client:
+            step = 0
+            while not stop.wait(1.0 / hz):
+                client.put("/api/camera", json=turned(camera, 0.02 * np.sin(step / 10.0))).raise_for_status()
+                step += 1
+
+    thread = threading.Thread(target=move, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=seconds(30))

@@ -11,6 +11,7 @@ from tessera.balancers import BALANCERS
 from tests.conftest import seconds
 from tests.integration_support import (
     assert_matches_reference,
+    camera_moving,
     fetch_frame,
     ready_nodes,
     render_once,
@@ -27,7 +28,8 @@ MEASURE_FRAMES = 30
 
 
 def imbalance_after_switch(client: httpx.Client, name: str) -> float:
-    """Switch to ``name``, let it settle, then the mean imbalance over the next frames."""
+    """Switch to ``name``, let it settle, then the mean imbalance over the next frames (the camera
+    keeps moving: frames render only while something changes)."""
     client.put("/api/balancer", json={"name": name, "params": {}}).raise_for_status()
     start = stats(client)["frame"]
     wait_until(lambda: stats(client)["frame"] >= start + SETTLE_FRAMES, seconds(120), f"{name} to settle")
@@ -49,10 +51,12 @@ def test_adaptive_balancers_beat_static_with_a_slow_node(coordinator_factory, tm
         assert slow["speed"] == 1.0 and all(n["speed"] > 1.5 for n in nodes if n is not slow), nodes
         camera = client.get("/api/camera").json()["camera"]
         reference = render_once(SCENE, camera, SIZE, tmp_path)
-        figures = {"static": imbalance_after_switch(client, "static")}
+        with camera_moving(coordinator.url, camera):
+            figures = {"static": imbalance_after_switch(client, "static")}
         assert figures["static"] > 1.3, f"the slow node should unbalance the static split: {figures}"
         for name in sorted(set(BALANCERS) - {"static"}):
-            figures[name] = imbalance_after_switch(client, name)
+            with camera_moving(coordinator.url, camera):
+                figures[name] = imbalance_after_switch(client, name)
             frame_after = client.put("/api/camera", json=camera).json()["frame"]
             _, frame = fetch_frame(client, frame_after)
             assert_matches_reference(frame, reference, f"balancer {name}")

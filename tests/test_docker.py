@@ -116,7 +116,8 @@ def deployment_env(port: int, **extra: str) -> dict[str, str]:
     """The compose file's variables; empty ones take the file's defaults whatever this shell has set."""
     return {"TESSERA_PORT": str(port), "TESSERA_TOKEN": TOKEN, "TESSERA_CODEC": "png",
             "TESSERA_SIZE": f"{SIZE[0]}x{SIZE[1]}", "TESSERA_BALANCER": "", "TESSERA_SCENE": "",
-            "TESSERA_SCENES_DIR": "", "TESSERA_IMAGE": "", "TESSERA_RESTART": "no", **extra}
+            "TESSERA_SCENES_DIR": "", "TESSERA_IMAGE": "", "TESSERA_RESTART": "no", "TESSERA_INTERACTIVE_QUALITY": "",
+            "TESSERA_STILL_CODEC": "", **extra}
 
 
 def coordinator_client(port: int) -> httpx.Client:

@@ -7,11 +7,11 @@ import asyncio
 import numpy as np
 import pytest
 
-from server.frame_jobs import FrameJob
 from server.frame_store import FrameStore, PublishedFrame, composite
-from server.stats import WINDOW_FRAMES, FrameStats
 from tessera.balancers.base import Partition, Tile
 from tessera.codec import Codec, encode
+from tessera.frame_jobs import FrameJob, check_payload_size
+from tessera.frame_stats import WINDOW_FRAMES, FrameStats
 from tessera.geometry import Camera, Rect
 from tessera.partition import equal_strip_partition
 from tessera.protocol import ProtocolError, TileHeader, decode_json, encode_json, unpack_frame
@@ -86,11 +86,6 @@ def wrong_size(codec: Codec) -> bytes:
     pytest.param(7, 0, {"rect": Rect(0, 0, 32, 31)}, "rect", id="wrong-rect"),
     pytest.param(7, 0, {"rect": Rect(1, 0, 32, 32)}, "rect", id="shifted-rect"),
     pytest.param(7, 0, {"codec": Codec.JPEG}, "codec", id="wrong-codec"),
-    pytest.param(7, 0, {"payload": wrong_size(Codec.PNG)}, "31x32, expected 32x32", id="png-wrong-size"),
-    pytest.param(7, 0, {"payload": encode(image(32, 33), Codec.PNG)}, "32x33", id="png-too-tall"),
-    pytest.param(7, 0, {"payload": encode(image(32, 32), Codec.JPEG)}, "JPEG, expected PNG", id="jpeg-as-png"),
-    pytest.param(7, 0, {"payload": b"\x89PNG not really"}, "not a readable PNG", id="garbage"),
-    pytest.param(7, 0, {"payload": b""}, "not a readable PNG", id="empty"),
 ])
 def test_accept_rejects_what_the_node_does_not_owe(node, tile_id, changes, fragment):
     job = new_job()
@@ -106,22 +101,27 @@ def test_accept_rejects_a_tile_the_frame_does_not_have():
         job.accept(7, header, encode(image(32, 32), Codec.PNG))
 
 
-@pytest.mark.parametrize(("payload", "fragment"), [
-    pytest.param(encode(image(32, 31), Codec.JPEG), "32x31, expected 32x32", id="jpeg-wrong-size"),
-    pytest.param(encode(image(32, 32), Codec.PNG), "PNG, expected JPEG", id="png-as-jpeg"),
-    pytest.param(b"\xff\xd8\xff\xe0garbage", "not a readable JPEG", id="garbage"),
+@pytest.mark.parametrize(("codec", "payload", "fragment"), [
+    pytest.param(Codec.PNG, wrong_size(Codec.PNG), "31x32, expected 32x32", id="png-wrong-size"),
+    pytest.param(Codec.PNG, encode(image(32, 33), Codec.PNG), "32x33", id="png-too-tall"),
+    pytest.param(Codec.PNG, encode(image(32, 32), Codec.JPEG), "JPEG, expected PNG", id="jpeg-as-png"),
+    pytest.param(Codec.PNG, b"\x89PNG not really", "not a readable PNG", id="png-garbage"),
+    pytest.param(Codec.PNG, b"", "not a readable PNG", id="empty"),
+    pytest.param(Codec.JPEG, encode(image(32, 31), Codec.JPEG), "32x31, expected 32x32", id="jpeg-wrong-size"),
+    pytest.param(Codec.JPEG, encode(image(32, 32), Codec.PNG), "PNG, expected JPEG", id="png-as-jpeg"),
+    pytest.param(Codec.JPEG, b"\xff\xd8\xff\xe0garbage", "not a readable JPEG", id="jpeg-garbage"),
+    pytest.param(Codec.RAW, bytes(32 * 32 * 3 - 1), "raw tile", id="raw-short"),
+    pytest.param(Codec.RAW, bytes(32 * 32 * 3 + 3), "raw tile", id="raw-long"),
+    pytest.param(Codec.RAW, b"", "raw tile", id="raw-empty"),
 ])
-def test_accept_checks_jpeg_payloads(payload, fragment):
-    job = new_job(codec=Codec.JPEG)
+def test_payload_size_check_reads_only_the_image_header(codec, payload, fragment):
     with pytest.raises(ProtocolError, match=fragment):
-        job.accept(7, result(job, 0)[0], payload)
+        check_payload_size(payload, codec, Rect(0, 0, 32, 32))
 
 
-@pytest.mark.parametrize("length", [32 * 32 * 3 - 1, 32 * 32 * 3 + 3, 0])
-def test_accept_checks_raw_payload_length(length):
-    job = new_job(codec=Codec.RAW)
-    with pytest.raises(ProtocolError, match="raw tile"):
-        job.accept(7, result(job, 0)[0], bytes(length))
+@pytest.mark.parametrize("codec", list(Codec))
+def test_payload_size_check_accepts_the_right_size(codec):
+    check_payload_size(encode(image(32, 16), codec), codec, Rect(5, 7, 32, 16))
 
 
 def test_accept_refuses_a_duplicate():
@@ -208,10 +208,18 @@ def test_viewer_message_parses_back():
     original = image(64, 32, seed=4)
     tiles = [(r, codec, node, encode(original[r.y:r.y1, r.x:r.x1], codec))
              for r, codec, node in zip(RECTS, (Codec.PNG, Codec.RAW, Codec.JPEG), (7, 300, 0), strict=True)]
-    frame_id, size, entries = unpack_frame(published(42, tiles).viewer_message)
-    assert (frame_id, size) == (42, SIZE)
-    assert [(e.rect, e.codec, e.node_index, payload) for e, payload in entries] == [
-        (r, c, node & 0xFF, p) for r, c, node, p in tiles]
+    frame = unpack_frame(published(42, tiles).viewer_message)
+    assert (frame.frame_id, frame.size, frame.still, frame.input_seq) == (42, SIZE, False, 0)
+    assert [(e.rect, e.codec, e.node, payload) for e, payload in frame.tiles] == tiles
+
+
+def test_each_viewer_gets_the_input_number_it_sent_and_the_still_flag():
+    tiles = [(RECTS[0], Codec.RAW, 2, bytes(32 * 32 * 3))]
+    frame = PublishedFrame(9, CAMERA, SIZE, tiles, 0.0, still=True, inputs={1: 77, 2: 4_000_000_000})
+    first, second, third = (unpack_frame(frame.message_for(v)) for v in (1, 2, 3))
+    assert (first.input_seq, second.input_seq, third.input_seq) == (77, 4_000_000_000, 0)
+    assert first.still and second.still and third.still
+    assert first.tiles == second.tiles == third.tiles == unpack_frame(frame.viewer_message).tiles
 
 
 def test_store_keeps_the_newest_frames_up_to_capacity():
@@ -219,7 +227,7 @@ def test_store_keeps_the_newest_frames_up_to_capacity():
         store = FrameStore(capacity=3)
         assert store.latest is None and store.last_id == -1 and store.first_at_or_after(0) is None
         for frame_id in (1, 2, 4, 5, 6):
-            await store.add(published(frame_id))
+            store.add(published(frame_id))
         assert store.last_id == 6 and store.latest.frame_id == 6
         assert store.first_at_or_after(0).frame_id == 4, "frames 1 and 2 were evicted"
         assert store.first_at_or_after(5).frame_id == 5
@@ -232,7 +240,7 @@ def test_wait_for_returns_the_first_kept_frame_at_or_after_k():
     async def scenario() -> None:
         store = FrameStore()
         for frame_id in (3, 5, 8):
-            await store.add(published(frame_id))
+            store.add(published(frame_id))
         assert (await store.wait_for(4, timeout=5.0)).frame_id == 5
         assert (await store.wait_for(0, timeout=5.0)).frame_id == 3
         assert (await store.wait_for(8, timeout=5.0)).frame_id == 8
@@ -243,16 +251,16 @@ def test_wait_for_returns_the_first_kept_frame_at_or_after_k():
 def test_wait_for_waits_until_a_late_enough_frame_is_added():
     async def scenario() -> None:
         store = FrameStore()
-        await store.add(published(1))
+        store.add(published(1))
         waiter = asyncio.create_task(store.wait_for(5, timeout=30.0))
         for _ in range(3):
             await asyncio.sleep(0)
         assert not waiter.done()
-        await store.add(published(4))
+        store.add(published(4))
         for _ in range(3):
             await asyncio.sleep(0)
         assert not waiter.done(), "frame 4 is too early"
-        await store.add(published(6))
+        store.add(published(6))
         frame = await asyncio.wait_for(waiter, timeout=30.0)
         assert frame.frame_id == 6
 
@@ -262,7 +270,7 @@ def test_wait_for_waits_until_a_late_enough_frame_is_added():
 def test_wait_for_gives_none_on_timeout():
     async def scenario() -> None:
         store = FrameStore()
-        await store.add(published(1))
+        store.add(published(1))
         assert await store.wait_for(2, timeout=0.01) is None
 
     asyncio.run(scenario())
@@ -271,9 +279,34 @@ def test_wait_for_gives_none_on_timeout():
 def test_wait_for_with_no_time_left_still_returns_a_frame_already_kept():
     async def scenario() -> None:
         store = FrameStore()
-        await store.add(published(1))
+        store.add(published(1))
         frame = await store.wait_for(1, timeout=0.0)
         assert frame is not None and frame.frame_id == 1
+
+    asyncio.run(scenario())
+
+
+def test_store_refuses_a_frame_older_than_the_newest():
+    store = FrameStore()
+    store.add(published(5))
+    with pytest.raises(ValueError, match="after frame 5"):
+        store.add(published(4))
+    assert store.last_id == 5
+
+
+def test_wait_for_still_skips_interactive_frames():
+    async def scenario() -> None:
+        store = FrameStore()
+        store.add(published(1))
+        waiter = asyncio.create_task(store.wait_for(1, timeout=30.0, still=True))
+        store.add(published(2))
+        for _ in range(3):
+            await asyncio.sleep(0)
+        assert not waiter.done(), "frames 1 and 2 are interactive"
+        store.add(PublishedFrame(3, CAMERA, SIZE, [], 3.0, still=True))
+        assert (await asyncio.wait_for(waiter, timeout=30.0)).frame_id == 3
+        assert (await store.wait_for(0, timeout=0.0)).frame_id == 1
+        assert (await store.wait_for(0, timeout=0.0, still=True)).frame_id == 3
 
     asyncio.run(scenario())
 
@@ -290,6 +323,8 @@ def test_fps_is_measured_over_the_recent_window():
     assert stats.fps(now=99 * 0.05) == pytest.approx(20.0)
     assert stats.fps(now=99 * 0.05 + 2.5) == 0.0, "idle for more than 2 s"
     assert stats.latency_ms == pytest.approx(10.5)
+    stats.record_publish(now=5.0, latency_s=None)
+    assert stats.frames_published == 101 and stats.latency_ms == pytest.approx(10.5), "re-renders add no latency"
 
 
 def test_imbalance_last_and_average_over_the_window():

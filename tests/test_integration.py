@@ -79,8 +79,6 @@ def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, tmp_
             _, frame = fetch_frame(client, after_kill)
             assert_matches_reference(frame, render_once(scene, cameras[1], SIZE, tmp_path), "after kill")
             wait_until(lambda: len(stats(client)["nodes"]) == 2, seconds(30), "the dead node to leave")
-            last = stats(client)["frame"]
-            wait_until(lambda: stats(client)["frame"] > last + 5, seconds(60), "frames from the 2 survivors")
             again = client.put("/api/camera", json=cameras[2]).json()["frame"]
             _, frame = fetch_frame(client, again)
             assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "2 nodes")
@@ -143,18 +141,27 @@ def _alive(pid: int) -> bool:
 
 
 def test_frames_keep_one_camera_while_it_moves(coordinator_factory, tmp_path):
-    """Cameras change faster than frames complete: every published frame still matches exactly one camera."""
+    """Cameras change faster than frames complete: every published frame still matches exactly one
+    camera, up to the still frame the coordinator ends with."""
     scene = str(scene_path(SCENES["bunny"]))
     coordinator = coordinator_factory("--scene", scene, "--size", "160x120", "--codec", "png", "--local-nodes", "3")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
         cameras = orbit_cameras(_scene_bounds(client), 3)
-        first_ids = [client.put("/api/camera", json=camera).json()["frame"] for camera in cameras]
+        first = client.put("/api/camera", json=cameras[0]).json()["frame"]
+        for camera in cameras[1:] * 3:
+            client.put("/api/camera", json=camera).raise_for_status()
         references = [render_once(scene, camera, (160, 120), tmp_path) for camera in cameras]
-        seen = 0
-        for after in range(first_ids[0], first_ids[0] + 6):
+        last = wait_until(lambda: stats(client)["settled"] and stats(client)["frame"], seconds(60),
+                          "the coordinator to settle (still frame out)")
+        seen = set()
+        after = first
+        while after <= last:
             frame_id, frame = fetch_frame(client, after)
             errors = [np.abs(frame.astype(int) - ref.astype(int)).max() for ref in references]
             assert min(errors) <= 8, f"frame {frame_id} matches none of the cameras (torn?): {errors}"
-            seen += 1
-        assert seen == 6
+            seen.add(frame_id)
+            after = frame_id + 1
+        assert len(seen) >= 2, f"expected the moving frames and the still frame, saw {sorted(seen)}"
+        final = fetch_frame(client, last)[1]
+        assert np.abs(final.astype(int) - references[2].astype(int)).max() <= 8, "the last camera is shown at rest"

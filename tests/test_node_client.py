@@ -20,7 +20,7 @@ from node.scene import DEFAULT_FACE_LIMIT, load_scene
 from node.settings import NodeSettings, parse_settings
 from tessera.codec import Codec, decode
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
-from tessera.protocol import unpack_tile
+from tessera.protocol import PROTOCOL_VERSION, unpack_tile
 from tests.conftest import seconds
 
 SIZE = (96, 64)
@@ -80,7 +80,7 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
     ws = await coordinator.accept()
     hello = await receive_json(ws)
     assert hello["type"] == "hello" and hello["name"] == "tester" and hello["token"] == "s3cret"
-    assert hello["version"] == 1 and hello["renderer"]
+    assert hello["version"] == PROTOCOL_VERSION and hello["renderer"]
     assert hello["capabilities"] == {"codecs": ["raw", "jpeg", "png"], "slowdown": SLOWDOWN, "calibrate": True}
     await send(ws, type="welcome", node_id=7)
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
@@ -124,6 +124,8 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
     assert calibration["type"] == "calibration" and calibration["ms"] > 0.0
     render_ms.append(calibration["ms"])
 
+    await superseded_tiles_are_dropped(ws)
+
     await ws.close(4401, "wrong token")
     ws = await coordinator.accept()
     assert (await receive_json(ws))["type"] == "hello"
@@ -131,6 +133,30 @@ async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tupl
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
     assert (await receive_json(ws))["type"] == "scene_ready", "the loaded scene must be reused, not reloaded"
     return stitched, render_ms
+
+
+CANCEL_SIZE = (3840, 2160)
+CANCEL_TILES = [{"tile": i, "rect": [i * 480, 0, 480, 2160]} for i in range(8)]
+
+
+async def superseded_tiles_are_dropped(ws: ServerConnection) -> None:
+    """A frame of 8 large tiles is cancelled once its first tile is back: the node skips the tiles
+    it had not begun and says which."""
+    await send(ws, type="render", frame=4, camera=CAMERA, size=list(CANCEL_SIZE), codec="jpeg", tiles=CANCEL_TILES)
+    rendered = [unpack_tile(await receive(ws))[0].tile_id]
+    await send(ws, type="cancel", frames=[4])
+    while True:
+        message = await receive(ws)
+        if isinstance(message, bytes):
+            rendered.append(unpack_tile(message)[0].tile_id)
+            continue
+        message = json.loads(message)
+        if message["type"] == "tiles_dropped":
+            break
+        assert message["type"] == "tile_sent" and message["frame"] == 4
+    assert message["frame"] == 4 and message["tiles"], "the queued tiles of the cancelled frame are dropped"
+    assert sorted(rendered + message["tiles"]) == list(range(8)), "each tile rendered or dropped, once"
+    assert message["tiles"] == list(range(len(rendered), 8)), "the tiles not begun yet, in order"
 
 
 async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float]]:
@@ -195,7 +221,7 @@ def test_settings_refuse_bad_values(argv, capsys):
 def test_node_serves_a_fake_coordinator():
     stitched, render_ms, slept = asyncio.run(run_node_against_fake())
     # Slowdown: each tile and the calibration wait (F - 1) x their render time and report F x it.
-    assert len(slept) == 4
+    assert len(slept) >= 5, "frames 1 and 3, the calibration and frame 4's first tile"
     for reported, wait_s in zip(render_ms, [*slept[:2], slept[3]], strict=True):
         assert reported == pytest.approx(wait_s * 1e3 * SLOWDOWN / (SLOWDOWN - 1.0), rel=1e-4)
     ctx = create_gl_context()

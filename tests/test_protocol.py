@@ -26,13 +26,15 @@ from tessera.protocol import (
     pack_frame,
     pack_tile,
     require,
+    ViewerFrame,
     unpack_frame,
+    with_input_seq,
     unpack_tile,
 )
 
 #: The tile header layout, restated here so that a change to the wire format fails a test.
 TILE_LAYOUT = struct.Struct("<4sBBHIIIIIIfffI")
-FRAME_LAYOUT = struct.Struct("<4sBBHIII")
+FRAME_LAYOUT = struct.Struct("<4sBBHIIII")
 FRAME_TILE_LAYOUT = struct.Struct("<IIIIBBHI")
 
 u32 = st.integers(0, 2**32 - 1)
@@ -76,7 +78,7 @@ def test_tile_round_trip(frame, tile, x, y, w, h, codec, times, payload):
     pytest.param(tile_bytes(magic=b"TFRM"), "magic", id="frame-magic"),
     pytest.param(tile_bytes(magic=b"\0\0\0\0"), "magic", id="zero-magic"),
     pytest.param(tile_bytes(version=0), "version", id="version-0"),
-    pytest.param(tile_bytes(version=2), "version", id="version-2"),
+    pytest.param(tile_bytes(version=PROTOCOL_VERSION + 1), "version", id="version-next"),
     pytest.param(tile_bytes(codec=3), "codec", id="codec-3"),
     pytest.param(tile_bytes(codec=255), "codec", id="codec-255"),
     pytest.param(tile_bytes(length=11), "length", id="length-over"),
@@ -115,34 +117,43 @@ FRAME_TILES = [
 def test_frame_round_trip_with_several_tiles():
     message = pack_frame(123456, (64, 49), FRAME_TILES)
     assert len(message) == FRAME_LAYOUT.size + 4 * FRAME_TILE_LAYOUT.size + sum(len(t[3]) for t in FRAME_TILES)
-    frame_id, size, tiles = unpack_frame(message)
-    assert (frame_id, size) == (123456, (64, 49))
-    assert len(tiles) == len(FRAME_TILES)
-    for (entry, payload), (rect, codec, node, original) in zip(tiles, FRAME_TILES, strict=True):
-        assert (entry.rect, entry.codec, entry.node_index, entry.length) == (rect, codec, node, len(original))
+    frame = unpack_frame(message)
+    assert (frame.frame_id, frame.size, frame.still, frame.input_seq) == (123456, (64, 49), False, 0)
+    assert len(frame.tiles) == len(FRAME_TILES)
+    for (entry, payload), (rect, codec, node, original) in zip(frame.tiles, FRAME_TILES, strict=True):
+        assert (entry.rect, entry.codec, entry.node, entry.length) == (rect, codec, node, len(original))
         assert isinstance(payload, bytes) and payload == original
 
 
 def test_frame_with_no_tiles_round_trips():
-    assert unpack_frame(pack_frame(0, (16, 16), [])) == (0, (16, 16), [])
+    assert unpack_frame(pack_frame(0, (16, 16), [])) == ViewerFrame(0, (16, 16), False, 0, [])
+
+
+def test_still_flag_and_input_number_round_trip_and_patch_per_viewer():
+    message = pack_frame(7, (64, 49), FRAME_TILES, still=True, input_seq=12)
+    frame = unpack_frame(message)
+    assert frame.still and frame.input_seq == 12
+    patched = unpack_frame(with_input_seq(message, 2**32 - 1))
+    assert patched.input_seq == 2**32 - 1 and patched.still and patched.tiles == frame.tiles
+    assert with_input_seq(message, 12) is message, "no copy when the number is already right"
 
 
 def frame_bytes(*, magic=FRAME_MAGIC, version=PROTOCOL_VERSION, count=1, codec=1, length=3,
                 payload=b"abc") -> bytes:
-    header = FRAME_LAYOUT.pack(magic, version, 0, count, 9, 8, 8)
+    header = FRAME_LAYOUT.pack(magic, version, 0, count, 9, 8, 8, 0)
     return header + FRAME_TILE_LAYOUT.pack(0, 0, 8, 8, codec, 0, 0, length) + payload
 
 
 @pytest.mark.parametrize("message", [
     pytest.param(b"", id="empty"),
-    pytest.param(frame_bytes()[:19], id="short-header"),
+    pytest.param(frame_bytes()[:23], id="short-header"),
     pytest.param(frame_bytes(magic=b"TTIL"), id="bad-magic"),
-    pytest.param(frame_bytes(version=2), id="bad-version"),
+    pytest.param(frame_bytes(version=1), id="old-version"),
     pytest.param(frame_bytes(payload=b"ab"), id="payload-short"),
     pytest.param(frame_bytes(payload=b"abcd"), id="trailing-byte"),
     pytest.param(frame_bytes(length=2), id="length-too-small"),
     pytest.param(frame_bytes(count=2), id="table-truncated-by-count"),
-    pytest.param(frame_bytes()[:30], id="table-truncated"),
+    pytest.param(frame_bytes()[:34], id="table-truncated"),
     pytest.param(frame_bytes(codec=7), id="unknown-codec"),
 ])
 def test_unpack_frame_rejects_malformed_messages(message):

@@ -13,13 +13,13 @@ from websockets.exceptions import ConnectionClosed
 
 from tessera.codec import Codec, encode
 from tessera.geometry import Rect
-from tessera.protocol import TileHeader, pack_tile
+from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.conftest import seconds
 from tests.integration_support import fetch_frame, ready_nodes, wait_until
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
-HELLO = {"type": "hello", "name": "rogue", "token": "", "renderer": "none", "version": 1,
+HELLO = {"type": "hello", "name": "rogue", "token": "", "renderer": "none", "version": PROTOCOL_VERSION,
          "capabilities": {"codecs": ["png"], "slowdown": 1.0}}
 
 

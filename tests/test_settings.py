@@ -16,8 +16,10 @@ def test_defaults():
                                                                             (1280, 720))
     assert (settings.balancer, settings.token, settings.local_nodes, settings.codec) == ("static", None, 0,
                                                                                          Codec.JPEG)
-    assert (settings.jpeg_quality, settings.max_in_flight, settings.background, settings.node_slowdowns) == (
-        85, 2, None, ())
+    assert (settings.interactive_quality, settings.max_in_flight, settings.background, settings.node_slowdowns) == (
+        60, 2, None, ())
+    assert (settings.still_codec, settings.still_quality, settings.still_delay_ms, settings.settle_frames) == (
+        Codec.PNG, 95, 200.0, 2)
 
 
 def test_environment_variables_apply():
@@ -30,8 +32,21 @@ def test_environment_variables_apply():
     })
     assert settings == Settings(
         host="0.0.0.0", port=9001, scene="builtin:grid", size=(640, 480), token="s3cret", local_nodes=3,
-        codec=Codec.PNG, jpeg_quality=70, max_in_flight=4, max_fps=30.0, background=(1.0, 0.0, 128 / 255),
+        codec=Codec.PNG, interactive_quality=70, max_in_flight=4, max_fps=30.0, background=(1.0, 0.0, 128 / 255),
         node_slowdowns=(1.0, 1.0, 3.0), log_level="debug", tile_timeout_s=5.0, frame_wait_s=2.5)
+
+
+def test_quality_flags_old_and_new_names():
+    assert load_settings(["--jpeg-quality", "70"], {}).interactive_quality == 70
+    assert load_settings(["--interactive-quality", "55"], {"TESSERA_JPEG_QUALITY": "70"}).interactive_quality == 55
+    assert load_settings([], {"TESSERA_INTERACTIVE_QUALITY": "40", "TESSERA_JPEG_QUALITY": "70"}) \
+        .interactive_quality == 40
+    settings = load_settings(["--still-codec", "jpeg", "--still-quality", "98", "--still-delay-ms", "150",
+                              "--settle-frames", "0"], {})
+    assert (settings.still_codec, settings.still_quality, settings.still_delay_ms, settings.settle_frames) == (
+        Codec.JPEG, 98, 150.0, 0)
+    assert load_settings(["--still-codec", "none"], {}).still_codec is None
+    assert load_settings([], {"TESSERA_STILL_CODEC": "None"}).still_codec is None
 
 
 def test_command_line_beats_environment():
@@ -98,6 +113,10 @@ def test_every_registered_balancer_is_accepted(balancer):
     (["--jpeg-quality", "0"], "jpeg-quality"),
     (["--jpeg-quality", "101"], "jpeg-quality"),
     (["--jpeg-quality", "high"], "jpeg-quality"),
+    (["--still-codec", "gif"], "still-codec"),
+    (["--still-quality", "0"], "still-quality"),
+    (["--still-delay-ms", "0"], "still-delay-ms"),
+    (["--settle-frames", "-1"], "settle-frames"),
     (["--max-in-flight", "0"], "max-in-flight"),
     (["--max-fps", "0"], "max-fps"),
     (["--local-nodes", "-1"], "local-nodes"),

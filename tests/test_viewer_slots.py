@@ -7,6 +7,16 @@ import json
 
 from server.viewers import ViewerHub, ViewerSlot
 
+
+class Frame:
+    """A published frame whose message is the same bytes for every viewer."""
+
+    def __init__(self, body: bytes) -> None:
+        self.body = body
+
+    def message_for(self, viewer_id: object) -> bytes:
+        return self.body
+
 DEADLINE_S = 30.0
 
 
@@ -93,9 +103,9 @@ def test_a_producer_never_waits_for_a_stalled_consumer():
 
         task = asyncio.create_task(read())
         for i in range(50):
-            hub.publish_frame(b"frame %d" % i)
+            hub.publish_frame(Frame(b"frame %d" % i))
             await asyncio.sleep(0)
-        hub.publish_frame(b"last")
+        hub.publish_frame(Frame(b"last"))
         await asyncio.wait_for(task, DEADLINE_S)
         numbers = [int(m.split()[1]) for m in seen[:-1]]
         assert seen[-1] == b"last" and numbers == sorted(set(numbers)), "in order, no repeats"
@@ -107,10 +117,11 @@ def test_a_producer_never_waits_for_a_stalled_consumer():
 def test_hub_publishes_to_every_slot_and_broadcasts_with_exclusion():
     async def scenario() -> None:
         hub = ViewerHub()
-        hub.publish_frame(b"nobody")
+        hub.publish_frame(Frame(b"nobody"))
         assert hub.bytes_published == 0
         first, second = hub.join(), hub.join()
-        hub.publish_frame(b"12345")
+        assert first.viewer_id != second.viewer_id
+        hub.publish_frame(Frame(b"12345"))
         assert hub.bytes_published == 5
         hub.broadcast({"type": "camera", "by": "first"}, exclude=first)
         assert await second.next_message() == '{"type":"camera","by":"first"}'
@@ -119,8 +130,28 @@ def test_hub_publishes_to_every_slot_and_broadcasts_with_exclusion():
         assert not first.control
         hub.leave(first)
         hub.leave(first)
-        hub.publish_frame(b"67")
+        hub.publish_frame(Frame(b"67"))
         assert first.frame is None and await second.next_message() == b"67"
         assert hub.slots == {second} and hub.bytes_published == 7
+
+    asyncio.run(scenario())
+
+
+def test_each_viewer_gets_its_own_copy_and_its_latency_report_in_the_stats():
+    class Tagged:
+        def message_for(self, viewer_id: object) -> bytes:
+            return b"for %d" % viewer_id
+
+    async def scenario() -> None:
+        hub = ViewerHub()
+        first, second = hub.join(), hub.join()
+        hub.publish_frame(Tagged())
+        assert await first.next_message() == b"for %d" % first.viewer_id
+        assert await second.next_message() == b"for %d" % second.viewer_id
+        second.latency = {"p50_ms": 40.0, "p90_ms": 55.0, "samples": 12.0, "interval_ms": 30.0}
+        described = hub.describe()
+        assert [v["id"] for v in described] == sorted([first.viewer_id, second.viewer_id])
+        assert described[1]["input_latency"]["p50_ms"] == 40.0 and described[0]["input_latency"] == {}
+        assert described[0]["frames_sent"] == 1
 
     asyncio.run(scenario())

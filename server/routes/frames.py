@@ -17,14 +17,21 @@ router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 @router.get("/api/frame.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}, 504: {"description": "no such frame in time"}})
 async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(None, gt=0, le=300),
-                    service: RenderService = Depends(get_service)) -> Response:
-    """Waits up to ``timeout`` seconds (default ``--frame-wait-s``). Header ``X-Frame-Id``. The image is
-    lossless PNG of the tiles as received: with ``--codec jpeg`` it carries the JPEG tiles' loss.
+                    still: bool = Query(False), service: RenderService = Depends(get_service)) -> Response:
+    """Waits up to ``timeout`` seconds (default ``--frame-wait-s``); a frame is rendered for the
+    request when none is kept or on its way (frames render on demand). With ``still=true``, the first
+    *still* frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
+    Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0. The image is lossless PNG of the tiles as
+    received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding."""
-    frame = await service.store.wait_for(after, timeout or service.settings.frame_wait_s)
+    if service.store.first_at_or_after(after, still) is None:
+        service.request_frame()
+    frame = await service.store.wait_for(after, timeout or service.settings.frame_wait_s, still)
     if frame is None:
-        raise HTTPException(status_code=504, detail=f"no complete frame with id >= {after} in time")
+        kind = "still frame" if still else "complete frame"
+        raise HTTPException(status_code=504, detail=f"no {kind} with id >= {after} in time")
     png, decode_ms, encode_ms = await asyncio.to_thread(composite_png, frame)
     return Response(png, media_type="image/png", headers={
-        "X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": service.settings.codec.name.lower(),
+        "X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": frame.tiles[0][1].name.lower() if frame.tiles else "",
+        "X-Frame-Still": "1" if frame.still else "0",
         "X-Composite-Ms": f"{decode_ms:.3f}", "X-Png-Encode-Ms": f"{encode_ms:.3f}", "Cache-Control": "no-store"})

@@ -19,7 +19,8 @@ router = APIRouter()
 log = logging.getLogger("tessera.server")
 
 HELLO_TIMEOUT_S = 15.0
-NODE_MESSAGE_TYPES = ("scene_progress", "scene_ready", "scene_error", "tile_sent", "render_error", "calibration")
+NODE_MESSAGE_TYPES = ("scene_progress", "scene_ready", "scene_error", "tile_sent", "tiles_dropped", "render_error",
+                      "calibration")
 
 
 async def _close(ws: WebSocket, code: int, reason: str) -> None:

@@ -24,6 +24,8 @@ async def metrics(service: RenderService = Depends(get_service)) -> str:
         "# TYPE tessera_frame_id gauge", f"tessera_frame_id {stats['frame']}",
         "# TYPE tessera_frames_published_total counter",
         f"tessera_frames_published_total {service.stats.frames_published}",
+        "# TYPE tessera_frames_cancelled_total counter",
+        f"tessera_frames_cancelled_total {stats['frames_cancelled']}",
         "# TYPE tessera_fps gauge", f"tessera_fps {stats['fps']}",
         "# TYPE tessera_imbalance gauge", f"tessera_imbalance {stats['imbalance']}",
         "# TYPE tessera_imbalance_avg gauge", f"tessera_imbalance_avg {stats['imbalance_avg']}",

@@ -1,0 +1,499 @@
+"""The coordinator's frame scheduler without I/O (seed 004's APP stage; the sans-I/O pattern of
+websockets' ``Protocol``): events in, actions out, clock readings passed in.
+
+Events: the camera or the scene state changed, a balancer was chosen, a node joined / became
+ready / left, a tile arrived, a tile's send time arrived, a tick. Actions (:meth:`drain`): send a
+render message, cancel frames on a node, publish a frame, close a node. The asyncio service and
+the virtual-clock benchmarks drive this same object.
+
+What it decides:
+
+* **Render on demand.** A frame starts only when something changed since the newest frame
+  (camera, scene state, balancer, node set), while the balancer settles (at most
+  ``settle_frames`` more frames after a change, and only while the partition still moves), or
+  when the still frame is owed: once nothing changed for ``still_delay_s``, one frame in the
+  lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality). Otherwise nothing
+  renders.
+* **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
+  newest camera when it starts, and it starts only when a node has nothing left to do, so its
+  camera is fresh when the first node begins it; at most ``max_in_flight`` frames are in flight.
+  When the state changes, frames that are superseded are dropped: a still frame, and any frame
+  no node has begun (no tile arrived, none at the head of a node's queue). Nodes are told to
+  drop their queued tiles of dropped frames; the scheduler stops waiting for them.
+* **Never torn, never backwards.** A frame is published only when every tile arrived, all made
+  for its one camera; publishing frame F drops every older frame still in flight.
+* **Push and pull dispatch.** Push partitions go to their nodes at once; pull partitions (tile
+  rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
+  first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
+* **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
+  timings feed the balancer (a still frame's lossless encoding would skew it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, TileTiming
+from tessera.balancers.static import StaticBalancer
+from tessera.codec import Codec
+from tessera.frame_jobs import FrameJob
+from tessera.frame_stats import FrameStats
+from tessera.geometry import Camera
+from tessera.partition import check_exact_cover
+from tessera.projection import project_groups
+from tessera.protocol import ProtocolError, TileHeader
+
+#: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
+AWAITING_SEND_FRAMES = 8
+#: Slots for node indices in viewer frames (u16 on the wire).
+MAX_NODE_SLOTS = 1 << 16
+
+
+@dataclass(frozen=True, slots=True)
+class SchedulerConfig:
+    """``codec``/``interactive_quality``: tiles while things change; ``still_codec`` (None: no still
+    frame) and ``still_quality`` (JPEG only) once nothing changed for ``still_delay_s`` seconds."""
+
+    size: tuple[int, int]
+    codec: Codec = Codec.JPEG
+    interactive_quality: int = 60
+    still_codec: Codec | None = Codec.PNG
+    still_quality: int = 95
+    max_in_flight: int = 2
+    max_fps: float = 60.0
+    still_delay_s: float = 0.2
+    settle_frames: int = 2
+    tile_timeout_s: float = 20.0
+
+    def __post_init__(self) -> None:
+        if self.max_in_flight < 1:
+            raise ValueError("max_in_flight must be >= 1")
+        if not self.max_fps > 0.0:
+            raise ValueError("max_fps must be > 0")
+        if self.still_delay_s < 0.0 or self.settle_frames < 0 or not self.tile_timeout_s > 0.0:
+            raise ValueError("still_delay_s and settle_frames must be >= 0, tile_timeout_s > 0")
+
+
+@dataclass(frozen=True, slots=True)
+class RenderTiles:
+    """Send ``message`` (a ``render`` control message) to node ``node_id``."""
+
+    node_id: int
+    message: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class CancelFrames:
+    """Tell node ``node_id`` to drop its queued tiles of ``frames`` (superseded)."""
+
+    node_id: int
+    frames: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class PublishFrame:
+    """``job`` is complete: show it (frames come in increasing id order)."""
+
+    job: FrameJob
+
+
+@dataclass(frozen=True, slots=True)
+class CloseNode:
+    """Disconnect node ``node_id`` (it has already been removed from the schedule)."""
+
+    node_id: int
+    code: int
+    reason: str
+
+
+Action = RenderTiles | CancelFrames | PublishFrame | CloseNode
+
+
+@dataclass
+class NodeSchedule:
+    """One node as the scheduler sees it. ``outstanding``: (frame id, tile id) → dispatch time, in
+    the order the node works through them (its head is the tile it is on); ``slot``: the small
+    index viewers see the node by; the rest is the last complete frame's roll-up."""
+
+    node_id: int
+    slot: int
+    ready: bool = False
+    speed: float = 1.0
+    idle_since: float = 0.0
+    outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
+    last_tiles: list[list[int]] = field(default_factory=list)
+    last_phases: dict[str, float] = field(default_factory=dict)
+    counters: dict[str, Any] = field(default_factory=dict)
+    tiles_rendered: int = 0
+
+    @property
+    def idle(self) -> bool:
+        return self.ready and not self.outstanding
+
+
+def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int], int | None]]:
+    """The partition's (rect, node) pairs, order ignored (a pull list re-sorted is the same tiles)."""
+    return frozenset(((t.rect.x, t.rect.y, t.rect.w, t.rect.h), t.node_id) for t in partition.tiles)
+
+
+class FrameScheduler:
+    """Frames in flight for one coordinator; see the module docstring. Every event takes ``now``
+    (seconds on any monotonic clock) and may queue actions; :meth:`drain` returns them in order."""
+
+    def __init__(self, config: SchedulerConfig, balancer: Balancer) -> None:
+        self.config = config
+        self.balancer = balancer
+        self.nodes: dict[int, NodeSchedule] = {}
+        self.camera: Camera | None = None
+        self.in_flight: dict[int, FrameJob] = {}
+        self.stats = FrameStats()
+        self.next_frame_id = 1
+        self.last_published_id = 0
+        self.frames_cancelled = 0
+        self._actions: list[Action] = []
+        self._version = 0
+        self._changed_at = 0.0
+        self._started_version = 0
+        self._still_version = 0
+        self._published_version = 0
+        self._settle_left = 0
+        self._inputs: dict[Hashable, int] = {}
+        #: Projected primitive groups for a camera (seed 003 DPBP), for balancers that use them.
+        self.groups_for: Callable[[Camera], ProjectedGroups | None] | None = None
+        self._partitions: list[Partition] = []
+        self._last_partition_at: float | None = None
+        self._last_timings: tuple[TileTiming, ...] = ()
+        self._timings_frame_id = 0
+        self.balancer_error: str | None = None
+        self._awaiting_send: dict[int, FrameJob] = {}
+        self._next_start_at = 0.0
+
+    # ----------------------------------------------------------------- output
+    def drain(self) -> list[Action]:
+        """The actions queued since the last call, in the order they must be carried out."""
+        actions, self._actions = self._actions, []
+        return actions
+
+    def next_deadline(self, now: float) -> float | None:
+        """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
+        back, the still frame's quiet period, a tile timeout); None: only an event can."""
+        times = []
+        ready = self._ready()
+        startable = len(self.in_flight) < self.config.max_in_flight and any(n.idle for n in ready)
+        owed = self._owed(now, ignore_quiet=True) if startable else None
+        if owed is not None:
+            quiet_until = self._changed_at + self.config.still_delay_s if owed == "still" else now
+            times.append(max(self._next_start_at, quiet_until))
+        dispatched = [t for n in self.nodes.values() for t in n.outstanding.values()]
+        if dispatched:
+            times.append(min(dispatched) + self.config.tile_timeout_s)
+        return min(times) if times else None
+
+    @property
+    def state_version(self) -> int:
+        """Increases with every change that needs a new frame."""
+        return self._version
+
+    @property
+    def settled(self) -> bool:
+        """True when nothing is owed: the newest state was rendered, the still frame too."""
+        return not self.in_flight and self._owed(float("inf")) is None
+
+    # ----------------------------------------------------------------- state events
+    def set_camera(self, camera: Camera, now: float, source: Hashable | None = None,
+                   seq: int | None = None) -> int:
+        """Make ``camera`` the newest (``seq``: the input sequence number of viewer ``source``);
+        returns the id of the first frame that can show it."""
+        self.camera = camera
+        if source is not None and seq is not None:
+            self._inputs[source] = seq
+        first = self.next_frame_id
+        self._changed(now, supersede=True)
+        return first
+
+    def invalidate(self, now: float) -> int:
+        """The scene state changed (objects, animation, background): render it; returns the first
+        frame id that can show it."""
+        first = self.next_frame_id
+        self._changed(now, supersede=True)
+        return first
+
+    def set_balancer(self, balancer: Balancer, now: float) -> None:
+        """Partition with ``balancer`` from the next frame."""
+        self.balancer = balancer
+        self._partitions.clear()
+        self.stats.reset_imbalance()
+        self._changed(now, supersede=False)
+
+    def set_groups(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray) -> None:
+        """The scene's world-space primitive groups (K, 6) with primitive counts (K,) and its bounds
+        (2, 3), projected per frame for balancers that use them (seed 003 DPBP)."""
+        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
+        counts = np.asarray(counts, dtype=np.float64).reshape(-1)
+        bounds = np.asarray(bounds, dtype=np.float64)
+        size = self.config.size
+        self.groups_for = lambda camera: project_groups(boxes, counts, camera, size, bounds)
+
+    def forget_source(self, source: Hashable) -> None:
+        """A viewer left: its input numbers are no longer reported."""
+        self._inputs.pop(source, None)
+
+    # ----------------------------------------------------------------- node events
+    def add_node(self, node_id: int, now: float) -> NodeSchedule:
+        """A node connected (not ready until its scene is loaded)."""
+        if node_id in self.nodes:
+            raise ValueError(f"node {node_id} is already scheduled")
+        used = {n.slot for n in self.nodes.values()}
+        slot = next(i for i in range(MAX_NODE_SLOTS + 1) if i not in used)
+        if slot >= MAX_NODE_SLOTS:
+            raise ValueError(f"more than {MAX_NODE_SLOTS} nodes at once")
+        node = NodeSchedule(node_id, slot, idle_since=now)
+        self.nodes[node_id] = node
+        return node
+
+    def node_ready(self, node_id: int, now: float) -> None:
+        node = self.nodes[node_id]
+        node.ready, node.idle_since = True, now
+        self._changed(now, supersede=False)
+
+    def set_speed(self, node_id: int, speed: float) -> None:
+        """Calibrated relative speed (seed 003 §1; slowest = 1), the balancers' node weight."""
+        self.nodes[node_id].speed = float(speed)
+
+    def remove_node(self, node_id: int, now: float) -> None:
+        """The node is gone: its owed tiles go to the others (or their frames are dropped when no
+        ready node is left)."""
+        node = self.nodes.pop(node_id, None)
+        if node is None:
+            return
+        node.outstanding.clear()
+        ready = self._ready()
+        for job in list(self.in_flight.values()):
+            owed = job.owed_by(node_id)
+            if not owed:
+                continue
+            if not ready:
+                self._cancel(job)
+                continue
+            if job.pull:
+                for tile_id in reversed(owed):
+                    job.tiles[tile_id].node_id = None
+                    job.pull_queue.appendleft(tile_id)
+            else:
+                for tile_id in owed:
+                    self._push(job, min(ready, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
+        if node.ready:
+            self._changed(now, supersede=False)
+        else:
+            self._advance(now)
+
+    # ----------------------------------------------------------------- tile events
+    def tile_arrived(self, node_id: int, header: TileHeader, payload: bytes, now: float) -> FrameJob | None:
+        """A node's tile; returns its frame, or None for a tile of a dropped frame (ignored).
+        Raises ProtocolError when the node was not owed it (wrong tile, rect or codec)."""
+        node = self.nodes[node_id]
+        key = (header.frame_id, header.tile_id)
+        job = self.in_flight.get(header.frame_id)
+        if job is None:
+            if header.frame_id >= self.next_frame_id or header.frame_id < 1:
+                raise ProtocolError(f"tile of frame {header.frame_id}, which was never dispatched")
+            if node.outstanding.pop(key, None) is not None and not node.outstanding:
+                node.idle_since = now
+            self._advance(now)
+            return None
+        job.accept(node_id, header, payload)
+        del node.outstanding[key]
+        node.tiles_rendered += 1
+        if not node.outstanding:
+            node.idle_since = now
+        if job.complete:
+            self._complete(job, now)
+        self._advance(now)
+        return job
+
+    def tile_sent(self, node_id: int, frame_id: int, tile_id: int, send_ms: float,
+                  counters: dict[str, float | str] | None = None) -> None:
+        """A node's ``tile_sent``: how long the tile took to send, and its per-tile counters."""
+        job = self.in_flight.get(frame_id) or self._awaiting_send.get(frame_id)
+        if job is not None:
+            job.record_send(node_id, tile_id, max(float(send_ms), 0.0), counters)
+            self._take_timings(job)
+
+    def tick(self, now: float) -> None:
+        """Time passed: drop nodes that owe a tile for over ``tile_timeout_s``, start what is due."""
+        deadline = now - self.config.tile_timeout_s
+        for node in list(self.nodes.values()):
+            if node.outstanding and min(node.outstanding.values()) < deadline:
+                self._actions.append(CloseNode(node.node_id, 1011, "tile timeout"))
+                self.remove_node(node.node_id, now)
+        self._advance(now)
+
+    # ----------------------------------------------------------------- internals
+    def _ready(self) -> list[NodeSchedule]:
+        return [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready]
+
+    def _changed(self, now: float, supersede: bool) -> None:
+        self._version += 1
+        self._changed_at = now
+        self._settle_left = self.config.settle_frames
+        if supersede:
+            for job in list(self.in_flight.values()):
+                if job.still or not self._begun(job):
+                    self._cancel(job)
+        self._advance(now)
+
+    def _begun(self, job: FrameJob) -> bool:
+        """True once a node works on ``job``: a tile arrived, a pulled tile went out, or one of its
+        tiles heads a node's queue."""
+        if any(t.done for t in job.tiles) or (job.pull and len(job.pull_queue) < len(job.tiles)):
+            return True
+        return any(next(iter(n.outstanding))[0] == job.frame_id for n in self.nodes.values() if n.outstanding)
+
+    def _cancel(self, job: FrameJob) -> None:
+        """Drop ``job``: nodes that owe tiles of it are told to skip those still queued."""
+        del self.in_flight[job.frame_id]
+        self.frames_cancelled += 1
+        for node in self.nodes.values():
+            keys = [k for k in node.outstanding if k[0] == job.frame_id]
+            if keys:
+                for key in keys:
+                    del node.outstanding[key]
+                self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))
+
+    def _owed(self, now: float, ignore_quiet: bool = False) -> str | None:
+        """"interactive", "still" or None: the kind of frame the state asks for at ``now``."""
+        if self.camera is None:
+            return None
+        if self._version > self._started_version:
+            return "interactive"
+        if self._settle_left > 0 and self._unsettled():
+            return "interactive"
+        quiet = ignore_quiet or now >= self._changed_at + self.config.still_delay_s
+        if self.config.still_codec is not None and self._still_version < self._version and quiet \
+                and not self.in_flight:
+            return "still"
+        return None
+
+    def _unsettled(self) -> bool:
+        """The balancer's last two partitions differ (its edges still move), or it has made only one."""
+        return len(self._partitions) < 2 or tile_set(self._partitions[0]) != tile_set(self._partitions[1])
+
+    def _advance(self, now: float) -> None:
+        """Hand out pulled tiles, then start every frame that is owed and allowed."""
+        self._pump_pull(now)
+        while True:
+            ready = self._ready()
+            if not ready or len(self.in_flight) >= self.config.max_in_flight or now < self._next_start_at:
+                return
+            if not any(n.idle for n in ready):
+                return
+            kind = self._owed(now)
+            if kind is None:
+                return
+            self._start_frame(ready, now, still=kind == "still")
+            self._pump_pull(now)
+
+    def _start_frame(self, ready: list[NodeSchedule], now: float, still: bool) -> None:
+        assert self.camera is not None
+        partition = self._partition(ready, now)
+        config = self.config
+        if still:
+            assert config.still_codec is not None
+            codec, quality = config.still_codec, config.still_quality
+            self._still_version = self._version
+        else:
+            codec, quality = config.codec, config.interactive_quality
+            if self._started_version == self._version:
+                self._settle_left -= 1
+            self._started_version = self._version
+        job = FrameJob.create(self.next_frame_id, self.camera, config.size, codec, quality, partition, now,
+                              still=still, version=self._version, changed_at=self._changed_at,
+                              inputs=dict(self._inputs))
+        self.next_frame_id += 1
+        self._next_start_at = now + 1.0 / config.max_fps
+        self.in_flight[job.frame_id] = job
+        if not job.pull:
+            by_node: dict[int, list[int]] = {}
+            for tile in job.tiles:
+                assert tile.node_id is not None
+                by_node.setdefault(tile.node_id, []).append(tile.tile_id)
+            for node_id, tile_ids in by_node.items():
+                self._push(job, self.nodes[node_id], tile_ids, now)
+
+    def _partition(self, ready: list[NodeSchedule], now: float) -> Partition:
+        """The balancer's partition for the ready nodes (the static split if it fails)."""
+        previous = self._partitions[-1] if self._partitions else None
+        elapsed_ms = 0.0 if self._last_partition_at is None else (now - self._last_partition_at) * 1000.0
+        inputs = BalanceInput(
+            size=self.config.size, node_ids=tuple(n.node_id for n in ready), previous=previous,
+            timings=self._last_timings, weights={n.node_id: n.speed for n in ready}, elapsed_ms=elapsed_ms,
+            groups=self.groups_for(self.camera) if self.balancer.uses_groups and self.groups_for else None)
+        try:
+            partition = self.balancer.partition(inputs)
+            check_exact_cover(partition.rects, self.config.size)
+            strays = {t.node_id for t in partition.tiles} - set(inputs.node_ids) - {None}
+            if strays or (partition.pull and any(t.node_id is not None for t in partition.tiles)):
+                raise ValueError(f"tiles assigned to nodes that are not ready: {sorted(strays)}")
+        except Exception as exc:  # a balancer bug must not stop the frames: fall back to the static split
+            partition = StaticBalancer().partition(inputs)
+            self.balancer_error = f"{self.balancer.name}: {exc}"
+        self._partitions = [*self._partitions[-1:], partition]
+        self._last_partition_at = now
+        return partition
+
+    def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
+        for tile_id in tile_ids:
+            job.tiles[tile_id].node_id = node.node_id
+            node.outstanding[(job.frame_id, tile_id)] = now
+        self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids)))
+
+    def _pump_pull(self, now: float) -> None:
+        """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
+        first; when several are idle at once the fastest gets the heaviest, then the first freed."""
+        idle = sorted((n for n in self.nodes.values() if n.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
+        for job in self.in_flight.values():
+            while job.pull_queue and idle:
+                self._push(job, idle.pop(0), [job.pull_queue.popleft()], now)
+
+    def _complete(self, job: FrameJob, now: float) -> None:
+        del self.in_flight[job.frame_id]
+        for older in [j for j in self.in_flight.values() if j.frame_id < job.frame_id]:
+            self._cancel(older)
+        self.last_published_id = job.frame_id
+        first_answer = job.version > self._published_version
+        self._published_version = max(self._published_version, job.version)
+        self.stats.record_publish(now, now - job.changed_at if first_answer and not job.still else None)
+        self._actions.append(PublishFrame(job))
+        self._awaiting_send[job.frame_id] = job
+        for old in [k for k in self._awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
+            del self._awaiting_send[old]
+        self._take_timings(job)
+
+    def _take_timings(self, job: FrameJob) -> None:
+        """Roll a complete frame's phases up per node once every tile's send time is in; an
+        interactive frame's timings also go to the balancer and the imbalance figures."""
+        if not job.complete or not job.timings_complete or self._awaiting_send.pop(job.frame_id, None) is None:
+            return
+        timings = job.timings()
+        per_node: dict[int, dict[str, float]] = {}
+        rects: dict[int, list[list[int]]] = {}
+        for t in timings:
+            phases = per_node.setdefault(t.node_id, dict.fromkeys(("render", "readback", "encode", "send"), 0.0))
+            phases["render"] += t.render_ms
+            phases["readback"] += t.readback_ms
+            phases["encode"] += t.encode_ms
+            phases["send"] += t.send_ms
+            rects.setdefault(t.node_id, []).append(t.rect.as_list())
+        counters = job.counters_by_node()
+        for node_id, phases in per_node.items():
+            node = self.nodes.get(node_id)
+            if node is not None:
+                node.last_phases, node.last_tiles = phases, rects[node_id]
+                node.counters = counters.get(node_id, {})
+        if not job.still and job.frame_id > self._timings_frame_id:
+            self._last_timings, self._timings_frame_id = timings, job.frame_id
+            self.stats.record_balance({n: sum(p.values()) for n, p in per_node.items()})
