@@ -56,6 +56,14 @@ OVERLAY_JS = """() => {
 }"""
 
 
+# The panel shows the viewer's own input → display latency as a number ("48 ms · 1.3 fr").
+INPUT_LATENCY_SHOWN_JS = """() => /^\\d+ ms/.test(document.getElementById("fig-input-latency").textContent)"""
+
+# The frame on screen is the still frame, in the badge and in window.tessera.
+STILL_SHOWN_JS = """() =>
+  document.getElementById("quality-badge").dataset.quality === "still" &&
+  document.getElementById("quality-badge").textContent === "still" && window.tessera.still === true"""
+
 # Every node's timing bar shows its render segment and no bar is still animating.
 BARS_SETTLED_JS = """() =>
   [...document.querySelectorAll("#nodes .seg.render")].every((seg) => seg.offsetWidth > 0) &&
@@ -79,8 +87,15 @@ def same_camera(a: dict, b: dict) -> bool:
                for key in ("eye", "target", "up") for x, y in zip(a[key], b[key], strict=True))
 
 
+def viewer_input_latency(base_url: str, viewer_id: int) -> dict:
+    """The input → display latency viewer ``viewer_id`` reported, as ``GET /api/stats`` shows it."""
+    viewers = get_json(base_url, "/api/stats")["viewer_stats"]
+    return next((v["input_latency"] for v in viewers if v["id"] == viewer_id), {})
+
+
 def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
-    """Open the viewer, wait for the scene, orbit by mouse, toggle the overlay, take a screenshot."""
+    """Open the viewer, wait for the scene, orbit by mouse, see the input → display latency and the
+    still frame after release, toggle the overlay, take a screenshot."""
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
@@ -109,6 +124,12 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
             f"() => window.tessera.frameId > {frame_before} && ({CHANGE_SINCE_SNAPSHOT_JS})() > 2",
             timeout=wait_ms, polling=100,
         )
+        page.wait_for_function(INPUT_LATENCY_SHOWN_JS, timeout=wait_ms, polling=100)
+        assert page.evaluate("window.tessera.inputLatency.samples") > 0
+        page.wait_for_function(STILL_SHOWN_JS, timeout=wait_ms, polling=100)
+        viewer_id = page.evaluate("window.tessera.viewerId")
+        wait_until(lambda: viewer_input_latency(base_url, viewer_id).get("samples", 0) > 0, seconds(30),
+                   f"GET /api/stats to show viewer {viewer_id}'s input → display latency")
 
         page.check("#toggle-overlay")
         overlay = page.evaluate(OVERLAY_JS)

@@ -1,5 +1,6 @@
-// Side panel: live figures and per-node timing bars from GET /api/stats (polled ~2×/s), and the
-// balancer selector backed by GET/PUT /api/balancer.
+// Side panel: live figures and per-node timing bars from GET /api/stats (polled ~2×/s), the
+// viewer's own input → display latency (shown as it is measured), and the balancer selector
+// backed by GET/PUT /api/balancer.
 
 import { nodeColor } from "./overlay.js";
 
@@ -37,11 +38,20 @@ export function nodeDetail(node) {
   return `${fixed(node.busy_ms, 1)} ms · ${tiles} tile${tiles === 1 ? "" : "s"} · ×${fixed(node.speed, 2)}`;
 }
 
+/** The viewer's input → display latency: p50 in ms and in frame intervals ("48 ms · 1.3 fr"),
+ * just ms while no frame interval is known, "–" without samples. */
+export function inputLatencyText(latency) {
+  if (!latency || !latency.samples) return "–";
+  const ms = `${fixed(latency.p50_ms, 0)} ms`;
+  return latency.interval_ms > 0 ? `${ms} · ${fixed(latency.p50_ms / latency.interval_ms, 1)} fr` : ms;
+}
+
 export class Panel {
   /**
    * @param {Document} doc  holds the panel's elements (ids in index.html)
    * @param {(path: string, init?: object) => Promise<Response>} api  fetch with the viewer's token
-   * @param {(nodes: object[]) => void} onNodes  receives each stats poll's node list
+   * @param {(nodes: object[]) => void} onNodes  receives each stats poll's node list (each with
+   *   its `slot`, the node number in frame tiles)
    */
   constructor(doc, api, onNodes) {
     this.api = api;
@@ -73,6 +83,13 @@ export class Panel {
     setTimeout(() => this.poll(), POLL_MS);
   }
 
+  /** Show the viewer's input → display latency ({p50_ms, p90_ms, samples, interval_ms} or null). */
+  showInputLatency(latency) {
+    const figure = this.figure("input-latency");
+    figure.textContent = inputLatencyText(latency);
+    figure.title = latency ? `p90 ${fixed(latency.p90_ms, 0)} ms over ${latency.samples} inputs` : "";
+  }
+
   showStats(stats) {
     this.figure("fps").textContent = fixed(stats.fps, 1);
     this.figure("imbalance").textContent = fixed(stats.imbalance, 2);
@@ -93,7 +110,7 @@ export class Panel {
     while (this.nodes.children.length < nodes.length) this.nodes.append(this.nodeRow());
     nodes.forEach((node, index) => {
       const row = this.nodes.children[index];
-      row.querySelector(".swatch").style.background = nodeColor(node.id & 0xff);
+      row.querySelector(".swatch").style.background = nodeColor(node.slot);
       row.querySelector(".name").textContent = node.name ?? `node ${node.id}`;
       row.querySelector(".detail").textContent = nodeDetail(node);
       const widths = segmentWidths(node, scaleMs);

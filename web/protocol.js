@@ -1,12 +1,15 @@
 // Viewer frame format TFRM, mirroring tessera/protocol.py (same constant names and layouts).
-// Header `<4sBBHIII`: magic, version, reserved, tile_count, frame_id, width, height.
-// Tile entry `<IIIIBBHI`: x, y, w, h, codec, node_index, reserved, length.
+// Header `<4sBBHIIII`: magic, version, flags (bit 0 = FRAME_STILL), tile_count, frame_id, width,
+// height, input_seq (the newest input sequence number of this viewer the frame accounts for, 0 = none).
+// Tile entry `<IIIIBBHI`: x, y, w, h, codec, reserved, node (the rendering node's slot), length.
 // Then the tiles' encoded bytes in table order. All integers little-endian.
 
-export const PROTOCOL_VERSION = 1;
+export const PROTOCOL_VERSION = 2;
 export const FRAME_MAGIC = "TFRM";
-export const FRAME_HEADER_SIZE = 20;
+export const FRAME_HEADER_SIZE = 24;
 export const FRAME_TILE_SIZE = 24;
+/** Frame header flag: the lossless still frame shown once motion stopped. */
+export const FRAME_STILL = 0x01;
 
 /** Tile codecs, as tessera.codec.Codec. */
 export const Codec = Object.freeze({ RAW: 0, JPEG: 1, PNG: 2 });
@@ -23,8 +26,8 @@ export class ProtocolError extends Error {
 /**
  * Parse one binary frame message.
  * @param {ArrayBuffer} buffer
- * @returns {{frameId: number, width: number, height: number,
- *   tiles: {x: number, y: number, w: number, h: number, codec: number, nodeIndex: number,
+ * @returns {{frameId: number, width: number, height: number, still: boolean, inputSeq: number,
+ *   tiles: {x: number, y: number, w: number, h: number, codec: number, node: number,
  *   bytes: Uint8Array}[]}} tile bytes are views into `buffer`, rects in pixels from the top-left
  */
 export function parseFrame(buffer) {
@@ -37,10 +40,12 @@ export function parseFrame(buffer) {
   if (magic !== FRAME_MAGIC || version !== PROTOCOL_VERSION) {
     throw new ProtocolError(`bad frame magic/version ${JSON.stringify(magic)}/${version}`);
   }
+  const still = (view.getUint8(5) & FRAME_STILL) !== 0;
   const count = view.getUint16(6, true);
   const frameId = view.getUint32(8, true);
   const width = view.getUint32(12, true);
   const height = view.getUint32(16, true);
+  const inputSeq = view.getUint32(20, true);
   const tableEnd = FRAME_HEADER_SIZE + count * FRAME_TILE_SIZE;
   if (buffer.byteLength < tableEnd) {
     throw new ProtocolError("frame message shorter than its tile table");
@@ -63,7 +68,7 @@ export function parseFrame(buffer) {
       w: view.getUint32(at + 8, true),
       h: view.getUint32(at + 12, true),
       codec,
-      nodeIndex: view.getUint8(at + 17),
+      node: view.getUint16(at + 18, true),
       bytes: new Uint8Array(buffer, offset, length),
     });
     offset += length;
@@ -71,5 +76,5 @@ export function parseFrame(buffer) {
   if (offset !== buffer.byteLength) {
     throw new ProtocolError("frame message length does not match its tile table");
   }
-  return { frameId, width, height, tiles };
+  return { frameId, width, height, still, inputSeq, tiles };
 }

@@ -1,15 +1,19 @@
 // Tessera viewer entry point: wires the WebSocket, the frame compositor, the overlay, the input
-// controls and the stats panel together, and exposes read-only state as `window.tessera`.
+// controls, the input → display latency tracker and the stats panel together, and exposes
+// read-only state as `window.tessera`.
 
 import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
 import { Controls } from "./controls.js";
+import { LatencyTracker, nextSeq } from "./latency.js";
 import { frameBounds, minDistanceFor } from "./orbit.js";
 import { drawOverlay, fitFrame } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 
 const token = new URLSearchParams(location.search).get("token");
+/** How often the viewer reports its input → display latency to the coordinator, while it changes (ms). */
+const LATENCY_REPORT_MS = 1000;
 
 /** Address relative to the page (so a path prefix in front of the coordinator still works),
  * carrying the page's `?token=` for the coordinator. */
@@ -24,6 +28,9 @@ const api = (path, init) => fetch(address(path), init);
 
 const state = {
   frameId: null,
+  viewerId: null,
+  still: false,
+  inputLatency: null,
   camera: null,
   framesDrawn: 0,
   connected: false,
@@ -51,7 +58,7 @@ const nodeNames = new Map();
 
 function redrawOverlay() {
   const tiles = state.overlay ? lastTiles.tiles : [];
-  drawOverlay(overlayCanvas, lastTiles.width, lastTiles.height, tiles, (index) => nodeNames.get(index) ?? `node ${index}`);
+  drawOverlay(overlayCanvas, lastTiles.width, lastTiles.height, tiles, (slot) => nodeNames.get(slot) ?? `node ${slot}`);
 }
 
 function setOverlay(on) {
@@ -74,6 +81,8 @@ function viewHeight() {
   return Math.max(1, fitFrame(w, h, frameCanvas.clientWidth, frameCanvas.clientHeight).scale * h);
 }
 
+const latencyTracker = new LatencyTracker();
+let inputSeq = 0;
 let sendScheduled = false;
 function setCamera(camera) {
   state.camera = camera;
@@ -81,8 +90,27 @@ function setCamera(camera) {
   sendScheduled = true;
   requestAnimationFrame(() => {
     sendScheduled = false;
-    connection.send({ type: "camera", camera: state.camera });
+    const seq = nextSeq(inputSeq);
+    if (connection.send({ type: "camera", camera: state.camera, seq })) {
+      inputSeq = seq;
+      latencyTracker.sent(seq, performance.now());
+    }
   });
+}
+
+/** Total latency samples last reported to the coordinator (reset when a coordinator says hello). */
+let samplesReported = 0;
+function reportLatency() {
+  if (latencyTracker.total === samplesReported) return;
+  if (connection.send({ type: "latency", ...state.inputLatency })) samplesReported = latencyTracker.total;
+}
+
+function showQuality(still) {
+  const badge = $("quality-badge");
+  const quality = still ? "still" : "interactive";
+  badge.dataset.quality = quality;
+  badge.textContent = quality;
+  badge.hidden = false;
 }
 
 const compositor = new Compositor(
@@ -90,14 +118,20 @@ const compositor = new Compositor(
   (frame) => {
     state.frameId = frame.frameId;
     state.framesDrawn += 1;
+    state.still = frame.still;
+    if (latencyTracker.drawn(frame.inputSeq, performance.now()) !== null) {
+      state.inputLatency = latencyTracker.summary();
+      panel.showInputLatency(state.inputLatency);
+    }
     if (!state.size || state.size[0] !== frame.width || state.size[1] !== frame.height) {
       setSize(frame.width, frame.height);
     }
     lastTiles.width = frame.width;
     lastTiles.height = frame.height;
-    lastTiles.tiles = frame.tiles.map(({ x, y, w, h, nodeIndex }) => ({ x, y, w, h, nodeIndex }));
+    lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
     if (state.overlay) redrawOverlay();
     $("frame-badge").textContent = `frame ${frame.frameId}`;
+    showQuality(frame.still);
   },
   (error) => console.warn("tessera: frame dropped:", error),
 );
@@ -116,6 +150,8 @@ function adoptCamera(camera) {
 function onText(message) {
   switch (message.type) {
     case "hello":
+      state.viewerId = message.viewer;
+      samplesReported = 0;
       setSize(...message.size);
       state.bounds = message.bounds;
       adoptCamera(message.camera);
@@ -158,7 +194,7 @@ function resetView() {
 
 const panel = new Panel(document, api, (nodes) => {
   nodeNames.clear();
-  for (const node of nodes) nodeNames.set(node.id & 0xff, node.name ?? `node ${node.id}`);
+  for (const node of nodes) nodeNames.set(node.slot, node.name ?? `node ${node.id}`);
 });
 const connection = new Connection(address("ws/view", location.protocol === "https:" ? "wss:" : "ws:"), {
   onText,
@@ -178,3 +214,4 @@ document.addEventListener("keydown", (event) => {
 
 connection.start();
 panel.start();
+setInterval(reportLatency, LATENCY_REPORT_MS);

@@ -1,8 +1,8 @@
-// web/panel.js: the timing bars' scale and stacked segment widths.
+// web/panel.js: the timing bars' scale and stacked segment widths, node lines, the input latency figure.
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
-import { PHASES, niceScale, nodeDetail, segmentWidths } from "../../web/panel.js";
+import { PHASES, inputLatencyText, niceScale, nodeDetail, segmentWidths } from "../../web/panel.js";
 
 test("phases are the node phases of tessera/protocol.py, in pipeline order", () => {
   assert.deepEqual(PHASES, ["render", "readback", "encode", "send"]);
@@ -32,4 +32,11 @@ test("node detail: timings when ready, the loading state otherwise", () => {
   assert.equal(nodeDetail(ready), "12.3 ms · 2 tiles · ×0.80");
   assert.equal(nodeDetail({ busy_ms: 1, tiles: [[0, 0, 1, 1]], speed: 1 }), "1.0 ms · 1 tile · ×1.00");
   assert.equal(nodeDetail({ state: "loading", scene_progress: 0.456 }), "loading 46%");
+});
+
+test("input → display latency: p50 in ms and in frame intervals", () => {
+  assert.equal(inputLatencyText({ p50_ms: 48.2, p90_ms: 70, samples: 12, interval_ms: 37.5 }), "48 ms · 1.3 fr");
+  assert.equal(inputLatencyText({ p50_ms: 31, p90_ms: 31, samples: 1, interval_ms: 0 }), "31 ms");
+  assert.equal(inputLatencyText({ p50_ms: 0, p90_ms: 0, samples: 0, interval_ms: 0 }), "–");
+  assert.equal(inputLatencyText(null), "–");
 });
