@@ -1,0 +1,337 @@
+"""The live service as a new user meets it: the coordinator with N local nodes and every default,
+one scripted viewer turning the camera at 60 Hz, then letting go.
+
+``python -m bench.live --nodes N [--scene S] [--size WxH] [--moving-s 8] [--idle-s 4]
+[--server-args "…"] [--json OUT]``
+
+The viewer is a real WebSocket client of ``/ws/view``: it sends camera messages with input
+sequence numbers at ``--input-hz`` while the camera orbits (a turn every ``--turn-s`` seconds),
+and reads the frames as they come off the socket. Figures:
+
+* fps while moving: frames received per second over the moving window (its first second left out);
+* latency: input → frame on the viewer socket, for the first frame answering each input (the
+  frame header carries the viewer's input number), p50 and p90 in ms and in frame intervals (the
+  mean interval between frames while moving);
+* KB per interactive frame, and the still frame: its KB, its delay after the last input, and its
+  PSNR and share of pixels off by more than 8 levels against ``python -m node --render-once`` of
+  the last camera;
+* idle: frames received and the CPU cores used by the coordinator and its nodes (``/proc``),
+  from 2 s after the last input for ``--idle-s`` seconds;
+* the coordinator's own figures from ``/api/stats`` (imbalance_avg, latency_ms, frames cancelled).
+
+Everything shares this machine's cores; ``--server-args`` passes flags to ``python -m server``
+(e.g. ``--max-in-flight 1``) to compare settings against the defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import websockets.sync.client as ws_client
+from PIL import Image
+
+from tessera.cli_values import size_parser
+from tessera.codec import decode
+from tessera.protocol import unpack_frame
+
+REPO = Path(__file__).resolve().parents[1]
+IDLE_AFTER_S = 2.0
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def start_coordinator(args: list[str]) -> tuple[subprocess.Popen, str]:
+    """``python -m server --port 0 …``; its process and base URL."""
+    process = subprocess.Popen([sys.executable, "-m", "server", "--port", "0", "--log-level", "warning", *args],
+                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert process.stdout is not None
+    for line in process.stdout:
+        match = re.search(r"Tessera serving on (http://\S+)", line)
+        if match:
+            threading.Thread(target=lambda: [None for _ in process.stdout], daemon=True).start()
+            return process, match.group(1).rstrip("/")
+    raise RuntimeError("the coordinator exited before serving")
+
+
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants, from /proc."""
+    parents: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stat:
+                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    tree, frontier = [pid], [pid]
+    while frontier:
+        children = [child for child, parent in parents.items() if parent in frontier]
+        tree += children
+        frontier = children
+    return tree
+
+
+def cpu_seconds(pids: list[int]) -> float:
+    """User + system CPU seconds of ``pids`` (processes that ended count 0)."""
+    total = 0
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])
+        except (OSError, ValueError, IndexError):
+            continue
+    return total / CLOCK_TICKS
+
+
+def orbit(camera: dict[str, Any], angle: float) -> dict[str, Any]:
+    """``camera`` turned by ``angle`` radians about the vertical axis through its target."""
+    eye, target = np.asarray(camera["eye"], dtype=float), np.asarray(camera["target"], dtype=float)
+    x, z = (eye - target)[0], (eye - target)[2]
+    c, s = math.cos(angle), math.sin(angle)
+    return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
+
+
+class ScriptedViewer:
+    """A viewer on an open ``/ws/view`` connection: a reader thread records every frame (receive
+    time, id, bytes, still flag, input number); :meth:`send_camera` sends a camera with the next
+    input number."""
+
+    def __init__(self, ws: ws_client.ClientConnection) -> None:
+        self.ws = ws
+        hello = json.loads(self.ws.recv(timeout=30))
+        assert hello["type"] == "hello", hello
+        self.camera: dict[str, Any] = hello["camera"]
+        self.frames: list[dict[str, Any]] = []
+        self.sent: dict[int, float] = {}
+        self.seq = 0
+        self.lock = threading.Lock()
+        self._stop = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                message = self.ws.recv(timeout=0.2)
+            except TimeoutError:
+                continue
+            except Exception:
+                return
+            if isinstance(message, bytes):
+                now = time.perf_counter()
+                frame = unpack_frame(message)
+                with self.lock:
+                    self.frames.append({"at": now, "id": frame.frame_id, "bytes": len(message), "still": frame.still,
+                                        "input": frame.input_seq, "message": message if frame.still else None})
+
+    def send_camera(self, camera: dict[str, Any]) -> None:
+        self.seq += 1
+        self.sent[self.seq] = time.perf_counter()
+        self.camera = camera
+        self.ws.send(json.dumps({"type": "camera", "camera": camera, "seq": self.seq}))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._reader.join(timeout=5)
+
+
+def latencies(frames: list[dict[str, Any]], sent: dict[int, float]) -> list[float]:
+    """ms from each input to the first frame that answers it (a frame answers every input ≤ its number)."""
+    out, answered = [], 0
+    for frame in frames:
+        if frame["input"] > answered and frame["input"] in sent:
+            out.append((frame["at"] - sent[frame["input"]]) * 1000.0)
+            answered = frame["input"]
+    return out
+
+
+def composite(message: bytes) -> np.ndarray:
+    """The frame's tiles decoded and pasted: (h, w, 3) uint8."""
+    frame = unpack_frame(message)
+    width, height = frame.size
+    image = np.zeros((height, width, 3), np.uint8)
+    for entry, payload in frame.tiles:
+        r = entry.rect
+        image[r.y:r.y1, r.x:r.x1] = decode(payload, entry.codec, r.w, r.h)
+    return image
+
+
+def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int]) -> np.ndarray:
+    with tempfile.TemporaryDirectory() as tmp:
+        camera_file, out = Path(tmp) / "camera.json", Path(tmp) / "reference.png"
+        camera_file.write_text(json.dumps(camera))
+        subprocess.run([sys.executable, "-m", "node", "--render-once", str(out), "--scene", scene, "--camera",
+                        str(camera_file), "--size", f"{size[0]}x{size[1]}"], cwd=REPO, check=True,
+                       capture_output=True, timeout=300)
+        return np.asarray(Image.open(io.BytesIO(out.read_bytes())).convert("RGB"))
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+def wait_ready(client: httpx.Client, nodes: int, timeout: float = 300.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        stats = client.get("/api/stats").json()
+        if sum(n["state"] == "ready" for n in stats["nodes"]) == nodes and stats["frame"] > 0 and stats["settled"]:
+            calibrated = all(n["calibration_ms"] for n in stats["nodes"])
+            if calibrated:
+                return stats
+        time.sleep(0.2)
+    raise RuntimeError(f"{nodes} nodes not ready and calibrated within {timeout} s")
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    size = args.size
+    server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", f"{size[0]}x{size[1]}",
+                   *shlex.split(args.server_args)]
+    process, url = start_coordinator(server_args)
+    try:
+        with httpx.Client(base_url=url, timeout=120) as client, \
+                ws_client.connect(url.replace("http://", "ws://") + "/ws/view", max_size=256 << 20) as ws:
+            wait_ready(client, args.nodes)
+            viewer = ScriptedViewer(ws)
+            start_camera = viewer.camera
+            period = 1.0 / args.input_hz
+            started = time.perf_counter()
+            stats_before = None
+            next_send = started
+            while (now := time.perf_counter()) < started + args.moving_s:
+                if stats_before is None and now >= started + 1.0:
+                    stats_before = client.get("/api/stats").json()
+                viewer.send_camera(orbit(start_camera, 2.0 * math.pi * (now - started) / args.turn_s))
+                next_send += period
+                time.sleep(max(0.0, next_send - time.perf_counter()))
+            last_input = time.perf_counter()
+            stats_moving = client.get("/api/stats").json()
+            time.sleep(IDLE_AFTER_S)
+            pids = process_tree(process.pid)
+            cpu_before, idle_started = cpu_seconds(pids), time.perf_counter()
+            frames_before_idle = len(viewer.frames)
+            time.sleep(args.idle_s)
+            cpu_idle = cpu_seconds(pids) - cpu_before
+            idle_wall = time.perf_counter() - idle_started
+            stats_idle = client.get("/api/stats").json()
+            viewer.stop()
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+    with viewer.lock:
+        frames = list(viewer.frames)
+    window = [f for f in frames if started + 1.0 <= f["at"] <= last_input and not f["still"]]
+    moving_s = last_input - (started + 1.0)
+    intervals = np.diff([f["at"] for f in window])
+    interval_ms = float(intervals.mean() * 1000.0) if len(intervals) else math.nan
+    lat = np.array(latencies([f for f in frames if f["at"] >= started + 1.0 and f["at"] <= last_input + 1.0],
+                             {k: v for k, v in viewer.sent.items() if v >= started + 1.0}))
+    stills = [f for f in frames if f["still"] and f["at"] > last_input]
+    still = stills[0] if stills else None
+    result: dict[str, Any] = {
+        "nodes": args.nodes, "scene": args.scene, "size": list(size), "server_args": args.server_args,
+        "balancer": stats_moving["balancer"], "renderer": stats_moving["nodes"][0]["renderer"],
+        "fps_moving": len(window) / moving_s,
+        "published_fps_moving": (stats_moving["coordinator_cpu"]["frames"] - stats_before["coordinator_cpu"]["frames"])
+        / (last_input - started - 1.0) if stats_before else math.nan,
+        "frame_interval_ms": interval_ms,
+        "latency_p50_ms": float(np.percentile(lat, 50)) if len(lat) else math.nan,
+        "latency_p90_ms": float(np.percentile(lat, 90)) if len(lat) else math.nan,
+        "latency_samples": len(lat),
+        "kb_interactive": float(np.mean([f["bytes"] for f in window]) / 1024.0) if window else math.nan,
+        "idle_fps": (len(frames) - frames_before_idle) / idle_wall,
+        "idle_cores": cpu_idle / idle_wall,
+        "imbalance_avg": stats_moving["imbalance_avg"],
+        "coordinator_latency_ms": stats_moving["latency_ms"],
+        "frames_cancelled": stats_idle["frames_cancelled"],
+        "frames_published": stats_idle["coordinator_cpu"]["frames"],
+    }
+    result["latency_p50_frames"] = result["latency_p50_ms"] / interval_ms
+    result["latency_p90_frames"] = result["latency_p90_ms"] / interval_ms
+    if still is not None:
+        image = composite(still["message"])
+        reference = render_once(args.scene, viewer.camera, size)
+        off = np.abs(image.astype(np.int16) - reference.astype(np.int16)).max(axis=2) > 8
+        quality = psnr(image, reference)
+        result.update(still_kb=still["bytes"] / 1024.0, still_after_ms=(still["at"] - last_input) * 1000.0,
+                      still_identical=quality == math.inf, still_psnr_db=None if quality == math.inf else quality,
+                      still_pixels_off=float(off.mean()))
+    else:
+        result.update(still_kb=math.nan, still_after_ms=math.nan, still_identical=False, still_psnr_db=math.nan,
+                      still_pixels_off=math.nan)
+    return result
+
+
+def report(result: dict[str, Any]) -> str:
+    psnr_text = "identical" if result["still_identical"] else f"PSNR {result['still_psnr_db']:.1f} dB"
+    return "\n".join([
+        f"Tessera live benchmark: {result['nodes']} local nodes, {result['scene']} at "
+        f"{result['size'][0]}x{result['size'][1]}, balancer {result['balancer']}"
+        + (f", server args {result['server_args']!r}" if result["server_args"] else ", every default"),
+        f"  renderer        {result['renderer']}",
+        f"  moving          {result['fps_moving']:.1f} fps on the viewer socket "
+        f"(published {result['published_fps_moving']:.1f}), frame interval {result['frame_interval_ms']:.1f} ms",
+        f"  latency         p50 {result['latency_p50_ms']:.1f} ms = {result['latency_p50_frames']:.2f} frames, "
+        f"p90 {result['latency_p90_ms']:.1f} ms = {result['latency_p90_frames']:.2f} frames "
+        f"({result['latency_samples']} inputs answered); "
+        f"coordinator input→publish {result['coordinator_latency_ms']:.1f} ms",
+        f"  imbalance_avg   {result['imbalance_avg']:.3f}; frames cancelled {result['frames_cancelled']}",
+        f"  frames          {result['kb_interactive']:.1f} KB interactive; still {result['still_kb']:.1f} KB, "
+        f"{result['still_after_ms']:.0f} ms after the last input",
+        f"  still vs render-once  {psnr_text}, {result['still_pixels_off']:.4%} of pixels off by > 8",
+        f"  idle            {result['idle_fps']:.2f} fps, {result['idle_cores']:.3f} cores (coordinator + nodes), "
+        f"from {IDLE_AFTER_S:.0f} s after the last input",
+    ])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench.live", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--nodes", type=int, default=3)
+    parser.add_argument("--scene", default="builtin:cluster")
+    parser.add_argument("--size", type=size_parser(16, 8192), default=(1280, 720))
+    parser.add_argument("--moving-s", type=float, default=8.0, help="seconds of camera motion (default 8)")
+    parser.add_argument("--idle-s", type=float, default=4.0, help="seconds measured idle (default 4)")
+    parser.add_argument("--input-hz", type=float, default=60.0, help="camera messages per second (default 60)")
+    parser.add_argument("--turn-s", type=float, default=8.0, help="seconds per turn of the orbit (default 8)")
+    parser.add_argument("--server-args", default="", help="extra flags for python -m server, e.g. '--max-in-flight 1'")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    result = measure(args)
+    print(report(result))
+    if args.json:
+        meta = {"python": platform.python_version(), "cpus": os.cpu_count(),
+                "argv": sys.argv[1:] if argv is None else list(argv)}
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({**result, "meta": meta}, indent=2) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
