@@ -1,0 +1,63 @@
+"""``python -m bench.quality`` end to end on a small built-in scene (real EGL rendering)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from bench.paths import make_path
+from bench.quality import main
+from node.scene import load_scene
+
+pytestmark = pytest.mark.gl
+
+
+def test_quality_benchmark_reports_bytes_against_psnr(tmp_path, capsys) -> None:
+    """Two frames of an orbit of the spheres at three JPEG qualities: PSNR and bytes grow with
+    quality, 4:4:4 chroma starts at q90, PNG and RAW decode to the rendered pixels, every size and
+    time is positive and finite, and the 35/40 dB marks are the smallest qualities reaching them."""
+    path = tmp_path / "orbit.json"
+    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:spheres").bounds, frames=8)))
+    out = tmp_path / "quality.json"
+    argv = ["--scene", "builtin:spheres", "--path", str(path), "--size", "160x120", "--frames", "2",
+            "--qualities", "20,60,95", "--json", str(out)]
+    assert main(argv) == 0
+    report = json.loads(out.read_text())
+    meta = report["meta"]
+    assert meta["scenes"] == ["builtin:spheres"] and meta["size"] == [160, 120] and meta["argv"] == argv
+    assert meta["renderer"] and meta["python"]
+    (scene,) = report["scenes"]
+    assert scene["frames"] == 2
+    rows = {row["setting"]: row for row in scene["rows"]}
+    assert list(rows) == ["jpeg q20", "jpeg q60", "jpeg q95", "png", "raw"]
+    jpeg = [rows["jpeg q20"], rows["jpeg q60"], rows["jpeg q95"]]
+    assert [row["chroma"] for row in jpeg] == ["4:2:0", "4:2:0", "4:4:4"]
+    psnr = [row["psnr_mean_db"] for row in jpeg]
+    kb = [row["kb_mean"] for row in jpeg]
+    assert psnr == sorted(psnr) and len(set(psnr)) == 3 and all(math.isfinite(p) and p > 20.0 for p in psnr)
+    assert kb == sorted(kb) and len(set(kb)) == 3
+    assert all(not row["lossless"] and 0 < row["psnr_min_db"] <= row["psnr_mean_db"] for row in jpeg)
+    assert jpeg[0]["off8_fraction"] >= jpeg[2]["off8_fraction"] and jpeg[0]["max_error"] > 0
+    for name in ("png", "raw"):
+        assert rows[name]["lossless"] and rows[name]["max_error"] == 0 and rows[name]["off8_fraction"] == 0.0
+        assert rows[name]["psnr_mean_db"] is None and rows[name]["psnr_min_db"] is None
+    assert rows["raw"]["kb_mean"] == 160 * 120 * 3 / 1e3 > rows["png"]["kb_mean"]
+    for name, row in rows.items():
+        assert all(math.isfinite(row[key]) and row[key] > 0 for key in ("kb_mean", "mbit_s_30fps"))
+        assert row["mbit_s_30fps"] == pytest.approx(row["kb_mean"] * 8e3 * 30 / 1e6, abs=0.01)
+        assert all(math.isfinite(row[key]) and row[key] >= 0 for key in ("encode_ms", "decode_ms"))
+        assert name == "raw" or row["encode_ms"] > 0
+    for mark in (35, 40):
+        reached = [row["quality"] for row in jpeg if row["psnr_mean_db"] >= mark]
+        assert scene[f"quality_for_{mark}db"] == (reached[0] if reached else None)
+    printed = capsys.readouterr().out
+    assert "lossless" in printed and "jpeg q60" in printed and "smallest JPEG quality" in printed
+
+
+def test_quality_benchmark_rejects_unpaired_paths() -> None:
+    """Three --path for two scenes is a usage error (one serves all scenes, or one per scene)."""
+    with pytest.raises(SystemExit):
+        main(["--scene", "builtin:spheres", "--scene", "builtin:cluster", "--path", "orbit", "--path", "zoom",
+              "--path", "orbit"])
