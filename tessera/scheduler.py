@@ -26,7 +26,9 @@ What it decides:
   rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
   first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
-  timings feed the balancer (a still frame's lossless encoding would skew it).
+  timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
+  frame completes, so the next frame is partitioned with them; send times, which each node
+  reports just after its tile, are added when they are in.
 """
 
 from __future__ import annotations
@@ -471,6 +473,8 @@ class FrameScheduler:
         self._awaiting_send[job.frame_id] = job
         for old in [k for k in self._awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
             del self._awaiting_send[old]
+        if not job.still and job.frame_id > self._timings_frame_id:
+            self._last_timings, self._timings_frame_id = job.timings(), job.frame_id
         self._take_timings(job)
 
     def _take_timings(self, job: FrameJob) -> None:
@@ -494,6 +498,6 @@ class FrameScheduler:
             if node is not None:
                 node.last_phases, node.last_tiles = phases, rects[node_id]
                 node.counters = counters.get(node_id, {})
-        if not job.still and job.frame_id > self._timings_frame_id:
+        if not job.still and job.frame_id >= self._timings_frame_id:
             self._last_timings, self._timings_frame_id = timings, job.frame_id
             self.stats.record_balance({n: sum(p.values()) for n, p in per_node.items()})

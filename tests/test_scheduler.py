@@ -448,3 +448,22 @@ def test_a_failing_balancer_falls_back_to_the_static_split():
     s.set_camera(camera(), 0.0)
     assert [t.rect for t in s.in_flight[1].tiles] == [Rect(0, 0, 32, 32), Rect(32, 0, 32, 32)]
     assert "exactly once" in (s.balancer_error or "")
+
+
+def test_the_next_frame_is_partitioned_with_the_frame_that_just_completed():
+    """One frame in flight: the last tile's arrival starts the next frame, before its send time is in."""
+    seen = []
+
+    class Recording(StaticBalancer):
+        def partition(self, inputs: BalanceInput) -> Partition:
+            seen.append(inputs.timings)
+            return super().partition(inputs)
+
+    s = scheduler(balancer=Recording(), max_in_flight=1, still_codec=None)
+    s.set_camera(camera(0), 0.0)
+    s.set_camera(camera(1), 0.001)
+    for node_id, tile_id in ((1, 0), (2, 1)):
+        s.tile_arrived(node_id, TileHeader(1, tile_id, s.in_flight[1].tiles[tile_id].rect, Codec.JPEG, 7.0, 1.0, 1.0),
+                       b"t", 0.01)
+    assert 2 in s.in_flight and len(seen) == 2
+    assert [(t.node_id, t.render_ms) for t in seen[1]] == [(1, 7.0), (2, 7.0)]
