@@ -1,56 +1,76 @@
-"""Serial-replay balancing benchmark: every balancer on the same camera path, every tile rendered.
+"""Balancing benchmark: every balancer on the same camera path through the coordinator's own
+scheduler on a virtual clock, every tile rendered for real.
 
 ``python -m bench.balance --scene PATH --path PATH.json --nodes N --size WxH --balancers a,b,…
-[--speeds s1,s2,…] [--lag 1] [--repeats 3] [--frames F] [--json OUT]``
+[--speeds s1,s2,…] [--in-flight 2] [--pace free|path] [--repeats 3] [--frames F] [--json OUT]``
 
-For every frame and balancer the balancer's tiles are rendered for real, one at a time, in one GL
-context (so the machine's shared cores do not blur node times), and the measured phases are fed
-back as the live coordinator feeds them (:mod:`bench.replay`). Node i's times are multiplied by
-sᵢ from ``--speeds`` — sᵢ is a *slowdown*: sᵢ = 2 makes node i twice as slow, like ``python -m
-node --slowdown 2``. Node weights are the coordinator's calibration (seed 003 §1): each node's time
-on :func:`tessera.balancers.hetero.calibration_region` of the first camera × sᵢ →
+Frames are scheduled by the live coordinator's :class:`tessera.scheduler.FrameScheduler`, driven on
+a virtual clock by :func:`bench.virtual_cluster.run_path`: at most ``--in-flight`` frames in flight
+(2, as the live coordinator; ``--lag L`` is the old form of ``--in-flight L+1``); a frame starts
+when a node has nothing left to do and takes the newest camera; the balancer gets the timings of
+the newest frame complete by then, the previous partition, the node weights, the virtual time
+since the last partition and, for techniques that read them, the projected primitive groups.
+Each camera of the path is set the moment a frame starts with the one before, so every camera is
+rendered once: as fast as the cluster goes (``--pace free``) or with frame starts at most the
+path's ``1000 / dt_ms`` per second (``--pace path``). Push tiles queue per node; pull tiles (tile
+rotation) go to whichever node is free. A node's tile time is the tile's measured busy time × sᵢ
+from ``--speeds`` — sᵢ is a *slowdown*: sᵢ = 2 makes node i twice as slow, like ``python -m node
+--slowdown 2``. Node weights are the coordinator's calibration (seed 003 §1): each node's time on
+:func:`tessera.balancers.hetero.calibration_region` of the first camera × sᵢ →
 :func:`tessera.balancers.hetero.calibration_weights`, the same weights for every balancer.
 
-Noise control (the machine's two cores are shared with other work): llvmpipe runs on the calling
-thread (``LP_NUM_THREADS`` = 0, set before the GL context is created) and a phase's time is that
-thread's CPU time (``--clock cpu``; the renderer's wall-clock split between render and read-back
-scaled to it), so time the thread was preempted does not count; a frame's tiles are timed in
-interleaved rounds (every tile once, then again) so they see the same machine conditions; each
-phase is the minimum over ``--repeats`` renders, with further rounds for tiles whose two fastest
-busy times differ by more than 3 % (at most 3 × ``--repeats``); a tile's times are memoized per
-(frame, rect), so balancers that choose the same tile see the same cost. ``--noise-check`` (on by
-default) re-times the equal split's tiles at the end and reports how much a frame's max/mean moved.
-Busy time = render + read-back + encode (``tessera.codec.encode``, JPEG q85 by default, as the
-nodes do); send time is not modelled (no network). Culling is per tile on the CPU by default
-(the hybrid CPU/GPU switch keeps per-slot history, which a memoized replay cannot honour). For
-figures, run it as its own process: in a process that already made a GL context the
-``LP_NUM_THREADS`` it sets may not take effect.
+Tile times (:class:`TileTimer`): every tile is rendered in one GL context, one at a time (so the
+machine's shared cores do not blur node times). Noise control (the machine's two cores are shared
+with other work): llvmpipe runs on the calling thread (``LP_NUM_THREADS`` = 0, set before the GL
+context is created) and a phase's time is that thread's CPU time (``--clock cpu``; the renderer's
+wall-clock split between render and read-back scaled to it), so time the thread was preempted
+does not count; a frame's tiles are timed in interleaved rounds (every tile once, then again) so
+they see the same machine conditions; each phase is the minimum over ``--repeats`` renders, with
+further rounds for tiles whose two fastest busy times differ by more than 3 % (at most 3 ×
+``--repeats``); a tile's times are memoized per (frame, rect), so balancers that choose the same
+tile see the same cost. ``--noise-check`` (on by default) re-times the equal split's tiles at the
+end and reports how much a frame's max/mean moved. Busy time = render + read-back + encode
+(``tessera.codec.encode``, JPEG q85 by default, as the nodes do); send time is not modelled (no
+network). Culling is per tile on the CPU by default (the hybrid CPU/GPU switch keeps per-slot
+history, which memoized tile times cannot honour). For figures, run it as its own process: in a
+process that already made a GL context the ``LP_NUM_THREADS`` it sets may not take effect.
 
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
 ``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms,
-efficiency_pipelined, frame_ms_pipelined}, "meta": {...}}`` over the frames after the first
-``--skip`` (10). ``efficiency`` scores each frame alone (a pull list by its one-frame makespan);
-``efficiency_pipelined`` runs the same tiles through the live coordinator's timeline with
-``--lag`` + 1 frames in flight, where a node done with its part of a frame starts on the next
-(:class:`bench.replay.Pipeline`), counting the work done between the last left-out frame's
-completion and the last frame's.
+efficiency_pipelined, frame_ms_pipelined, latency_ms, frames_cancelled, t1_ms, speedup,
+parallel_efficiency}, "meta": {...}}`` over the published frames after the first ``--skip`` (10)
+(:func:`bench.virtual_cluster.summarize`). ``efficiency`` scores each frame alone: its ideal time
+(its work spread by node speed) over its slowest node's busy time on it. ``efficiency_pipelined``
+is the work done between the last left-out frame's publication and the last but one's, as ideal
+time, over that elapsed time: where a node done with its part of a frame starts on the next, it
+is above ``efficiency``. ``frame_ms_pipelined`` is the mean interval between publications,
+``latency_ms`` the mean time from a camera's input (the moment the frame before started) to its
+frame's publication, ``frames_cancelled`` the frames the scheduler dropped. T1 (``t1_ms``) is one
+speed-1 node rendering the whole frame (render + read-back + encode of the full screen, the same
+timer), the mean over the kept frames' cameras; ``speedup`` = T1 / ``frame_ms_pipelined`` and
+``parallel_efficiency`` = speedup / N: the figure a user compares with running one renderer,
+per-tile redundancy included. With slowdowns the most a speedup can be is Σ 1/sᵢ (printed as the
+ideal speedup). With ``--pace path`` the path's frame rate caps the speedup,
+``efficiency_pipelined`` counts the nodes' wait for the next allowed start and ``latency_ms``
+includes it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.replay import Phases, replay, summarize
+from bench.virtual_cluster import Phases, run_path, summarize
 from node.culling_state import CullMode
 from tessera.balancers import BALANCERS, create_balancer
 from tessera.balancers.base import BalanceInput
@@ -61,6 +81,7 @@ from tessera.geometry import Camera, Rect
 from tessera.projection import project_groups
 
 DEFAULT_SKIP = 10
+DEFAULT_IN_FLIGHT = 2
 DEFAULT_LP_THREADS = 0
 #: a tile is re-rendered until its two fastest busy times agree within this fraction
 TOLERANCE = 0.03
@@ -97,12 +118,13 @@ def load_path(path: Path, frames: int | None) -> tuple[float, list[Camera]]:
 
 
 class TileTimer:
-    """``measure(frame, rects)`` for :func:`bench.replay.replay`: renders a frame's tiles
-    ``repeats`` times, interleaved (every tile once, then again), so that all of a frame's tiles
-    are timed under the same machine conditions; keeps each phase's minimum; memoized per
-    (frame, rect). ``cpu_clock``: a phase's time is the calling thread's CPU time (the renderer's
-    wall-clock split between render and read-back scaled to it) — immune to preemption by other
-    processes, exact when llvmpipe runs on the calling thread (LP_NUM_THREADS=0)."""
+    """``measure(frame, rects)`` for :func:`bench.virtual_cluster.run_path` (frame: the camera's
+    index in the path): renders a frame's tiles ``repeats`` times, interleaved (every tile once,
+    then again), so that all of a frame's tiles are timed under the same machine conditions; keeps
+    each phase's minimum; memoized per (frame, rect). ``cpu_clock``: a phase's time is the calling
+    thread's CPU time (the renderer's wall-clock split between render and read-back scaled to it)
+    — immune to preemption by other processes, exact when llvmpipe runs on the calling thread
+    (LP_NUM_THREADS=0)."""
 
     def __init__(self, renderer: Any, cameras: Sequence[Camera], size: tuple[int, int], codec: Codec,
                  jpeg_quality: int, repeats: int, cpu_clock: bool = True, tolerance: float = 0.03,
@@ -168,10 +190,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"comma-separated names (default all: {','.join(BALANCERS)})")
     parser.add_argument("--speeds", type=parse_speeds,
                         help="slowdown factor per node: node i's times × sᵢ (2 = twice as slow); default all 1")
-    parser.add_argument("--lag", type=int, default=1, choices=(0, 1),
-                        help="frame f gets frame f-1-lag's timings (1 = 2 frames in flight, as live)")
+    flight = parser.add_mutually_exclusive_group()
+    flight.add_argument("--in-flight", type=int,
+                        help=f"frames in flight at most (default {DEFAULT_IN_FLIGHT}, as the live coordinator)")
+    flight.add_argument("--lag", type=int,
+                        help="the old form of --in-flight: --lag L means --in-flight L+1 (--lag 1 = 2 in flight)")
+    parser.add_argument("--pace", choices=("free", "path"), default="free",
+                        help="free (default): frames as fast as the cluster goes; path: frame starts at most "
+                             "1000/dt_ms per second, the path's rate")
     parser.add_argument("--repeats", type=int, default=3, help="renders per tile; each phase's minimum is kept")
-    parser.add_argument("--frames", type=int, help="replay only the path's first FRAMES cameras")
+    parser.add_argument("--frames", type=int, help="run only the path's first FRAMES cameras")
     parser.add_argument("--skip", type=int, default=DEFAULT_SKIP, help="frames left out of the figures")
     parser.add_argument("--lp-threads", type=int,
                         default=int(os.environ.get("LP_NUM_THREADS", DEFAULT_LP_THREADS)),
@@ -190,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
-    """The balancer names; exits through ``parser.error`` on bad arguments."""
+    """The balancer names; sets ``args.in_flight`` from ``--lag``; exits through ``parser.error`` on
+    bad arguments."""
     names = [n.strip() for n in args.balancers.split(",") if n.strip()]
     unknown = [n for n in names if n not in BALANCERS]
     if not names or unknown:
@@ -201,16 +230,55 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> lis
         parser.error("--clock cpu times the calling thread: it needs --lp-threads 0 (or use --clock wall)")
     if args.speeds is not None and len(args.speeds) != args.nodes:
         parser.error(f"--speeds needs {args.nodes} values (one per node), got {len(args.speeds)}")
+    if args.lag is not None and args.lag < 0:
+        parser.error("--lag must be >= 0")
+    if args.in_flight is None:
+        args.in_flight = DEFAULT_IN_FLIGHT if args.lag is None else args.lag + 1
+    if args.in_flight < 1:
+        parser.error("--in-flight must be >= 1")
     return names
 
 
+def pace_fps(pace: str, dt_ms: float) -> float:
+    """The scheduler's frame-start cap (frames/s): unbounded for ``free``, the path's 1000 / dt_ms for
+    ``path``."""
+    return 1000.0 / dt_ms if pace == "path" else math.inf
+
+
+def single_node_ms(timer: TileTimer, frames: Iterable[int]) -> float:
+    """T1: the mean busy ms (render + read-back + encode) of one speed-1 node rendering each of
+    ``frames`` (camera indices) whole, through ``timer``."""
+    screen = [Rect(0, 0, *timer.size)]
+    return float(np.mean([timer(frame, screen)[0].busy_ms for frame in frames]))
+
+
+def speedup_figures(t1_ms: float, frame_ms: float, nodes: int) -> dict[str, float]:
+    """T1 (ms) against the cluster's frame interval ``frame_ms``: ``t1_ms``, ``speedup`` = T1 /
+    frame_ms and ``parallel_efficiency`` = speedup / ``nodes`` (NaN when frame_ms is)."""
+    speedup = t1_ms / frame_ms
+    return {"t1_ms": t1_ms, "speedup": speedup, "parallel_efficiency": speedup / nodes}
+
+
+def ideal_speedup(slowdowns: Iterable[float]) -> float:
+    """The most nodes of slowdowns sᵢ can speed a frame up over one speed-1 node: Σ 1/sᵢ."""
+    return sum(1.0 / s for s in slowdowns)
+
+
+#: table columns: JSON key → heading
+TABLE_COLUMNS = {"imbalance_mean": "imbalance_mean", "imbalance_p95": "imbalance_p95", "efficiency": "efficiency",
+                 "efficiency_pipelined": "efficiency_pipe", "repartitions": "repartitions", "frames": "frames",
+                 "frames_cancelled": "cancelled", "frame_ms": "frame_ms", "frame_ms_pipelined": "frame_ms_pipe",
+                 "work_ms": "work_ms", "latency_ms": "latency_ms", "t1_ms": "t1_ms", "speedup": "speedup",
+                 "parallel_efficiency": "parallel_eff"}
+
+
 def format_table(results: dict[str, dict[str, float | int]]) -> str:
-    columns = ("imbalance_mean", "imbalance_p95", "efficiency", "efficiency_pipelined", "repartitions", "frames",
-               "frame_ms", "frame_ms_pipelined", "work_ms")
     width = max(len("balancer"), *(len(n) for n in results))
-    lines = [f"{'balancer':<{width}}  " + "  ".join(f"{c.replace('_pipelined', '_pipe'):>14}" for c in columns)]
+    widths = {key: max(len(heading), 8) for key, heading in TABLE_COLUMNS.items()}
+    lines = [f"{'balancer':<{width}}  " + "  ".join(f"{h:>{widths[k]}}" for k, h in TABLE_COLUMNS.items())]
     for name, row in results.items():
-        cells = [f"{row[c]:>14d}" if isinstance(row[c], int) else f"{row[c]:>14.3f}" for c in columns]
+        cells = [f"{row[k]:>{widths[k]}d}" if isinstance(row[k], int) else f"{row[k]:>{widths[k]}.3f}"
+                 for k in TABLE_COLUMNS]
         lines.append(f"{name:<{width}}  " + "  ".join(cells))
     return "\n".join(lines)
 
@@ -230,12 +298,14 @@ def noise_check(timer: TileTimer, rects: Sequence[Rect], frames: int) -> dict[st
 
 
 def header_lines(args: argparse.Namespace, scene: Any, cameras: Sequence[Camera], dt_ms: float,
-                 slowdowns: dict[int, float], weights: dict[int, float], calibration_ms: float,
+                 slowdowns: dict[int, float], weights: dict[int, float], calibration_ms: float, t1_ms: float,
                  renderer_name: str) -> list[str]:
     speeds = ",".join(f"{s:g}" for s in slowdowns.values())
     quality = f" q{args.jpeg_quality}" if args.codec is Codec.JPEG else ""
+    pace = ("as fast as the cluster goes" if args.pace == "free"
+            else f"frame starts at most {pace_fps(args.pace, dt_ms):g} per second (the path's dt)")
     return [
-        "Tessera serial-replay balancing benchmark",
+        "Tessera balancing benchmark: the coordinator's frame scheduler on a virtual clock, every tile rendered",
         f"  scene     {args.scene} ({scene.triangle_count} triangles, {len(scene.groups.counts)} primitive groups)",
         f"  path      {args.path}: {len(cameras)} frames, dt {dt_ms:g} ms; figures over frames "
         f"{args.skip}..{len(cameras) - 1}",
@@ -243,8 +313,13 @@ def header_lines(args: argparse.Namespace, scene: Any, cameras: Sequence[Camera]
         "measured times × sᵢ (2 = twice as slow, as node --slowdown)",
         f"  weights   calibration region {calibration_region(args.size).as_list()} {calibration_ms:.2f} ms × sᵢ → "
         + ", ".join(f"{n}: {w:.3f}" for n, w in weights.items()),
-        f"  lag       {args.lag}: frame f is partitioned with frame f-{1 + args.lag}'s timings"
-        + (" (2 frames in flight, as the live coordinator)" if args.lag == 1 else ""),
+        f"  schedule  tessera.scheduler.FrameScheduler, {args.in_flight} frame(s) in flight"
+        + (" (as the live coordinator)" if args.in_flight == 2 else "")
+        + f"; a frame starts when a node is free, with the newest camera, partitioned with the newest complete "
+        f"frame's timings; every camera rendered once, {pace}",
+        f"  T1        one speed-1 node rendering the whole frame: {t1_ms:.2f} ms (mean over frames {args.skip}.."
+        f"{len(cameras) - 1}); speedup = T1 / frame_ms_pipe, parallel_eff = speedup / {args.nodes}; "
+        f"ideal speedup Σ 1/sᵢ = {ideal_speedup(slowdowns.values()):.3g}",
         f"  noise     tiles rendered one at a time in one GL context; LP_NUM_THREADS={args.lp_threads} set before "
         f"it; clock: {'rendering thread CPU time' if args.clock == 'cpu' else 'wall'}; a frame's tiles timed in "
         f"interleaved rounds, each phase the minimum of >= {args.repeats} renders (more until the two fastest agree "
@@ -279,21 +354,25 @@ def main(argv: list[str] | None = None) -> int:
     slowdowns = dict(zip(node_ids, args.speeds or [1.0] * args.nodes, strict=True))
     calibration_ms = timer.time_rects(cameras[0], [calibration_region(size)], encode_pixels=False)[0].busy_ms
     weights = calibration_weights({n: calibration_ms * s for n, s in slowdowns.items()})
+    path_t1_ms = single_node_ms(timer, range(args.skip, len(cameras)))
     groups = [project_groups(scene.groups.boxes, scene.groups.counts, c, size, scene.bounds) for c in cameras]
     renderer_name = renderer_string(ctx)
-    print("\n".join(header_lines(args, scene, cameras, dt_ms, slowdowns, weights, calibration_ms, renderer_name)),
-          flush=True)
+    print("\n".join(header_lines(args, scene, cameras, dt_ms, slowdowns, weights, calibration_ms, path_t1_ms,
+                                 renderer_name)), flush=True)
 
     results: dict[str, dict[str, float | int]] = {}
     for name in names:
         balancer_started, renders_before = time.perf_counter(), timer.renders
-        records = replay(create_balancer(name), len(cameras), size, node_ids, timer, slowdowns, weights, dt_ms,
-                         args.lag, groups.__getitem__)
-        results[name] = summarize(records, args.skip)
+        records, cluster = run_path(create_balancer(name), timer, cameras, size, slowdowns, weights, args.in_flight,
+                                    groups.__getitem__, pace_fps(args.pace, dt_ms))
+        summary = summarize(records, args.skip)
+        t1_ms = single_node_ms(timer, [r.camera for r in records[args.skip:]])
+        row = results[name] = {**summary, "frames_cancelled": cluster.scheduler.frames_cancelled,
+                               **speedup_figures(t1_ms, summary["frame_ms_pipelined"], args.nodes)}
         print(f"  [{name}] {len(records)} frames in {time.perf_counter() - balancer_started:.1f} s, "
               f"{timer.renders - renders_before} renders (memo {len(timer.cache)} tiles, {timer.hits} hits); "
-              f"imbalance_mean {results[name]['imbalance_mean']:.3f}, efficiency {results[name]['efficiency']:.3f}, "
-              f"pipelined {results[name]['efficiency_pipelined']:.3f}", flush=True)
+              f"imbalance_mean {row['imbalance_mean']:.3f}, efficiency {row['efficiency']:.3f}, "
+              f"pipelined {row['efficiency_pipelined']:.3f}, speedup {row['speedup']:.2f}", flush=True)
     noise = None
     if args.noise_check:
         equal = StaticBalancer().partition(BalanceInput(size=size, node_ids=tuple(node_ids))).rects
@@ -313,7 +392,10 @@ def main(argv: list[str] | None = None) -> int:
                 "skip": args.skip, "nodes": args.nodes, "size": list(size), "speeds": list(slowdowns.values()),
                 "speeds_meaning": "slowdown factors: node i's measured times are multiplied by s_i",
                 "weights": {str(n): w for n, w in weights.items()}, "calibration_ms": calibration_ms,
-                "lag": args.lag, "repeats": args.repeats, "tolerance": TOLERANCE, "lp_num_threads": args.lp_threads,
+                "lag": args.in_flight - 1, "in_flight": args.in_flight, "pace": args.pace,
+                "max_fps": None if args.pace == "free" else pace_fps(args.pace, dt_ms),
+                "t1_ms": path_t1_ms, "ideal_speedup": ideal_speedup(slowdowns.values()), "repeats": args.repeats,
+                "tolerance": TOLERANCE, "lp_num_threads": args.lp_threads,
                 "clock": args.clock, "culling": args.culling, "codec": args.codec.name.lower(),
                 "jpeg_quality": args.jpeg_quality, "renderer": renderer_name, "noise": noise,
                 "renders": timer.renders, "seconds": round(total_s, 1), "python": platform.python_version(),

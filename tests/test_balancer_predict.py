@@ -3,10 +3,12 @@ synthetic moving figure whose cost is what the model assumes (pure, no GL).
 
 The figure: 12 primitive groups stacked in an 80 px wide column on a 320×180 screen (counts uneven
 top to bottom), moving right 3 px per frame; a tile costs 2 ms + 1e-4 ms per pixel + 2e-3 ms per
-primitive of the groups inside it (each group's count spread over its box). Replayed as live: 30
-frames/s, timings two frames late (``bench.replay`` lag 1), mean over frames 10–59. Seen (4 nodes):
-max/mean adaptive 1.160, adaptive-predict 1.014, adaptive-predict with slowdowns 1, 1, 2, 4 1.009;
-efficiency rotate 0.952, rotate-predict 0.999.
+primitive of the groups inside it (each group's count spread over its box). Run through the
+coordinator's scheduler on a virtual clock as ``bench.balance`` runs by default: 2 frames in flight
+as live, as fast as the cluster goes (a frame every 13–17 ms), so frame f is partitioned with
+frame f − 2's timings; mean over frames 10–59. Seen (4 nodes): max/mean adaptive 1.308,
+adaptive-predict 1.016, adaptive-predict with slowdowns 1, 1, 2, 4 1.009, eq-load 1.417, grid 1.460,
+tree-predict 1.017; efficiency rotate 0.941, rotate-predict 0.995.
 """
 
 from __future__ import annotations
@@ -16,15 +18,15 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from bench.replay import Phases, replay
+from bench.virtual_cluster import FrameRecord, Phases, rect_sums, run_path, summed_area
 from tessera.balancers import create_balancer
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, Tile, TileTiming
 from tessera.balancers.hetero import calibration_weights
 from tessera.balancers.load import LoadField
 from tessera.balancers.predict import AdaptivePredictBalancer, LoadModel, group_features, nonnegative_fit
-from tessera.balancers.simulate import rect_sums, run, summed_area
 from tessera.geometry import Rect
+from tests.balance_support import cameras, run_paced
 
 SIZE = (320, 180)
 COUNTS = np.array([200, 400, 900, 1500, 2500, 4000, 4000, 2500, 1200, 600, 300, 100], dtype=np.float64)
@@ -50,6 +52,16 @@ def figure_cost(frame: int) -> np.ndarray:
 
 def measure(frame: int, rects: Sequence[Rect]) -> list[Phases]:
     return [Phases(OVERHEAD_MS + c) for c in rect_sums(summed_area(figure_cost(frame)), rects)]
+
+
+def replay_figure(name: str, params: dict | None = None, slowdowns: dict[int, float] | None = None,
+                  weights: dict[int, float] | None = None, frames: int = 60) -> list[FrameRecord]:
+    """``frames`` frames of the moving figure with balancer ``name`` on 4 nodes (slowdowns default
+    1), 2 in flight, as fast as the cluster goes; every frame is published."""
+    records, _ = run_path(create_balancer(name, params), measure, cameras(frames), SIZE,
+                          slowdowns or dict.fromkeys((1, 2, 3, 4), 1.0), weights, groups_at=figure_groups)
+    assert [r.camera for r in records] == list(range(frames)), "a frame was dropped"
+    return records
 
 
 def mean_over(records, attribute: str) -> float:
@@ -138,15 +150,14 @@ def test_field_reproduces_the_model() -> None:
 
 def test_without_groups_it_is_adaptive() -> None:
     cost = figure_cost(10)
-    plain = run(AdaptiveBalancer(tau_ms=50.0), lambda frame: cost, [1, 2, 3, 4], 12)
-    predicted = run(AdaptivePredictBalancer(), lambda frame: cost, [1, 2, 3, 4], 12)
+    plain = run_paced(AdaptiveBalancer(tau_ms=50.0), lambda frame: cost, [1, 2, 3, 4], 12)
+    predicted = run_paced(AdaptivePredictBalancer(), lambda frame: cost, [1, 2, 3, 4], 12)
     assert [r.partition for r in predicted] == [r.partition for r in plain]
 
 
 def test_moving_figure_adaptive_predict_follows() -> None:
-    nodes = [1, 2, 3, 4]
-    plain = replay(create_balancer("adaptive"), 60, SIZE, nodes, measure, groups_at=figure_groups)
-    predicted = replay(create_balancer("adaptive-predict"), 60, SIZE, nodes, measure, groups_at=figure_groups)
+    plain = replay_figure("adaptive")
+    predicted = replay_figure("adaptive-predict")
     assert mean_over(plain, "imbalance") > 1.1
     assert mean_over(predicted, "imbalance") <= 1.03
 
@@ -156,28 +167,25 @@ def test_moving_figure_heterogeneous_overhead_shares() -> None:
     nodes more time, which the shares account for."""
     slowdowns = {1: 1.0, 2: 1.0, 3: 2.0, 4: 4.0}
     weights = calibration_weights(slowdowns)
-    records = replay(create_balancer("adaptive-predict"), 60, SIZE, list(slowdowns), measure, slowdowns, weights,
-                     groups_at=figure_groups)
+    records = replay_figure("adaptive-predict", slowdowns=slowdowns, weights=weights)
     assert mean_over(records, "imbalance") <= 1.03
 
 
 def test_moving_figure_rotate_predict_keeps_nodes_busy() -> None:
-    nodes = [1, 2, 3, 4]
-    plain = replay(create_balancer("rotate"), 60, SIZE, nodes, measure, groups_at=figure_groups)
-    predicted = replay(create_balancer("rotate-predict"), 60, SIZE, nodes, measure, groups_at=figure_groups)
+    plain = replay_figure("rotate")
+    predicted = replay_figure("rotate-predict")
     assert mean_over(predicted, "efficiency") >= 0.98 > 0.96 > mean_over(plain, "efficiency")
 
 
 def test_moving_figure_tree_predict_beats_the_cut_trees() -> None:
     """The cut tree on the predicted field follows the figure where ``eq-load`` and ``grid``, which
     spread each tile's time evenly, lag and overshoot; without groups it is undamped ``eq-load``."""
-    nodes = [1, 2, 3, 4]
-    figures = {name: mean_over(replay(create_balancer(name), 60, SIZE, nodes, measure, groups_at=figure_groups),
-                               "imbalance") for name in ("eq-load", "grid", "tree-predict")}
+    figures = {name: mean_over(replay_figure(name), "imbalance") for name in ("eq-load", "grid", "tree-predict")}
     assert figures["tree-predict"] <= 1.03 < 1.1 < min(figures["eq-load"], figures["grid"]), figures
     cost = figure_cost(10)
-    plain = run(create_balancer("eq-load", {"damping": 0.0}), lambda frame: cost, nodes, 12)
-    predicted = run(create_balancer("tree-predict"), lambda frame: cost, nodes, 12)
+    nodes = [1, 2, 3, 4]
+    plain = run_paced(create_balancer("eq-load", {"damping": 0.0}), lambda frame: cost, nodes, 12)
+    predicted = run_paced(create_balancer("tree-predict"), lambda frame: cost, nodes, 12)
     assert [r.partition for r in predicted] == [r.partition for r in plain]
 
 
@@ -187,8 +195,7 @@ def test_camera_motion_is_not_damped() -> None:
     frame; the first strip's cut moves 2 px per frame: the pixel cost does not move)."""
 
     def cut_moves(name: str) -> list[int]:
-        records = replay(create_balancer(name, {"tau_ms": 1e6}), 30, SIZE, [1, 2, 3, 4], measure,
-                         groups_at=figure_groups)
+        records = replay_figure(name, {"tau_ms": 1e6}, frames=30)
         return np.diff([r.partition.tiles[0].rect.x1 for r in records[20:]]).tolist()
 
     assert 1.5 <= np.median(cut_moves("adaptive-predict")) <= 3.5

@@ -10,9 +10,9 @@ from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, Til
 from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.grid import GridBalancer, median_cut
 from tessera.balancers.hetero import HeteroBalancer, calibration_region, calibration_weights, dpbp_cut
-from tessera.balancers.simulate import run
 from tessera.balancers.table import LoadTable
 from tessera.geometry import Rect
+from tests.balance_support import run_paced
 
 
 def measured(partition: Partition, ms: dict[int, float]) -> tuple[TileTiming, ...]:
@@ -128,8 +128,8 @@ def test_hetero_refines_weights_from_times() -> None:
     cost = np.full((180, 320), 30.0 / (180 * 320))
     groups = groups_of([(x, y, x + 8, y + 6) for x in range(0, 320, 8) for y in range(0, 180, 6)], [1.0] * 1200)
     hetero = HeteroBalancer(dt_max_ratio=0.0)
-    results = run(hetero, lambda f: cost, list(speeds), 30, speeds=speeds, weights=dict.fromkeys(speeds, 1.0),
-                  groups_at=lambda f: groups)
+    results = run_paced(hetero, lambda f: cost, list(speeds), 30, speeds=speeds,
+                        weights=dict.fromkeys(speeds, 1.0), groups_at=lambda f: groups)
     assert results[0].imbalance > 1.4
     assert results[-1].imbalance <= 1.05
     weights = hetero.weights
@@ -156,11 +156,11 @@ def test_hetero_goal_speeds_1_1_2_4() -> None:
     reached by frame 2; without refinement DPBP alone stays at 1.31)."""
     speeds = {0: 1.0, 1: 1.0, 2: 2.0, 3: 4.0}
     cost, groups = primitive_scene((640, 360))
-    results = run(HeteroBalancer(), lambda f: cost, list(speeds), 30, speeds=speeds, weights=speeds,
-                  groups_at=lambda f: groups)
+    results = run_paced(HeteroBalancer(), lambda f: cost, list(speeds), 30, speeds=speeds, weights=speeds,
+                        groups_at=lambda f: groups)
     assert max(r.imbalance for r in results[5:]) <= 1.12
-    unrefined = run(HeteroBalancer(refine_gain=0.0), lambda f: cost, list(speeds), 10, speeds=speeds,
-                    weights=speeds, groups_at=lambda f: groups)
+    unrefined = run_paced(HeteroBalancer(refine_gain=0.0), lambda f: cost, list(speeds), 10, speeds=speeds,
+                          weights=speeds, groups_at=lambda f: groups)
     assert unrefined[-1].imbalance > 1.2
 
 

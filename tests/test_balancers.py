@@ -19,16 +19,17 @@ import math
 import numpy as np
 import pytest
 
+from bench.virtual_cluster import rect_sums, summed_area
 from tessera.balancers import create_balancer
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, Tile, TileTiming
 from tessera.balancers.load import LoadField
-from tessera.balancers.rotate import RotateBalancer, pull_schedule
-from tessera.balancers.simulate import rect_sums, run, summed_area
+from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import StaticBalancer
 from tessera.balancers.strips import damping_fraction
 from tessera.geometry import Rect
 from tessera.partition import check_exact_cover
+from tests.balance_support import run_paced
 
 
 def corner_map(size: tuple[int, int], factor: float = 20.0, total_ms: float = 30.0) -> np.ndarray:
@@ -52,7 +53,7 @@ CONVERGENCE = [
 @pytest.mark.parametrize("count", [2, 3, 4, 7, 16])
 def test_converges_on_uneven_map(name: str, params: dict, within: int, count: int) -> None:
     cost = corner_map((480, 270))
-    results = run(create_balancer(name, params), lambda frame: cost, list(range(count)), within + 10)
+    results = run_paced(create_balancer(name, params), lambda frame: cost, list(range(count)), within + 10)
     assert results[0].imbalance > 1.3, "the map must start unbalanced for the test to mean anything"
     assert max(r.imbalance for r in results[within:]) <= 1.05
 
@@ -79,7 +80,8 @@ def test_moving_camera_damped_edges_lag_rotation_keeps_nodes_busy() -> None:
     cost_at = moving_hotspot((320, 180), 240)
 
     def mean_imbalance(name: str) -> float:
-        return float(np.mean([r.imbalance for r in run(create_balancer(name), cost_at, list(range(8)), 180)[60:]]))
+        records = run_paced(create_balancer(name), cost_at, list(range(8)), 180)
+        return float(np.mean([r.imbalance for r in records[60:]]))
 
     assert mean_imbalance("adaptive") > 1.08
     assert 1.0 / mean_imbalance("rotate") >= 0.96
@@ -130,7 +132,7 @@ def test_heterogeneous_nodes_get_time_not_area() -> None:
     """Speeds 1, 1, 2, 4 with matching weights: adaptive aims every node at the same time."""
     speeds = {0: 1.0, 1: 1.0, 2: 2.0, 3: 4.0}
     cost = corner_map((320, 180))
-    results = run(AdaptiveBalancer(), lambda frame: cost, list(speeds), 60, speeds=speeds, weights=speeds)
+    results = run_paced(AdaptiveBalancer(), lambda frame: cost, list(speeds), 60, speeds=speeds, weights=speeds)
     assert results[0].imbalance > 1.5
     assert results[-1].imbalance <= 1.05
 
@@ -138,7 +140,7 @@ def test_heterogeneous_nodes_get_time_not_area() -> None:
 def test_nodes_join_and_leave_restart_from_equal_split() -> None:
     cost = corner_map((320, 180))
     nodes = [(0, 1, 2, 3)] * 20 + [(0, 1, 2, 3, 4)] + [(1, 2, 3)] * 2
-    results = run(AdaptiveBalancer(), lambda frame: cost, (), len(nodes), nodes_at=lambda frame: nodes[frame])
+    results = run_paced(AdaptiveBalancer(), lambda frame: cost, (), len(nodes), nodes_at=lambda frame: nodes[frame])
     assert results[19].imbalance < results[0].imbalance
     joined = BalanceInput(size=(320, 180), node_ids=nodes[20])
     assert results[20].partition == StaticBalancer().partition(joined)
@@ -184,26 +186,18 @@ def test_rotation_order_heaviest_first() -> None:
     assert predicted[0] > 1.2 * predicted[-1]
 
 
-def test_pull_schedule_hand_made() -> None:
-    assert pull_schedule([5, 4, 3, 3, 3], [1.0, 1.0]) == ([0, 1, 1, 0, 1], 10.0)
-    assert pull_schedule([5, 4, 3, 3, 3], [1.0, 2.0]) == ([1, 0, 1, 1, 0], 7.0)
-    assert pull_schedule([], [1.0]) == ([], 0.0)
-    with pytest.raises(ValueError):
-        pull_schedule([1.0], [0.0])
-
-
 def test_rotate_efficiency_on_uneven_map() -> None:
     """Heaviest-first pulling of 3 tiles per node keeps nodes ≥ 96 % busy on the uneven map
     once the damped edges settle (frame 14 on); at frame 3, far from settled, it is already 95 %
     where one tile per node (the seed's N tiles) is only as good as adaptive (0.4)."""
     cost = corner_map((480, 270))
-    pulled = run(RotateBalancer(), lambda frame: cost, list(range(4)), 40)
-    single = run(RotateBalancer(tiles_per_node=1), lambda frame: cost, list(range(4)), 40)
+    pulled = run_paced(RotateBalancer(), lambda frame: cost, list(range(4)), 40)
+    single = run_paced(RotateBalancer(tiles_per_node=1), lambda frame: cost, list(range(4)), 40)
     assert min(r.efficiency for r in pulled[20:]) >= 0.96
     assert pulled[3].efficiency >= 0.95 > 0.6 > single[3].efficiency
 
 
-def test_simulated_tile_times() -> None:
+def test_cost_map_rect_sums() -> None:
     cost = np.arange(12.0).reshape(3, 4)
     rects = [Rect(0, 0, 4, 3), Rect(1, 1, 2, 2)]
     assert rect_sums(summed_area(cost), rects).tolist() == [66.0, 5 + 6 + 9 + 10]

@@ -2,10 +2,11 @@
 
 Tiles are not bound to nodes: the coordinator hands them out in list order to whichever node is
 free first (at a frame start, the fastest first), each node pulling the next tile until the frame
-is done; :func:`pull_schedule` simulates exactly that. The list is the ``adaptive`` partition
-(§4.2: strips→tiles, damped edges, same effort estimate) of ``tiles_per_node`` × N tiles of equal
-estimated effort, ordered heaviest first by last frame's time — a tile's predicted effort is last
-frame's measured load inside its rect, i.e. last frame's tile time when its edges did not move.
+is done (the pull dispatch of :class:`tessera.scheduler.FrameScheduler`). The list is the
+``adaptive`` partition (§4.2: strips→tiles, damped edges, same effort estimate) of
+``tiles_per_node`` × N tiles of equal estimated effort, ordered heaviest first by last frame's
+time — a tile's predicted effort is last frame's measured load inside its rect, i.e. last frame's
+tile time when its edges did not move.
 
 How many tiles: the seed hands out N and relies on a node that finishes early moving on to the
 next *frame*; with frames in flight capped that helps only across frame boundaries. With more
@@ -20,10 +21,8 @@ times to effort, tile shares are equal. Timings are busy time.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import ClassVar
-
-import numpy as np
 
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, Tile
@@ -49,23 +48,3 @@ class RotateBalancer(AdaptiveBalancer):
         order = sorted(range(len(rects)), key=lambda i: (-effort[i], i))
         return Partition(tuple(Tile(rects[i], None) for i in order), pull=True)
 
-
-def pull_schedule(tile_costs: Sequence[float] | np.ndarray,
-                  node_speeds: Sequence[float]) -> tuple[list[int], float]:
-    """Simulate pull dispatch: tiles, in list order, each go to the node free first (ties, as at
-    the start, to the faster node, then the lower index); a tile takes cost / speed on its node.
-
-    ``tile_costs`` (T,) effort ms at speed 1; ``node_speeds`` (N,) > 0. Returns the node index of
-    each tile and the makespan in ms.
-    """
-    speeds = np.asarray(node_speeds, dtype=np.float64)
-    if speeds.size == 0 or (speeds <= 0.0).any():
-        raise ValueError("pull_schedule needs at least one node, all speeds > 0")
-    free_at = np.zeros(speeds.size)
-    rank = np.argsort(-speeds, kind="stable")
-    assignment = []
-    for cost in tile_costs:
-        node = int(rank[np.argmin(free_at[rank])])
-        free_at[node] += float(cost) / speeds[node]
-        assignment.append(node)
-    return assignment, float(free_at.max())
