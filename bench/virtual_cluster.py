@@ -74,7 +74,10 @@ class FrameRecord:
 
 
 @dataclass
-class _Node:
+class VirtualNode:
+    """A simulated node: its slowdown, the tiles sent to it in order (the head is the one it is on
+    while ``busy``) as (frame id, tile id, rect, codec)."""
+
     slowdown: float
     queue: deque[tuple[int, int, Rect, Codec]] = field(default_factory=deque)
     busy: bool = False
@@ -93,7 +96,7 @@ class VirtualCluster:
         self.scheduler = FrameScheduler(config, balancer)
         self.measure, self.network_ms, self.weights = measure, network_ms, dict(weights or {})
         self.slowdowns = {int(n): float(s) for n, s in slowdowns.items()}
-        self.nodes: dict[int, _Node] = {}
+        self.nodes: dict[int, VirtualNode] = {}
         self.records: list[FrameRecord] = []
         self.now_s = 0.0
         self._events: list[tuple[float, int, str, object]] = []
@@ -156,7 +159,7 @@ class VirtualCluster:
         heapq.heappush(self._events, (at_s, next(self._order), kind, payload))
 
     def _join(self, node_id: int) -> None:
-        self.nodes[node_id] = _Node(self.slowdowns[node_id])
+        self.nodes[node_id] = VirtualNode(self.slowdowns[node_id])
         self.scheduler.add_node(node_id, self.now_s)
         self.scheduler.set_speed(node_id, self.weights.get(node_id, 1.0))
         self.scheduler.node_ready(node_id, self.now_s)
@@ -183,7 +186,7 @@ class VirtualCluster:
                 elif isinstance(action, CancelFrames):
                     node = self.nodes.get(action.node_id)
                     if node is not None:
-                        node.queue = deque(t for t in node.queue if t[0] not in action.frames)
+                        self._cancel_queued(node, action.frames)
                 elif isinstance(action, PublishFrame):
                     self._record(action.job)
             if not (paced and self._feed_next_camera()):
@@ -220,6 +223,12 @@ class VirtualCluster:
         node.queue.extend((frame_id, t["tile"], Rect.from_seq(t["rect"]), codec) for t in message["tiles"])
         if not node.busy:
             self._start_next(action.node_id)
+
+    @staticmethod
+    def _cancel_queued(node: VirtualNode, frames: tuple[int, ...]) -> None:
+        """Drop the node's queued tiles of ``frames``; the tile it is on (the head) runs to the end."""
+        running = [node.queue.popleft()] if node.busy and node.queue else []
+        node.queue = deque([*running, *(t for t in node.queue if t[0] not in frames)])
 
     def _start_next(self, node_id: int) -> None:
         node = self.nodes[node_id]

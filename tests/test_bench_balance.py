@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
@@ -18,6 +19,7 @@ from bench.virtual_cluster import (
     FrameRecord,
     Phases,
     VirtualCluster,
+    VirtualNode,
     rect_sums,
     run_path,
     summarize,
@@ -26,6 +28,7 @@ from bench.virtual_cluster import (
 from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile
 from tessera.balancers.static import StaticBalancer
+from tessera.codec import Codec
 from tessera.geometry import Rect
 from tessera.scheduler import SchedulerConfig
 from tests.balance_support import cameras
@@ -211,6 +214,18 @@ def test_a_cancelled_frame_leaves_the_node_queue() -> None:
     assert [(r.frame_id, r.camera, r.done_ms) for r in records] == [(1, 0, 10.0), (3, 2, 20.0)]
     assert cluster.scheduler.frames_cancelled == 1
     assert records[1].spans == ((10.0, 20.0, 10.0),)
+
+
+def test_a_cancel_keeps_the_tile_a_node_is_on() -> None:
+    """A cancel reaching a node while it renders a tile of that frame drops only the queued ones (a
+    real node cannot stop a draw): the tile it is on still ends, as its span says."""
+    node = VirtualNode(1.0, deque([(5, 0, Rect(0, 0, 1, 1), Codec.RAW), (5, 1, Rect(1, 0, 1, 1), Codec.RAW),
+                             (6, 0, Rect(0, 0, 1, 1), Codec.RAW)]), busy=True)
+    VirtualCluster._cancel_queued(node, (5,))
+    assert [(f, t) for f, t, _, _ in node.queue] == [(5, 0), (6, 0)]
+    idle = VirtualNode(1.0, deque([(5, 1, Rect(1, 0, 1, 1), Codec.RAW)]))
+    VirtualCluster._cancel_queued(idle, (5,))
+    assert not idle.queue
 
 
 # ------------------------------------------------------------------------------- balancer inputs
