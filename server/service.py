@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from typing import Any
 
@@ -91,17 +92,23 @@ class RenderService:
 
     async def _timer(self) -> None:
         """Tick the scheduler at its next deadline (frame-rate cap, still frame, tile timeouts) and
-        look at calibration timeouts; sleeps while nothing is due."""
+        look at calibration timeouts every ``TIMER_MAX_WAIT_S``; events only make it look at the
+        deadline again, so it costs nothing per tile."""
+        calibration_at = time.monotonic()
         while True:
             now = time.monotonic()
             deadline = self.scheduler.next_deadline(now)
-            wait = TIMER_MAX_WAIT_S if deadline is None else min(max(deadline - now, 0.0), TIMER_MAX_WAIT_S)
+            wake_at = min(calibration_at + TIMER_MAX_WAIT_S, deadline if deadline is not None else math.inf)
             self._wake.clear()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout=wait)
-            self.scheduler.tick(time.monotonic())
-            self._apply()
-            self._start_calibration()
+                await asyncio.wait_for(self._wake.wait(), timeout=max(wake_at - now, 0.0))
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                self.scheduler.tick(now)
+                self._apply()
+            if now >= calibration_at + TIMER_MAX_WAIT_S:
+                calibration_at = now
+                self._start_calibration()
 
     def _apply(self) -> None:
         """Carry out the scheduler's actions, then let the timer look at the new deadline."""

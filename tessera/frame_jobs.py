@@ -62,6 +62,8 @@ class FrameJob:
     version: int = 0
     changed_at: float = 0.0
     inputs: dict[object, int] = field(default_factory=dict)
+    tiles_done: int = 0
+    sends_done: int = 0
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
@@ -77,11 +79,12 @@ class FrameJob:
 
     @property
     def complete(self) -> bool:
-        return all(t.done for t in self.tiles)
+        return self.tiles_done == len(self.tiles)
 
     @property
     def timings_complete(self) -> bool:
-        return all(t.done and t.send_ms is not None for t in self.tiles)
+        """Every tile arrived and its send time too (counted, O(1): asked on every ``tile_sent``)."""
+        return self.complete and self.sends_done == len(self.tiles)
 
     def render_message(self, tile_ids: list[int]) -> dict:
         """The ``render`` control message for some of this frame's tiles."""
@@ -111,14 +114,17 @@ class FrameJob:
         if header.codec != self.codec:
             raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
         tile.header, tile.payload, tile.rendered_by = header, payload, node_id
+        self.tiles_done += 1
         return tile
 
     def record_send(self, node_id: int, tile_id: int, send_ms: float,
                     counters: dict[str, float | str] | None = None) -> None:
         """The node's ``tile_sent``: send time (ms) and its per-tile counters (e.g. triangles drawn)."""
         if 0 <= tile_id < len(self.tiles) and self.tiles[tile_id].rendered_by == node_id:
-            self.tiles[tile_id].send_ms = send_ms
-            self.tiles[tile_id].counters = dict(counters or {})
+            tile = self.tiles[tile_id]
+            self.sends_done += tile.send_ms is None
+            tile.send_ms = send_ms
+            tile.counters = dict(counters or {})
 
     def counters_by_node(self) -> dict[int, dict[str, float | str]]:
         """Per-node sums of the tiles' numeric counters (text counters: the last tile's value)."""

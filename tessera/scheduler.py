@@ -173,6 +173,8 @@ class FrameScheduler:
         self.balancer_error: str | None = None
         self._awaiting_send: dict[int, FrameJob] = {}
         self._next_start_at = 0.0
+        self._ready_nodes: list[NodeSchedule] | None = None
+        self._idle: set[int] = set()
 
     # ----------------------------------------------------------------- output
     def drain(self) -> list[Action]:
@@ -184,16 +186,19 @@ class FrameScheduler:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
         times = []
-        ready = self._ready()
-        startable = len(self.in_flight) < self.config.max_in_flight and any(n.idle for n in ready)
+        startable = len(self.in_flight) < self.config.max_in_flight and self._idle
         owed = self._owed(now, ignore_quiet=True) if startable else None
         if owed is not None:
             quiet_until = self._changed_at + self.config.still_delay_s if owed == "still" else now
             times.append(max(self._next_start_at, quiet_until))
-        dispatched = [t for n in self.nodes.values() for t in n.outstanding.values()]
-        if dispatched:
-            times.append(min(dispatched) + self.config.tile_timeout_s)
+        if self.in_flight:
+            times.append(self._oldest_dispatch() + self.config.tile_timeout_s)
         return min(times) if times else None
+
+    def _oldest_dispatch(self) -> float:
+        """No tile owed was dispatched before this (the oldest frame in flight's start; tiles
+        re-dispatched later only make it early, so a tick comes early, never late)."""
+        return min(job.started_at for job in self.in_flight.values())
 
     @property
     def state_version(self) -> int:
@@ -260,6 +265,8 @@ class FrameScheduler:
     def node_ready(self, node_id: int, now: float) -> None:
         node = self.nodes[node_id]
         node.ready, node.idle_since = True, now
+        self._ready_nodes = None
+        self._touch(node)
         self._changed(now, supersede=False)
 
     def set_speed(self, node_id: int, speed: float) -> None:
@@ -273,6 +280,8 @@ class FrameScheduler:
         if node is None:
             return
         node.outstanding.clear()
+        self._ready_nodes = None
+        self._idle.discard(node_id)
         ready = self._ready()
         for job in list(self.in_flight.values()):
             owed = job.owed_by(node_id)
@@ -305,6 +314,7 @@ class FrameScheduler:
                 raise ProtocolError(f"tile of frame {header.frame_id}, which was never dispatched")
             if node.outstanding.pop(key, None) is not None and not node.outstanding:
                 node.idle_since = now
+                self._touch(node)
             self._advance(now)
             return None
         job.accept(node_id, header, payload)
@@ -312,6 +322,7 @@ class FrameScheduler:
         node.tiles_rendered += 1
         if not node.outstanding:
             node.idle_since = now
+            self._touch(node)
         if job.complete:
             self._complete(job, now)
         self._advance(now)
@@ -328,15 +339,26 @@ class FrameScheduler:
     def tick(self, now: float) -> None:
         """Time passed: drop nodes that owe a tile for over ``tile_timeout_s``, start what is due."""
         deadline = now - self.config.tile_timeout_s
-        for node in list(self.nodes.values()):
-            if node.outstanding and min(node.outstanding.values()) < deadline:
-                self._actions.append(CloseNode(node.node_id, 1011, "tile timeout"))
-                self.remove_node(node.node_id, now)
+        if self.in_flight and self._oldest_dispatch() < deadline:
+            for node in list(self.nodes.values()):
+                if node.outstanding and next(iter(node.outstanding.values())) < deadline:
+                    self._actions.append(CloseNode(node.node_id, 1011, "tile timeout"))
+                    self.remove_node(node.node_id, now)
         self._advance(now)
 
     # ----------------------------------------------------------------- internals
     def _ready(self) -> list[NodeSchedule]:
-        return [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready]
+        """Ready nodes by id (kept until the node set or a node's readiness changes)."""
+        if self._ready_nodes is None:
+            self._ready_nodes = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready]
+        return self._ready_nodes
+
+    def _touch(self, node: NodeSchedule) -> None:
+        """Keep ``_idle`` (ready nodes that owe nothing) in step after ``node``'s queue changed."""
+        if node.idle:
+            self._idle.add(node.node_id)
+        else:
+            self._idle.discard(node.node_id)
 
     def _changed(self, now: float, supersede: bool) -> None:
         self._version += 1
@@ -351,7 +373,7 @@ class FrameScheduler:
     def _begun(self, job: FrameJob) -> bool:
         """True once a node works on ``job``: a tile arrived, a pulled tile went out, or one of its
         tiles heads a node's queue."""
-        if any(t.done for t in job.tiles) or (job.pull and len(job.pull_queue) < len(job.tiles)):
+        if job.tiles_done or (job.pull and len(job.pull_queue) < len(job.tiles)):
             return True
         return any(next(iter(n.outstanding))[0] == job.frame_id for n in self.nodes.values() if n.outstanding)
 
@@ -364,6 +386,7 @@ class FrameScheduler:
             if keys:
                 for key in keys:
                     del node.outstanding[key]
+                self._touch(node)
                 self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))
 
     def _owed(self, now: float, ignore_quiet: bool = False) -> str | None:
@@ -391,7 +414,7 @@ class FrameScheduler:
             ready = self._ready()
             if not ready or len(self.in_flight) >= self.config.max_in_flight or now < self._next_start_at:
                 return
-            if not any(n.idle for n in ready):
+            if not self._idle:
                 return
             kind = self._owed(now)
             if kind is None:
@@ -451,12 +474,15 @@ class FrameScheduler:
         for tile_id in tile_ids:
             job.tiles[tile_id].node_id = node.node_id
             node.outstanding[(job.frame_id, tile_id)] = now
+        self._idle.discard(node.node_id)
         self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids)))
 
     def _pump_pull(self, now: float) -> None:
         """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
         first; when several are idle at once the fastest gets the heaviest, then the first freed."""
-        idle = sorted((n for n in self.nodes.values() if n.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
+        if not self._idle or not any(job.pull_queue for job in self.in_flight.values()):
+            return
+        idle = sorted((self.nodes[i] for i in self._idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
         for job in self.in_flight.values():
             while job.pull_queue and idle:
                 self._push(job, idle.pop(0), [job.pull_queue.popleft()], now)
