@@ -39,6 +39,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -201,86 +202,115 @@ def wait_ready(client: httpx.Client, nodes: int, timeout: float = 300.0) -> dict
     raise RuntimeError(f"{nodes} nodes not ready and calibrated within {timeout} s")
 
 
+@dataclass
+class Run:
+    """What one drive of the service recorded: perf_counter times (s) of the start and the last
+    input, coordinator stats at 1 s, at the last input and at the end, and the idle window's
+    frames, CPU seconds and length."""
+
+    started: float
+    last_input: float
+    stats_before: dict[str, Any]
+    stats_moving: dict[str, Any]
+    stats_idle: dict[str, Any]
+    idle_frames: int
+    idle_cpu_s: float
+    idle_wall_s: float
+
+
+def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer, coordinator_pid: int) -> Run:
+    """Turn the camera at ``--input-hz`` for ``--moving-s``, let go, measure the idle window."""
+    start_camera = viewer.camera
+    started = next_send = time.perf_counter()
+    stats_before: dict[str, Any] | None = None
+    while (now := time.perf_counter()) < started + args.moving_s:
+        if stats_before is None and now >= started + 1.0:
+            stats_before = client.get("/api/stats").json()
+        viewer.send_camera(orbit(start_camera, 2.0 * math.pi * (now - started) / args.turn_s))
+        next_send += 1.0 / args.input_hz
+        time.sleep(max(0.0, next_send - time.perf_counter()))
+    last_input = time.perf_counter()
+    stats_moving = client.get("/api/stats").json()
+    time.sleep(IDLE_AFTER_S)
+    pids = process_tree(coordinator_pid)
+    cpu_before, idle_started, frames_before = cpu_seconds(pids), time.perf_counter(), len(viewer.frames)
+    time.sleep(args.idle_s)
+    idle_cpu = cpu_seconds(pids) - cpu_before
+    idle_wall = time.perf_counter() - idle_started
+    assert stats_before is not None, "--moving-s must exceed 1 s"
+    return Run(started, last_input, stats_before, stats_moving, client.get("/api/stats").json(),
+               len(viewer.frames) - frames_before, idle_cpu, idle_wall)
+
+
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     size = args.size
     server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", f"{size[0]}x{size[1]}",
                    *shlex.split(args.server_args)]
     process, url = start_coordinator(server_args)
     try:
-        with httpx.Client(base_url=url, timeout=120) as client, \
-                ws_client.connect(url.replace("http://", "ws://") + "/ws/view", max_size=256 << 20) as ws:
+        with httpx.Client(base_url=url, timeout=120) as client:
             wait_ready(client, args.nodes)
-            viewer = ScriptedViewer(ws)
-            start_camera = viewer.camera
-            period = 1.0 / args.input_hz
-            started = time.perf_counter()
-            stats_before = None
-            next_send = started
-            while (now := time.perf_counter()) < started + args.moving_s:
-                if stats_before is None and now >= started + 1.0:
-                    stats_before = client.get("/api/stats").json()
-                viewer.send_camera(orbit(start_camera, 2.0 * math.pi * (now - started) / args.turn_s))
-                next_send += period
-                time.sleep(max(0.0, next_send - time.perf_counter()))
-            last_input = time.perf_counter()
-            stats_moving = client.get("/api/stats").json()
-            time.sleep(IDLE_AFTER_S)
-            pids = process_tree(process.pid)
-            cpu_before, idle_started = cpu_seconds(pids), time.perf_counter()
-            frames_before_idle = len(viewer.frames)
-            time.sleep(args.idle_s)
-            cpu_idle = cpu_seconds(pids) - cpu_before
-            idle_wall = time.perf_counter() - idle_started
-            stats_idle = client.get("/api/stats").json()
-            viewer.stop()
+            if args.balancer_params:
+                name = client.get("/api/balancer").json()["name"]
+                client.put("/api/balancer", json={"name": name, "params": json.loads(args.balancer_params)}) \
+                    .raise_for_status()
+            with ws_client.connect(url.replace("http://", "ws://") + "/ws/view", max_size=256 << 20) as ws:
+                viewer = ScriptedViewer(ws)
+                run = drive(args, client, viewer, process.pid)
+                viewer.stop()
     finally:
         process.send_signal(signal.SIGINT)
         try:
             process.wait(timeout=30)
         except subprocess.TimeoutExpired:
             process.kill()
+    return figures(args, viewer, run)
 
+
+def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[str, Any]:
+    """The benchmark's figures from the frames the viewer received and the coordinator's stats."""
     with viewer.lock:
         frames = list(viewer.frames)
-    window = [f for f in frames if started + 1.0 <= f["at"] <= last_input and not f["still"]]
-    moving_s = last_input - (started + 1.0)
+    window_start = run.started + 1.0
+    window = [f for f in frames if window_start <= f["at"] <= run.last_input and not f["still"]]
+    moving_s = run.last_input - window_start
     intervals = np.diff([f["at"] for f in window])
     interval_ms = float(intervals.mean() * 1000.0) if len(intervals) else math.nan
-    lat = np.array(latencies([f for f in frames if f["at"] >= started + 1.0 and f["at"] <= last_input + 1.0],
-                             {k: v for k, v in viewer.sent.items() if v >= started + 1.0}))
-    stills = [f for f in frames if f["still"] and f["at"] > last_input]
-    still = stills[0] if stills else None
+    lat = np.array(latencies([f for f in frames if window_start <= f["at"] <= run.last_input + 1.0],
+                             {k: v for k, v in viewer.sent.items() if v >= window_start}))
+    stills = [f for f in frames if f["still"] and f["at"] > run.last_input]
+    moving, before = run.stats_moving, run.stats_before
     result: dict[str, Any] = {
-        "nodes": args.nodes, "scene": args.scene, "size": list(size), "server_args": args.server_args,
-        "balancer": stats_moving["balancer"], "renderer": stats_moving["nodes"][0]["renderer"],
+        "nodes": args.nodes, "scene": args.scene, "size": list(args.size), "server_args": args.server_args,
+        "balancer_params": moving["balancer_params"],
+        "balancer": moving["balancer"], "renderer": moving["nodes"][0]["renderer"],
         "fps_moving": len(window) / moving_s,
-        "published_fps_moving": (stats_moving["coordinator_cpu"]["frames"] - stats_before["coordinator_cpu"]["frames"])
-        / (last_input - started - 1.0) if stats_before else math.nan,
+        "published_fps_moving": (moving["coordinator_cpu"]["frames"] - before["coordinator_cpu"]["frames"]) / moving_s,
         "frame_interval_ms": interval_ms,
         "latency_p50_ms": float(np.percentile(lat, 50)) if len(lat) else math.nan,
         "latency_p90_ms": float(np.percentile(lat, 90)) if len(lat) else math.nan,
         "latency_samples": len(lat),
         "kb_interactive": float(np.mean([f["bytes"] for f in window]) / 1024.0) if window else math.nan,
-        "idle_fps": (len(frames) - frames_before_idle) / idle_wall,
-        "idle_cores": cpu_idle / idle_wall,
-        "imbalance_avg": stats_moving["imbalance_avg"],
-        "coordinator_latency_ms": stats_moving["latency_ms"],
-        "frames_cancelled": stats_idle["frames_cancelled"],
-        "frames_published": stats_idle["coordinator_cpu"]["frames"],
+        "idle_fps": run.idle_frames / run.idle_wall_s,
+        "idle_cores": run.idle_cpu_s / run.idle_wall_s,
+        "imbalance_avg": moving["imbalance_avg"],
+        "coordinator_latency_ms": moving["latency_ms"],
+        "frames_cancelled": run.stats_idle["frames_cancelled"],
+        "frames_published": run.stats_idle["coordinator_cpu"]["frames"],
     }
     result["latency_p50_frames"] = result["latency_p50_ms"] / interval_ms
     result["latency_p90_frames"] = result["latency_p90_ms"] / interval_ms
-    if still is not None:
+    result.update(still_kb=math.nan, still_after_ms=math.nan, still_identical=False, still_psnr_db=math.nan,
+                  still_pixels_off=math.nan)
+    if stills:
+        still = stills[0]
         image = composite(still["message"])
-        reference = render_once(args.scene, viewer.camera, size)
+        reference = render_once(args.scene, viewer.camera, args.size)
         off = np.abs(image.astype(np.int16) - reference.astype(np.int16)).max(axis=2) > 8
         quality = psnr(image, reference)
-        result.update(still_kb=still["bytes"] / 1024.0, still_after_ms=(still["at"] - last_input) * 1000.0,
+        result.update(still_kb=still["bytes"] / 1024.0, still_after_ms=(still["at"] - run.last_input) * 1000.0,
                       still_identical=quality == math.inf, still_psnr_db=None if quality == math.inf else quality,
                       still_pixels_off=float(off.mean()))
-    else:
-        result.update(still_kb=math.nan, still_after_ms=math.nan, still_identical=False, still_psnr_db=math.nan,
-                      still_pixels_off=math.nan)
     return result
 
 
@@ -316,6 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input-hz", type=float, default=60.0, help="camera messages per second (default 60)")
     parser.add_argument("--turn-s", type=float, default=8.0, help="seconds per turn of the orbit (default 8)")
     parser.add_argument("--server-args", default="", help="extra flags for python -m server, e.g. '--max-in-flight 1'")
+    parser.add_argument("--balancer-params", default="",
+                        help='JSON parameters for the balancer, set with PUT /api/balancer, e.g. \'{"tau_ms": 100}\'')
     parser.add_argument("--json", type=Path, help="write the figures here")
     return parser
 

@@ -13,6 +13,10 @@ from tessera.cli_values import parse_background, size_parser
 from tessera.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
+#: The best measured balancer (README "Balancing": bench.balance on Lucy's orbit, fly-through and orbit
+#: with speeds 1,1,2,4 and the Pan's orbit, and bench.live): the highest speedup on two of the four,
+#: within 2–3 % of the best on the others, the lowest or second-lowest imbalance on all four.
+DEFAULT_BALANCER = "adaptive-predict"
 parse_size = size_parser(16, 8192)
 
 
@@ -71,7 +75,7 @@ class Settings:
     port: int = 8000
     scene: str = DEFAULT_SCENE
     size: tuple[int, int] = (1280, 720)
-    balancer: str = "static"
+    balancer: str = DEFAULT_BALANCER
     token: str | None = None
     local_nodes: int = 0
     codec: Codec = Codec.JPEG
@@ -99,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--port", type=_port, help="port (default 8000; 0 picks a free one)")
     parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
     parser.add_argument("--size", type=parse_size, help="frame size WxH (default 1280x720)")
-    parser.add_argument("--balancer", help="load balancer (default static)")
+    parser.add_argument("--balancer", help=f"load balancer (default {DEFAULT_BALANCER})")
     parser.add_argument("--token", help="shared secret that nodes and viewers must present")
     parser.add_argument("--local-nodes", type=_count, help="spawn N render nodes on this machine")
     parser.add_argument("--codec", type=_codec,

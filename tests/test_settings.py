@@ -14,7 +14,7 @@ def test_defaults():
     assert settings == Settings()
     assert (settings.host, settings.port, settings.scene, settings.size) == ("127.0.0.1", 8000, DEFAULT_SCENE,
                                                                             (1280, 720))
-    assert (settings.balancer, settings.token, settings.local_nodes, settings.codec) == ("static", None, 0,
+    assert (settings.balancer, settings.token, settings.local_nodes, settings.codec) == ("adaptive-predict", None, 0,
                                                                                          Codec.JPEG)
     assert (settings.interactive_quality, settings.max_in_flight, settings.background, settings.node_slowdowns) == (
         60, 2, None, ())
