@@ -429,7 +429,7 @@ class FrameScheduler:
         if still:
             assert config.still_codec is not None
             codec, quality = config.still_codec, config.still_quality
-            self._still_version = self._version
+            self._still_version, self._settle_left = self._version, 0
         else:
             codec, quality = config.codec, config.interactive_quality
             if self._started_version == self._version:

@@ -80,6 +80,21 @@ def finish(s: FrameScheduler, frame_id: int, now: float):
 # ------------------------------------------------------------------------------- render on demand
 
 
+class Drifting(Balancer):
+    """Moves its cut one pixel every frame: never settles."""
+
+    name = "drifting"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.cut = 16
+
+    def partition(self, inputs: BalanceInput) -> Partition:
+        self.cut += 1
+        a, b = inputs.node_ids
+        return Partition((Tile(Rect(0, 0, self.cut, 32), a), Tile(Rect(self.cut, 0, 64 - self.cut, 32), b)))
+
+
 def test_nothing_renders_without_a_camera_or_a_ready_node():
     s = scheduler(nodes=0)
     s.set_camera(camera(), 0.0)
@@ -119,20 +134,6 @@ def test_no_still_frame_when_still_codec_is_none():
 
 
 def test_settling_frames_are_bounded_and_only_while_the_partition_moves():
-    class Drifting(Balancer):
-        """Moves its cut one pixel every frame: never settles."""
-
-        name = "drifting"
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.cut = 16
-
-        def partition(self, inputs: BalanceInput) -> Partition:
-            self.cut += 1
-            a, b = inputs.node_ids
-            return Partition((Tile(Rect(0, 0, self.cut, 32), a), Tile(Rect(self.cut, 0, 64 - self.cut, 32), b)))
-
     s = scheduler(balancer=Drifting(), settle_frames=3, still_codec=None)
     s.set_camera(camera(), 0.0)
     frames = 0
@@ -150,6 +151,34 @@ def test_settling_frames_are_bounded_and_only_while_the_partition_moves():
     steady.set_camera(camera(1), 0.03)
     finish(steady, 3, 0.04)
     assert not steady.in_flight
+
+
+def test_the_still_frame_is_the_last_frame_even_when_the_partition_moves_again():
+    """Steady for the first two frames (settling stops with frames to spare), moving from the still
+    frame on: no settling frame may follow the still frame."""
+
+    class MovesLate(Drifting):
+        def __init__(self) -> None:
+            super().__init__()
+            self.calls = 0
+
+        def partition(self, inputs: BalanceInput) -> Partition:
+            self.calls += 1
+            self.cut = 16 if self.calls <= 2 else self.cut + 1
+            a, b = inputs.node_ids
+            return Partition((Tile(Rect(0, 0, self.cut, 32), a), Tile(Rect(self.cut, 0, 64 - self.cut, 32), b)))
+
+    s = scheduler(balancer=MovesLate(), settle_frames=3, still_delay_s=0.1)
+    s.set_camera(camera(), 0.0)
+    now, published_still = 0.0, []
+    for _ in range(20):
+        now += 0.05
+        s.tick(now)
+        if s.in_flight:
+            job = s.in_flight[min(s.in_flight)]
+            published_still += [a.job.still for a in finish(s, job.frame_id, now) if isinstance(a, PublishFrame)]
+    assert published_still[-1] is True and published_still.count(True) == 1, published_still
+    assert s.settled and not s.in_flight
 
 
 def test_balancer_change_node_join_and_scene_change_render_again():
