@@ -4,7 +4,8 @@
 [--codec jpeg] [--json OUT]``
 
 For each size: starts ``python -m server --local-nodes N``, connects one real viewer over
-``/ws/view``, lets it warm up, then measures over a window: published frames/s, frames/s the
+``/ws/view`` that turns the camera at 60 Hz (frames render only while something changes), lets it
+warm up, then measures over a window: published frames/s, frames/s the
 viewer received, the coordinator's CPU milliseconds per frame spent receiving tiles and publishing
 frames (thread CPU time around those handlers) and its whole-process CPU per frame, the CPU cost of
 one on-demand composite (decode + paste, from ``GET /api/frame.png``'s ``X-Composite-Ms``), and
@@ -15,10 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import re
-import signal
-import subprocess
+import math
 import sys
 import threading
 import time
@@ -27,24 +25,15 @@ from pathlib import Path
 import httpx
 import websockets.sync.client as ws_client
 
-REPO = Path(__file__).resolve().parents[1]
+from bench.processes import orbit, start_coordinator
 
-
-def start_coordinator(args: list[str]) -> tuple[subprocess.Popen, str]:
-    process = subprocess.Popen([sys.executable, "-m", "server", "--port", "0", "--log-level", "warning", *args],
-                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    assert process.stdout is not None
-    for line in process.stdout:
-        match = re.search(r"Tessera serving on (http://\S+)", line)
-        if match:
-            threading.Thread(target=lambda: [None for _ in process.stdout], daemon=True).start()
-            return process, match.group(1).rstrip("/")
-    raise RuntimeError("coordinator exited before serving")
+INPUT_HZ = 60.0
+TURN_S = 8.0
 
 
 class ViewerCounter:
-    """A real viewer connection that counts frames and bytes received."""
+    """A real viewer connection that turns the camera at :data:`INPUT_HZ` (a turn in
+    :data:`TURN_S` s) and counts the frames and bytes it receives."""
 
     def __init__(self, url: str) -> None:
         self.frames = 0
@@ -55,9 +44,16 @@ class ViewerCounter:
 
     def _run(self, url: str) -> None:
         with ws_client.connect(url, max_size=256 << 20) as ws:
+            camera = json.loads(ws.recv(timeout=30))["camera"]
+            started = next_input = time.monotonic()
             while not self._stop.is_set():
+                now = time.monotonic()
+                if now >= next_input:
+                    turned = orbit(camera, 2.0 * math.pi * (now - started) / TURN_S)
+                    ws.send(json.dumps({"type": "camera", "camera": turned}))
+                    next_input += 1.0 / INPUT_HZ
                 try:
-                    message = ws.recv(timeout=0.5)
+                    message = ws.recv(timeout=max(next_input - time.monotonic(), 0.0))
                 except TimeoutError:
                     continue
                 if isinstance(message, bytes):
@@ -80,8 +76,8 @@ def wait_ready(client: httpx.Client, nodes: int, timeout: float = 180.0) -> None
 
 
 def measure(size: str, nodes: int, seconds: float, scene: str, codec: str) -> dict:
-    process, url = start_coordinator(["--local-nodes", str(nodes), "--size", size, "--scene", scene,
-                                      "--codec", codec])
+    coordinator, url = start_coordinator(["--local-nodes", str(nodes), "--size", size, "--scene", scene,
+                                          "--codec", codec])
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             wait_ready(client, nodes)
@@ -113,11 +109,7 @@ def measure(size: str, nodes: int, seconds: float, scene: str, codec: str) -> di
                 "renderer": after["nodes"][0]["renderer"] if after["nodes"] else "",
             }
     finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        coordinator.stop(timeout=20.0)
 
 
 def main(argv: list[str] | None = None) -> int:

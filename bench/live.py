@@ -31,9 +31,7 @@ import json
 import math
 import os
 import platform
-import re
 import shlex
-import signal
 import subprocess
 import sys
 import tempfile
@@ -48,66 +46,12 @@ import numpy as np
 import websockets.sync.client as ws_client
 from PIL import Image
 
+from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator
 from tessera.cli_values import size_parser
 from tessera.codec import decode
 from tessera.protocol import unpack_frame
 
-REPO = Path(__file__).resolve().parents[1]
 IDLE_AFTER_S = 2.0
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def start_coordinator(args: list[str]) -> tuple[subprocess.Popen, str]:
-    """``python -m server --port 0 …``; its process and base URL."""
-    process = subprocess.Popen([sys.executable, "-m", "server", "--port", "0", "--log-level", "warning", *args],
-                               cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    assert process.stdout is not None
-    for line in process.stdout:
-        match = re.search(r"Tessera serving on (http://\S+)", line)
-        if match:
-            threading.Thread(target=lambda: [None for _ in process.stdout], daemon=True).start()
-            return process, match.group(1).rstrip("/")
-    raise RuntimeError("the coordinator exited before serving")
-
-
-def process_tree(pid: int) -> list[int]:
-    """``pid`` and its descendants, from /proc."""
-    parents: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as stat:
-                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
-    tree, frontier = [pid], [pid]
-    while frontier:
-        children = [child for child, parent in parents.items() if parent in frontier]
-        tree += children
-        frontier = children
-    return tree
-
-
-def cpu_seconds(pids: list[int]) -> float:
-    """User + system CPU seconds of ``pids`` (processes that ended count 0)."""
-    total = 0
-    for pid in pids:
-        try:
-            with open(f"/proc/{pid}/stat") as stat:
-                fields = stat.read().rsplit(")", 1)[1].split()
-            total += int(fields[11]) + int(fields[12])
-        except (OSError, ValueError, IndexError):
-            continue
-    return total / CLOCK_TICKS
-
-
-def orbit(camera: dict[str, Any], angle: float) -> dict[str, Any]:
-    """``camera`` turned by ``angle`` radians about the vertical axis through its target."""
-    eye, target = np.asarray(camera["eye"], dtype=float), np.asarray(camera["target"], dtype=float)
-    x, z = (eye - target)[0], (eye - target)[2]
-    c, s = math.cos(angle), math.sin(angle)
-    return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
 
 
 class ScriptedViewer:
@@ -222,10 +166,17 @@ def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer
     """Turn the camera at ``--input-hz`` for ``--moving-s``, let go, measure the idle window."""
     start_camera = viewer.camera
     started = next_send = time.perf_counter()
+    pauses = np.random.default_rng(0)
+    next_pause = started + args.pause_every_s
     stats_before: dict[str, Any] | None = None
     while (now := time.perf_counter()) < started + args.moving_s:
         if stats_before is None and now >= started + 1.0:
             stats_before = client.get("/api/stats").json()
+        if args.pause_ms and now >= next_pause:
+            time.sleep(pauses.uniform(*args.pause_ms) / 1000.0)
+            next_pause = next_send = time.perf_counter()
+            next_pause += args.pause_every_s
+            continue
         viewer.send_camera(orbit(start_camera, 2.0 * math.pi * (now - started) / args.turn_s))
         next_send += 1.0 / args.input_hz
         time.sleep(max(0.0, next_send - time.perf_counter()))
@@ -246,7 +197,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     size = args.size
     server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", f"{size[0]}x{size[1]}",
                    *shlex.split(args.server_args)]
-    process, url = start_coordinator(server_args)
+    coordinator, url = start_coordinator(server_args)
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             wait_ready(client, args.nodes)
@@ -256,14 +207,10 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                     .raise_for_status()
             with ws_client.connect(url.replace("http://", "ws://") + "/ws/view", max_size=256 << 20) as ws:
                 viewer = ScriptedViewer(ws)
-                run = drive(args, client, viewer, process.pid)
+                run = drive(args, client, viewer, coordinator.process.pid)
                 viewer.stop()
     finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        coordinator.stop(timeout=30.0)
     return figures(args, viewer, run)
 
 
@@ -279,6 +226,7 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
     lat = np.array(latencies([f for f in frames if window_start <= f["at"] <= run.last_input + 1.0],
                              {k: v for k, v in viewer.sent.items() if v >= window_start}))
     stills = [f for f in frames if f["still"] and f["at"] > run.last_input]
+    stills_moving = sum(f["still"] for f in frames if window_start <= f["at"] <= run.last_input)
     moving, before = run.stats_moving, run.stats_before
     result: dict[str, Any] = {
         "nodes": args.nodes, "scene": args.scene, "size": list(args.size), "server_args": args.server_args,
@@ -296,6 +244,7 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
         "imbalance_avg": moving["imbalance_avg"],
         "coordinator_latency_ms": moving["latency_ms"],
         "frames_cancelled": run.stats_idle["frames_cancelled"],
+        "stills_while_moving": stills_moving,
         "frames_published": run.stats_idle["coordinator_cpu"]["frames"],
     }
     result["latency_p50_frames"] = result["latency_p50_ms"] / interval_ms
@@ -327,7 +276,8 @@ def report(result: dict[str, Any]) -> str:
         f"p90 {result['latency_p90_ms']:.1f} ms = {result['latency_p90_frames']:.2f} frames "
         f"({result['latency_samples']} inputs answered); "
         f"coordinator input→publish {result['coordinator_latency_ms']:.1f} ms",
-        f"  imbalance_avg   {result['imbalance_avg']:.3f}; frames cancelled {result['frames_cancelled']}",
+        f"  imbalance_avg   {result['imbalance_avg']:.3f}; frames cancelled {result['frames_cancelled']}; "
+        f"still frames shown while moving {result['stills_while_moving']}",
         f"  frames          {result['kb_interactive']:.1f} KB interactive; still {result['still_kb']:.1f} KB, "
         f"{result['still_after_ms']:.0f} ms after the last input",
         f"  still vs render-once  {psnr_text}, {result['still_pixels_off']:.4%} of pixels off by > 8",
@@ -346,6 +296,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input-hz", type=float, default=60.0, help="camera messages per second (default 60)")
     parser.add_argument("--turn-s", type=float, default=8.0, help="seconds per turn of the orbit (default 8)")
     parser.add_argument("--server-args", default="", help="extra flags for python -m server, e.g. '--max-in-flight 1'")
+    parser.add_argument("--pause-ms", type=lambda t: tuple(float(v) for v in t.split(",")),
+                        help="LO,HI: a hand that stops: every --pause-every-s, no input for a random LO…HI ms "
+                             "(seeded; skews fps and latency, for the still frame's quiet period)")
+    parser.add_argument("--pause-every-s", type=float, default=1.0)
     parser.add_argument("--balancer-params", default="",
                         help='JSON parameters for the balancer, set with PUT /api/balancer, e.g. \'{"tau_ms": 100}\'')
     parser.add_argument("--json", type=Path, help="write the figures here")

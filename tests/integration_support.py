@@ -16,6 +16,7 @@ import httpx
 import numpy as np
 from PIL import Image
 
+from bench.processes import orbit
 from tests.conftest import PYTHON, REPO, seconds
 
 
@@ -87,14 +88,6 @@ def orbit_cameras(bounds: list[list[float]], count: int) -> list[dict[str, Any]]
     return cameras
 
 
-def turned(camera: dict[str, Any], angle: float) -> dict[str, Any]:
-    """``camera`` with its eye turned by ``angle`` radians about the vertical axis through its target."""
-    eye, target = np.asarray(camera["eye"], dtype=float), np.asarray(camera["target"], dtype=float)
-    x, z = (eye - target)[0], (eye - target)[2]
-    c, s = np.cos(angle), np.sin(angle)
-    return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
-
-
 @contextlib.contextmanager
 def camera_moving(base_url: str, camera: dict[str, Any], hz: float = 30.0, token: str | None = None) -> Iterator[None]:
     """While inside, a user turns ``camera`` slowly (PUT /api/camera ``hz`` times a second, its own
@@ -106,7 +99,7 @@ def camera_moving(base_url: str, camera: dict[str, Any], hz: float = 30.0, token
         with httpx.Client(base_url=base_url, timeout=seconds(30), headers=headers) as client:
             step = 0
             while not stop.wait(1.0 / hz):
-                client.put("/api/camera", json=turned(camera, 0.02 * np.sin(step / 10.0))).raise_for_status()
+                client.put("/api/camera", json=orbit(camera, 0.02 * np.sin(step / 10.0))).raise_for_status()
                 step += 1
 
     thread = threading.Thread(target=move, daemon=True)
