@@ -22,11 +22,14 @@ from tessera.protocol import ProtocolError, TileHeader
 
 @dataclass
 class TileJob:
-    """One tile of a frame: assigned node (None while waiting to be pulled), result when back."""
+    """One tile of a frame: assigned node (None while waiting to be pulled), result when back.
+    ``earlier``: nodes it was assigned to before a backup copy went to ``node_id``; the first copy
+    back wins."""
 
     tile_id: int
     rect: Rect
     node_id: int | None
+    earlier: set[int] = field(default_factory=set)
     header: TileHeader | None = None
     payload: bytes | None = None
     rendered_by: int | None = None
@@ -98,21 +101,24 @@ class FrameJob:
             "tiles": [{"tile": i, "rect": self.tiles[i].rect.as_list()} for i in tile_ids],
         }
 
-    def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob:
+    def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob | None:
         """Record a tile result after checking it is the tile this node owes; ProtocolError if not.
-        The payload is kept as it is (see :func:`check_payload_size`)."""
+        None: the second copy of a tile that was also given to another node (dropped). The payload
+        is kept as it is (see :func:`check_payload_size`)."""
         if not 0 <= header.tile_id < len(self.tiles):
             raise ProtocolError(f"frame {self.frame_id} has no tile {header.tile_id}")
         tile = self.tiles[header.tile_id]
-        if tile.node_id != node_id:
+        if tile.node_id != node_id and node_id not in tile.earlier:
             raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was not assigned to this node")
-        if tile.done:
-            raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was already received")
         if header.rect != tile.rect:
             raise ProtocolError(
                 f"tile {header.tile_id} has rect {header.rect.as_list()}, expected {tile.rect.as_list()}")
         if header.codec != self.codec:
             raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
+        if tile.done:
+            if tile.rendered_by == node_id:
+                raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was already received")
+            return None
         tile.header, tile.payload, tile.rendered_by = header, payload, node_id
         self.tiles_done += 1
         return tile
@@ -142,6 +148,7 @@ class FrameJob:
         return out
 
     def owed_by(self, node_id: int) -> list[int]:
+        """Tiles assigned to ``node_id`` and not back yet (earlier owners of a backed-up tile owe none)."""
         return [t.tile_id for t in self.tiles if t.node_id == node_id and not t.done]
 
     def timings(self) -> tuple[TileTiming, ...]:

@@ -25,6 +25,12 @@ What it decides:
 * **Push and pull dispatch.** Push partitions go to their nodes at once; pull partitions (tile
   rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
   first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
+* **Stragglers and failed tiles.** A node whose current tile is ``backup_factor`` times later than
+  its expected time for it (its last frame's busy ms per pixel × the tile's pixels; at least
+  ``backup_floor_s``) is suspect: the tiles it owes are copied to other nodes (MapReduce's backup
+  tasks; the first copy back wins, the other is dropped) and it gets no new work until it answers
+  again. A tile the node reports it could not render goes to another node; ``max_tile_failures``
+  failures in a row close the node. A node silent past ``tile_timeout_s`` is closed.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
   frame completes, so the next frame is partitioned with them; send times, which each node
@@ -53,6 +59,8 @@ from tessera.protocol import ProtocolError, TileHeader
 AWAITING_SEND_FRAMES = 8
 #: Slots for node indices in viewer frames (u16 on the wire).
 MAX_NODE_SLOTS = 1 << 16
+#: How often frames in flight are looked at for stragglers (s).
+STRAGGLER_CHECK_S = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +78,9 @@ class SchedulerConfig:
     still_delay_s: float = 0.2
     settle_frames: int = 2
     tile_timeout_s: float = 20.0
+    backup_factor: float = 4.0
+    backup_floor_s: float = 0.25
+    max_tile_failures: int = 3
 
     def __post_init__(self) -> None:
         if self.max_in_flight < 1:
@@ -78,6 +89,8 @@ class SchedulerConfig:
             raise ValueError("max_fps must be > 0")
         if self.still_delay_s < 0.0 or self.settle_frames < 0 or not self.tile_timeout_s > 0.0:
             raise ValueError("still_delay_s and settle_frames must be >= 0, tile_timeout_s > 0")
+        if not (self.backup_factor > 1.0 and self.backup_floor_s >= 0.0 and self.max_tile_failures >= 1):
+            raise ValueError("backup_factor must be > 1, backup_floor_s >= 0, max_tile_failures >= 1")
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,14 +131,20 @@ Action = RenderTiles | CancelFrames | PublishFrame | CloseNode
 @dataclass
 class NodeSchedule:
     """One node as the scheduler sees it. ``outstanding``: (frame id, tile id) → dispatch time, in
-    the order the node works through them (its head is the tile it is on); ``slot``: the small
-    index viewers see the node by; the rest is the last complete frame's roll-up."""
+    the order the node works through them (its head is the tile it is on, since ``head_since``);
+    ``slot``: the small index viewers see the node by; ``suspect``: overdue, given no work until it
+    answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
+    failed in a row; the rest is the last complete frame's roll-up."""
 
     node_id: int
     slot: int
     ready: bool = False
     speed: float = 1.0
     idle_since: float = 0.0
+    head_since: float = 0.0
+    suspect: bool = False
+    ms_per_px: float | None = None
+    failures: int = 0
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)
     last_phases: dict[str, float] = field(default_factory=dict)
@@ -133,8 +152,13 @@ class NodeSchedule:
     tiles_rendered: int = 0
 
     @property
+    def schedulable(self) -> bool:
+        """Ready for work: its scene is loaded and it is not overdue."""
+        return self.ready and not self.suspect
+
+    @property
     def idle(self) -> bool:
-        return self.ready and not self.outstanding
+        return self.schedulable and not self.outstanding
 
 
 def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int], int | None]]:
@@ -175,6 +199,8 @@ class FrameScheduler:
         self._next_start_at = 0.0
         self._ready_nodes: list[NodeSchedule] | None = None
         self._idle: set[int] = set()
+        self._next_straggler_check = 0.0
+        self.backups = 0
 
     # ----------------------------------------------------------------- output
     def drain(self) -> list[Action]:
@@ -192,7 +218,7 @@ class FrameScheduler:
             quiet_until = self._changed_at + self.config.still_delay_s if owed == "still" else now
             times.append(max(self._next_start_at, quiet_until))
         if self.in_flight:
-            times.append(self._oldest_dispatch() + self.config.tile_timeout_s)
+            times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
         return min(times) if times else None
 
     def _oldest_dispatch(self) -> float:
@@ -288,7 +314,7 @@ class FrameScheduler:
             if not owed:
                 continue
             if not ready:
-                self._cancel(job)
+                self._cancel(job, now)
                 continue
             if job.pull:
                 for tile_id in reversed(owed):
@@ -312,17 +338,16 @@ class FrameScheduler:
         if job is None:
             if header.frame_id >= self.next_frame_id or header.frame_id < 1:
                 raise ProtocolError(f"tile of frame {header.frame_id}, which was never dispatched")
-            if node.outstanding.pop(key, None) is not None and not node.outstanding:
-                node.idle_since = now
-                self._touch(node)
+            self._answered(node, key, now)
             self._advance(now)
             return None
-        job.accept(node_id, header, payload)
-        del node.outstanding[key]
+        tile = job.accept(node_id, header, payload)
+        self._answered(node, key, now)
+        if tile is None:
+            self._advance(now)
+            return None
         node.tiles_rendered += 1
-        if not node.outstanding:
-            node.idle_since = now
-            self._touch(node)
+        node.failures = 0
         if job.complete:
             self._complete(job, now)
         self._advance(now)
@@ -336,8 +361,35 @@ class FrameScheduler:
             job.record_send(node_id, tile_id, max(float(send_ms), 0.0), counters)
             self._take_timings(job)
 
+    def tile_failed(self, node_id: int, frame_id: int, tile_id: int, now: float) -> None:
+        """The node could not render a tile it owes: it goes to another node (to this one again
+        when it is alone); ``max_tile_failures`` in a row close the node. Tiles not owed are ignored."""
+        node = self.nodes.get(node_id)
+        key = (frame_id, tile_id)
+        if node is None or key not in node.outstanding:
+            return
+        self._answered(node, key, now)
+        node.failures += 1
+        if node.failures >= self.config.max_tile_failures:
+            self._actions.append(CloseNode(node_id, 1011, f"{node.failures} tiles failed in a row"))
+            self.remove_node(node_id, now)
+            return
+        job = self.in_flight.get(frame_id)
+        if job is not None and not job.tiles[tile_id].done and job.tiles[tile_id].node_id == node_id:
+            if job.pull:
+                job.tiles[tile_id].node_id = None
+                job.pull_queue.appendleft(tile_id)
+            else:
+                others = [n for n in self._ready() if n is not node] or [node]
+                self._push(job, min(others, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
+        self._advance(now)
+
     def tick(self, now: float) -> None:
-        """Time passed: drop nodes that owe a tile for over ``tile_timeout_s``, start what is due."""
+        """Time passed: back up stragglers' tiles, drop nodes that owe a tile for over
+        ``tile_timeout_s``, start what is due."""
+        if now >= self._next_straggler_check:
+            self._next_straggler_check = now + STRAGGLER_CHECK_S
+            self._back_up_stragglers(now)
         deadline = now - self.config.tile_timeout_s
         if self.in_flight and self._oldest_dispatch() < deadline:
             for node in list(self.nodes.values()):
@@ -348,10 +400,49 @@ class FrameScheduler:
 
     # ----------------------------------------------------------------- internals
     def _ready(self) -> list[NodeSchedule]:
-        """Ready nodes by id (kept until the node set or a node's readiness changes)."""
+        """Schedulable nodes by id (kept until the node set or a node's state changes)."""
         if self._ready_nodes is None:
-            self._ready_nodes = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready]
+            self._ready_nodes = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.schedulable]
         return self._ready_nodes
+
+    def _answered(self, node: NodeSchedule, key: tuple[int, int], now: float) -> None:
+        """``node`` sent back (or gave up) tile ``key``: it is no longer owed, and a suspect node that
+        answers is trusted again."""
+        if node.outstanding.pop(key, None) is not None:
+            if node.outstanding:
+                node.head_since = now
+            else:
+                node.idle_since = now
+        if node.suspect:
+            node.suspect = False
+            self._ready_nodes = None
+        self._touch(node)
+
+    def _back_up_stragglers(self, now: float) -> None:
+        """Copy the tiles of overdue nodes to the others (see the module docstring)."""
+        for node in list(self.nodes.values()):
+            if node.suspect or node.ms_per_px is None:
+                continue
+            job, tile_id = next(((self.in_flight[f], t) for f, t in node.outstanding if f in self.in_flight),
+                                (None, 0))
+            if job is None:
+                continue
+            expected_s = node.ms_per_px * job.tiles[tile_id].rect.area / 1000.0
+            if now - node.head_since <= max(self.config.backup_floor_s, self.config.backup_factor * expected_s):
+                continue
+            others = [n for n in self._ready() if n is not node]
+            if not others:
+                continue
+            node.suspect = True
+            self._ready_nodes = None
+            self._touch(node)
+            self.backups += 1
+            for frame_id, tile_id in list(node.outstanding):
+                owed = self.in_flight.get(frame_id)
+                if owed is None or owed.tiles[tile_id].done or owed.tiles[tile_id].node_id != node.node_id:
+                    continue
+                owed.tiles[tile_id].earlier.add(node.node_id)
+                self._push(owed, min(others, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
 
     def _touch(self, node: NodeSchedule) -> None:
         """Keep ``_idle`` (ready nodes that owe nothing) in step after ``node``'s queue changed."""
@@ -367,7 +458,7 @@ class FrameScheduler:
         if supersede:
             for job in list(self.in_flight.values()):
                 if job.still or not self._begun(job):
-                    self._cancel(job)
+                    self._cancel(job, now)
         self._advance(now)
 
     def _begun(self, job: FrameJob) -> bool:
@@ -377,8 +468,9 @@ class FrameScheduler:
             return True
         return any(next(iter(n.outstanding))[0] == job.frame_id for n in self.nodes.values() if n.outstanding)
 
-    def _cancel(self, job: FrameJob) -> None:
-        """Drop ``job``: nodes that owe tiles of it are told to skip those still queued."""
+    def _cancel(self, job: FrameJob, now: float) -> None:
+        """Drop ``job``: nodes that owe tiles of it are told to skip those still queued (the next
+        tile a node owes counts as begun now: lenient, the node may still finish the dropped one)."""
         del self.in_flight[job.frame_id]
         self.frames_cancelled += 1
         for node in self.nodes.values():
@@ -386,6 +478,7 @@ class FrameScheduler:
             if keys:
                 for key in keys:
                     del node.outstanding[key]
+                node.head_since = now
                 self._touch(node)
                 self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))
 
@@ -471,6 +564,8 @@ class FrameScheduler:
         return partition
 
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
+        if not node.outstanding:
+            node.head_since = now
         for tile_id in tile_ids:
             job.tiles[tile_id].node_id = node.node_id
             node.outstanding[(job.frame_id, tile_id)] = now
@@ -490,7 +585,7 @@ class FrameScheduler:
     def _complete(self, job: FrameJob, now: float) -> None:
         del self.in_flight[job.frame_id]
         for older in [j for j in self.in_flight.values() if j.frame_id < job.frame_id]:
-            self._cancel(older)
+            self._cancel(older, now)
         self.last_published_id = job.frame_id
         first_answer = job.version > self._published_version
         self._published_version = max(self._published_version, job.version)
@@ -501,7 +596,22 @@ class FrameScheduler:
             del self._awaiting_send[old]
         if not job.still and job.frame_id > self._timings_frame_id:
             self._last_timings, self._timings_frame_id = job.timings(), job.frame_id
+        self._learn_rates(job)
         self._take_timings(job)
+
+    def _learn_rates(self, job: FrameJob) -> None:
+        """Each node's busy ms per pixel (render + read-back + encode) in ``job``: what a tile of
+        it is expected to take, for spotting stragglers."""
+        busy: dict[int, list[float]] = {}
+        for tile in job.tiles:
+            if tile.header is not None and tile.rendered_by is not None:
+                spent = busy.setdefault(tile.rendered_by, [0.0, 0.0])
+                spent[0] += tile.header.render_ms + tile.header.readback_ms + tile.header.encode_ms
+                spent[1] += tile.rect.area
+        for node_id, (ms, pixels) in busy.items():
+            node = self.nodes.get(node_id)
+            if node is not None and pixels > 0:
+                node.ms_per_px = ms / pixels
 
     def _take_timings(self, job: FrameJob) -> None:
         """Roll a complete frame's phases up per node once every tile's send time is in; an
