@@ -21,10 +21,11 @@ import pytest
 from bench.virtual_cluster import FrameRecord, Phases, rect_sums, run_path, summed_area
 from tessera.balancers import create_balancer
 from tessera.balancers.adaptive import AdaptiveBalancer
+from tessera.balancers.adaptive_predict import AdaptivePredictBalancer
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, Tile, TileTiming
 from tessera.balancers.hetero import calibration_weights
-from tessera.balancers.load import LoadField
-from tessera.balancers.predict import AdaptivePredictBalancer, LoadModel, group_features, nonnegative_fit
+from tessera.balancers.support.load import LoadField
+from tessera.balancers.support.predictor import LoadPredictor, group_features, nonnegative_fit
 from tessera.geometry import Rect
 from tests.balance_support import cameras, run_paced
 
@@ -120,7 +121,7 @@ def test_timings_are_matched_to_the_groups_they_were_measured_with() -> None:
     older, newer = (Partition((Tile(Rect(0, 0, cut, 10), 1), Tile(Rect(cut, 0, 100 - cut, 10), 2))) for cut in (40, 60))
     timings = tuple(TileTiming(t.rect, t.node_id, 5.0) for t in older.tiles)
     first, current = figure_groups(0), figure_groups(2)
-    model = LoadModel(history=4, correction=1.0)
+    model = LoadPredictor(history=4, correction=1.0)
     model.remember(older, first)
     model.remember(newer, figure_groups(1))
     assert model.groups_for(timings, current) is first
@@ -130,7 +131,7 @@ def test_timings_are_matched_to_the_groups_they_were_measured_with() -> None:
 def test_field_reproduces_the_model() -> None:
     """Timings of the model itself: the fit finds it, and the field totals what a tile costs."""
     inputs = None
-    model = LoadModel(history=8, correction=1.0)
+    model = LoadPredictor(history=8, correction=1.0)
     for frame in range(6):
         cuts = (60 + 10 * frame, 200)
         rects = [Rect(0, 0, cuts[0], 180), Rect(cuts[0], 0, cuts[1] - cuts[0], 180), Rect(cuts[1], 0, 120, 180)]

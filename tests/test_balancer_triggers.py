@@ -10,7 +10,7 @@ from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups, Til
 from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.grid import GridBalancer, median_cut
 from tessera.balancers.hetero import HeteroBalancer, calibration_region, calibration_weights, dpbp_cut
-from tessera.balancers.table import LoadTable
+from tessera.balancers.support.table import LoadTable
 from tessera.geometry import Rect
 from tests.balance_support import run_paced
 

@@ -6,13 +6,15 @@ from collections.abc import Mapping
 from typing import Any
 
 from tessera.balancers.adaptive import AdaptiveBalancer
+from tessera.balancers.adaptive_predict import AdaptivePredictBalancer
 from tessera.balancers.base import Balancer
 from tessera.balancers.eq_load import EqLoadBalancer
 from tessera.balancers.grid import GridBalancer
 from tessera.balancers.hetero import HeteroBalancer
-from tessera.balancers.predict import AdaptivePredictBalancer, RotatePredictBalancer, TreePredictBalancer
 from tessera.balancers.rotate import RotateBalancer
+from tessera.balancers.rotate_predict import RotatePredictBalancer
 from tessera.balancers.static import StaticBalancer
+from tessera.balancers.tree_predict import TreePredictBalancer
 
 BALANCERS: dict[str, type[Balancer]] = {cls.name: cls for cls in (
     StaticBalancer, AdaptiveBalancer, RotateBalancer, GridBalancer, HeteroBalancer, EqLoadBalancer,

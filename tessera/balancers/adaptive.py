@@ -19,23 +19,30 @@ Damping: each edge moves toward its computed position by 1 − e^(−Δt/τ) of 
 time between the two frames (``BalanceInput.elapsed_ms``), τ = ``tau_ms`` (200 ms in the seed):
 an edge chasing a fixed target covers 63 % of the way in τ at any frame rate (τ = 0: no damping).
 Timings are busy time (render + readback + encode + send), what a node spends on its tile.
+
+The load field comes from ``self.load`` (a :class:`~tessera.balancers.support.load.LoadSource`):
+last frame's measured tiles here, the predicted field in ``adaptive-predict`` and ``rotate-predict``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
-from tessera.balancers.load import Field, LoadField, speed_of
 from tessera.balancers.static import minimum_for
-from tessera.balancers.strips import StripEdges, damping_fraction, edges_of, place
+from tessera.balancers.support.load import Field, LoadField, LoadSource, MeasuredLoad, speed_of
+from tessera.balancers.support.strips import StripEdges, damping_fraction, edges_of, place
 from tessera.partition import strip_counts
 
 
 class AdaptiveBalancer(Balancer):
     name = "adaptive"
     defaults: ClassVar[Mapping[str, float | int | bool]] = {"tau_ms": 200.0, "min_tile_px": 16}
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        self.load: LoadSource = MeasuredLoad()
 
     def validate_params(self) -> None:
         if self.params["tau_ms"] < 0.0:
@@ -46,10 +53,6 @@ class AdaptiveBalancer(Balancer):
     def shares(self, inputs: BalanceInput, nodes: Sequence[int]) -> list[float]:
         """Effort share of each tile, row-major: node k's speed weight."""
         return [speed_of(inputs.weights, node) for node in nodes]
-
-    def field(self, inputs: BalanceInput) -> Field:
-        """Where last frame's effort lies: uniform inside each measured tile."""
-        return LoadField.from_timings(inputs.size, inputs.timings, inputs.weights)
 
     def edges(self, inputs: BalanceInput, shares: Sequence[float]) -> tuple[StripEdges, Field]:
         """Damped strip edges for ``len(shares)`` tiles, and the load field they were placed on."""
@@ -63,7 +66,7 @@ class AdaptiveBalancer(Balancer):
         old = edges_of(inputs.previous.rects, counts, size) or equal
         if not inputs.timings:
             return old, uniform
-        field = self.field(inputs)
+        field = self.load.field(inputs)
         fraction = damping_fraction(inputs.elapsed_ms, self.params["tau_ms"])
         return place(field, size, counts, shares, old, fraction, minimum), field
 

@@ -1,25 +1,26 @@
 """``eq-load`` — the peer baseline: Equalizer's 2D load equalizer, as its documentation describes
 it (written from the description, not from its code).
 
-A binary tree over the nodes (``tessera.balancers.tree``; Equalizer's "resources" are our speed
-weights); each internal node cuts its region along the longer side where last frame's load, swept
-across the region, reaches the left subtree's share of the region's load. The load is the
-time-weighted area of last frame's tiles (each tile's time spread uniformly over its pixels,
-:class:`tessera.balancers.load.LoadField`). Each cut is damped: new = ``damping`` × last frame's
-cut + (1 − ``damping``) × computed (Equalizer's default 0.5; 0 = no damping, 1 = frozen), when
-last frame had that cut along the same axis. Timings are busy time. Without a previous partition
-for these nodes and this screen the tiles are equal (area ∝ speed weight).
+A binary tree over the nodes (:mod:`tessera.balancers.support.tree`; Equalizer's "resources" are
+our speed weights); each internal node cuts its region along the longer side where last frame's
+load, swept across the region, reaches the left subtree's share of the region's load. The load is
+the time-weighted area of last frame's tiles (each tile's time spread uniformly over its pixels:
+``self.load``, :class:`~tessera.balancers.support.load.MeasuredLoad`; ``tree-predict`` gives it
+the predicted field). Each cut is damped: new = ``damping`` × last frame's cut + (1 − ``damping``)
+× computed (Equalizer's default 0.5; 0 = no damping, 1 = frozen), when last frame had that cut
+along the same axis. Timings are busy time. Without a previous partition for these nodes and this
+screen the tiles are equal (area ∝ speed weight).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition
-from tessera.balancers.load import Field, LoadField
 from tessera.balancers.static import minimum_for
-from tessera.balancers.tree import Box, SplitAt, SplitNode, build_tree, split_boxes, to_partition
+from tessera.balancers.support.load import Field, LoadField, LoadSource, MeasuredLoad
+from tessera.balancers.support.tree import Box, SplitAt, SplitNode, build_tree, split_boxes, to_partition
 from tessera.geometry import Rect
 
 
@@ -57,15 +58,15 @@ class EqLoadBalancer(Balancer):
     name = "eq-load"
     defaults: ClassVar[Mapping[str, float | int | bool]] = {"damping": 0.5, "min_tile_px": 16}
 
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        self.load: LoadSource = MeasuredLoad()
+
     def validate_params(self) -> None:
         if not 0.0 <= self.params["damping"] <= 1.0:
             raise ValueError("damping must be in [0, 1]")
         if self.params["min_tile_px"] < 1:
             raise ValueError("min_tile_px must be >= 1")
-
-    def field(self, inputs: BalanceInput) -> Field:
-        """Where last frame's load lies: each tile's time spread uniformly over it."""
-        return LoadField.from_timings(inputs.size, inputs.timings, inputs.weights)
 
     def partition(self, inputs: BalanceInput) -> Partition:
         width, height = inputs.size
@@ -75,7 +76,7 @@ class EqLoadBalancer(Balancer):
         matches = previous is not None and not previous.pull and inputs.previous_matches()
         if previous is not None and matches and not inputs.timings:
             return previous
-        field = self.field(inputs) if matches else LoadField.uniform(inputs.size)
+        field = self.load.field(inputs) if matches else LoadField.uniform(inputs.size)
         rects = {t.node_id: t.rect for t in previous.tiles if t.node_id is not None} if previous and matches else {}
         split_at = damped_area_cut(field, rects, self.params["damping"])
         return to_partition(split_boxes(tree, (0, 0, width, height), (minimum, minimum), split_at))

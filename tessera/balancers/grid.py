@@ -3,16 +3,16 @@
 The screen is a fine uniform grid of about ``cell_px`` pixel cells (never coarser than the
 minimum tile, so tiny screens still hold N tiles); each cell weight starts at 1. After each frame
 every node's measured time is spread over the cells of its region into the load-weight table
-(:class:`tessera.balancers.table.LoadTable`). ``memory`` = 0 is the plain spread; the default 0.8
-keeps the detail earlier frames revealed, our reading of §3.2's "combining the nodes' history of
-render times" (on synthetic maps it lowers max/mean by 0.01–0.05; 8 px cells instead of 16 by
-0.05–0.2 on a sharp-edged load, cells being the resolution of every cut).
+(:class:`tessera.balancers.support.table.LoadTable`). ``memory`` = 0 is the plain spread; the
+default 0.8 keeps the detail earlier frames revealed, our reading of §3.2's "combining the nodes'
+history of render times" (on synthetic maps it lowers max/mean by 0.01–0.05; 8 px cells instead of
+16 by 0.05–0.2 on a sharp-edged load, cells being the resolution of every cut).
 
 The partition is a median cut along cell boundaries: a binary tree over the nodes
-(``tessera.balancers.tree``) cuts each region along its longer side in the ratio k:(N−k) of its
-subtrees' node counts (speed weights when nodes differ), the cut found by binary search in the
-table's summed-area table. The table is normalised by its total implicitly: only ratios of its
-sums are used.
+(:mod:`tessera.balancers.support.tree`) cuts each region along its longer side in the ratio
+k:(N−k) of its subtrees' node counts (speed weights when nodes differ), the cut found by binary
+search in the table's summed-area table. The table is normalised by its total implicitly: only
+ratios of its sums are used.
 
 Trigger (§3.2 step 4): the previous partition is kept while slowest / fastest node time ≤
 ``threshold`` (the seed chose it by experiment and reports that too small a value re-partitions
@@ -32,10 +32,10 @@ from typing import ClassVar
 import numpy as np
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition
-from tessera.balancers.load import node_times
 from tessera.balancers.static import minimum_for
-from tessera.balancers.table import LoadTable
-from tessera.balancers.tree import Box, SplitNode, build_tree, split_boxes, to_partition
+from tessera.balancers.support.load import node_times
+from tessera.balancers.support.table import LoadTable
+from tessera.balancers.support.tree import Box, SplitNode, build_tree, split_boxes, to_partition
 
 
 def median_cut(summed: np.ndarray, box: Box, axis: int, fraction: float) -> int:

@@ -3,8 +3,8 @@
 1. Calibration (pure part): every node renders the same central region (:func:`calibration_region`)
    when it joins or on demand; :func:`calibration_weights` turns the times tᵢ into Pᵢ = t_max / tᵢ,
    which the coordinator passes in ``BalanceInput.weights``.
-2. Performance binary tree (:func:`tessera.balancers.tree.build_tree`): leaves weighted Pᵢ, a
-   parent the sum; at each internal node M = weight(left) / weight(right) is the split ratio.
+2. Performance binary tree (:func:`tessera.balancers.support.tree.build_tree`): leaves weighted
+   Pᵢ, a parent the sum; at each internal node M = weight(left) / weight(right) is the split ratio.
 3. DPBP: ``BalanceInput.groups`` holds the primitive groups' boxes projected and clipped to the
    screen, weighted by primitive count. 4. Sweep (:func:`dpbp_cut`): a line sweeps the region; a
    box enters list A when the line reaches its start and leaves list B at its end; at each box end
@@ -36,9 +36,9 @@ import numpy as np
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups
 from tessera.balancers.eq_load import damped_area_cut
-from tessera.balancers.load import LoadField, node_times, speed_of
 from tessera.balancers.static import minimum_for
-from tessera.balancers.tree import Box, SplitNode, build_tree, split_boxes, to_partition
+from tessera.balancers.support.load import LoadField, node_times, speed_of
+from tessera.balancers.support.tree import Box, SplitNode, build_tree, split_boxes, to_partition
 from tessera.geometry import Rect
 
 

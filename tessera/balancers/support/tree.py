@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from tessera.balancers.base import Partition, Tile
-from tessera.balancers.load import speed_of
+from tessera.balancers.support.load import speed_of
 from tessera.geometry import Rect
 
 #: x0, y0, x1, y1 in whole units (pixels, or grid cells)

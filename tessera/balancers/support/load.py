@@ -1,4 +1,5 @@
-"""Last frame's measured load as a screen-space field, and the area sweep over it (pure).
+"""Last frame's measured load as a screen-space field, the area sweep over it, and where a
+balancer's field comes from (pure).
 
 Shared by the time-based balancers (seed 000 §4.2 ``adaptive``/``rotate``, ``eq-load``, and
 ``hetero`` when no primitive groups are given). Every measured tile spreads its *effort* uniformly
@@ -7,6 +8,9 @@ tile's measured milliseconds times the speed weight of the node that rendered it
 milliseconds a speed-1 node would have needed, so tiles measured on nodes of different speeds
 are comparable. The load inside any band of the screen is then piecewise linear along an axis,
 and the position where it reaches a fraction of a region's load is found exactly.
+
+A technique is given its field by a :class:`LoadSource`: :class:`MeasuredLoad` (the seeds'), or
+:class:`tessera.balancers.support.predictor.LoadPredictor` (the ``*-predict`` balancers').
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from tessera.balancers.base import TileTiming
+from tessera.balancers.base import BalanceInput, TileTiming
 
 #: density added everywhere (relative to the mean) so cumulative load is strictly increasing
 FLOOR = 1e-6
@@ -128,3 +132,17 @@ class LoadField:
         if load[-1] <= 0.0:
             return lo + wanted * (hi - lo)
         return np.interp(wanted * load[-1], load, at)
+
+
+class LoadSource(Protocol):
+    """Where a balancer's load field comes from."""
+
+    def field(self, inputs: BalanceInput) -> Field:
+        """The load field to place ``inputs``' partition on."""
+
+
+class MeasuredLoad:
+    """Last frame's tiles, each tile's effort spread uniformly over it (seed 000 §4.2)."""
+
+    def field(self, inputs: BalanceInput) -> Field:
+        return LoadField.from_timings(inputs.size, inputs.timings, inputs.weights)

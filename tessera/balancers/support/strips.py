@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tessera.balancers.load import Field
+from tessera.balancers.support.load import Field
 from tessera.geometry import Rect
 from tessera.partition import clamp_edges, strips_to_rects
 

@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from tessera.balancers.base import TileTiming
-from tessera.balancers.load import FLOOR, measured_ms, speed_of
+from tessera.balancers.support.load import FLOOR, measured_ms, speed_of
 
 
 def _overlaps(starts: np.ndarray, ends: np.ndarray, edges: np.ndarray) -> np.ndarray:
