@@ -517,7 +517,7 @@ class FrameScheduler:
 
     def _start_frame(self, ready: list[NodeSchedule], now: float, still: bool) -> None:
         assert self.camera is not None
-        partition = self._partition(ready, now)
+        partition = self._partition(ready, now, self.camera)
         config = self.config
         if still:
             assert config.still_codec is not None
@@ -542,18 +542,18 @@ class FrameScheduler:
             for node_id, tile_ids in by_node.items():
                 self._push(job, self.nodes[node_id], tile_ids, now)
 
-    def _partition(self, ready: list[NodeSchedule], now: float) -> Partition:
+    def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera) -> Partition:
         """The balancer's partition for the ready nodes (the static split if it fails)."""
         previous = self._partitions[-1] if self._partitions else None
         elapsed_ms = 0.0 if self._last_partition_at is None else (now - self._last_partition_at) * 1000.0
         inputs = BalanceInput(
             size=self.config.size, node_ids=tuple(n.node_id for n in ready), previous=previous,
             timings=self._last_timings, weights={n.node_id: n.speed for n in ready}, elapsed_ms=elapsed_ms,
-            groups=self.groups_for(self.camera) if self.balancer.uses_groups and self.groups_for else None)
+            groups=self.groups_for(camera) if self.balancer.uses_groups and self.groups_for else None)
         try:
             partition = self.balancer.partition(inputs)
             check_exact_cover(partition.rects, self.config.size)
-            strays = {t.node_id for t in partition.tiles} - set(inputs.node_ids) - {None}
+            strays = {t.node_id for t in partition.tiles if t.node_id is not None} - set(inputs.node_ids)
             if strays or (partition.pull and any(t.node_id is not None for t in partition.tiles)):
                 raise ValueError(f"tiles assigned to nodes that are not ready: {sorted(strays)}")
         except Exception as exc:  # a balancer bug must not stop the frames: fall back to the static split
