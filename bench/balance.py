@@ -71,7 +71,7 @@ from typing import Any
 import numpy as np
 
 from bench.virtual_cluster import Phases, run_path, summarize
-from node.culling_state import CullMode
+from node.culling.switch import CullMode
 from tessera.balancers import BALANCERS, create_balancer
 from tessera.balancers.base import BalanceInput
 from tessera.balancers.hetero import calibration_region, calibration_weights
@@ -338,9 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     if len(cameras) <= args.skip:
         parser.error(f"the path has {len(cameras)} frames; the figures need more than --skip {args.skip}")
     os.environ["LP_NUM_THREADS"] = str(args.lp_threads)
-    from node.gl_context import create_gl_context, renderer_string
-    from node.renderer import TileRenderer
-    from node.scene import load_scene
+    from node.gl.context import create_gl_context, renderer_string
+    from node.gl.renderer import TileRenderer
+    from node.scene.loading import load_scene
 
     started = time.perf_counter()
     scene = load_scene(args.scene)

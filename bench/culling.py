@@ -5,7 +5,7 @@
 [--face-limit N] [--culling hybrid|cpu|gpu] [--repeats 2] [--frames N]``
 
 Renders each frame of the path (or ``--frames`` evenly spaced ones) in one GL context with
-:class:`node.renderer.TileRenderer`: once whole without culling (the reference, as
+:class:`node.gl.renderer.TileRenderer`: once whole without culling (the reference, as
 ``--render-once`` draws it), once whole with culling, and as T tiles (the equal strip partition)
 with culling off, CPU, GPU and hybrid, and CPU culling drawn by one draw call per index run
 instead of one multi-draw-indirect per batch (``cpu-ranges``, to compare the two draw APIs).
@@ -36,12 +36,13 @@ from typing import Any
 
 import numpy as np
 
-from node.culling_state import CullMode, resolve_culling
-from node.gl_context import create_gl_context, renderer_string
-from node.renderer import TileRenderer
-from node.scene import DEFAULT_FACE_LIMIT, load_scene
+from node.culling.switch import CullMode, resolve_culling
+from node.culling.tiles import TileCuller
+from node.gl.context import create_gl_context, renderer_string
+from node.gl.renderer import TileRenderer
+from node.scene.loading import load_scene
+from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import parse_size
-from node.tile_culling import TileCuller
 from tessera.geometry import Camera
 from tessera.partition import equal_strip_partition
 

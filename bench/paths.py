@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent / "paths")
     parser.add_argument("--name", help="file name prefix (default: the scene file's stem)")
     args = parser.parse_args(argv)
-    from node.scene import load_scene
+    from node.scene.loading import load_scene
 
     scene = load_scene(args.scene, face_limit=1 << 62)
     positions = np.concatenate([b.positions for b in scene.batches]).astype(np.float64)

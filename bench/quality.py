@@ -9,7 +9,7 @@ of it) or a kind of :func:`bench.paths.make_path` (``orbit``, ``flythrough``, ``
 cameras made for that scene's bounds). One ``--path`` serves every scene; several pair with the
 scenes in order.
 
-Each camera is rendered as one full frame with :class:`node.renderer.TileRenderer` (one GL context
+Each camera is rendered as one full frame with :class:`node.gl.renderer.TileRenderer` (one GL context
 for the run), then encoded with :func:`tessera.codec.encode` at each JPEG quality (4:2:0 chroma
 below q90, 4:4:4 from q90, as the codec does), as PNG and as RAW, and decoded again with
 :func:`tessera.codec.decode`. Figures per scene and codec setting, against the rendered pixels:
@@ -45,9 +45,10 @@ from PIL import Image, JpegImagePlugin
 
 from bench.culling import read_path
 from bench.paths import KINDS, make_path, surface_focus
-from node.gl_context import create_gl_context, renderer_string
-from node.renderer import TileRenderer
-from node.scene import SceneData, load_scene
+from node.gl.context import create_gl_context, renderer_string
+from node.gl.renderer import TileRenderer
+from node.scene.data import SceneData
+from node.scene.loading import load_scene
 from node.settings import parse_size
 from tessera.codec import Codec, decode, encode
 from tessera.geometry import Camera

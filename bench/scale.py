@@ -167,10 +167,10 @@ def measure_cost_model(scene_spec: str, size: tuple[int, int], grid: tuple[int, 
     """The measured model (see the module docstring) and what was measured: renderer, scene, camera,
     seconds, and the model check (rect, measured and model busy ms). The CPU clock needs llvmpipe on
     the calling thread: LP_NUM_THREADS=0 set before this process's first GL context."""
-    from node.culling_state import CullMode
-    from node.gl_context import create_gl_context, renderer_string
-    from node.renderer import TileRenderer
-    from node.scene import load_scene
+    from node.culling.switch import CullMode
+    from node.gl.context import create_gl_context, renderer_string
+    from node.gl.renderer import TileRenderer
+    from node.scene.loading import load_scene
 
     started = time.perf_counter()
     scene = load_scene(scene_spec)

@@ -26,11 +26,12 @@ import moderngl
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
-from node.culling_state import CullMode
-from node.gl_context import GLUnavailableError, create_gl_context, renderer_string
-from node.octree_split import DEFAULT_FACE_LIMIT
-from node.renderer import RenderedTile, TileRenderer
-from node.scene import ProgressCallback, SceneData, load_scene
+from node.culling.switch import CullMode
+from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
+from node.gl.renderer import RenderedTile, TileRenderer
+from node.scene.data import SceneData
+from node.scene.loading import ProgressCallback, load_scene
+from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import MAX_SIZE, NodeSettings
 from tessera.codec import Codec, encode
 from tessera.geometry import Camera, CameraError, Rect

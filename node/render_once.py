@@ -10,11 +10,12 @@ from pathlib import Path
 
 import moderngl
 
-from node.gl_context import GLUnavailableError, create_gl_context
-from node.renderer import TileRenderer
-from node.scene import SceneError, load_scene
+from node.culling.tiles import CullingUnavailableError
+from node.gl.context import GLUnavailableError, create_gl_context
+from node.gl.renderer import TileRenderer
+from node.scene.loading import load_scene
+from node.scene.mesh import SceneError
 from node.settings import NodeSettings
-from node.tile_culling import CullingUnavailableError
 from tessera.codec import encode_png
 from tessera.geometry import Camera, CameraError, default_camera
 

@@ -11,8 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from node.culling_state import CullMode
-from node.octree_split import DEFAULT_FACE_LIMIT
+from node.culling.switch import CullMode
+from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
 

@@ -204,14 +204,6 @@ def view_projection(camera: Camera, size: tuple[int, int], bounds: np.ndarray) -
     return perspective(camera.fovy_deg, width / height, near, far) @ look_at(camera.eye, camera.target, camera.up)
 
 
-def tile_viewport(rect: Rect, size: tuple[int, int]) -> tuple[int, int, int, int]:
-    """GL viewport (x, y, w, h) that draws the full frame shifted so ``rect`` lands on a
-    ``rect.w``×``rect.h`` framebuffer: the tile's pixels are exactly the full frame's.
-    """
-    width, height = size
-    return (-rect.x, rect.y + rect.h - height, width, height)
-
-
 #: Default clear colour, linear RGB in [0, 1]; coordinator and ``--render-once`` share it.
 DEFAULT_BACKGROUND = (0.11, 0.12, 0.15)
 

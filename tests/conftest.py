@@ -1,4 +1,5 @@
-"""Shared test fixtures: where the real scenes are, one timeout scale, real coordinator processes.
+"""Shared test fixtures: where the real scenes are, one timeout scale, the session's GL context,
+real coordinator processes.
 
 Integration tests start real processes on port 0 and wait for readiness; every timeout is a
 multiple of ``TIMEOUT_SCALE`` (raise ``TESSERA_TEST_TIMEOUT_SCALE`` on slow machines).
@@ -13,10 +14,14 @@ import subprocess
 import sys
 import threading
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import moderngl
 import pytest
+
+from node.gl.context import create_gl_context
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = REPO.parent / "shared" / "scenes"
@@ -36,6 +41,23 @@ def scene_path(relative: str) -> Path:
         pytest.fail(f"scene {relative} not found: the tests read real scenes from {SCENES} "
                     "(the shared/ folder beside the checkout)")
     return path
+
+
+@pytest.fixture(scope="session")
+def gl_context() -> Iterator[moderngl.Context]:
+    """The test session's one GL context: the only place context creation should happen."""
+    context = create_gl_context()
+    yield context
+    context.release()
+
+
+@pytest.fixture(scope="module")
+def ctx(gl_context: moderngl.Context) -> Iterator[moderngl.Context]:
+    """The session's GL context, made current for a test module and its module fixtures: code under
+    test that makes and releases a context of its own on this thread (a benchmark's ``main``)
+    leaves that one current."""
+    with gl_context:
+        yield gl_context
 
 
 @dataclass

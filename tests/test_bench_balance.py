@@ -353,7 +353,7 @@ def test_pace() -> None:
 def test_benchmark_runs_end_to_end(tmp_path, monkeypatch) -> None:
     """14-frame orbit of the built-in spheres, 2 nodes, 160x120, one push and one pull balancer."""
     from bench.balance import main
-    from node.scene import load_scene
+    from node.scene.loading import load_scene
 
     monkeypatch.setenv("LP_NUM_THREADS", "0")  # main() sets it; restored after the test
     path = tmp_path / "orbit.json"

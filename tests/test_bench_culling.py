@@ -8,7 +8,7 @@ import pytest
 
 from bench.culling import main
 from bench.paths import make_path
-from node.scene import load_scene
+from node.scene.loading import load_scene
 
 pytestmark = pytest.mark.gl
 

@@ -9,7 +9,7 @@ import pytest
 
 from bench.paths import make_path
 from bench.quality import main
-from node.scene import load_scene
+from node.scene.loading import load_scene
 
 pytestmark = pytest.mark.gl
 

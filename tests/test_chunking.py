@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.chunking import MAX_GROUPS, split_batches
-from node.scene import MeshBatch, SceneData, load_scene
+from node.scene.chunks import MAX_GROUPS, split_batches
+from node.scene.data import SceneData
+from node.scene.loading import load_scene
+from node.scene.mesh import MeshBatch
 from tests.conftest import scene_path
 
 UNSPLIT = 1 << 40

@@ -14,10 +14,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from node.culling_state import CullMode, SwitchParams, resolve_culling
-from node.gl_context import create_gl_context
-from node.renderer import TileRenderer
-from node.scene import load_scene
+from node.culling.switch import CullMode, SwitchParams, resolve_culling
+from node.gl.renderer import TileRenderer
+from node.scene.loading import load_scene
 from tessera.geometry import Camera, Rect, default_camera
 from tests.conftest import PYTHON, REPO, scene_path, seconds
 
@@ -26,13 +25,6 @@ pytestmark = pytest.mark.gl
 SIZE = (160, 120)
 FACE_LIMIT = 512
 UNSPLIT = 1 << 40
-
-
-@pytest.fixture(scope="module")
-def ctx():
-    context = create_gl_context()
-    yield context
-    context.release()
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from node.culling_state import CullDevice, CullMode, CullState, HybridCullingSwitch, SwitchParams, resolve_culling
+from node.culling.switch import CullDevice, CullMode, CullState, HybridCullingSwitch, SwitchParams, resolve_culling
 
 FAST = 1e-4   # below the seed's 3×10⁻⁴ s threshold
 SLOW = 5e-4   # above it

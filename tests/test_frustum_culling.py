@@ -9,19 +9,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.frustum_culling import (
-    build_chunk_bvh,
-    classify_boxes,
-    cull,
-    cull_flat,
-    frustum_planes_from_matrix,
-    indirect_commands,
-    merge_ranges,
-    range_members,
-    tile_frustum_planes,
-)
-from node.octree_split import octree_split
+from node.culling.bvh import build_chunk_bvh, cull, range_members
+from node.culling.frustum import frustum_planes_from_matrix
+from node.culling.tiles import indirect_commands
+from node.scene.octree import octree_split
 from tessera.geometry import Camera, Rect, view_projection
+from tests.culling_support import classify_boxes, cull_flat, merge_ranges, tile_frustum_planes
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 SIZE = (1280, 720)

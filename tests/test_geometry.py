@@ -19,9 +19,9 @@ from tessera.geometry import (
     look_at,
     near_far_from_bounds,
     perspective,
-    tile_viewport,
     view_projection,
 )
+from tests.culling_support import tile_viewport
 
 VALID = {"eye": [1.0, 2.0, 5.0], "target": [0.0, 0.5, 0.0], "up": [0.0, 1.0, 0.0], "fovy_deg": 50.0}
 BOUNDS = np.array([[-1.0, -0.5, -2.0], [3.0, 1.5, 1.0]])

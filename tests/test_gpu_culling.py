@@ -12,34 +12,28 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.frustum_culling import (
-    build_chunk_bvh,
+from node.culling.bvh import build_chunk_bvh, cull, range_members
+from node.culling.frustum import frustum_planes_from_matrix
+from node.culling.gpu import MAX_SUBTREE_LEVELS, GpuBvh, GpuCuller
+from node.culling.tiles import indirect_commands
+from node.scene.octree import octree_split
+from tessera.geometry import Camera, Rect, view_projection
+from tests.culling_support import (
     classify_boxes,
-    cull,
     cull_flat,
-    frustum_planes_from_matrix,
-    indirect_commands,
     merge_ranges,
-    range_members,
+    read_commands,
+    read_input_nodes,
+    read_visible_chunks,
     tile_frustum_planes,
+    tile_viewport,
 )
-from node.gl_context import create_gl_context
-from node.gpu_culling import MAX_SUBTREE_LEVELS, GpuBvh, GpuCuller
-from node.octree_split import octree_split
-from tessera.geometry import Camera, Rect, tile_viewport, view_projection
 
 pytestmark = pytest.mark.gl
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 SIZE = (1280, 720)
 GRID_TILES = [Rect(x * 320, y * 180, 320, 180) for y in range(4) for x in range(4)]
-
-
-@pytest.fixture(scope="module")
-def ctx():
-    context = create_gl_context()
-    yield context
-    context.release()
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +48,8 @@ def bunny(ctx):
     bvh = build_chunk_bvh(split.bounds)
     bounds = np.array([positions.min(axis=0), positions.max(axis=0)], dtype=np.float64)
     gpu_bvh = GpuBvh(ctx, bvh, split.index_starts, split.index_ends)
-    return positions, split.reorder(faces), split, bvh, bounds, gpu_bvh
+    yield positions, split.reorder(faces), split, bvh, bounds, gpu_bvh
+    gpu_bvh.release()
 
 
 def orbit(bounds: np.ndarray, frames: int, seed: int) -> list[Camera]:
@@ -89,9 +84,11 @@ def test_gpu_keeps_the_same_chunks_as_the_cpu_along_camera_paths(bunny):
             planes = tile_frustum_planes(camera, SIZE, rect, bounds)
             culler.cull(planes)
             expected = cull(bvh, planes).visible_chunks
-            assert np.array_equal(culler.read_visible_chunks(), expected), f"{camera} {rect}"
-            assert_is_cut(bvh, culler.read_input_nodes())
+            assert np.array_equal(read_visible_chunks(culler), expected), f"{camera} {rect}"
+            assert_is_cut(bvh, read_input_nodes(culler))
             visible_total += expected.size
+    for culler in cullers:
+        culler.release()
     assert 0 < visible_total < 0.5 * len(path) * len(GRID_TILES) * bvh.chunk_count
 
 
@@ -117,13 +114,14 @@ def test_still_camera_input_settles_on_the_traversal_stops(bunny):
         expected = cull(bvh, planes)
         for _ in range(12):
             culler.cull(planes)
-        assert np.array_equal(culler.read_input_nodes(), one_level_traversal_stops(bvh, planes))
+        assert np.array_equal(read_input_nodes(culler), one_level_traversal_stops(bvh, planes))
         culler.seed(expected.terminal_nodes)  # the seed's hand-over: the CPU's last nodes
         culler.cull(planes)
-        assert np.array_equal(culler.read_visible_chunks(), expected.visible_chunks)
+        assert np.array_equal(read_visible_chunks(culler), expected.visible_chunks)
     for not_a_cut in ([1], [0, 1], [1, 1, 2]):  # half the tree; nested nodes; a node twice
         with pytest.raises(ValueError):
             culler.seed(np.array(not_a_cut))
+    culler.release()
 
 
 @pytest.fixture(scope="module")
@@ -194,6 +192,7 @@ def test_indirect_commands_draw_exactly_the_tile_pixels(ctx, bunny, bunny_vao):
         drawn_tiles += int(images[0].any(axis=2).any())
         assert len(ranges) <= result.visible_chunks.size
         culled_tiles += int(result.visible_chunks.size < split.chunk_count)
+    culler.release()
     assert drawn_tiles >= 4 and culled_tiles >= 4
 
 
@@ -224,10 +223,12 @@ def test_big_trees_are_culled_whole_despite_the_shader_loop_limit(ctx):
         culler.cull(planes)
         expected = cull_flat(bvh, planes)
         assert expected.size > 0
-        assert np.array_equal(culler.read_visible_chunks(), expected), f"GPU lost chunks in {rect}"
-        inputs = culler.read_input_nodes()
+        assert np.array_equal(read_visible_chunks(culler), expected), f"GPU lost chunks in {rect}"
+        inputs = read_input_nodes(culler)
         assert_is_cut(bvh, inputs)
         assert bvh.depth[inputs].min() >= gpu_bvh.ceiling_depth or bvh.is_leaf[inputs].all()
+    culler.release()
+    gpu_bvh.release()
 
 
 def test_a_visible_node_gets_one_command_per_batch(ctx):
@@ -241,10 +242,12 @@ def test_a_visible_node_gets_one_command_per_batch(ctx):
     camera = Camera(eye=(3.5, 3.5, 40.0), target=(3.5, 3.5, 0.0), fovy_deg=40.0)
     bounds = np.array([[-1.0, -1.0, -1.0], [8.0, 8.0, 1.0]])
     culler.cull(tile_frustum_planes(camera, (64, 64), Rect(0, 0, 64, 64), bounds))   # root wholly inside
-    commands = culler.read_commands()
+    commands = read_commands(culler)
     heads = np.flatnonzero(commands[:, 0])
     assert heads.tolist() == batch_starts[:-1].tolist()
     assert commands[heads, 0].tolist() == (np.diff(batch_starts) * 6).tolist()
     assert commands[heads, 2].tolist() == (batch_starts[:-1] * 6).tolist()
+    culler.release()
+    gpu_bvh.release()
     with pytest.raises(ValueError):
         GpuBvh(ctx, bvh, starts[:-1], starts[1:], np.zeros(64, np.int64))

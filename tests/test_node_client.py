@@ -13,10 +13,10 @@ import pytest
 from websockets.asyncio.server import ServerConnection, serve
 
 from node.client import NodeClient
-from node.culling_state import SOFTWARE_RENDERERS, CullMode
-from node.gl_context import create_gl_context
-from node.renderer import TileRenderer
-from node.scene import DEFAULT_FACE_LIMIT, load_scene
+from node.culling.switch import SOFTWARE_RENDERERS, CullMode
+from node.gl.renderer import TileRenderer
+from node.scene.loading import load_scene
+from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import NodeSettings, parse_settings
 from tessera.codec import Codec, decode
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
@@ -218,15 +218,13 @@ def test_settings_refuse_bad_values(argv, capsys):
 
 
 @pytest.mark.gl
-def test_node_serves_a_fake_coordinator():
+def test_node_serves_a_fake_coordinator(ctx):
     stitched, render_ms, slept = asyncio.run(run_node_against_fake())
     # Slowdown: each tile and the calibration wait (F - 1) x their render time and report F x it.
     assert len(slept) >= 5, "frames 1 and 3, the calibration and frame 4's first tile"
     for reported, wait_s in zip(render_ms, [*slept[:2], slept[3]], strict=True):
         assert reported == pytest.approx(wait_s * 1e3 * SLOWDOWN / (SLOWDOWN - 1.0), rel=1e-4)
-    ctx = create_gl_context()
     renderer = TileRenderer(ctx, load_scene("builtin:spheres"), BACKGROUND)
     reference = renderer.render_tile(Camera.from_json(CAMERA), SIZE, Rect(0, 0, *SIZE)).pixels
     renderer.release()
-    ctx.release()
     assert np.array_equal(stitched, reference), "the tiles do not compose the node's own full frame"

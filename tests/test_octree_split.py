@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.octree_split import MAX_DEPTH, ChunkSplit, morton_codes, octree_root, octree_split
+from node.scene.octree import MAX_DEPTH, ChunkSplit, morton_codes, octree_root, octree_split
 
 SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 

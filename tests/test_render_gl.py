@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from node.gl_context import create_gl_context
-from node.renderer import TileRenderer
-from node.scene import MeshBatch, SceneData, load_scene
+from node.gl.renderer import TileRenderer
+from node.scene.data import SceneData
+from node.scene.loading import load_scene
+from node.scene.mesh import MeshBatch
 from tessera.geometry import Camera, Rect, default_camera
 from tests.conftest import PYTHON, REPO, scene_path, seconds
 
@@ -22,13 +23,6 @@ pytestmark = pytest.mark.gl
 SIZE = (320, 240)
 RECTS = [Rect(0, 0, 160, 120), Rect(37, 51, 101, 77), Rect(111, 13, 209, 227), Rect(319, 0, 1, 240),
          Rect(0, 239, 320, 1), Rect(1, 1, 317, 238), Rect(161, 121, 159, 119)]
-
-
-@pytest.fixture(scope="module")
-def ctx():
-    context = create_gl_context()
-    yield context
-    context.release()
 
 
 @pytest.fixture(scope="module")

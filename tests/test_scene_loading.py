@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from node.builtin_scenes import BUILTIN_SCENES, CLUSTER_CENTER, build_builtin_scene
-from node.chunking import MAX_GROUPS
-from node.scene import MeshBatch, SceneData, SceneError, load_scene, smooth_vertex_normals
+from node.scene.builtin import BUILTIN_SCENES, CLUSTER_CENTER, build_builtin_scene
+from node.scene.chunks import MAX_GROUPS
+from node.scene.data import SceneData
+from node.scene.loading import load_scene, smooth_vertex_normals
+from node.scene.mesh import MeshBatch, SceneError
 from tests.conftest import scene_path
 
 #: A face limit no mesh reaches: batches stay unsplit, in file order.

@@ -1,11 +1,11 @@
 """Scene chunks (seed 002 §3.4): at load time every batch over the face limit is pre-split by
-octree (:func:`node.octree_split.octree_split`), and all chunks of the scene go into one
-bounding-volume tree (:func:`node.frustum_culling.build_chunk_bvh`) for per-tile culling (seed 001).
-No GL here.
+octree (:func:`node.scene.octree.octree_split`). The chunk boxes are what per-tile culling tests
+(seed 001); the tree over them is built by the culling package (:mod:`node.culling.bvh`). No GL
+here.
 
 Splitting only re-orders a batch's faces, and its vertices into the order the re-ordered faces
-first use them (so a chunk's vertices sit together in memory: on llvmpipe that made culled tiles of
-the 990k pan 10–20 % faster); attribute values and materials stay. The renderer's one index buffer
+first use them (so a chunk's vertices sit together in memory, which makes culled tiles faster on
+llvmpipe: docs/culling.md); attribute values and materials stay. The renderer's one index buffer
 (batches in order, 3 indices per face) holds every chunk as a contiguous index range. Chunks are
 numbered in that buffer's order, so chunk i + 1 starts where chunk i ends.
 
@@ -20,15 +20,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from node.frustum_culling import ChunkBVH, build_chunk_bvh
-from node.octree_split import DEFAULT_FACE_LIMIT, octree_split
-
-if TYPE_CHECKING:
-    from node.scene import MeshBatch
+from node.scene.mesh import MeshBatch
+from node.scene.octree import DEFAULT_FACE_LIMIT, octree_split
 
 #: Most primitive groups sent to the coordinator (seed 003's DPBP): 4000 boxes stay near 0.5 MB of JSON.
 MAX_GROUPS = 4000
@@ -76,20 +73,19 @@ class DrawRuns:
 
 @dataclass(frozen=True, eq=False)
 class SceneChunks:
-    """The chunks of a scene and their tree.
+    """The chunks of a scene.
 
     ``batch`` (C,) int64: the batch each chunk belongs to; ``index_bounds`` (C + 1,) int64: chunk i
     is indices [index_bounds[i], index_bounds[i + 1]) of the scene's index buffer; ``batch_bounds``
     (B + 1,) int64: batch b is chunks [batch_bounds[b], batch_bounds[b + 1]); ``boxes`` (C, 2, 3)
-    float32 world-space [min, max] of each chunk's faces; ``bvh`` the tree over ``boxes``;
-    ``face_limit`` the limit the batches were split with.
+    float32 world-space [min, max] of each chunk's faces; ``face_limit`` the limit the batches were
+    split with.
     """
 
     batch: np.ndarray
     index_bounds: np.ndarray
     batch_bounds: np.ndarray
     boxes: np.ndarray
-    bvh: ChunkBVH
     face_limit: int
 
     @property
@@ -159,7 +155,6 @@ def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_L
         index_bounds=np.concatenate(([0], np.cumsum(chunk_faces * 3))),
         batch_bounds=np.concatenate(([0], np.cumsum(batch_sizes))),
         boxes=chunk_boxes,
-        bvh=build_chunk_bvh(chunk_boxes),
         face_limit=face_limit,
     )
     return out, chunks

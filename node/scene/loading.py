@@ -1,7 +1,8 @@
-"""Scene data for retained-mode rendering (seed 002): every node loads the whole scene once.
+"""Scene loading for retained-mode rendering (seed 002): every node loads the whole scene once.
 
 Loads glTF/GLB (with external .bin/.png), OBJ, PLY and STL through trimesh, or a generated
-``builtin:NAME`` scene, into world-space mesh batches ready for upload. No GL here.
+``builtin:NAME`` scene (:mod:`node.scene.builtin`), into world-space mesh batches ready for upload.
+No GL and no culling here.
 
 glTF node transforms and instancing are baked: each (node, mesh) pair of the scene graph becomes
 one :class:`MeshBatch` with world-space positions and normals (normals by the inverse-transpose).
@@ -9,107 +10,28 @@ Scans without normals get smooth, area-weighted vertex normals. Colours are line
 textures stay sRGB-encoded bytes (the renderer samples them as sRGB).
 
 Batches over the face limit are pre-split into octree chunks as they are gathered into a
-:class:`SceneData` (seed 002 §3.4, :mod:`node.chunking`).
+:class:`SceneData` (seed 002 §3.4, :mod:`node.scene.chunks`).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from node.chunking import PrimitiveGroups, SceneChunks, split_batches
-from node.octree_split import DEFAULT_FACE_LIMIT
+from node.scene.builtin import build_builtin_scene
+from node.scene.data import SceneData
+from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
+from node.scene.octree import DEFAULT_FACE_LIMIT
 
 BUILTIN_PREFIX = "builtin:"
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
-#: Linear base colour of meshes that carry no material (scans): a warm light grey.
-DEFAULT_BASE_COLOR = (0.60, 0.57, 0.52, 1.0)
 
 #: ``progress(fraction 0…1, message)``: called while a scene loads.
 ProgressCallback = Callable[[float, str], None]
-
-
-class SceneError(ValueError):
-    """A scene that cannot be loaded; the message is one line naming the file and the reason."""
-
-
-@dataclass(frozen=True, eq=False)
-class MeshBatch:
-    """One drawable mesh in world space (one material, one draw call over an index range).
-
-    ``positions`` (N, 3) float32, ``normals`` (N, 3) float32 unit length, ``faces`` (F, 3) uint32,
-    ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
-    float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
-    sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
-    """
-
-    name: str
-    positions: np.ndarray
-    normals: np.ndarray
-    faces: np.ndarray
-    uvs: np.ndarray | None = None
-    colors: np.ndarray | None = None
-    base_color: np.ndarray = field(default_factory=lambda: np.asarray(DEFAULT_BASE_COLOR, np.float32))
-    texture: np.ndarray | None = None
-    alpha_mode: str = "OPAQUE"
-    alpha_cutoff: float = 0.5
-
-    @property
-    def triangle_count(self) -> int:
-        return len(self.faces)
-
-    @property
-    def vertex_count(self) -> int:
-        return len(self.positions)
-
-    def bounds(self) -> np.ndarray:
-        """World-space AABB (2, 3) float64 of the vertices the faces use."""
-        used = np.zeros(len(self.positions), dtype=bool)
-        used[self.faces.reshape(-1)] = True
-        points = self.positions[used]
-        return np.stack([points.min(axis=0), points.max(axis=0)]).astype(np.float64)
-
-
-@dataclass(frozen=True, eq=False)
-class SceneData:
-    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64, its
-    ``chunks`` (batches over the face limit are split; their faces are in chunk order) and the
-    primitive ``groups`` sent to the coordinator (chunk boxes and triangle counts)."""
-
-    name: str
-    batches: tuple[MeshBatch, ...]
-    bounds: np.ndarray
-    triangle_count: int
-    groups: PrimitiveGroups
-    chunks: SceneChunks
-
-    @classmethod
-    def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> SceneData:
-        """Drop empty batches, order blended ones last, split by octree, compute bounds and groups."""
-        kept = [b for b in batches if b.triangle_count > 0]
-        if not kept:
-            raise SceneError(f"{name}: no triangles")
-        kept.sort(key=lambda b: b.alpha_mode == "BLEND")
-        split, chunks = split_batches(kept, face_limit)
-        boxes = np.array([b.bounds() for b in split], dtype=np.float64)
-        bounds = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
-        triangles = sum(b.triangle_count for b in split)
-        return cls(name, tuple(split), bounds, triangles, chunks.primitive_groups(), chunks)
-
-    def with_face_limit(self, face_limit: int) -> SceneData:
-        """The same scene split with another face limit (itself when the limit is the same)."""
-        if face_limit == self.chunks.face_limit:
-            return self
-        return SceneData.from_batches(self.name, list(self.batches), face_limit)
-
-    @property
-    def vertex_count(self) -> int:
-        return sum(b.vertex_count for b in self.batches)
 
 
 def load_scene(spec: str, progress: ProgressCallback | None = None,
@@ -120,8 +42,6 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
     if face_limit < 1:
         raise SceneError(f"{spec}: face limit must be ≥ 1, got {face_limit}")
     if spec.startswith(BUILTIN_PREFIX):
-        from node.builtin_scenes import build_builtin_scene
-
         report(0.0, f"generating {spec}")
         return build_builtin_scene(spec[len(BUILTIN_PREFIX):]).with_face_limit(face_limit)
     path = Path(spec)

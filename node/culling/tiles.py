@@ -1,34 +1,30 @@
 """Per-tile culling for the renderer (seed 001 §6): off, CPU, GPU, or hybrid — the CPU↔GPU switch of
-Fig. 6.4 (:class:`node.culling_state.HybridCullingSwitch`, the seed's parameters by default) run
+Fig. 6.4 (:class:`node.culling.switch.HybridCullingSwitch`, the seed's parameters by default) run
 per tile slot, because the coordinator hands a node the same tile slot frame after frame and the
-switch needs one tile's timings over consecutive frames.
+switch needs one tile's timings over consecutive frames. The tree over the scene's chunks
+(:func:`node.culling.bvh.build_chunk_bvh`) is built here, when the renderer makes its culler.
 
-- CPU: :func:`node.frustum_culling.cull` over the scene's chunk tree; the kept chunk ranges become
-  index runs cut per batch (:meth:`node.chunking.SceneChunks.runs`), written as indirect draw
-  commands. Its time (tree test + runs, perf_counter) is what the hybrid switch reads as the CPU
-  culling time.
-- GPU: a :class:`node.gpu_culling.GpuCuller` per tile slot writes one indirect command per chunk;
+- CPU: :func:`node.culling.bvh.cull` over the chunk tree; the kept chunk ranges become index runs
+  cut per batch (:meth:`node.scene.chunks.SceneChunks.runs`), written as indirect draw commands.
+  Its time (tree test + runs, perf_counter) is what the hybrid switch reads as the CPU culling time.
+- GPU: a :class:`node.culling.gpu.GpuCuller` per tile slot writes one indirect command per chunk;
   its cull time is the CPU-side time of the two dispatches (on llvmpipe the compute shaders run
   on the CPU). When the switch hands a slot over to the GPU, the slot's GPU input is seeded with
   the CPU's last terminal nodes (seed 001 §6.1.2).
 - Hybrid: CPU until the switch says GPU, and back.
 - Auto (the default): hybrid on a hardware GPU, CPU on a software rasterizer
-  (:func:`node.culling_state.resolve_culling`).
+  (:func:`node.culling.switch.resolve_culling`).
 
 Either way a tile is drawn the same way (:class:`TileCull`): per batch, one
 glMultiDrawElementsIndirect over its slice of a command buffer. On llvmpipe that ties with one
-``render(first=, vertices=)`` per run (``bench/culling.py`` row ``cpu-ranges``; 990k pan orbit,
-960 tiles of 16 per frame, two runs: 13.43 vs 13.70 and 12.19 vs 12.11 ms per tile) — Mesa loops
-over the commands in C at about 10 µs a draw either way. Multi-draw is kept: one draw path for both
-culling devices and no Python call per run.
+``render(first=, vertices=)`` per run, since Mesa loops over the commands in C at the same cost a
+draw either way; multi-draw is kept for one draw path for both culling devices and no Python call
+per run (docs/culling.md).
 
-On llvmpipe the GPU path loses. Its compute shaders run on the same CPU cores; on the 990k pan
-(12 084 chunks, 1280x720, 16 tiles) GPU culling costs 0.67–0.78 ms per tile against 0.27–0.40 ms
-for CPU culling, and tiles take 3–6 % longer (orbit 12.87 vs 12.19 ms, zoom 15.15 vs 14.73,
-fly-through 12.10 vs 11.74). With the seed's 0.3 ms threshold, which the CPU cull time straddles on
-a shared 2-core machine, hybrid sends 37–86 % of the tiles to the GPU and ends 3–5 % slower than
-``cpu``. The seed's parameters stay the defaults (a real GPU is what they were chosen for), and
-the default mode ``auto`` culls on the CPU on llvmpipe.
+On llvmpipe the GPU path loses: its compute shaders run on the same CPU cores, cull slower than
+the CPU traversal, and the seed's 0.3 ms threshold, which the CPU cull time straddles on a shared
+machine, sends many tiles to them (docs/culling.md). The seed's parameters stay the defaults (a
+real GPU is what they were chosen for), and the default mode ``auto`` culls on the CPU on llvmpipe.
 
 What ran is reported per tile: the path, chunks drawn, triangles submitted and the culling time. On
 the GPU path the counts are read back from the command buffer after drawing.
@@ -43,10 +39,11 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
-from node.chunking import DrawRuns, SceneChunks
-from node.culling_state import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
-from node.frustum_culling import cull, frustum_planes_from_matrix, indirect_commands
-from node.gpu_culling import GpuBvh, GpuCuller
+from node.culling.bvh import build_chunk_bvh, cull
+from node.culling.frustum import frustum_planes_from_matrix
+from node.culling.gpu import GpuBvh, GpuCuller
+from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
+from node.scene.chunks import DrawRuns, SceneChunks
 from tessera.geometry import Rect
 
 
@@ -83,8 +80,9 @@ class _Slot:
 
 
 class TileCuller:
-    """Culls tiles of one scene on one GL context (the renderer's thread) in ``mode``; per tile
-    slot it keeps the hybrid switch and, once the slot has culled on the GPU, its GPU culler.
+    """Culls tiles of one scene on one GL context (the renderer's thread) in ``mode``: builds the
+    tree over the scene's chunks (:attr:`bvh`) and, per tile slot, keeps the hybrid switch and, once
+    the slot has culled on the GPU, its GPU culler.
 
     GPU and hybrid culling need GL 4.3 compute shaders: without them ``mode`` gpu raises
     CullingUnavailableError and hybrid stays on the CPU (its switch is not fed). ``mode`` auto is
@@ -98,6 +96,7 @@ class TileCuller:
             raise CullingUnavailableError(f"--culling gpu needs GL 4.3 compute shaders; this context is GL "
                                           f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")
         self.chunks, self.mode, self.params = chunks, mode, params
+        self.bvh = build_chunk_bvh(chunks.boxes)
         self._slots: dict[Hashable, _Slot] = {}
         self._cpu_commands = ctx.buffer(reserve=20 * chunks.chunk_count)   # runs never outnumber chunks
         self._all_runs = chunks.all_runs()
@@ -107,7 +106,7 @@ class TileCuller:
         self.gpu_bvh: GpuBvh | None = None
         if mode in (CullMode.GPU, CullMode.HYBRID) and ctx.version_code >= 430:
             index = chunks.index_bounds
-            self.gpu_bvh = GpuBvh(ctx, chunks.bvh, index[:-1], index[1:], bounds[chunks.batch + 1])
+            self.gpu_bvh = GpuBvh(ctx, self.bvh, index[:-1], index[1:], bounds[chunks.batch + 1])
 
     def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect) -> TileCull:
         """Cull tile ``slot`` (any key: the tile's id), the ``rect`` part of a ``size`` frame drawn
@@ -128,7 +127,7 @@ class TileCuller:
 
     def _cull_cpu(self, state: _Slot, planes: np.ndarray) -> TileCull:
         started = time.perf_counter()
-        result = cull(self.chunks.bvh, planes)
+        result = cull(self.bvh, planes)
         runs = self.chunks.runs(result.visible_first, result.visible_end)
         elapsed = time.perf_counter() - started
         if self.mode is CullMode.HYBRID and self.gpu_bvh is not None:
@@ -175,3 +174,16 @@ class TileCuller:
 def _run_spans(runs: DrawRuns) -> np.ndarray:
     """(R, 2) int64 (first index, index count) of ``runs``."""
     return np.stack([runs.first, runs.count], axis=1)
+
+
+def indirect_commands(ranges: list[tuple[int, int]] | np.ndarray, base_vertex: int = 0) -> np.ndarray:
+    """(N, 5) uint32 DrawElementsIndirectCommand rows (count, instanceCount, firstIndex, baseVertex,
+    baseInstance) for index ``ranges`` (start, count), one instance each: upload and draw them all
+    with one ``VertexArray.render_indirect(buffer, count=N)`` (glMultiDrawElementsIndirect)."""
+    spans = np.asarray(ranges, dtype=np.int64).reshape(-1, 2)
+    commands = np.zeros((spans.shape[0], 5), np.uint32)
+    commands[:, 0] = spans[:, 1]
+    commands[:, 1] = 1
+    commands[:, 2] = spans[:, 0]
+    commands[:, 3] = base_vertex
+    return commands

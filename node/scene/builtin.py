@@ -13,7 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from node.scene import MeshBatch, SceneData, SceneError
+from node.scene.data import SceneData
+from node.scene.mesh import MeshBatch, SceneError
 
 #: ``(positions (N, 3), normals (N, 3), faces (F, 3))`` of an object in its local frame.
 Surface = tuple[np.ndarray, np.ndarray, np.ndarray]

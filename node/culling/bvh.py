@@ -1,16 +1,17 @@
-"""Per-tile hierarchical frustum culling on the CPU (seed 001, the CPU side of ch. 6; seed 002 §3.4
-for why chunks exist): a bounding-volume tree over chunk boxes, tested against the tile's
-sub-frustum, and the visible chunks coalesced into as few draw ranges as possible.
+"""The tree over a scene's chunks and its CPU traversal (seed 001, the CPU side of ch. 6; seed 002
+§3.4 for why chunks exist): a bounding-volume tree over chunk boxes, tested against a tile's
+sub-frustum (:mod:`node.culling.frustum`), and the visible chunks coalesced into as few ranges as
+possible.
 
 The tree is built over chunks in their given order (octree depth-first order from
-:func:`node.octree_split.octree_split`) by halving the chunk range, so every tree node covers a
+:func:`node.scene.octree.octree_split`) by halving the chunk range, so every tree node covers a
 contiguous range of chunks, hence of faces: a node wholly inside the tile is one draw range.
 
 The traversal is vectorised (:func:`cull`): the frontier of nodes is tested at once with the
-p-/n-vertex box–plane test, :data:`LEVEL_STEP` tree levels per step. Plane masking and plane
-coherency (testing first the plane that culled a node last frame) only pay in a one-node-at-a-time
-loop and are left out. On the 990k pan split into 9–12k chunks, a level-by-level walk cost 0.6–1.4
-ms per tile, stepping five levels about 0.2 ms (2 shared CPU cores).
+p-/n-vertex box–plane test, :data:`LEVEL_STEP` tree levels per step, because the number of numpy
+calls is what a tile's cull costs (docs/culling.md). Plane masking and plane coherency (testing
+first the plane that culled a node last frame) only pay in a one-node-at-a-time loop and are left
+out.
 """
 
 from __future__ import annotations
@@ -20,42 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tessera.geometry import Camera, Rect, view_projection
-
-#: Tile planes are pushed outward by this many pixels, so a chunk touching the tile is never culled.
-DEFAULT_PAD_PX = 1.0
-#: Near/far planes are pushed outward by this much NDC depth (float32 rounding in GL and on the GPU).
-DEPTH_SLACK = 1e-5
-
-
-def frustum_planes_from_matrix(view_proj: np.ndarray, size: tuple[int, int], rect: Rect,
-                               pad_px: float = DEFAULT_PAD_PX) -> np.ndarray:
-    """(6, 4) float64 world-space planes (a, b, c, d), inside where a·x + b·y + c·z + d ≥ 0, of the
-    sub-frustum of full-frame ``view_proj`` (4×4 world→clip) that ``rect`` covers in a ``size`` =
-    (width, height) image, pushed outward by ``pad_px`` pixels and :data:`DEPTH_SLACK`, so culling
-    stays conservative. Order: left, right, bottom, top, near, far; normals are unit length."""
-    width, height = size
-    m = np.asarray(view_proj, dtype=np.float64)
-    x0 = 2.0 * (rect.x - pad_px) / width - 1.0
-    x1 = 2.0 * (rect.x1 + pad_px) / width - 1.0
-    y0 = 1.0 - 2.0 * (rect.y1 + pad_px) / height      # pixel rows count down from the top
-    y1 = 1.0 - 2.0 * (rect.y - pad_px) / height
-    planes = np.stack([m[0] - x0 * m[3], x1 * m[3] - m[0],
-                       m[1] - y0 * m[3], y1 * m[3] - m[1],
-                       m[2] + (1.0 + DEPTH_SLACK) * m[3], (1.0 + DEPTH_SLACK) * m[3] - m[2]])
-    return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
-
-
-def tile_frustum_planes(camera: Camera, size: tuple[int, int], rect: Rect, bounds: np.ndarray,
-                        pad_px: float = DEFAULT_PAD_PX) -> np.ndarray:
-    """(6, 4) float64 world-space planes of ``rect``'s sub-frustum, from the same
-    :func:`view_projection` (near/far from the scene ``bounds`` (2, 3)) that the renderer draws
-    with. A renderer that already holds the frame's matrix calls :func:`frustum_planes_from_matrix`."""
-    return frustum_planes_from_matrix(view_projection(camera, size, bounds), size, rect, pad_px)
-
-
 #: The CPU traversal tests the binary tree this many levels at a time (a 2⁵ = 32-ary view of it):
-#: fastest of 2…7 on the 990k pan split into 12k chunks (0.2 ms per tile against 0.34 ms for 2).
+#: the fastest of 2…7 measured (docs/culling.md).
 LEVEL_STEP = 5
 
 
@@ -166,16 +133,6 @@ def _cuts(depth: np.ndarray, left: np.ndarray, first_chunk: np.ndarray, end_chun
     return tuple(cuts), tuple(children)
 
 
-def classify_boxes(lo: np.ndarray, hi: np.ndarray, planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For boxes ``lo``/``hi`` (K, 3) and ``planes`` (P, 4): (outside, inside) (K, P) bool — the box
-    lies wholly on the negative side (p-vertex test), or wholly on the positive side (n-vertex)."""
-    center = (lo + hi) * 0.5
-    extent = (hi - lo) * 0.5
-    distance = center @ planes[:, :3].T + planes[:, 3]
-    radius = extent @ np.abs(planes[:, :3]).T
-    return distance + radius < 0.0, distance - radius >= 0.0
-
-
 @dataclass(frozen=True, slots=True)
 class CullResult:
     """What one tile's cull found.
@@ -249,44 +206,8 @@ def _merge_touching(first: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.
     return first[head], end[np.append(head[1:], first.size) - 1]
 
 
-def cull_flat(bvh: ChunkBVH, planes: np.ndarray) -> np.ndarray:
-    """(K,) int64 sorted chunks kept by testing every leaf box against ``planes`` (6, 4) at once —
-    the same set as :func:`cull`, without the hierarchy (the reference in tests and benchmarks)."""
-    leaves = np.flatnonzero(bvh.left < 0)
-    outside, _ = classify_boxes(bvh.lo[leaves], bvh.hi[leaves], np.asarray(planes, dtype=np.float64))
-    return np.sort(bvh.first_chunk[leaves[~outside.any(axis=1)]]).astype(np.int64)
-
-
 def range_members(first: np.ndarray, end: np.ndarray) -> np.ndarray:
     """(K,) int64 every integer of the ranges [first[i], end[i]) (M,), concatenated in order."""
     first = np.asarray(first, dtype=np.int64)
     counts = np.asarray(end, dtype=np.int64) - first
     return np.repeat(first - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
-
-
-def merge_ranges(visible_chunks: np.ndarray, chunk_starts: np.ndarray,
-                 chunk_ends: np.ndarray) -> list[tuple[int, int]]:
-    """Fewest (start, count) ranges covering the ``visible_chunks`` (K,) ids, given each chunk's
-    [start, end) (C,) — in faces or indices, the ranges come out in the same unit. Chunks whose
-    ranges touch are merged into one draw."""
-    chunks = np.unique(np.asarray(visible_chunks, dtype=np.int64))
-    if chunks.size == 0:
-        return []
-    starts = np.asarray(chunk_starts, dtype=np.int64)[chunks]
-    ends = np.asarray(chunk_ends, dtype=np.int64)[chunks]
-    run_first = np.flatnonzero(np.concatenate(([True], starts[1:] != ends[:-1])))
-    run_last = np.append(run_first[1:], chunks.size) - 1
-    return [(int(s), int(e - s)) for s, e in zip(starts[run_first], ends[run_last], strict=True)]
-
-
-def indirect_commands(ranges: list[tuple[int, int]] | np.ndarray, base_vertex: int = 0) -> np.ndarray:
-    """(N, 5) uint32 DrawElementsIndirectCommand rows (count, instanceCount, firstIndex, baseVertex,
-    baseInstance) for index ``ranges`` (start, count), one instance each: upload and draw them all
-    with one ``VertexArray.render_indirect(buffer, count=N)`` (glMultiDrawElementsIndirect)."""
-    spans = np.asarray(ranges, dtype=np.int64).reshape(-1, 2)
-    commands = np.zeros((spans.shape[0], 5), np.uint32)
-    commands[:, 0] = spans[:, 1]
-    commands[:, 1] = 1
-    commands[:, 2] = spans[:, 0]
-    commands[:, 3] = base_vertex
-    return commands

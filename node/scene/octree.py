@@ -4,10 +4,10 @@ faces, so that a chunk rarely spans several tiles and per-tile culling can skip 
 The seed subdivides a leaf's bounding box into eight while it holds too many faces, keeping only
 non-empty children. Here the root cell is the cube on the mesh's bounding box (:func:`octree_root`),
 so cells are cubes at every level: compact chunks whose screen footprints stay small from any
-viewpoint (on the 990k pan, a cube root gives the same tile redundancy with about a third fewer
-chunks than halving the elongated box). Every face goes to the octree cell holding its centroid; the whole
-adaptive octree is found at once from the faces' Morton codes (sorting by code lists every cell's
-faces contiguously, in depth-first octree order), level by level with numpy, no per-face loop.
+viewpoint (the same tile redundancy with fewer chunks than halving an elongated box:
+docs/culling.md). Every face goes to the octree cell holding its centroid; the whole adaptive
+octree is found at once from the faces' Morton codes (sorting by code lists every cell's faces
+contiguously, in depth-first octree order), level by level with numpy, no per-face loop.
 
 Only the face order changes: vertices, normals and materials stay as they are. Chunk ``i`` is
 ``faces[face_order][starts[i]:ends[i]]``, so the renderer keeps one index buffer and draws ranges.
@@ -26,8 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Default most faces per chunk: about the largest limit that keeps sort-first redundancy
-#: (triangles drawn by 16 tiles / by the whole frame, both culled) within 1.10 on the 990k pan's
-#: orbit at 1280x720: 12 084 chunks and 1.099 (256: 8 978 chunks, 1.105; 1024: 2 328, 1.19).
+#: (triangles drawn by 16 tiles / by the whole frame, both culled) within 1.10 (docs/culling.md).
 DEFAULT_FACE_LIMIT = 192
 #: Octree depth of the Morton code (21 bits per axis fill a uint64).
 MAX_DEPTH = 21

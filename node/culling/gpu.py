@@ -1,5 +1,5 @@
 """GPU frustum culling with temporal coherence (seed 001 §6.1.2); the hybrid CPU/GPU switching that
-uses it is :mod:`node.tile_culling`.
+uses it is :mod:`node.culling.tiles`.
 
 The seed keeps the whole hierarchy on the GPU and processes only a set of input nodes in
 parallel: the nodes the CPU processed last seed it; each frame's results are the next frame's
@@ -24,7 +24,7 @@ Where the seed had to be interpreted:
   outside too (one more box test); otherwise the parent would be re-traversed and the node
   re-emitted on alternate frames. A second pass drops next-input nodes that have an ancestor in
   it, and duplicates, so the next input is again a cut.
-- The result is exact (the same chunks as :func:`node.frustum_culling.cull`, up to float32
+- The result is exact (the same chunks as :func:`node.culling.bvh.cull`, up to float32
   rounding on planes and boxes), not a temporal approximation.
 - No invocation may loop long: llvmpipe (Mesa 22.3) silently ends a shader loop after 32768
   iterations, which truncated root-down traversals of ~29k-chunk trees and left holes. So input
@@ -43,7 +43,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from node.frustum_culling import ChunkBVH, range_members
+from node.culling.bvh import ChunkBVH, range_members
 
 _GROUP = 64
 #: An input node's subtree spans at most this many levels (2¹² chunks, 8191 nodes per traversal).
@@ -165,7 +165,7 @@ class GpuBvh:
     """A :class:`ChunkBVH` and its chunks' index spans uploaded once (SSBOs), with both shaders.
 
     ``index_starts``/``index_ends`` (C,) are each chunk's index range in the shared index buffer;
-    chunks must be contiguous (chunk i ends where i + 1 starts), as :class:`ChunkSplit` gives them.
+    chunks must be contiguous (chunk i ends where i + 1 starts), as the scene's chunks are.
     ``batch_ends`` (C,): for each chunk, the chunk where its batch (material) ends; a visible node's
     command stops there and the next batch's chunks get their own command, so that each batch's
     slice of the commands can be drawn with its own material (default: one batch).
@@ -226,14 +226,16 @@ class GpuCuller:
 
     ``commands`` is a (C, 5) uint32 buffer of DrawElementsIndirectCommand rows, rewritten by every
     :meth:`cull`; draw with ``vao.render_indirect(culler.commands, count=culler.command_count)``.
-    Both passes are dispatched indirectly, sized by the node list they read.
+    ``inputs`` are the two node-list buffers (dispatch groups, 1, 1, length, then node ids) that
+    take turns: ``inputs[0]`` holds the cut the next :meth:`cull` starts from. Both passes are
+    dispatched indirectly, sized by the node list they read.
     """
 
     def __init__(self, gpu_bvh: GpuBvh) -> None:
         self.gpu_bvh = gpu_bvh
         ctx, node_total = gpu_bvh.ctx, gpu_bvh.bvh.node_count
         header_and_nodes = bytes(4 * (node_total + 4))
-        self._inputs = [ctx.buffer(header_and_nodes), ctx.buffer(header_and_nodes)]
+        self.inputs = [ctx.buffer(header_and_nodes), ctx.buffer(header_and_nodes)]
         self._proposals = ctx.buffer(header_and_nodes)
         self._marks = ctx.buffer(bytes(4 * node_total))      # frame tag of the last proposal per node
         self._claims = ctx.buffer(bytes(4 * node_total))     # frame tag of the last settled node
@@ -253,7 +255,7 @@ class GpuCuller:
         covered = np.sort(range_members(bvh.first_chunk[nodes], bvh.end_chunk[nodes]))
         if not np.array_equal(covered, np.arange(bvh.chunk_count)):
             raise ValueError("seed nodes must be a cut of the tree: every chunk under exactly one of them")
-        self._inputs[0].write(_node_list(self.gpu_bvh.below_ceiling(nodes)))
+        self.inputs[0].write(_node_list(self.gpu_bvh.below_ceiling(nodes)))
 
     def cull(self, planes: np.ndarray) -> None:
         """Cull against ``planes`` (6, 4) world space; rewrites :attr:`commands` on the GPU."""
@@ -261,42 +263,25 @@ class GpuCuller:
         self._tag += 1
         empty = _node_list(np.zeros(0, np.int64))
         self._proposals.write(empty)
-        self._inputs[1].write(empty)
+        self.inputs[1].write(empty)
         self.commands.clear()
         gpu.nodes.bind_to_storage_buffer(0)
         self._proposals.bind_to_storage_buffer(2)
         self._marks.bind_to_storage_buffer(3)
         gpu.spans.bind_to_storage_buffer(1)
         self.commands.bind_to_storage_buffer(4)
-        self._inputs[0].bind_to_storage_buffer(5)
+        self.inputs[0].bind_to_storage_buffer(5)
         gpu.cull_shader["planes"].write(np.asarray(planes, dtype=np.float32).tobytes())
         gpu.cull_shader["tag"].value = self._tag
-        gpu.cull_shader.run_indirect(self._inputs[0])
+        gpu.cull_shader.run_indirect(self.inputs[0])
         ctx.memory_barrier(moderngl.SHADER_STORAGE_BARRIER_BIT | moderngl.COMMAND_BARRIER_BIT)
         self._claims.bind_to_storage_buffer(4)
-        self._inputs[1].bind_to_storage_buffer(5)
+        self.inputs[1].bind_to_storage_buffer(5)
         gpu.settle_shader["tag"].value = self._tag
         gpu.settle_shader.run_indirect(self._proposals)
         ctx.memory_barrier(moderngl.SHADER_STORAGE_BARRIER_BIT | moderngl.COMMAND_BARRIER_BIT)
-        self._inputs.reverse()
-
-    def read_commands(self) -> np.ndarray:
-        """(C, 5) uint32 commands of the last cull (a GPU→CPU read: waits for the GPU)."""
-        return np.frombuffer(self.commands.read(), np.uint32).reshape(-1, 5)
-
-    def read_visible_chunks(self) -> np.ndarray:
-        """(K,) int64 sorted ids of the chunks the last cull kept (reads the commands back)."""
-        commands = self.read_commands()
-        drawn = commands[commands[:, 0] > 0]
-        first = np.searchsorted(self.gpu_bvh.index_starts, drawn[:, 2])
-        end = np.searchsorted(self.gpu_bvh.index_starts, drawn[:, 2].astype(np.int64) + drawn[:, 0])
-        return np.sort(range_members(first, end))
+        self.inputs.reverse()
 
     def release(self) -> None:
-        for buffer in (*self._inputs, self._proposals, self._marks, self._claims, self.commands):
+        for buffer in (*self.inputs, self._proposals, self._marks, self._claims, self.commands):
             buffer.release()
-
-    def read_input_nodes(self) -> np.ndarray:
-        """(T,) uint32 the input cut for the next cull."""
-        data = np.frombuffer(self._inputs[0].read(), np.uint32)
-        return np.sort(data[4:4 + data[3]])

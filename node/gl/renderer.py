@@ -5,13 +5,13 @@ A tile is drawn with the full frame's camera, projection and viewport into a fra
 framebuffer, with the scissor box set to the tile (seeds 001/002: tiles join without seams).
 Rasterisation, attribute interpolation and texture LOD (which uses 2×2 pixel quads) are then the
 very same as in a full render, so a tile is bit-identical to that region of the full frame — a
-tile-sized framebuffer with a shifted viewport (``tessera.geometry.tile_viewport``) moves the
-quad grid and the interpolation origin by the tile offset and changes low bits. One framebuffer
+tile-sized framebuffer with a shifted viewport moves the quad grid and the interpolation origin by
+the tile offset and changes low bits. One framebuffer
 serves every tile of a frame size however the balancer reshapes the tiles.
 
 Geometry lives in one interleaved vertex buffer and one index buffer (batches in order, each
-batch's faces in chunk order, :mod:`node.chunking`). Each tile is culled first
-(:class:`node.tile_culling.TileCuller`: off, CPU, GPU or hybrid, seed 001) against the tile's
+batch's faces in chunk order, :mod:`node.scene.chunks`). Each tile is culled first
+(:class:`node.culling.tiles.TileCuller`: off, CPU, GPU or hybrid, seed 001) against the tile's
 sub-frustum of the same full-frame matrix the tile is drawn with; then each batch with something in
 the tile gets its material uniforms once and draws its kept index ranges. Culled chunks lie wholly
 outside the (padded) tile frustum, so they would not have written a pixel of the tile: culling
@@ -20,7 +20,7 @@ never changes the image.
 Both culling paths hand over a buffer of indirect draw commands (the CPU writes one per run of
 touching visible chunks, the GPU one per chunk, zero-count where culled), and each batch is drawn
 with one ``render_indirect`` (glMultiDrawElementsIndirect) over its slice: see
-:mod:`node.tile_culling` for why this beat one ``render(first=, vertices=)`` per run on llvmpipe.
+:mod:`node.culling.tiles` for why it is kept over one ``render(first=, vertices=)`` per run.
 Below GL 4.3 (no multi-draw-indirect, no GPU culling) the runs are drawn one call each.
 Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
 base colour × vertex colour × sRGB texture, output sRGB-encoded.
@@ -36,9 +36,10 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from node.culling_state import CullMode, SwitchParams
-from node.scene import MeshBatch, SceneData
-from node.tile_culling import TileCull, TileCuller
+from node.culling.switch import CullMode, SwitchParams
+from node.culling.tiles import TileCull, TileCuller
+from node.scene.data import SceneData
+from node.scene.mesh import MeshBatch
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 
 GL_SRGB8_ALPHA8 = 0x8C43

@@ -1,0 +1,52 @@
+"""One drawable mesh in world space (:class:`MeshBatch`) and the error every scene loader raises.
+No GL here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Linear base colour of meshes that carry no material (scans): a warm light grey.
+DEFAULT_BASE_COLOR = (0.60, 0.57, 0.52, 1.0)
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message is one line naming the file and the reason."""
+
+
+@dataclass(frozen=True, eq=False)
+class MeshBatch:
+    """One drawable mesh in world space (one material, one draw call over an index range).
+
+    ``positions`` (N, 3) float32, ``normals`` (N, 3) float32 unit length, ``faces`` (F, 3) uint32,
+    ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
+    float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
+    sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
+    """
+
+    name: str
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    base_color: np.ndarray = field(default_factory=lambda: np.asarray(DEFAULT_BASE_COLOR, np.float32))
+    texture: np.ndarray | None = None
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.faces)
+
+    @property
+    def vertex_count(self) -> int:
+        return len(self.positions)
+
+    def bounds(self) -> np.ndarray:
+        """World-space AABB (2, 3) float64 of the vertices the faces use."""
+        used = np.zeros(len(self.positions), dtype=bool)
+        used[self.faces.reshape(-1)] = True
+        points = self.positions[used]
+        return np.stack([points.min(axis=0), points.max(axis=0)]).astype(np.float64)
