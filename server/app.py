@@ -1,4 +1,5 @@
-"""``create_app(settings)``: the FastAPI app, one router per resource, the service on ``app.state``."""
+"""``create_app(settings)``: the FastAPI app, one router per resource, the service and its metrics on
+``app.state``."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
+from server.metrics import CoordinatorMetrics
 from server.routes import balancer, camera, frames, health, node_ws, nodes, stats, viewer_ws, web
 from server.routes.web import WEB_DIR
 from server.service import RenderService
@@ -14,7 +16,9 @@ from server.settings import Settings
 
 
 def create_app(settings: Settings) -> FastAPI:
-    service = RenderService(settings)
+    metrics = CoordinatorMetrics()
+    service = RenderService(settings, metrics)
+    metrics.watch(service)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -25,6 +29,7 @@ def create_app(settings: Settings) -> FastAPI:
     app = FastAPI(title="Tessera coordinator", version="0.1.0", lifespan=lifespan,
                   description="Sort-first parallel rendering: nodes render tiles, the coordinator composites.")
     app.state.service = service
+    app.state.metrics = metrics
     app.state.settings = settings
     for module in (health, stats, camera, frames, balancer, nodes, node_ws, viewer_ws, web):
         app.include_router(module.router)

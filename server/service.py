@@ -4,7 +4,8 @@ socket messages and the clock into scheduler events and carries out the schedule
 
 What happens when — render on demand, late camera binding, superseded frames, publish order —
 is decided in the scheduler; this module adds what needs I/O: the nodes' connections and scene
-state, calibration (seed 003 §1), the viewers, the frame store and the CPU accounting.
+state, calibration (seed 003 §1), the viewers, the frame store, the CPU accounting and the
+Prometheus histograms (:mod:`server.metrics`: each publish, each tile's node phases).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from server.calibration import CalibrationQueue, calibrate_message
 from server.frame_store import FrameStore, PublishedFrame
+from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.nodes import NodeLink
 from server.settings import Settings
 from server.viewers import ViewerHub
@@ -55,10 +57,12 @@ def scheduler_config(settings: Settings) -> SchedulerConfig:
 
 
 class RenderService:
-    def __init__(self, settings: Settings) -> None:
+    def __init__(self, settings: Settings, metrics: CoordinatorMetrics | None = None) -> None:
         self.settings = settings
         self.size = settings.size
+        self.metrics = metrics or CoordinatorMetrics()
         self.scheduler = FrameScheduler(scheduler_config(settings), create_balancer(settings.balancer))
+        self.scheduler.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
         self.bounds: np.ndarray | None = None
         self.store = FrameStore()
@@ -183,6 +187,7 @@ class RenderService:
                          if isinstance(v, (int, float, str)) and not isinstance(v, bool)}
                         if isinstance(stats, dict) else {})
             self.scheduler.tile_sent(link.node_id, frame_id, tile_id, float(send_ms), counters)
+            self.metrics.tile_sent(float(send_ms))
         elif kind == "tiles_dropped":
             tiles = require(message, "tiles", list)
             link.tiles_dropped += sum(1 for t in tiles if isinstance(t, int) and not isinstance(t, bool))
@@ -289,6 +294,7 @@ class RenderService:
             header, payload = unpack_tile(message)
             check_payload_size(payload, header.codec, header.rect)
             self.scheduler.tile_arrived(link.node_id, header, bytes(payload), time.monotonic())
+            self.metrics.tile_arrived(header)
             self._apply()
         finally:
             spent = (time.thread_time() - started) * 1000.0

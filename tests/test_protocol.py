@@ -6,11 +6,13 @@ The TFRM golden byte string shared with the JS viewer lives in tests/test_protoc
 from __future__ import annotations
 
 import struct
+from dataclasses import fields
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tessera.balancers.base import TileTiming
 from tessera.codec import Codec
 from tessera.geometry import Rect
 from tessera.protocol import (
@@ -21,15 +23,15 @@ from tessera.protocol import (
     TILE_MAGIC,
     ProtocolError,
     TileHeader,
+    ViewerFrame,
     decode_json,
     encode_json,
     pack_frame,
     pack_tile,
     require,
-    ViewerFrame,
     unpack_frame,
-    with_input_seq,
     unpack_tile,
+    with_input_seq,
 )
 
 #: The tile header layout, restated here so that a change to the wire format fails a test.
@@ -244,6 +246,14 @@ def test_require_names_a_missing_field():
         require(MESSAGE, "tile", int)
 
 
-def test_node_phases_are_in_pipeline_order():
-    assert NODE_PHASES == ("render", "readback", "encode", "send")
+def test_node_phases_are_the_measured_timings_in_pipeline_order():
+    """NODE_PHASES names the timings the wire carries: the tile header's ``*_ms`` fields in packing
+    order, then ``tile_sent.send_ms`` (measured once the tile went out); the balancers' per-tile
+    timing has the same fields in the same order. web/panel.js mirrors it (tests/test_web_mirror.py)."""
+    header = TileHeader(1, 0, Rect(0, 0, 1, 1), Codec.RAW, 1.0, 2.0, 3.0)
+    timings = [f.name for f in fields(TileHeader) if f.name.endswith("_ms")]
+    assert [name.removesuffix("_ms") for name in timings] == list(NODE_PHASES[:-1])
+    packed = TILE_LAYOUT.unpack(pack_tile(header, b"")[:TILE_LAYOUT.size])
+    assert packed[10:13] == tuple(getattr(header, name) for name in timings), "packed in NODE_PHASES order"
+    assert [f.name for f in fields(TileTiming) if f.name.endswith("_ms")] == [f"{p}_ms" for p in NODE_PHASES]
 

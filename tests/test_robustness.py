@@ -1,5 +1,6 @@
 """Bad input gets a clear error and loses nothing: misbehaving peers on real sockets against a real
-coordinator that keeps serving correct frames from a real node."""
+coordinator that keeps serving correct frames from a real node. The validation itself (422s, tokens,
+the documented endpoints) is checked in process in tests/test_api.py."""
 
 from __future__ import annotations
 
@@ -58,19 +59,14 @@ def assert_still_serving(client: httpx.Client) -> None:
 
 
 def test_node_protocol_violations_close_only_that_peer(serving):
+    """A peer that breaks the protocol is closed (every case is in tests/test_api.py); the real node
+    it shares the coordinator with keeps serving."""
     coordinator, client = serving
     url = coordinator.ws_url + "/ws/node"
-    cases = [
-        ("not json", "malformed JSON"),
-        (json.dumps({**HELLO, "version": 99}), "protocol version"),
-        (json.dumps({"type": "tile_sent"}), "unexpected message type"),
-        (b"\x00\x01binary first", "JSON hello"),
-    ]
-    for first, reason in cases:
-        with ws_client.connect(url) as ws:
-            ws.send(first)
-            code, text = closed_with(ws, seconds(20))
-            assert code == 1008 and reason in text, (first, code, text)
+    with ws_client.connect(url) as ws:
+        ws.send("not json")
+        code, text = closed_with(ws, seconds(20))
+        assert code == 1008 and "malformed JSON" in text, (code, text)
     with ws_client.connect(url) as ws:
         ws.send(json.dumps(HELLO))
         next_json(ws, "welcome")
@@ -78,19 +74,6 @@ def test_node_protocol_violations_close_only_that_peer(serving):
         code, text = closed_with(ws, seconds(20))
         assert code == 1008 and "shorter than its header" in text
     assert_still_serving(client)
-
-
-def test_wrong_token_is_refused(coordinator_factory):
-    coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "64x48", "--token", "s3cret")
-    with ws_client.connect(coordinator.ws_url + "/ws/node") as ws:
-        ws.send(json.dumps({**HELLO, "token": "wrong"}))
-        assert closed_with(ws, seconds(20)) == (4401, "wrong token")
-    with ws_client.connect(coordinator.ws_url + "/ws/view?token=nope") as ws:
-        assert closed_with(ws, seconds(20))[0] == 4401
-    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        assert client.get("/api/stats").status_code == 401
-        assert client.get("/api/stats", headers={"Authorization": "Bearer s3cret"}).status_code == 200
-        assert client.get("/healthz").status_code == 200
 
 
 def test_wrong_size_tile_is_refused_and_the_frame_completes_from_the_others(serving):
@@ -117,17 +100,14 @@ def test_wrong_size_tile_is_refused_and_the_frame_completes_from_the_others(serv
     assert_still_serving(client)
 
 
-def test_invalid_camera_input_is_refused_with_reasons(serving):
+def test_refused_input_leaves_the_real_node_serving(serving):
+    """Input refused with reasons (every case is in tests/test_api.py) disturbs nothing: the real
+    node keeps rendering correct frames."""
     coordinator, client = serving
-    for bad in ({"eye": [0, 0, float("nan")], "target": [0, 0, 0]}, {"eye": [1, 1, 1], "target": [1, 1, 1]},
-                {"eye": [0, 5, 0], "target": [0, 0, 0], "up": [0, 1, 0]}, {"eye": [0, 0, 1]},
-                {"eye": [0, 0, 1], "target": [0, 0, 0], "fovy_deg": 0}):
-        response = client.put("/api/camera", content=json.dumps(bad, allow_nan=True),
-                              headers={"content-type": "application/json"})
-        assert response.status_code == 422, (bad, response.text)
-        assert "camera" in response.text or "field required" in response.text.lower() or "missing" in response.text
+    response = client.put("/api/camera", content=json.dumps({"eye": [0, 0, float("nan")], "target": [0, 0, 0]},
+                                                          allow_nan=True), headers={"content-type": "application/json"})
+    assert response.status_code == 422, response.text
     assert client.put("/api/balancer", json={"name": "no-such"}).status_code == 422
-    assert client.put("/api/balancer", json={"name": "static", "params": {"nope": 1}}).status_code == 422
     with ws_client.connect(coordinator.ws_url + "/ws/view", max_size=64 << 20) as ws:
         ws.send(json.dumps({"type": "camera", "camera": {"eye": [0, 0, "x"], "target": [0, 0, 0]}}))
         assert "must be numbers" in next_json(ws, "error")["message"]
@@ -148,22 +128,3 @@ def test_broken_scene_file_is_reported_and_the_coordinator_stays_up(coordinator_
         assert client.get("/healthz").status_code == 200
         assert client.get("/api/stats").json()["frame"] == 0
     assert "broken.ply" in coordinator.proc.output()
-
-
-def test_documented_endpoints_are_served(serving):
-    _, client = serving
-    assert client.get("/docs").status_code == 200
-    paths = client.get("/openapi.json").json()["paths"]
-    for path in ("/healthz", "/api/stats", "/api/camera", "/api/frame.png", "/api/balancer", "/metrics"):
-        assert path in paths, path
-    assert "put" in paths["/api/camera"] and "put" in paths["/api/balancer"]
-    metrics = client.get("/metrics").text
-    assert "tessera_fps " in metrics and 'tessera_node_phase_ms{node="1",phase="render"}' in metrics
-    page = client.get("/")
-    assert page.status_code == 200 and "web/viewer.js" in page.text
-    assert client.get("/web/viewer.js").status_code == 200
-    stats = client.get("/api/stats").json()
-    for key in ("frame", "fps", "size", "balancer", "imbalance", "imbalance_avg", "latency_ms", "nodes"):
-        assert key in stats, key
-    for key in ("id", "name", "tiles", "render_ms", "readback_ms", "encode_ms", "send_ms", "busy_ms", "speed"):
-        assert key in stats["nodes"][0], key

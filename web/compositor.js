@@ -6,7 +6,7 @@
 import { Codec, ProtocolError } from "./protocol.js";
 
 /** Frames decoding at once; a frame arriving beyond this waits in a one-frame slot (latest wins). */
-const MAX_DECODING = 3;
+export const MAX_DECODING = 3;
 const MIME = { [Codec.JPEG]: "image/jpeg", [Codec.PNG]: "image/png" };
 
 /** Raw tile pixels (w×h×3 bytes, RGB, rows top-down) → RGBA bytes with alpha 255. */

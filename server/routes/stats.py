@@ -1,8 +1,8 @@
-"""Live statistics: ``GET /api/stats`` (JSON) and ``GET /metrics`` (Prometheus text)."""
+"""Live statistics: ``GET /api/stats`` (JSON) and ``GET /metrics`` (Prometheus, by ``prometheus_client``)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import PlainTextResponse
 
 from server.routes.deps import get_service, require_token
@@ -18,23 +18,9 @@ async def get_stats(service: RenderService = Depends(get_service)) -> dict:
 
 
 @router.get("/metrics", response_class=PlainTextResponse, dependencies=[Depends(require_token)])
-async def metrics(service: RenderService = Depends(get_service)) -> str:
-    stats = service.describe()
-    lines = [
-        "# TYPE tessera_frame_id gauge", f"tessera_frame_id {stats['frame']}",
-        "# TYPE tessera_frames_published_total counter",
-        f"tessera_frames_published_total {service.stats.frames_published}",
-        "# TYPE tessera_frames_cancelled_total counter",
-        f"tessera_frames_cancelled_total {stats['frames_cancelled']}",
-        "# TYPE tessera_fps gauge", f"tessera_fps {stats['fps']}",
-        "# TYPE tessera_imbalance gauge", f"tessera_imbalance {stats['imbalance']}",
-        "# TYPE tessera_imbalance_avg gauge", f"tessera_imbalance_avg {stats['imbalance_avg']}",
-        "# TYPE tessera_latency_ms gauge", f"tessera_latency_ms {stats['latency_ms']}",
-        "# TYPE tessera_viewer_bytes_total counter", f"tessera_viewer_bytes_total {service.viewers.bytes_published}",
-        "# TYPE tessera_nodes gauge", f"tessera_nodes {len(stats['nodes'])}",
-        "# TYPE tessera_node_phase_ms gauge",
-    ]
-    for node in stats["nodes"]:
-        for phase in ("render", "readback", "encode", "send", "busy"):
-            lines.append(f'tessera_node_phase_ms{{node="{node["id"]}",phase="{phase}"}} {node[phase + "_ms"]}')
-    return "\n".join(lines) + "\n"
+async def metrics(request: Request) -> Response:
+    """Prometheus metrics (text format, or OpenMetrics when asked): histograms of frame interval,
+    input → publish latency and per-tile node phases, the ``/api/stats`` figures as gauges and
+    counters, and the process collector."""
+    body, content_type = request.app.state.metrics.exposition(request.headers.get("accept"))
+    return Response(content=body, media_type=content_type)

@@ -4,8 +4,10 @@ import { test } from "node:test";
 
 import { PHASES, inputLatencyText, niceScale, nodeDetail, segmentWidths } from "../../web/panel.js";
 
-test("phases are the node phases of tessera/protocol.py, in pipeline order", () => {
-  assert.deepEqual(PHASES, ["render", "readback", "encode", "send"]);
+// PHASES against tessera.protocol.NODE_PHASES: tests/test_web_mirror.py reads both and compares them.
+test("one bar segment per phase, in PHASES order", () => {
+  const node = Object.fromEntries(PHASES.map((phase, i) => [`${phase}_ms`, i + 1]));
+  assert.deepEqual(segmentWidths(node, 10), PHASES.map((_, i) => 10 * (i + 1)));
 });
 
 test("niceScale rounds up to 1, 2 or 5 × 10^k", () => {

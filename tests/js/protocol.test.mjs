@@ -21,7 +21,8 @@ function golden() {
   return bytes.buffer;
 }
 
-test("constants match tessera/protocol.py", () => {
+// tests/test_web_mirror.py checks these constants against tessera/protocol.py itself.
+test("constants are the wire values", () => {
   assert.equal(FRAME_MAGIC, "TFRM");
   assert.equal(PROTOCOL_VERSION, 2);
   assert.equal(FRAME_HEADER_SIZE, 24); // struct "<4sBBHIIII"
