@@ -64,5 +64,6 @@ class NodeLink:
             "tiles_rendered": schedule.tiles_rendered,
             "tiles_dropped": self.tiles_dropped,
             "outstanding": len(schedule.outstanding),
+            "suspect": schedule.suspect,
             **schedule.counters,
         }

@@ -194,7 +194,20 @@ class RenderService:
         elif kind == "calibration":
             self._on_calibration(link, require(message, "ms", (int, float)))
         elif kind == "render_error":
-            raise ProtocolError(f"node failed to render: {str(message.get('message'))[:300]}")
+            self._on_render_error(link, require(message, "frame", int), require(message, "tile", int),
+                                  str(message.get("message"))[:300])
+
+    def _on_render_error(self, link: NodeLink, frame_id: int, tile_id: int, reason: str) -> None:
+        """A tile the node could not render goes to another node (the scheduler decides when a node
+        fails too often); frame 0 is a failed calibration: the node keeps its speed."""
+        log.warning("node %d (%s) could not render tile %d of frame %d: %s", link.node_id, link.name, tile_id,
+                    frame_id, reason)
+        if frame_id == 0:
+            self.calibration.finished(link.node_id)
+            self._start_calibration()
+            return
+        self.scheduler.tile_failed(link.node_id, frame_id, tile_id, time.monotonic())
+        self._apply()
 
     def _on_scene_ready(self, link: NodeLink, message: dict[str, Any]) -> None:
         bounds = np.asarray(require(message, "bounds", list), dtype=np.float64)

@@ -298,3 +298,22 @@ def test_each_app_has_its_own_registry():
         count = {name: histogram(metric_families(c.get("/metrics").text), "tessera_frame_interval_seconds")[0]
                  for name, c in (("first", first), ("second", second))}
         assert count == {"first": 1, "second": 0}
+
+
+def test_a_tile_a_node_cannot_render_goes_to_another_node(client):
+    """One fake node reports ``render_error`` for its tile: it stays connected, the tile is rendered by
+    the other node and the frame is published whole."""
+    with client.websocket_connect("/ws/node") as first, client.websocket_connect("/ws/node") as second:
+        failing, working = FakeNode(first), FakeNode(second)
+        frame = client.put("/api/camera", json=camera_at(0.4)).json()["frame"]
+        render = next_json(failing.ws, "render")
+        while render["frame"] < frame:
+            render = next_json(failing.ws, "render")
+        for tile in render["tiles"]:
+            failing.ws.send_json({"type": "render_error", "frame": render["frame"], "tile": tile["tile"],
+                                  "message": "out of memory"})
+        working.answer_until(frame)
+        working.answer_until(frame)
+        wait_until(lambda: published(client, frame), f"frame {frame} without the failing node's tile")
+        nodes = client.get("/api/stats").json()["nodes"]
+        assert len(nodes) == 2, "one failed tile does not disconnect a node"
