@@ -6,8 +6,10 @@ from __future__ import annotations
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
 from fastapi.staticfiles import StaticFiles
 
+from server.errors import validation_error
 from server.metrics import CoordinatorMetrics
 from server.routes import balancer, camera, frames, health, node_ws, nodes, stats, viewer_ws, web
 from server.routes.web import WEB_DIR
@@ -28,6 +30,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     app = FastAPI(title="Tessera coordinator", version="0.1.0", lifespan=lifespan,
                   description="Sort-first parallel rendering: nodes render tiles, the coordinator composites.")
+    app.add_exception_handler(RequestValidationError, validation_error)
     app.state.service = service
     app.state.metrics = metrics
     app.state.settings = settings

@@ -11,16 +11,20 @@ import { drawOverlay, fitFrame } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 
-const token = new URLSearchParams(location.search).get("token");
+// Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
+// and API calls carry: take it out of the address bar (and so out of history and shared links).
+if (new URLSearchParams(location.search).has("token")) {
+  const clean = new URL(location.href);
+  clean.searchParams.delete("token");
+  history.replaceState(null, "", clean.href);
+}
 /** How often the viewer reports its input → display latency to the coordinator, while it changes (ms). */
 const LATENCY_REPORT_MS = 1000;
 
-/** Address relative to the page (so a path prefix in front of the coordinator still works),
- * carrying the page's `?token=` for the coordinator. */
+/** Address relative to the page (so a path prefix in front of the coordinator still works). */
 function address(path, scheme) {
   const url = new URL(path, document.baseURI);
   if (scheme) url.protocol = scheme;
-  if (token) url.searchParams.set("token", token);
   return url.href;
 }
 

@@ -1,4 +1,8 @@
-"""Dependencies shared by the routers: the service and the token check."""
+"""Dependencies shared by the routers: the service and the token check.
+
+A token is presented as ``Authorization: Bearer …``, ``X-Tessera-Token``, ``?token=`` or the
+``tessera_token`` cookie that the viewer page sets once it was opened with the right ``?token=``
+(so the token need not stay in URLs)."""
 
 from __future__ import annotations
 
@@ -13,18 +17,24 @@ def get_service(request: Request) -> RenderService:
     return request.app.state.service
 
 
+TOKEN_COOKIE = "tessera_token"
+
+
 def token_ok(expected: str | None, presented: str | None) -> bool:
-    return expected is None or (presented is not None and hmac.compare_digest(expected, presented))
+    """Constant-time comparison (as bytes: any text a peer sends is comparable)."""
+    return expected is None or (presented is not None
+                                and hmac.compare_digest(expected.encode(), presented.encode(errors="replace")))
 
 
 def presented_token(request: Request | WebSocket) -> str | None:
     auth = request.headers.get("authorization", "")
     if auth.lower().startswith("bearer "):
         return auth[7:].strip()
-    return request.headers.get("x-tessera-token") or request.query_params.get("token")
+    return (request.headers.get("x-tessera-token") or request.query_params.get("token")
+            or request.cookies.get(TOKEN_COOKIE))
 
 
 def require_token(request: Request) -> None:
-    """REST calls under /api present the token (Bearer header, X-Tessera-Token or ?token=) when one is set."""
+    """REST calls under /api present the token when one is set."""
     if not token_ok(request.app.state.settings.token, presented_token(request)):
         raise HTTPException(status_code=401, detail="missing or wrong token")

@@ -17,10 +17,10 @@ async def get_stats(service: RenderService = Depends(get_service)) -> dict:
     return service.describe()
 
 
-@router.get("/metrics", response_class=PlainTextResponse, dependencies=[Depends(require_token)])
+@router.get("/metrics", response_class=PlainTextResponse)
 async def metrics(request: Request) -> Response:
     """Prometheus metrics (text format, or OpenMetrics when asked): histograms of frame interval,
     input → publish latency and per-tile node phases, the ``/api/stats`` figures as gauges and
-    counters, and the process collector."""
+    counters, and the process collector. Open, like ``/healthz``: scrapers need no token."""
     body, content_type = request.app.state.metrics.exposition(request.headers.get("accept"))
     return Response(content=body, media_type=content_type)

@@ -1,11 +1,15 @@
-"""The viewer page (``GET /``); its scripts are served from ``/web``."""
+"""The viewer page (``GET /``); its scripts are served from ``/web``. Opened with the right
+``?token=``, the page sets the token as an HttpOnly, same-site cookie: the viewer's sockets and
+API calls carry it, and the viewer takes the token out of the address bar."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
+
+from server.routes.deps import TOKEN_COOKIE, token_ok
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 
@@ -13,5 +17,10 @@ router = APIRouter(tags=["viewer"])
 
 
 @router.get("/", include_in_schema=False)
-async def index() -> FileResponse:
-    return FileResponse(WEB_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+async def index(request: Request) -> FileResponse:
+    page = FileResponse(WEB_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+    token, expected = request.query_params.get("token"), request.app.state.settings.token
+    if expected is not None and token is not None and token_ok(expected, token):
+        secure = request.url.scheme == "https" or request.headers.get("x-forwarded-proto") == "https"
+        page.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="strict", secure=secure, path="/")
+    return page

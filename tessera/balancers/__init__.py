@@ -26,5 +26,5 @@ def create_balancer(name: str, params: Mapping[str, Any] | None = None) -> Balan
     try:
         cls = BALANCERS[name]
     except KeyError:
-        raise ValueError(f"unknown balancer {name!r}; choose one of {sorted(BALANCERS)}") from None
+        raise ValueError(f"unknown balancer {name[:64]!r}; choose one of {sorted(BALANCERS)}") from None
     return cls(**dict(params or {}))
