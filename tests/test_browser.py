@@ -164,3 +164,22 @@ def test_viewer_shows_scene_orbits_and_draws_tile_overlay(chromium, coordinator_
     if os.environ.get("TESSERA_UPDATE_SCREENSHOT") == "1":
         SCREENSHOT.parent.mkdir(exist_ok=True)
         shutil.copyfile(screenshot, SCREENSHOT)
+
+
+def test_viewer_opened_with_the_token_keeps_it_in_a_cookie_not_in_the_address_bar(chromium, coordinator_factory):
+    coordinator = coordinator_factory("--local-nodes", "1", "--scene", "builtin:spheres", "--size", "320x180",
+                                      "--token", "br0wser")
+    page = chromium.new_page()
+    try:
+        page.goto(coordinator.url + "/?token=br0wser")
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
+        assert "token" not in page.url, page.url
+        page.wait_for_function("() => document.getElementById('fig-fps').textContent !== '–'",
+                               timeout=seconds(60) * 1000, polling=100)
+        page.reload()
+        page.wait_for_function("() => window.tessera.connected && window.tessera.framesDrawn > 0",
+                               timeout=seconds(60) * 1000, polling=100)
+        cookies = {c["name"]: c for c in chromium.cookies()}
+        assert cookies["tessera_token"]["httpOnly"] and cookies["tessera_token"]["value"] == "br0wser"
+    finally:
+        page.close()
