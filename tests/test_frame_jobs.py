@@ -350,3 +350,11 @@ def test_node_counters_are_summed_per_frame_and_text_keeps_the_last_value():
         job.record_send(node, tile_id, 0.5, {"triangles": 100 * (tile_id + 1), "cull_path": f"p{tile_id}"})
     assert job.counters_by_node() == {7: {"triangles": 300, "cull_path": "p1"},
                                       9: {"triangles": 300, "cull_path": "p2"}}
+
+
+@pytest.mark.parametrize("codec", [Codec.JPEG, Codec.PNG])
+def test_payload_check_decodes_so_a_truncated_image_is_refused_on_arrival(codec):
+    payload = encode(image(48, 32, seed=9), codec)
+    check_payload_size(payload, codec, Rect(0, 0, 48, 32))
+    with pytest.raises(ProtocolError, match="not a readable"):
+        check_payload_size(payload[: len(payload) * 2 // 3], codec, Rect(0, 0, 48, 32))

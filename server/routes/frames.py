@@ -10,6 +10,7 @@ from fastapi.responses import Response
 from server.frame_store import composite_png
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
+from tessera.codec import CodecError
 
 router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 
@@ -30,7 +31,10 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
     if frame is None:
         kind = "still frame" if still else "complete frame"
         raise HTTPException(status_code=504, detail=f"no {kind} with id >= {after} in time")
-    png, decode_ms, encode_ms = await asyncio.to_thread(composite_png, frame)
+    try:
+        png, decode_ms, encode_ms = await asyncio.to_thread(composite_png, frame)
+    except CodecError as exc:  # tiles are decoded on arrival: only a peer's crafted tile gets here
+        raise HTTPException(status_code=502, detail=f"frame {frame.frame_id} cannot be composited: {exc}") from None
     return Response(png, media_type="image/png", headers={
         "X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": frame.tiles[0][1].name.lower() if frame.tiles else "",
         "X-Frame-Still": "1" if frame.still else "0",
