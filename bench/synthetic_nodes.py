@@ -1,6 +1,6 @@
 """Synthetic render nodes, many in one process: they speak the real node protocol
-(:mod:`tessera.protocol`) over ``/ws/node`` but draw nothing, so a coordinator can be loaded with
-more nodes than the machine could render for.
+(:mod:`tessera.messages`, :mod:`tessera.protocol`) over ``/ws/node`` but draw nothing, so a
+coordinator can be loaded with more nodes than the machine could render for.
 
 ``python -m bench.synthetic_nodes --url ws://HOST:PORT/ws/node --nodes K [--max-seconds 600]``
 
@@ -35,8 +35,21 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
 from tessera.codec import Codec, encode
-from tessera.geometry import Rect
-from tessera.protocol import PROTOCOL_VERSION, TileHeader, decode_json, encode_json, pack_tile
+from tessera.messages import (
+    TO_NODE,
+    Calibrate,
+    Calibration,
+    Cancel,
+    Capabilities,
+    LoadScene,
+    NodeHello,
+    Render,
+    SceneReady,
+    TilesDropped,
+    TileSent,
+    parse,
+)
+from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 
 log = logging.getLogger("tessera.synthetic")
 
@@ -44,7 +57,7 @@ log = logging.getLogger("tessera.synthetic")
 TILE_PHASES_MS = (1.0, 0.2, 0.3)
 #: every node's answer to ``calibrate`` (equal speeds)
 CALIBRATION_MS = 5.0
-SCENE_BOUNDS = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+SCENE_BOUNDS = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 #: ± levels of seeded uniform noise on the gradient: JPEG q60 of a 1920x1080 frame of it is ~52 KB,
 #: about what a rendered frame of Lucy takes (54 KB)
 NOISE_LEVELS = 6
@@ -79,16 +92,15 @@ class SyntheticNode:
         self.ended = "not connected"
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
 
-    def hello(self) -> dict[str, Any]:
-        return {"type": "hello", "name": self.name, "token": "", "renderer": "synthetic (pre-encoded tiles, no GL)",
-                "version": PROTOCOL_VERSION,
-                "capabilities": {"codecs": ["raw", "jpeg", "png"], "slowdown": 1.0, "calibrate": True}}
+    def hello(self) -> NodeHello:
+        return NodeHello(name=self.name, renderer="synthetic (pre-encoded tiles, no GL)", version=PROTOCOL_VERSION,
+                         capabilities=Capabilities(calibrate=True))
 
     async def run(self, url: str, stop: asyncio.Event) -> None:
         try:
             async with connect(url, max_size=MAX_MESSAGE_BYTES, compression=None, proxy=None) as ws:
-                await ws.send(encode_json(self.hello()))
-                jobs: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+                await ws.send(self.hello().to_text())
+                jobs: asyncio.Queue[LoadScene | Render | Calibrate] = asyncio.Queue()
                 tasks = [asyncio.create_task(self._receive(ws, jobs)), asyncio.create_task(self._answer(ws, jobs)),
                          asyncio.create_task(stop.wait())]
                 done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
@@ -104,44 +116,41 @@ class SyntheticNode:
         except (OSError, ConnectionClosed) as exc:
             self.ended = f"connection failed: {exc}"
 
-    async def _receive(self, ws: ClientConnection, jobs: asyncio.Queue[dict[str, Any]]) -> None:
+    async def _receive(self, ws: ClientConnection, jobs: asyncio.Queue[LoadScene | Render | Calibrate]) -> None:
         async for raw in ws:
-            message = decode_json(raw, ("welcome", "load_scene", "render", "calibrate", "cancel"))
-            if message["type"] == "cancel":
-                self._cancelled.extend(message["frames"])
-            elif message["type"] != "welcome":
-                jobs.put_nowait(message)
+            match parse(raw, TO_NODE):
+                case Cancel(frames=frames):
+                    self._cancelled.extend(frames)
+                case LoadScene() | Render() | Calibrate() as message:
+                    jobs.put_nowait(message)
 
-    async def _answer(self, ws: ClientConnection, jobs: asyncio.Queue[dict[str, Any]]) -> None:
+    async def _answer(self, ws: ClientConnection, jobs: asyncio.Queue[LoadScene | Render | Calibrate]) -> None:
         while True:
-            message = await jobs.get()
-            if message["type"] == "load_scene":
-                await ws.send(encode_json({"type": "scene_ready", "scene": message["scene"], "triangles": 1000,
-                                           "meshes": 1, "chunks": 1, "bounds": SCENE_BOUNDS, "load_ms": 0.0}))
-            elif message["type"] == "calibrate":
-                await ws.send(encode_json({"type": "calibration", "ms": CALIBRATION_MS}))
-            else:
-                await self._render(ws, message)
+            match await jobs.get():
+                case LoadScene():
+                    await ws.send(SceneReady(triangles=1000, bounds=SCENE_BOUNDS).to_text())
+                case Calibrate():
+                    await ws.send(Calibration(ms=CALIBRATION_MS).to_text())
+                case Render() as message:
+                    await self._render(ws, message)
 
-    async def _render(self, ws: ClientConnection, message: dict[str, Any]) -> None:
-        frame, codec = message["frame"], Codec.parse(message["codec"])
-        quality, frame_size = message["jpeg_quality"], (message["size"][0], message["size"][1])
+    async def _render(self, ws: ClientConnection, message: Render) -> None:
+        frame, codec = message.frame, message.codec
         dropped = []
-        for entry in message["tiles"]:
+        for entry in message.tiles:
             if frame in self._cancelled:
-                dropped.append(entry["tile"])
+                dropped.append(entry.tile)
                 continue
-            rect = Rect.from_seq(entry["rect"])
-            header = TileHeader(frame, entry["tile"], rect, codec, *TILE_PHASES_MS)
+            rect = entry.rect
+            header = TileHeader(frame, entry.tile, rect, codec, *TILE_PHASES_MS)
             started = time.perf_counter()
-            await ws.send(pack_tile(header, tile_payload(codec, quality, frame_size, rect.w, rect.h)))
+            await ws.send(pack_tile(header, tile_payload(codec, message.jpeg_quality, message.size, rect.w, rect.h)))
             send_ms = (time.perf_counter() - started) * 1e3
-            await ws.send(encode_json({"type": "tile_sent", "frame": frame, "tile": entry["tile"],
-                                       "send_ms": send_ms, "stats": {}}))
+            await ws.send(TileSent(frame=frame, tile=entry.tile, send_ms=send_ms).to_text())
             self.tiles_sent += 1
         if dropped:
             self.tiles_dropped += len(dropped)
-            await ws.send(encode_json({"type": "tiles_dropped", "frame": frame, "tiles": dropped}))
+            await ws.send(TilesDropped(frame=frame, tiles=tuple(dropped)).to_text())
 
     def summary(self) -> dict[str, Any]:
         return {"name": self.name, "tiles_sent": self.tiles_sent, "tiles_dropped": self.tiles_dropped,

@@ -210,7 +210,7 @@ class VirtualCluster:
     # ----------------------------------------------------------------- nodes
     def _receive_render(self, action: RenderTiles) -> None:
         message = action.message
-        frame_id = message["frame"]
+        frame_id = message.frame
         if frame_id not in self._frame_camera:
             job = self.scheduler.in_flight[frame_id]
             camera = self._newest
@@ -219,8 +219,7 @@ class VirtualCluster:
             rects = [t.rect for t in job.tiles]
             self._frame_phases[frame_id] = dict(enumerate(self.measure(camera, rects)))
         node = self.nodes[action.node_id]
-        codec = Codec.parse(message["codec"])
-        node.queue.extend((frame_id, t["tile"], Rect.from_seq(t["rect"]), codec) for t in message["tiles"])
+        node.queue.extend((frame_id, t.tile, t.rect, message.codec) for t in message.tiles)
         if not node.busy:
             self._start_next(action.node_id)
 

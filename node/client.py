@@ -6,7 +6,7 @@ thread), encoding (an encoder thread) and sending (the event loop's sender task)
 drawn while tile i is compressed and sent. moderngl keeps the GIL inside GL calls, so on CPython the
 overlap is the kernel's transfer of queued bytes and the encoder's GIL-free stretches.
 
-Messages follow the catalogue in :mod:`tessera.protocol`.
+Messages follow the catalogue in :mod:`tessera.messages`.
 """
 
 from __future__ import annotations
@@ -32,14 +32,35 @@ from node.gl.renderer import RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.settings import MAX_SIZE, NodeSettings
+from node.settings import NodeSettings
 from tessera.codec import Codec, encode
-from tessera.geometry import Camera, CameraError, Rect
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, decode_json, encode_json, pack_tile, require
+from tessera.geometry import Camera, Rect
+from tessera.messages import (
+    TO_NODE,
+    Calibrate,
+    Calibration,
+    Cancel,
+    Capabilities,
+    InvalidMessage,
+    LoadScene,
+    Message,
+    NodeHello,
+    Render,
+    RenderError,
+    RenderTile,
+    SceneError,
+    SceneGroups,
+    SceneProgress,
+    SceneReady,
+    TilesDropped,
+    TileSent,
+    Welcome,
+    parse,
+)
+from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile
 
 log = logging.getLogger("tessera.node")
 
-CODECS = ("raw", "jpeg", "png")
 MAX_MESSAGE_BYTES = 64 << 20
 #: Cancelled frame ids a node remembers (its queue never holds more frames than this).
 CANCELLED_MEMORY = 256
@@ -50,70 +71,11 @@ CLOSE_BAD_TOKEN = 4401
 
 #: Culling-state key of calibration renders, apart from every tile's own slot.
 CALIBRATION_SLOT = "calibration"
+#: The node's work, done in order: coordinator messages, and malformed ones to answer.
+Job = LoadScene | Render | Calibrate | InvalidMessage
 
 
-@dataclass(frozen=True, slots=True)
-class TileRequest:
-    tile: int
-    rect: Rect
-
-
-@dataclass(frozen=True, slots=True)
-class RenderJob:
-    """A parsed ``render`` message; ``camera_error`` is set (and ``camera`` None) for a bad camera."""
-
-    frame: int
-    camera: Camera | None
-    camera_error: str | None
-    size: tuple[int, int]
-    codec: Codec
-    jpeg_quality: int
-    tiles: tuple[TileRequest, ...]
-
-
-def parse_render(message: dict[str, Any]) -> RenderJob:
-    """Validate a ``render`` message; raises ProtocolError naming what is wrong."""
-    frame = require(message, "frame", int)
-    size = require(message, "size", list)
-    if len(size) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_SIZE
-                                 for v in size):
-        raise ProtocolError(f"render.size must be [W, H] in 1..{MAX_SIZE}, got {size!r}")
-    try:
-        codec = Codec.parse(require(message, "codec", str))
-    except ValueError as exc:
-        raise ProtocolError(str(exc)) from None
-    quality = message.get("jpeg_quality", 85)
-    if not isinstance(quality, int) or isinstance(quality, bool) or not 1 <= quality <= 100:
-        raise ProtocolError(f"render.jpeg_quality must be an integer 1..100, got {quality!r}")
-    tiles = []
-    for entry in require(message, "tiles", list):
-        if not isinstance(entry, dict) or not isinstance(entry.get("tile"), int):
-            raise ProtocolError(f"render.tiles entries are {{tile, rect}}, got {entry!r}")
-        try:
-            tiles.append(TileRequest(entry["tile"], Rect.from_seq(entry.get("rect", ()))))
-        except ValueError as exc:
-            raise ProtocolError(str(exc)) from None
-    camera, camera_error = None, None
-    try:
-        camera = Camera.from_json(message.get("camera"))
-    except CameraError as exc:
-        camera_error = f"bad camera: {exc}"
-    return RenderJob(frame, camera, camera_error, (size[0], size[1]), codec, quality, tuple(tiles))
-
-
-def parse_load_scene(message: dict[str, Any]) -> tuple[str, tuple[float, float, float] | None]:
-    """(scene spec, background RGB in 0…1 or None) of a ``load_scene`` message."""
-    spec = require(message, "scene", str)
-    background = message.get("background")
-    if background is None:
-        return spec, None
-    if not (isinstance(background, list) and len(background) == 3
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1 for v in background)):
-        raise ProtocolError(f"load_scene.background must be [r, g, b] in 0..1, got {background!r}")
-    return spec, (float(background[0]), float(background[1]), float(background[2]))
-
-
-def encode_tile(frame: int, tile: TileRequest, rendered: RenderedTile, render_ms: float,
+def encode_tile(frame: int, tile: RenderTile, rendered: RenderedTile, render_ms: float,
                 codec: Codec, jpeg_quality: int) -> bytes:
     """The binary tile message: header with the phase times + the encoded pixels."""
     started = time.perf_counter()
@@ -265,17 +227,15 @@ class NodeClient:
         return False, f"connection to {url} closed (code {ws.close_code}{': ' if ws.close_reason else ''}" \
                       f"{ws.close_reason})"
 
-    def hello(self) -> dict[str, Any]:
-        return {
-            "type": "hello", "name": self.settings.name, "token": self.settings.token or "",
-            "renderer": self.renderer_name, "version": PROTOCOL_VERSION,
-            "capabilities": {"codecs": list(CODECS), "slowdown": self.settings.slowdown, "calibrate": True},
-        }
+    def hello(self) -> NodeHello:
+        return NodeHello(name=self.settings.name, token=self.settings.token or "", renderer=self.renderer_name,
+                         version=PROTOCOL_VERSION,
+                         capabilities=Capabilities(slowdown=self.settings.slowdown, calibrate=True))
 
     async def _session(self, ws: ClientConnection) -> None:
-        await ws.send(encode_json(self.hello()))
-        jobs: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
-        outbox: asyncio.Queue[str | PendingTile] = asyncio.Queue()
+        await ws.send(self.hello().to_text())
+        jobs: asyncio.Queue[Job] = asyncio.Queue()
+        outbox: asyncio.Queue[Message | PendingTile] = asyncio.Queue()
         tasks = [asyncio.create_task(self._receive(ws, jobs)), asyncio.create_task(self._send_loop(ws, outbox)),
                  asyncio.create_task(self._job_loop(jobs, outbox))]
         try:
@@ -290,77 +250,81 @@ class NodeClient:
                 log.error("node session failed", exc_info=error)
                 await ws.close(1011, "node error")
 
-    async def _receive(self, ws: ClientConnection, jobs: asyncio.Queue[dict[str, Any]]) -> None:
+    async def _receive(self, ws: ClientConnection, jobs: asyncio.Queue[Job]) -> None:
+        """Cancels and the welcome take effect at once; everything else is a job, done in order
+        (a message that names a kind but is malformed too: it is answered in its turn)."""
         async for raw in ws:
             if isinstance(raw, bytes):
                 log.warning("ignoring a binary message from the coordinator")
                 continue
             try:
-                message = decode_json(raw, ("welcome", "load_scene", "render", "calibrate", "cancel"))
+                message = parse(raw, TO_NODE)
+            except InvalidMessage as exc:
+                jobs.put_nowait(exc)
+                continue
             except ProtocolError as exc:
                 log.warning("ignoring coordinator message: %s", exc)
                 continue
-            if message["type"] == "cancel":
-                frames = message.get("frames")
-                if isinstance(frames, list):
-                    self._cancelled.extend(f for f in frames if isinstance(f, int) and not isinstance(f, bool))
-            elif message["type"] == "welcome":
-                self.node_id = message.get("node_id")
-                self._welcomed = True
-                log.info("registered as node %s", self.node_id)
-            else:
-                jobs.put_nowait(message)
+            match message:
+                case Cancel():
+                    self._cancelled.extend(message.frames)
+                case Welcome():
+                    self.node_id = message.node_id
+                    self._welcomed = True
+                    log.info("registered as node %s", self.node_id)
+                case LoadScene() | Render() | Calibrate():
+                    jobs.put_nowait(message)
 
-    async def _job_loop(self, jobs: asyncio.Queue[dict[str, Any]], outbox: asyncio.Queue[str | PendingTile]) -> None:
+    async def _job_loop(self, jobs: asyncio.Queue[Job], outbox: asyncio.Queue[Message | PendingTile]) -> None:
         while True:
-            message = await jobs.get()
-            if message["type"] == "load_scene":
-                await self._load_scene(message, outbox)
-            elif message["type"] == "calibrate":
-                await self._calibrate(message, outbox)
-            else:
-                await self._render(message, outbox)
+            job = await jobs.get()
+            match job:
+                case LoadScene():
+                    await self._load_scene(job, outbox)
+                case Calibrate():
+                    await self._calibrate(job, outbox)
+                case Render():
+                    await self._render(job, outbox)
+                case InvalidMessage():
+                    self._refuse(job, outbox)
 
-    async def _load_scene(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
+    def _refuse(self, error: InvalidMessage, outbox: asyncio.Queue[Message | PendingTile]) -> None:
+        """Answer a malformed message as far as it can be read: a ``render``'s tiles fail, a
+        ``calibrate`` fails, a ``load_scene`` is a scene error."""
+        log.warning("bad coordinator message: %s", error)
+        data, reason = error.data, str(error)
+        if error.kind == Render.kind:
+            frame, tiles = data.get("frame"), data.get("tiles")
+            if _is_int(frame) and isinstance(tiles, list):
+                tile_ids = [t["tile"] for t in tiles if isinstance(t, dict) and _is_int(t.get("tile"))]
+                self._render_errors(outbox, frame, tile_ids, reason)
+        elif error.kind == Calibrate.kind:
+            outbox.put_nowait(RenderError(frame=0, tile=0, message=f"calibration failed: {reason}"))
+        elif error.kind == LoadScene.kind:
+            outbox.put_nowait(SceneError(scene=str(data.get("scene")), message=reason))
+
+    async def _load_scene(self, message: LoadScene, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         loop = asyncio.get_running_loop()
-        try:
-            spec, background = parse_load_scene(message)
-        except ProtocolError as exc:
-            outbox.put_nowait(encode_json({"type": "scene_error", "scene": str(message.get("scene")),
-                                           "message": str(exc)}))
-            return
+        spec = message.scene
 
         def progress(fraction: float, text: str) -> None:
-            update = encode_json({"type": "scene_progress", "scene": spec, "fraction": fraction, "message": text})
-            loop.call_soon_threadsafe(outbox.put_nowait, update)
+            loop.call_soon_threadsafe(outbox.put_nowait, SceneProgress(scene=spec, fraction=fraction, message=text))
 
         started = time.perf_counter()
         try:
-            scene = await self.worker.load(spec, background, progress)
+            scene = await self.worker.load(spec, message.background, progress)
         except Exception as exc:  # SceneError, or a GL failure while uploading
             reason = " ".join(str(exc).split()) or type(exc).__name__
             log.warning("scene %s failed: %s", spec, reason)
-            outbox.put_nowait(encode_json({"type": "scene_error", "scene": spec, "message": reason}))
+            outbox.put_nowait(SceneError(scene=spec, message=reason))
             return
         load_ms = (time.perf_counter() - started) * 1e3
         log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
                  len(scene.batches), scene.chunks.chunk_count, load_ms)
-        outbox.put_nowait(encode_json({
-            "type": "scene_ready", "scene": spec, "triangles": scene.triangle_count,
-            "meshes": len(scene.batches), "chunks": scene.chunks.chunk_count, "bounds": scene.bounds.tolist(),
-            "load_ms": load_ms, "groups": scene.groups.to_json(),
-        }))
+        groups = SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist())
+        outbox.put_nowait(SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups))
 
-    async def _render(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
-        try:
-            job = parse_render(message)
-        except ProtocolError as exc:
-            log.warning("bad render message: %s", exc)
-            self._render_errors(outbox, message.get("frame"), _tile_ids(message), str(exc))
-            return
-        if job.camera is None:
-            self._render_errors(outbox, job.frame, [t.tile for t in job.tiles], job.camera_error or "bad camera")
-            return
+    async def _render(self, job: Render, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         loop = asyncio.get_running_loop()
         slowdown = self.settings.slowdown
         dropped: list[int] = []
@@ -383,41 +347,35 @@ class NodeClient:
         if dropped:
             self.tiles_dropped += len(dropped)
             log.debug("frame %d superseded: %d queued tiles dropped", job.frame, len(dropped))
-            outbox.put_nowait(encode_json({"type": "tiles_dropped", "frame": job.frame, "tiles": dropped}))
+            outbox.put_nowait(TilesDropped(frame=job.frame, tiles=tuple(dropped)))
 
-    async def _calibrate(self, message: dict[str, Any], outbox: asyncio.Queue[str | PendingTile]) -> None:
+    async def _calibrate(self, job: Calibrate, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and
         report the best time (× slowdown, after sleeping the emulated extra, like a tile)."""
         try:
-            job = parse_render({**message, "type": "render", "frame": 0, "codec": "raw",
-                                "tiles": [{"tile": 0, "rect": message.get("rect")}]})
-            repeats = message.get("repeats", 3)
-            if not isinstance(repeats, int) or isinstance(repeats, bool) or not 1 <= repeats <= 20:
-                raise ProtocolError(f"calibrate.repeats must be 1..20, got {repeats!r}")
-            if job.camera is None:
-                raise ProtocolError(job.camera_error or "bad camera")
-            times = [(await self.worker.render(job.camera, job.size, job.tiles[0].rect, CALIBRATION_SLOT)).render_ms
-                     for _ in range(repeats)]
-        except Exception as exc:  # a malformed request, no scene, or a GL failure: report, keep serving
+            times = [(await self.worker.render(job.camera, job.size, job.rect, CALIBRATION_SLOT)).render_ms
+                     for _ in range(job.repeats)]
+        except Exception as exc:  # no scene, a bad rect or a GL failure: report, keep serving
             log.warning("calibration failed: %s", exc)
-            outbox.put_nowait(encode_json({"type": "render_error", "frame": 0, "tile": 0,
-                                           "message": f"calibration failed: {' '.join(str(exc).split())}"}))
+            outbox.put_nowait(RenderError(frame=0, tile=0,
+                                          message=f"calibration failed: {' '.join(str(exc).split())}"))
             return
         best = min(times)
         if self.settings.slowdown > 1.0:
             await self._sleep((self.settings.slowdown - 1.0) * best / 1e3)
-        outbox.put_nowait(encode_json({"type": "calibration", "ms": best * self.settings.slowdown}))
+        outbox.put_nowait(Calibration(ms=best * self.settings.slowdown))
 
     @staticmethod
-    def _render_errors(outbox: asyncio.Queue[str | PendingTile], frame: Any, tiles: list[int], reason: str) -> None:
+    def _render_errors(outbox: asyncio.Queue[Message | PendingTile], frame: int, tiles: list[int],
+                       reason: str) -> None:
         for tile in tiles:
-            outbox.put_nowait(encode_json({"type": "render_error", "frame": frame, "tile": tile, "message": reason}))
+            outbox.put_nowait(RenderError(frame=frame, tile=tile, message=reason))
 
-    async def _send_loop(self, ws: ClientConnection, outbox: asyncio.Queue[str | PendingTile]) -> None:
+    async def _send_loop(self, ws: ClientConnection, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         while True:
             item = await outbox.get()
-            if isinstance(item, str):
-                await ws.send(item)
+            if isinstance(item, Message):
+                await ws.send(item.to_text())
                 continue
             try:
                 packed = await item.packed
@@ -427,16 +385,11 @@ class NodeClient:
             started = time.perf_counter()
             await ws.send(packed)
             send_ms = (time.perf_counter() - started) * 1e3
-            await ws.send(encode_json({"type": "tile_sent", "frame": item.frame, "tile": item.tile,
-                                       "send_ms": send_ms, "stats": item.stats}))
+            await ws.send(TileSent(frame=item.frame, tile=item.tile, send_ms=send_ms, stats=item.stats).to_text())
 
 
-def _tile_ids(message: dict[str, Any]) -> list[int]:
-    """Tile ids of a malformed render message, as far as they can be read."""
-    tiles = message.get("tiles")
-    if not isinstance(tiles, list):
-        return []
-    return [t["tile"] for t in tiles if isinstance(t, dict) and isinstance(t.get("tile"), int)]
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def run_node(settings: NodeSettings) -> int:

@@ -15,12 +15,12 @@ from node.culling.switch import CullMode
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
+from tessera.messages import MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"
 DEFAULT_SIZE = (1280, 720)
-MAX_SIZE = 16384
-parse_size = size_parser(1, MAX_SIZE)
+parse_size = size_parser(1, MAX_SIDE)
 ENV_PREFIX = "TESSERA_"
 
 

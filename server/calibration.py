@@ -12,14 +12,14 @@ from collections import deque
 
 from tessera.balancers.hetero import calibration_region
 from tessera.geometry import Camera
+from tessera.messages import Calibrate
 
 CALIBRATION_REPEATS = 3
 CALIBRATION_TIMEOUT_S = 30.0
 
 
-def calibrate_message(camera: Camera, size: tuple[int, int]) -> dict:
-    return {"type": "calibrate", "camera": camera.to_json(), "size": list(size),
-            "rect": calibration_region(size).as_list(), "repeats": CALIBRATION_REPEATS}
+def calibrate_message(camera: Camera, size: tuple[int, int]) -> Calibrate:
+    return Calibrate(camera=camera, size=size, rect=calibration_region(size), repeats=CALIBRATION_REPEATS)
 
 
 class CalibrationQueue:

@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from tessera.protocol import encode_json
+from tessera.messages import Message
+from tessera.protocol import NODE_PHASES
 from tessera.scheduler import NodeSchedule
 
 
@@ -37,9 +38,9 @@ class NodeLink:
     def ready(self) -> bool:
         return self.state == "ready"
 
-    def send(self, message: dict[str, Any]) -> None:
+    def send(self, message: Message) -> None:
         """Queue a control message; the connection's writer task sends it in order."""
-        self.outbox.put_nowait(encode_json(message))
+        self.outbox.put_nowait(message.to_text())
 
     def describe(self, schedule: NodeSchedule) -> dict[str, Any]:
         phases = schedule.last_phases
@@ -53,10 +54,7 @@ class NodeLink:
             "scene_message": self.scene_message,
             "triangles": self.triangles,
             "tiles": schedule.last_tiles,
-            "render_ms": round(phases.get("render", 0.0), 3),
-            "readback_ms": round(phases.get("readback", 0.0), 3),
-            "encode_ms": round(phases.get("encode", 0.0), 3),
-            "send_ms": round(phases.get("send", 0.0), 3),
+            **{f"{phase}_ms": round(phases.get(phase, 0.0), 3) for phase in NODE_PHASES},
             "busy_ms": round(sum(phases.values()), 3),
             "speed": round(schedule.speed, 4),
             "calibration_ms": None if self.calibration_ms is None else round(self.calibration_ms, 3),

@@ -30,7 +30,22 @@ from tessera.balancers.base import Balancer
 from tessera.balancers.hetero import calibration_weights
 from tessera.frame_jobs import FrameJob, check_payload_size
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
-from tessera.protocol import ProtocolError, require, unpack_tile
+from tessera.messages import (
+    Calibration,
+    Cancel,
+    LoadScene,
+    Message,
+    NodeHello,
+    RenderError,
+    SceneError,
+    SceneProgress,
+    SceneReady,
+    TilesDropped,
+    TileSent,
+    ViewerScene,
+    Welcome,
+)
+from tessera.protocol import ProtocolError, unpack_tile
 from tessera.scheduler import (
     CancelFrames,
     CloseNode,
@@ -120,7 +135,7 @@ class RenderService:
             if isinstance(action, RenderTiles):
                 self.nodes[action.node_id].send(action.message)
             elif isinstance(action, CancelFrames):
-                self.nodes[action.node_id].send({"type": "cancel", "frames": list(action.frames)})
+                self.nodes[action.node_id].send(Cancel(frames=action.frames))
             elif isinstance(action, PublishFrame):
                 self._publish(action.job)
             elif isinstance(action, CloseNode):
@@ -135,20 +150,15 @@ class RenderService:
         self._wake.set()
 
     # ----------------------------------------------------------------- nodes
-    def add_node(self, hello: dict[str, Any], close) -> NodeLink:
-        name = str(require(hello, "name", str))[:64] or "node"
-        renderer = str(hello.get("renderer", "unknown"))[:200]
-        capabilities = hello.get("capabilities") if isinstance(hello.get("capabilities"), dict) else {}
-        slowdown = capabilities.get("slowdown", 1.0)
-        link = NodeLink(self._next_node_id, name, renderer, close,
-                        slowdown=float(slowdown) if isinstance(slowdown, (int, float)) else 1.0,
-                        can_calibrate=capabilities.get("calibrate") is True)
+    def add_node(self, hello: NodeHello, close) -> NodeLink:
+        name, renderer = hello.name[:64] or "node", hello.renderer[:200]
+        link = NodeLink(self._next_node_id, name, renderer, close, slowdown=hello.capabilities.slowdown,
+                        can_calibrate=hello.capabilities.calibrate)
         self._next_node_id += 1
         self.nodes[link.node_id] = link
         self.scheduler.add_node(link.node_id, time.monotonic())
-        link.send({"type": "welcome", "node_id": link.node_id})
-        link.send({"type": "load_scene", "scene": self.settings.scene,
-                   "background": list(self.settings.background or DEFAULT_BACKGROUND)})
+        link.send(Welcome(node_id=link.node_id))
+        link.send(LoadScene(scene=self.settings.scene, background=self.settings.background or DEFAULT_BACKGROUND))
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link
 
@@ -167,35 +177,25 @@ class RenderService:
         self.calibration.forget(link.node_id)
         self._start_calibration()
 
-    def on_node_message(self, link: NodeLink, message: dict[str, Any]) -> None:
-        kind = message["type"]
-        if kind == "scene_progress":
-            fraction = message.get("fraction")
-            link.progress = float(fraction) if isinstance(fraction, (int, float)) else 0.0
-            link.scene_message = str(message.get("message", ""))[:200]
-        elif kind == "scene_ready":
-            self._on_scene_ready(link, message)
-        elif kind == "scene_error":
-            link.state = "error"
-            link.scene_message = str(message.get("message", "scene failed to load"))[:500]
-            log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
-        elif kind == "tile_sent":
-            frame_id, tile_id = require(message, "frame", int), require(message, "tile", int)
-            send_ms = require(message, "send_ms", (int, float))
-            stats = message.get("stats")
-            counters = ({str(k)[:40]: v if not isinstance(v, str) else v[:40] for k, v in stats.items()
-                         if isinstance(v, (int, float, str)) and not isinstance(v, bool)}
-                        if isinstance(stats, dict) else {})
-            self.scheduler.tile_sent(link.node_id, frame_id, tile_id, float(send_ms), counters)
-            self.metrics.tile_sent(float(send_ms))
-        elif kind == "tiles_dropped":
-            tiles = require(message, "tiles", list)
-            link.tiles_dropped += sum(1 for t in tiles if isinstance(t, int) and not isinstance(t, bool))
-        elif kind == "calibration":
-            self._on_calibration(link, require(message, "ms", (int, float)))
-        elif kind == "render_error":
-            self._on_render_error(link, require(message, "frame", int), require(message, "tile", int),
-                                  str(message.get("message"))[:300])
+    def on_node_message(self, link: NodeLink, message: Message) -> None:
+        """A control message of :data:`tessera.messages.FROM_NODE` from ``link``."""
+        match message:
+            case SceneProgress():
+                link.progress, link.scene_message = message.fraction, message.message[:200]
+            case SceneReady():
+                self._on_scene_ready(link, message)
+            case SceneError():
+                link.state, link.scene_message = "error", message.message[:500]
+                log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
+            case TileSent():
+                self.scheduler.tile_sent(link.node_id, message.frame, message.tile, message.send_ms, message.stats)
+                self.metrics.tile_sent(message.send_ms)
+            case TilesDropped():
+                link.tiles_dropped += len(message.tiles)
+            case Calibration():
+                self._on_calibration(link, message.ms)
+            case RenderError():
+                self._on_render_error(link, message.frame, message.tile, message.message[:300])
 
     def _on_render_error(self, link: NodeLink, frame_id: int, tile_id: int, reason: str) -> None:
         """A tile the node could not render goes to another node (the scheduler decides when a node
@@ -209,39 +209,25 @@ class RenderService:
         self.scheduler.tile_failed(link.node_id, frame_id, tile_id, time.monotonic())
         self._apply()
 
-    def _on_scene_ready(self, link: NodeLink, message: dict[str, Any]) -> None:
-        bounds = np.asarray(require(message, "bounds", list), dtype=np.float64)
-        if bounds.shape != (2, 3) or not np.isfinite(bounds).all():
-            raise ProtocolError("scene_ready.bounds must be [[x,y,z],[x,y,z]] finite numbers")
-        link.bounds = bounds
-        link.triangles = int(message.get("triangles", 0))
+    def _on_scene_ready(self, link: NodeLink, message: SceneReady) -> None:
+        bounds = np.asarray(message.bounds, dtype=np.float64)
+        link.bounds, link.triangles = bounds, message.triangles
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
         if self.bounds is None:
             self.bounds = bounds
-            self._take_groups(message.get("groups"), bounds)
+            if message.groups is not None:
+                self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
+                                          np.asarray(message.groups.counts, dtype=np.float64), bounds)
             if self.scheduler.camera is None:
                 self.scheduler.set_camera(default_camera(bounds, aspect=self.size[0] / self.size[1]), now)
-            self.viewers.broadcast({"type": "scene", "bounds": bounds.tolist(),
-                                    "camera": self.scheduler.camera.to_json()})
+            self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.camera))
         log.info("node %d (%s) ready: %d triangles", link.node_id, link.name, link.triangles)
         self.scheduler.node_ready(link.node_id, now)
         self._apply()
         if link.can_calibrate:
             self.calibration.request(link.node_id)
             self._start_calibration()
-
-    def _take_groups(self, groups: Any, bounds: np.ndarray) -> None:
-        """The first node's world-space primitive groups (seed 003 DPBP), if well formed."""
-        if not isinstance(groups, dict):
-            return
-        try:
-            boxes = np.asarray(groups["boxes"], dtype=np.float64).reshape(-1, 6)
-            counts = np.asarray(groups["counts"], dtype=np.float64).reshape(-1)
-        except (KeyError, TypeError, ValueError):
-            return
-        if len(boxes) == len(counts) and np.isfinite(boxes).all() and np.isfinite(counts).all():
-            self.scheduler.set_groups(boxes, counts, bounds)
 
     # ----------------------------------------------------------------- calibration (seed 003 §1)
     def calibrate_all(self) -> list[int]:
@@ -262,9 +248,7 @@ class RenderService:
     def _on_calibration(self, link: NodeLink, ms: float) -> None:
         if not self.calibration.finished(link.node_id):
             raise ProtocolError("calibration result without a calibrate request")
-        if not ms > 0.0:
-            raise ProtocolError(f"calibration time must be > 0 ms, got {ms}")
-        link.calibration_ms = float(ms)
+        link.calibration_ms = ms
         speeds = calibration_weights({n.node_id: n.calibration_ms for n in self.nodes.values()
                                       if n.calibration_ms is not None})
         for node_id, speed in speeds.items():

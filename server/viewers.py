@@ -10,7 +10,7 @@ import itertools
 from collections import deque
 from typing import Any, Protocol
 
-from tessera.protocol import encode_json
+from tessera.messages import Message
 
 
 class ViewerMessages(Protocol):
@@ -35,8 +35,8 @@ class ViewerSlot:
         self.frame = message
         self.ready.set()
 
-    def put_control(self, message: dict[str, Any]) -> None:
-        self.control.append(encode_json(message))
+    def put_control(self, message: Message) -> None:
+        self.control.append(message.to_text())
         self.ready.set()
 
     async def next_message(self) -> str | bytes:
@@ -81,7 +81,7 @@ class ViewerHub:
             length = len(message)
         self.bytes_published += length
 
-    def broadcast(self, message: dict[str, Any], exclude: ViewerSlot | None = None) -> None:
+    def broadcast(self, message: Message, exclude: ViewerSlot | None = None) -> None:
         for slot in self.slots:
             if slot is not exclude:
                 slot.put_control(message)

@@ -17,6 +17,7 @@ from PIL import Image
 from tessera.balancers.base import Partition, TileTiming
 from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
+from tessera.messages import Render, RenderTile
 from tessera.protocol import ProtocolError, TileHeader
 
 
@@ -89,17 +90,11 @@ class FrameJob:
         """Every tile arrived and its send time too (counted, O(1): asked on every ``tile_sent``)."""
         return self.complete and self.sends_done == len(self.tiles)
 
-    def render_message(self, tile_ids: list[int]) -> dict:
+    def render_message(self, tile_ids: list[int]) -> Render:
         """The ``render`` control message for some of this frame's tiles."""
-        return {
-            "type": "render",
-            "frame": self.frame_id,
-            "camera": self.camera.to_json(),
-            "size": list(self.size),
-            "codec": self.codec.name.lower(),
-            "jpeg_quality": self.jpeg_quality,
-            "tiles": [{"tile": i, "rect": self.tiles[i].rect.as_list()} for i in tile_ids],
-        }
+        return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
+                      jpeg_quality=self.jpeg_quality,
+                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids))
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob | None:
         """Record a tile result after checking it is the tile this node owes; ProtocolError if not.

@@ -1,6 +1,6 @@
-"""Wire format between nodes, coordinator and viewers (sans-I/O: bytes and dicts in and out).
+"""Binary wire format between nodes, coordinator and viewers (sans-I/O: bytes in, bytes out).
 
-Text WebSocket messages are JSON objects with a ``type``. Binary messages start with a magic:
+Binary WebSocket messages start with a magic:
 
 * ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image.
 * ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
@@ -8,37 +8,8 @@ Text WebSocket messages are JSON objects with a ``type``. Binary messages start 
   0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
   small index reused after a node leaves, u16), then the tiles' encoded images in the same order.
 
-All integers little-endian.
-
-Control messages, node → coordinator:
-
-* ``hello`` {name, token, renderer (GL_RENDERER string), version,
-  capabilities {codecs, slowdown, calibrate (bool)}}
-* ``scene_progress`` {scene, fraction 0…1, message}
-* ``scene_ready`` {scene, triangles, meshes, chunks, bounds [[x,y,z],[x,y,z]], load_ms,
-  groups {boxes [[x0,y0,z0,x1,y1,z1], …], counts [int, …]}}
-  (world-space primitive groups: the octree chunks' boxes, merged to a few thousand)
-* ``scene_error`` {scene, message}
-* ``tile_sent`` {frame, tile, send_ms, stats {triangles, chunks_drawn, chunks_culled, cull_ms,
-  cull_path}}  after each binary tile: the node's per-tile counters
-* ``render_error`` {frame, tile, message}
-* ``tiles_dropped`` {frame, tiles [tile, …]}  tiles of a cancelled frame skipped unrendered
-* ``calibration`` {ms}  answer to ``calibrate``: the best of ``repeats`` renders of ``rect``, no
-  output sent, slowdown included
-
-coordinator → node:
-
-* ``welcome`` {node_id}
-* ``load_scene`` {scene, background [r,g,b] in 0…1}
-* ``render`` {frame, camera {camera JSON}, size [W,H], codec "jpeg"|"png"|"raw", jpeg_quality,
-  tiles [{tile, rect [x,y,w,h]}, …]}  tiles are rendered in list order, each sent as soon as done
-* ``calibrate`` {camera, size [W,H], rect [x,y,w,h], repeats}  (seed 003 §1), in order with renders
-* ``cancel`` {frames [frame, …]}  the frames were superseded: skip their tiles not begun yet
-
-viewer → coordinator: ``camera`` {camera, seq (optional input sequence number, 0…2³²−1)},
-``latency`` {p50_ms, p90_ms, samples, interval_ms}: the viewer's own input → display figures.
-
-A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason.
+All integers little-endian. Text messages (JSON control messages) are catalogued in
+:mod:`tessera.messages`; :data:`PROTOCOL_VERSION` covers both.
 
 ``web/protocol.js`` mirrors these constants and layouts; one golden byte string, tested in
 ``tests/test_protocol_golden.py`` and ``tests/js/protocol.test.mjs``, pins both sides.
@@ -46,12 +17,10 @@ A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad t
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 from tessera.codec import Codec
 from tessera.geometry import Rect
@@ -59,7 +28,8 @@ from tessera.geometry import Rect
 PROTOCOL_VERSION = 2
 TILE_MAGIC = b"TTIL"
 FRAME_MAGIC = b"TFRM"
-#: Per-tile phases a node measures, in pipeline order (milliseconds).
+#: Per-tile phases a node measures, in pipeline order (milliseconds): the tile header's times,
+#: then ``tile_sent.send_ms``. The stats, the metrics and the viewer's panel use these names.
 NODE_PHASES = ("render", "readback", "encode", "send")
 
 _TILE_HEADER = struct.Struct("<4sBBHIIIIIIfffI")
@@ -68,8 +38,6 @@ _INPUT_SEQ_OFFSET = 20
 #: Frame header flag: the lossless still frame shown once motion stopped.
 FRAME_STILL = 0x01
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
-
-MAX_JSON_BYTES = 1 << 20
 
 
 class ProtocolError(ValueError):
@@ -193,47 +161,3 @@ def unpack_frame(message: bytes) -> ViewerFrame:
     if offset != len(message):
         raise ProtocolError("frame message length does not match its tile table")
     return ViewerFrame(frame_id, (width, height), bool(flags & FRAME_STILL), input_seq, out)
-
-
-def encode_json(message: dict[str, Any]) -> str:
-    return json.dumps(message, separators=(",", ":"), allow_nan=False)
-
-
-def decode_json(text: str | bytes, allowed_types: Iterable[str]) -> dict[str, Any]:
-    """Parse a JSON control message and check its ``type``; raises ProtocolError with the reason."""
-    if len(text) > MAX_JSON_BYTES:
-        raise ProtocolError(f"control message of {len(text)} bytes exceeds {MAX_JSON_BYTES}")
-    try:
-        message = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
-        raise ProtocolError(f"malformed JSON: {exc}") from None
-    if not isinstance(message, dict):
-        raise ProtocolError("control message must be a JSON object")
-    kind = message.get("type")
-    allowed = tuple(allowed_types)
-    if kind not in allowed:
-        raise ProtocolError(f"unexpected message type {kind!r}; expected one of {list(allowed)}")
-    return message
-
-
-def _reject_constant(name: str) -> float:
-    raise ValueError(f"{name} is not allowed")
-
-
-def _finite_float(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"{text} overflows to infinity")
-    return value
-
-
-def require(message: dict[str, Any], key: str, kind: type | tuple[type, ...]) -> Any:
-    """Fetch ``message[key]`` of the given JSON type or raise ProtocolError naming it."""
-    if key not in message:
-        raise ProtocolError(f"{message.get('type')} message lacks {key!r}")
-    value = message[key]
-    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
-        raise ProtocolError(f"{message.get('type')}.{key} has the wrong type")
-    if not isinstance(value, kind):
-        raise ProtocolError(f"{message.get('type')}.{key} has the wrong type: {type(value).__name__}")
-    return value

@@ -51,9 +51,10 @@ from tessera.codec import Codec
 from tessera.frame_jobs import FrameJob
 from tessera.frame_stats import FrameStats
 from tessera.geometry import Camera
+from tessera.messages import Render
 from tessera.partition import check_exact_cover
 from tessera.projection import project_groups
-from tessera.protocol import ProtocolError, TileHeader
+from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
 
 #: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
 AWAITING_SEND_FRAMES = 8
@@ -95,10 +96,10 @@ class SchedulerConfig:
 
 @dataclass(frozen=True, slots=True)
 class RenderTiles:
-    """Send ``message`` (a ``render`` control message) to node ``node_id``."""
+    """Send ``message`` to node ``node_id``."""
 
     node_id: int
-    message: dict[str, Any]
+    message: Render
 
 
 @dataclass(frozen=True, slots=True)
@@ -622,11 +623,9 @@ class FrameScheduler:
         per_node: dict[int, dict[str, float]] = {}
         rects: dict[int, list[list[int]]] = {}
         for t in timings:
-            phases = per_node.setdefault(t.node_id, dict.fromkeys(("render", "readback", "encode", "send"), 0.0))
-            phases["render"] += t.render_ms
-            phases["readback"] += t.readback_ms
-            phases["encode"] += t.encode_ms
-            phases["send"] += t.send_ms
+            phases = per_node.setdefault(t.node_id, dict.fromkeys(NODE_PHASES, 0.0))
+            for phase, ms in zip(NODE_PHASES, t.phase_ms, strict=True):
+                phases[phase] += ms
             rects.setdefault(t.node_id, []).append(t.rect.as_list())
         counters = job.counters_by_node()
         for node_id, phases in per_node.items():

@@ -13,8 +13,9 @@ from tessera.codec import Codec, encode
 from tessera.frame_jobs import FrameJob, check_payload_size
 from tessera.frame_stats import WINDOW_FRAMES, FrameStats
 from tessera.geometry import Camera, Rect
+from tessera.messages import TO_NODE, parse
 from tessera.partition import equal_strip_partition
-from tessera.protocol import ProtocolError, TileHeader, decode_json, encode_json, unpack_frame
+from tessera.protocol import ProtocolError, TileHeader, unpack_frame
 
 CAMERA = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0), fovy_deg=40.0)
 SIZE = (64, 32)
@@ -180,12 +181,12 @@ def test_timings_are_attributed_to_the_node_that_rendered_each_tile():
 def test_render_message_carries_the_camera_size_codec_and_tiles():
     job = new_job(codec=Codec.JPEG)
     message = job.render_message([2, 0])
-    assert message == {
+    assert message.to_json() == {
         "type": "render", "frame": 11, "camera": CAMERA.to_json(), "size": [64, 32], "codec": "jpeg",
         "jpeg_quality": 80, "tiles": [{"tile": 2, "rect": [32, 16, 32, 16]}, {"tile": 0, "rect": [0, 0, 32, 32]}],
     }
-    parsed = decode_json(encode_json(message), ["render"])
-    assert Camera.from_json(parsed["camera"]) == CAMERA
+    parsed = parse(message.to_text(), TO_NODE)
+    assert parsed == message and parsed.camera == CAMERA
 
 
 # -------------------------------------------------------------------------------------- frame store

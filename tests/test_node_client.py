@@ -15,6 +15,7 @@ from websockets.asyncio.server import ServerConnection, serve
 from node.client import NodeClient
 from node.culling.switch import SOFTWARE_RENDERERS, CullMode
 from node.gl.renderer import TileRenderer
+from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import NodeSettings, parse_settings
@@ -75,24 +76,27 @@ async def receive_tile(ws: ServerConnection, frame: int, tile: int, scene: dict)
     return header, decode(bytes(payload), header.codec, header.rect.w, header.rect.h), stats
 
 
-async def play_coordinator(coordinator: FakeCoordinator, triangles: int) -> tuple[np.ndarray, list[float]]:
-    """The whole conversation; returns the stitched frame-1 image and its tiles' render_ms."""
+async def play_coordinator(coordinator: FakeCoordinator, scene_data: SceneData) -> tuple[np.ndarray, list[float]]:
+    """The whole conversation with a node that loads ``scene_data``'s scene; returns the stitched
+    frame-1 image and its tiles' render_ms."""
+    triangles, chunks = scene_data.triangle_count, scene_data.chunks.chunk_count
     ws = await coordinator.accept()
     hello = await receive_json(ws)
     assert hello["type"] == "hello" and hello["name"] == "tester" and hello["token"] == "s3cret"
     assert hello["version"] == PROTOCOL_VERSION and hello["renderer"]
-    assert hello["capabilities"] == {"codecs": ["raw", "jpeg", "png"], "slowdown": SLOWDOWN, "calibrate": True}
+    assert hello["capabilities"] == {"slowdown": SLOWDOWN, "calibrate": True}
     await send(ws, type="welcome", node_id=7)
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
     progress = []
     while (message := await receive_json(ws))["type"] == "scene_progress":
         progress.append(message["fraction"])
     assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
-    assert message["triangles"] == triangles and message["meshes"] == 5 and message["load_ms"] >= 0
-    scene = {**message, "software": any(name in hello["renderer"] for name in SOFTWARE_RENDERERS)}
-    assert scene["chunks"] > 5, "the spheres' meshes are split into octree chunks"
-    assert len(scene["groups"]["boxes"]) == len(scene["groups"]["counts"]) == scene["chunks"]
-    assert sum(scene["groups"]["counts"]) == triangles
+    assert set(message) == {"type", "triangles", "bounds", "groups"}, "what the coordinator reads, no more"
+    assert message["triangles"] == triangles and np.allclose(message["bounds"], scene_data.bounds)
+    assert chunks > 5, "the spheres' meshes are split into octree chunks"
+    assert len(message["groups"]["boxes"]) == len(message["groups"]["counts"]) == chunks
+    assert sum(message["groups"]["counts"]) == triangles
+    scene = {**message, "chunks": chunks, "software": any(name in hello["renderer"] for name in SOFTWARE_RENDERERS)}
 
     tiles = [{"tile": 0, "rect": [0, 0, 50, 64]}, {"tile": 1, "rect": [50, 0, 46, 64]}]
     await send(ws, type="render", frame=1, camera=CAMERA, size=list(SIZE), codec="png", jpeg_quality=80, tiles=tiles)
@@ -173,7 +177,7 @@ async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float]]
         stop = asyncio.Event()
         node = asyncio.create_task(NodeClient(settings, sleep=record_sleep).run(stop))
         try:
-            stitched, render_ms = await play_coordinator(coordinator, load_scene("builtin:spheres").triangle_count)
+            stitched, render_ms = await play_coordinator(coordinator, load_scene("builtin:spheres"))
         finally:
             stop.set()
             await asyncio.wait_for(node, seconds(30))

@@ -1,6 +1,7 @@
-"""Wire format: binary tile and frame messages, JSON control messages (sans-I/O, no sockets).
+"""Binary wire format: tile and frame messages (sans-I/O, no sockets).
 
-The TFRM golden byte string shared with the JS viewer lives in tests/test_protocol_golden.py.
+The TFRM golden byte string shared with the JS viewer lives in tests/test_protocol_golden.py; JSON
+control messages are tested in tests/test_messages.py.
 """
 
 from __future__ import annotations
@@ -17,18 +18,14 @@ from tessera.codec import Codec
 from tessera.geometry import Rect
 from tessera.protocol import (
     FRAME_MAGIC,
-    MAX_JSON_BYTES,
     NODE_PHASES,
     PROTOCOL_VERSION,
     TILE_MAGIC,
     ProtocolError,
     TileHeader,
     ViewerFrame,
-    decode_json,
-    encode_json,
     pack_frame,
     pack_tile,
-    require,
     unpack_frame,
     unpack_tile,
     with_input_seq,
@@ -163,89 +160,6 @@ def test_unpack_frame_rejects_malformed_messages(message):
         unpack_frame(message)
 
 
-# ----------------------------------------------------------------------------------- JSON messages
-
-
-def test_decode_json_accepts_text_and_bytes():
-    text = encode_json({"type": "hello", "name": "n1", "version": 1})
-    assert decode_json(text, ["hello"]) == {"type": "hello", "name": "n1", "version": 1}
-    assert decode_json(text.encode(), ("welcome", "hello"))["name"] == "n1"
-
-
-def test_encode_json_is_compact_and_refuses_nan():
-    assert encode_json({"type": "a", "v": [1, 2]}) == '{"type":"a","v":[1,2]}'
-    with pytest.raises(ValueError):
-        encode_json({"type": "a", "v": float("nan")})
-
-
-@pytest.mark.parametrize(("text", "fragment"), [
-    ("", "malformed"),
-    ("{", "malformed"),
-    ('{"type": "hello",}', "malformed"),
-    ("{'type': 'hello'}", "malformed"),
-    (b'{"type": "hello", "name": "\xff"}', "malformed"),
-    ('{"type": "hello", "x": NaN}', "NaN"),
-    ('{"type": "hello", "x": Infinity}', "Infinity"),
-    ('{"type": "hello", "x": [-Infinity]}', "Infinity"),
-    ("[]", "JSON object"),
-    ('"hello"', "JSON object"),
-    ("3", "JSON object"),
-    ("null", "JSON object"),
-    ('{"name": "n1"}', "type None"),
-    ('{"type": "render"}', "'render'"),
-    ('{"type": ["hello"]}', "type"),
-    ('{"type": "hello", "pad": "' + "x" * MAX_JSON_BYTES + '"}', "exceeds"),
-])
-def test_decode_json_rejects(text, fragment):
-    with pytest.raises(ProtocolError, match=fragment):
-        decode_json(text, ["hello"])
-
-
-def test_decode_json_lists_the_expected_types():
-    with pytest.raises(ProtocolError, match=r"expected one of \['hello', 'scene_ready'\]"):
-        decode_json('{"type": "nope"}', ["hello", "scene_ready"])
-
-
-@pytest.mark.parametrize("number", ["1e400", "-1e400"])
-def test_decode_json_rejects_numbers_that_overflow_to_infinity(number):
-    with pytest.raises(ProtocolError):
-        decode_json('{"type": "tile_sent", "send_ms": ' + number + "}", ["tile_sent"])
-
-
-def test_decode_json_turns_deep_nesting_into_a_protocol_error():
-    with pytest.raises(ProtocolError):
-        decode_json('{"type": "hello", "x": ' + "[" * 100_000 + "]" * 100_000 + "}", ["hello"])
-
-
-def test_decode_json_accepts_a_message_just_under_the_limit():
-    head = '{"type": "hello", "pad": "'
-    text = head + "x" * (MAX_JSON_BYTES - len(head) - 2) + '"}'
-    assert len(text) == MAX_JSON_BYTES
-    assert len(decode_json(text, ["hello"])["pad"]) == MAX_JSON_BYTES - len(head) - 2
-
-
-MESSAGE = {"type": "tile_sent", "frame": 3, "send_ms": 1.5, "ok": True, "stats": {}, "name": "n", "tiles": []}
-
-
-@pytest.mark.parametrize(("key", "kind"), [("frame", int), ("send_ms", float), ("send_ms", (int, float)),
-                                           ("frame", (int, float)), ("ok", bool), ("stats", dict),
-                                           ("name", str), ("tiles", list)])
-def test_require_returns_values_of_the_right_type(key, kind):
-    assert require(MESSAGE, key, kind) is MESSAGE[key]
-
-
-@pytest.mark.parametrize(("key", "kind"), [("frame", str), ("send_ms", int), ("name", (int, float)),
-                                           ("ok", int), ("ok", (int, float)), ("stats", list), ("tiles", dict)])
-def test_require_rejects_the_wrong_type_naming_the_field(key, kind):
-    with pytest.raises(ProtocolError, match=rf"tile_sent\.{key} has the wrong type"):
-        require(MESSAGE, key, kind)
-
-
-def test_require_names_a_missing_field():
-    with pytest.raises(ProtocolError, match="tile_sent message lacks 'tile'"):
-        require(MESSAGE, "tile", int)
-
-
 def test_node_phases_are_the_measured_timings_in_pipeline_order():
     """NODE_PHASES names the timings the wire carries: the tile header's ``*_ms`` fields in packing
     order, then ``tile_sent.send_ms`` (measured once the tile went out); the balancers' per-tile
@@ -256,4 +170,6 @@ def test_node_phases_are_the_measured_timings_in_pipeline_order():
     packed = TILE_LAYOUT.unpack(pack_tile(header, b"")[:TILE_LAYOUT.size])
     assert packed[10:13] == tuple(getattr(header, name) for name in timings), "packed in NODE_PHASES order"
     assert [f.name for f in fields(TileTiming) if f.name.endswith("_ms")] == [f"{p}_ms" for p in NODE_PHASES]
+    timing = TileTiming(Rect(0, 0, 1, 1), 0, 1.0, 2.0, 3.0, 4.0)
+    assert timing.phase_ms == tuple(getattr(timing, f"{p}_ms") for p in NODE_PHASES), "the roll-up's order"
 

@@ -46,7 +46,7 @@ def renders(actions) -> dict[int, list[tuple[int, int]]]:
     out: dict[int, list[tuple[int, int]]] = {}
     for a in actions:
         if isinstance(a, RenderTiles):
-            out.setdefault(a.node_id, []).extend((a.message["frame"], t["tile"]) for t in a.message["tiles"])
+            out.setdefault(a.node_id, []).extend((a.message.frame, t.tile) for t in a.message.tiles)
     return out
 
 
@@ -308,9 +308,9 @@ class Harness:
     def check(self) -> None:
         for a in self.s.drain():
             if isinstance(a, RenderTiles):
-                tiles = {(a.message["frame"], t["tile"]) for t in a.message["tiles"]}
+                tiles = {(a.message.frame, t.tile) for t in a.message.tiles}
                 self.sent.setdefault(a.node_id, set()).update(tiles)
-                self.cameras.setdefault(a.message["frame"], Camera.from_json(a.message["camera"]))
+                self.cameras.setdefault(a.message.frame, a.message.camera)
             elif isinstance(a, PublishFrame):
                 job = a.job
                 assert job.frame_id > self.last, "published backwards"

@@ -6,6 +6,8 @@ import asyncio
 import json
 
 from server.viewers import ViewerHub, ViewerSlot
+from tessera.geometry import Camera
+from tessera.messages import CameraUpdate, ViewerError
 
 
 class Frame:
@@ -60,10 +62,10 @@ def test_control_messages_come_first_in_order_and_are_never_dropped():
         slot = ViewerSlot()
         slot.put_frame(b"old")
         for i in range(100):
-            slot.put_control({"type": "camera", "seq": i})
+            slot.put_control(ViewerError(message=str(i)))
         slot.put_frame(b"new")
         received = [await slot.next_message() for _ in range(101)]
-        assert [json.loads(m)["seq"] for m in received[:100]] == list(range(100))
+        assert [json.loads(m)["message"] for m in received[:100]] == [str(i) for i in range(100)]
         assert all(isinstance(m, str) for m in received[:100])
         assert received[100] == b"new"
         assert (slot.frames_dropped, slot.frames_sent) == (1, 1)
@@ -82,8 +84,8 @@ def test_a_waiting_consumer_wakes_for_a_frame_and_for_a_control_message():
         waiter = asyncio.create_task(slot.next_message())
         await settle()
         assert not waiter.done(), "the slot was drained; the consumer must wait again"
-        slot.put_control({"type": "scene", "name": "x"})
-        assert json.loads(await asyncio.wait_for(waiter, DEADLINE_S)) == {"type": "scene", "name": "x"}
+        slot.put_control(ViewerError(message="x"))
+        assert json.loads(await asyncio.wait_for(waiter, DEADLINE_S)) == {"type": "error", "message": "x"}
 
     asyncio.run(scenario())
 
@@ -123,8 +125,9 @@ def test_hub_publishes_to_every_slot_and_broadcasts_with_exclusion():
         assert first.viewer_id != second.viewer_id
         hub.publish_frame(Frame(b"12345"))
         assert hub.bytes_published == 5
-        hub.broadcast({"type": "camera", "by": "first"}, exclude=first)
-        assert await second.next_message() == '{"type":"camera","by":"first"}'
+        moved = CameraUpdate(camera=Camera(eye=(0.0, 0.0, 2.0), target=(0.0, 0.0, 0.0)))
+        hub.broadcast(moved, exclude=first)
+        assert await second.next_message() == moved.to_text()
         assert await second.next_message() == b"12345"
         assert await first.next_message() == b"12345"
         assert not first.control

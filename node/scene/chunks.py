@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -40,9 +39,6 @@ class PrimitiveGroups:
 
     boxes: np.ndarray
     counts: np.ndarray
-
-    def to_json(self) -> dict[str, Any]:
-        return {"boxes": self.boxes.tolist(), "counts": self.counts.tolist()}
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,6 +8,7 @@ from pydantic import BaseModel, ConfigDict
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
 from tessera.geometry import Camera, CameraError
+from tessera.messages import CameraUpdate
 
 router = APIRouter(tags=["camera"], dependencies=[Depends(require_token)])
 
@@ -37,5 +38,5 @@ async def put_camera(body: CameraBody, service: RenderService = Depends(get_serv
     except CameraError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
     frame = service.set_camera(camera)
-    service.viewers.broadcast({"type": "camera", "camera": camera.to_json()})
+    service.viewers.broadcast(CameraUpdate(camera=camera))
     return {"frame": frame}

@@ -13,14 +13,13 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from server.nodes import NodeLink
 from server.routes.deps import token_ok
 from server.service import RenderService
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError, decode_json
+from tessera.messages import FROM_NODE, NodeHello, parse
+from tessera.protocol import ProtocolError
 
 router = APIRouter()
 log = logging.getLogger("tessera.server")
 
 HELLO_TIMEOUT_S = 15.0
-NODE_MESSAGE_TYPES = ("scene_progress", "scene_ready", "scene_error", "tile_sent", "tiles_dropped", "render_error",
-                      "calibration")
 
 
 async def _close(ws: WebSocket, code: int, reason: str) -> None:
@@ -28,7 +27,7 @@ async def _close(ws: WebSocket, code: int, reason: str) -> None:
         await ws.close(code, reason.encode()[:120].decode(errors="ignore"))
 
 
-async def _read_hello(ws: WebSocket, token: str | None) -> dict | None:
+async def _read_hello(ws: WebSocket, token: str | None) -> NodeHello | None:
     try:
         first = await asyncio.wait_for(ws.receive(), HELLO_TIMEOUT_S)
     except TimeoutError:
@@ -39,17 +38,13 @@ async def _read_hello(ws: WebSocket, token: str | None) -> dict | None:
     try:
         if first.get("text") is None:
             raise ProtocolError("the first message must be a JSON hello")
-        hello = decode_json(first["text"], ["hello"])
-        if hello.get("version") != PROTOCOL_VERSION:
-            raise ProtocolError(f"protocol version {hello.get('version')!r}, coordinator speaks {PROTOCOL_VERSION}")
-        if not isinstance(hello.get("name"), str):
-            raise ProtocolError("hello.name must be a string")
+        hello = parse(first["text"], [NodeHello])
     except ProtocolError as exc:
         log.warning("node refused: %s", exc)
         await _close(ws, 1008, str(exc))
         return None
-    if not token_ok(token, hello.get("token") if isinstance(hello.get("token"), str) else None):
-        log.warning("node %r refused: wrong token", hello.get("name"))
+    if not token_ok(token, hello.token):
+        log.warning("node %r refused: wrong token", hello.name)
         await _close(ws, 4401, "wrong token")
         return None
     return hello
@@ -77,7 +72,7 @@ async def node_socket(ws: WebSocket) -> None:
             if message.get("bytes") is not None:
                 service.on_tile_message(link, message["bytes"])
             else:
-                service.on_node_message(link, decode_json(message.get("text") or "", NODE_MESSAGE_TYPES))
+                service.on_node_message(link, parse(message.get("text") or "", FROM_NODE))
     except ProtocolError as exc:
         log.warning("node %d (%s) broke the protocol: %s; closing it", link.node_id, link.name, exc)
         await _close(ws, 1008, str(exc))

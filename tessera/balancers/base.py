@@ -54,6 +54,11 @@ class TileTiming:
     send_ms: float = 0.0
 
     @property
+    def phase_ms(self) -> tuple[float, float, float, float]:
+        """The times in :data:`tessera.protocol.NODE_PHASES` order."""
+        return (self.render_ms, self.readback_ms, self.encode_ms, self.send_ms)
+
+    @property
     def busy_ms(self) -> float:
         return self.render_ms + self.readback_ms + self.encode_ms + self.send_ms
 

@@ -1,0 +1,397 @@
+"""JSON control messages between render nodes, the coordinator and viewers: the catalogue.
+
+Every message is a frozen pydantic model whose ``kind`` is its JSON ``type``. :meth:`Message.to_json`
+gives the JSON object, :meth:`Message.from_json` validates one (:class:`InvalidMessage`, naming the
+field, when it is wrong) and :func:`parse` decodes text: at most :data:`MAX_JSON_BYTES`, no NaN or
+Infinity, an object whose ``type`` is one the caller accepts. Fields a side does not know are
+ignored, so peers may send more than the catalogue holds (older nodes still send
+``capabilities.codecs`` and ``scene_ready``'s ``scene``, ``meshes``, ``chunks`` and ``load_ms``).
+Binary tiles and frames, and the protocol version, are in :mod:`tessera.protocol`.
+
+node → coordinator
+
+* ``hello`` :class:`NodeHello` — the first message: name, token, GL renderer, protocol version,
+  capabilities (slowdown, calibrate)
+* ``scene_progress`` :class:`SceneProgress`, ``scene_ready`` :class:`SceneReady` (triangles,
+  bounds, world-space primitive groups), ``scene_error`` :class:`SceneError`
+* ``tile_sent`` :class:`TileSent` — after each binary tile: its send time and the node's per-tile
+  counters (triangles, chunks_drawn, chunks_culled, cull_ms, cull_path)
+* ``render_error`` :class:`RenderError` — a tile the node could not render (frame 0, tile 0: a
+  failed calibration)
+* ``tiles_dropped`` :class:`TilesDropped` — tiles of a cancelled frame skipped unrendered
+* ``calibration`` :class:`Calibration` — answer to ``calibrate``: the best of ``repeats`` renders
+  of ``rect``, no output sent, slowdown included
+
+coordinator → node
+
+* ``welcome`` :class:`Welcome` (node id), ``load_scene`` :class:`LoadScene`
+* ``render`` :class:`Render` — tiles are rendered in list order, each sent as soon as done
+* ``calibrate`` :class:`Calibrate` (seed 003 §1), in order with renders
+* ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
+
+coordinator → viewer: ``hello`` :class:`ViewerHello`, ``camera`` :class:`CameraUpdate` (another
+viewer or the API moved it), ``scene`` :class:`ViewerScene` (the first node loaded it), ``error``
+:class:`ViewerError` (the viewer's input was refused).
+
+viewer → coordinator: ``camera`` :class:`CameraUpdate` (with ``seq``, the viewer's input number),
+``latency`` :class:`LatencyReport` (the viewer's own input → display figures).
+
+A peer that breaks the protocol is closed with code 1008 (policy) or 4401 (bad token) and a reason.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from typing import Annotated, Any, ClassVar, Self, TypeVar
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    PlainValidator,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+    model_validator,
+)
+
+from tessera.codec import Codec
+from tessera.geometry import Camera, Rect
+from tessera.protocol import PROTOCOL_VERSION, ProtocolError
+
+MAX_JSON_BYTES = 1 << 20
+#: Largest frame side (px) a ``render`` or ``calibrate`` may ask for.
+MAX_SIDE = 16384
+MAX_INPUT_SEQ = 2**32 - 1
+MAX_CALIBRATION_REPEATS = 20
+#: Longest counter name and text value in ``tile_sent.stats``.
+MAX_COUNTER_TEXT = 40
+#: Longest reason a ProtocolError of this module gives.
+MAX_REASON = 300
+
+
+class InvalidMessage(ProtocolError):
+    """A JSON object of a known ``kind`` whose fields are wrong; ``data`` is that object."""
+
+    def __init__(self, reason: str, kind: str, data: Any) -> None:
+        super().__init__(reason)
+        self.kind, self.data = kind, data
+
+
+def _camera(value: Any) -> Camera:
+    return value if isinstance(value, Camera) else Camera.from_json(value)
+
+
+def _rect(value: Any) -> Rect:
+    if isinstance(value, Rect):
+        return value
+    if not isinstance(value, list | tuple):
+        raise ValueError("a rect is four integers [x, y, w, h]")
+    return Rect.from_seq(value)
+
+
+def _codec(value: Any) -> Codec:
+    if isinstance(value, Codec):
+        return value
+    if not isinstance(value, str):
+        raise ValueError("a codec is a name: raw, jpeg or png")
+    return Codec.parse(value)
+
+
+def _counter(value: Any) -> int | float | str:
+    if isinstance(value, str) and len(value) <= MAX_COUNTER_TEXT:
+        return value
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+        return value
+    raise ValueError(f"a counter is a finite number or a text of at most {MAX_COUNTER_TEXT} characters")
+
+
+Int = StrictInt
+Text = StrictStr
+Number = StrictFloat
+NonNegative = Annotated[StrictFloat, Field(ge=0)]
+Unit = Annotated[StrictFloat, Field(ge=0, le=1)]
+Vec3 = tuple[Number, Number, Number]
+#: Axis-aligned world-space box: [[x0, y0, z0], [x1, y1, z1]].
+Bounds = tuple[Vec3, Vec3]
+Side = Annotated[StrictInt, Field(ge=1, le=MAX_SIDE)]
+#: Frame size [W, H] in pixels.
+Size = tuple[Side, Side]
+CameraJson = Annotated[Camera, PlainValidator(_camera), PlainSerializer(Camera.to_json)]
+#: Pixel rect [x, y, w, h].
+RectJson = Annotated[Rect, PlainValidator(_rect), PlainSerializer(Rect.as_list)]
+CodecName = Annotated[Codec, PlainValidator(_codec), PlainSerializer(lambda codec: codec.name.lower())]
+Counter = Annotated[int | float | str, PlainValidator(_counter)]
+CounterName = Annotated[StrictStr, Field(max_length=MAX_COUNTER_TEXT)]
+
+_FIELDS = ConfigDict(frozen=True, extra="ignore", allow_inf_nan=False)
+
+
+class Message(BaseModel):
+    """A JSON control message; ``kind`` is its ``type``."""
+
+    model_config = _FIELDS
+    kind: ClassVar[str]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"type": self.kind, **self.model_dump(mode="json")}
+
+    def to_text(self) -> str:
+        return json.dumps(self.to_json(), separators=(",", ":"), allow_nan=False)
+
+    @classmethod
+    def from_json(cls, data: Any) -> Self:
+        """Validate a decoded JSON object (its ``type`` is not looked at); raises InvalidMessage."""
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            raise InvalidMessage(_reason(cls.kind, exc), cls.kind, data) from None
+
+
+# ------------------------------------------------------------------------------- node → coordinator
+
+
+class Capabilities(BaseModel):
+    """``slowdown``: the node's emulated slowdown factor; ``calibrate``: it answers ``calibrate``."""
+
+    model_config = _FIELDS
+    slowdown: Number = 1.0
+    calibrate: StrictBool = False
+
+
+class NodeHello(Message):
+    """A node's first message; a node of another protocol version is refused for that alone."""
+
+    kind = "hello"
+    name: Text
+    token: Text = ""
+    renderer: Text = "unknown"
+    version: Int
+    capabilities: Capabilities = Capabilities()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _same_version(cls, data: Any) -> Any:
+        version = data.get("version") if isinstance(data, dict) else None
+        if version != PROTOCOL_VERSION:
+            raise ValueError(f"protocol version {version!r}, coordinator speaks {PROTOCOL_VERSION}")
+        return data
+
+
+class SceneProgress(Message):
+    kind = "scene_progress"
+    scene: Text
+    fraction: Unit
+    message: Text
+
+
+class SceneGroups(BaseModel):
+    """World-space primitive groups (seed 003 DPBP: the octree chunks' boxes, merged to a few
+    thousand): ``boxes`` [x0, y0, z0, x1, y1, z1] and each one's triangle ``counts``."""
+
+    model_config = _FIELDS
+    boxes: list[tuple[Number, Number, Number, Number, Number, Number]]
+    counts: list[Annotated[StrictInt, Field(ge=0)]]
+
+    @model_validator(mode="after")
+    def _one_count_per_box(self) -> Self:
+        if len(self.boxes) != len(self.counts):
+            raise ValueError(f"{len(self.boxes)} boxes but {len(self.counts)} counts")
+        return self
+
+
+class SceneReady(Message):
+    """The scene is loaded: what the coordinator needs of it (the node logs the rest itself)."""
+
+    kind = "scene_ready"
+    triangles: Annotated[StrictInt, Field(ge=0)]
+    bounds: Bounds
+    groups: SceneGroups | None = None
+
+
+class SceneError(Message):
+    kind = "scene_error"
+    scene: Text
+    message: Text
+
+
+class TileSent(Message):
+    """Sent right after a binary tile: how long sending it took (ms) and the node's per-tile counters."""
+
+    kind = "tile_sent"
+    frame: Int
+    tile: Int
+    send_ms: NonNegative
+    stats: dict[CounterName, Counter] = Field(default_factory=dict)
+
+
+class RenderError(Message):
+    kind = "render_error"
+    frame: Int
+    tile: Int
+    message: Text
+
+
+class TilesDropped(Message):
+    kind = "tiles_dropped"
+    frame: Int
+    tiles: tuple[Int, ...]
+
+
+class Calibration(Message):
+    kind = "calibration"
+    ms: Annotated[StrictFloat, Field(gt=0)]
+
+
+# ------------------------------------------------------------------------------- coordinator → node
+
+
+class Welcome(Message):
+    kind = "welcome"
+    node_id: Int
+
+
+class LoadScene(Message):
+    """``scene``: ``builtin:NAME`` or a path; ``background``: clear colour, RGB in 0…1."""
+
+    kind = "load_scene"
+    scene: Text
+    background: tuple[Unit, Unit, Unit] | None = None
+
+
+class RenderTile(BaseModel):
+    model_config = _FIELDS
+    tile: Int
+    rect: RectJson
+
+
+class Render(Message):
+    kind = "render"
+    frame: Int
+    camera: CameraJson
+    size: Size
+    codec: CodecName
+    jpeg_quality: Annotated[StrictInt, Field(ge=1, le=100)] = 85
+    tiles: tuple[RenderTile, ...]
+
+
+class Calibrate(Message):
+    kind = "calibrate"
+    camera: CameraJson
+    size: Size
+    rect: RectJson
+    repeats: Annotated[StrictInt, Field(ge=1, le=MAX_CALIBRATION_REPEATS)] = 3
+
+
+class Cancel(Message):
+    kind = "cancel"
+    frames: tuple[Int, ...]
+
+
+# ------------------------------------------------------------------------------------------ viewers
+
+
+class ViewerHello(Message):
+    """A viewer's first message: frame size, its id, the newest camera and the scene's bounds (null
+    until known), the balancer and those available, the last published frame id."""
+
+    kind = "hello"
+    size: tuple[Int, Int]
+    viewer: Int
+    camera: CameraJson | None
+    bounds: Bounds | None
+    balancer: Text
+    balancers: tuple[Text, ...]
+    frame: Int
+
+
+class CameraUpdate(Message):
+    """The camera moved: from a viewer with its input number ``seq`` (optional), to the other viewers
+    without one."""
+
+    kind = "camera"
+    camera: CameraJson
+    seq: Annotated[StrictInt, Field(ge=0, le=MAX_INPUT_SEQ)] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"type": self.kind, **self.model_dump(mode="json", exclude_none=True)}
+
+
+class ViewerScene(Message):
+    kind = "scene"
+    bounds: Bounds
+    camera: CameraJson
+
+
+class ViewerError(Message):
+    kind = "error"
+    message: Text
+
+
+class LatencyReport(Message):
+    """The viewer's own input → display latency (ms) over its window, and the frame interval."""
+
+    kind = "latency"
+    p50_ms: NonNegative
+    p90_ms: NonNegative
+    samples: NonNegative
+    interval_ms: NonNegative
+
+
+#: What the coordinator accepts from a node after its hello.
+FROM_NODE = (SceneProgress, SceneReady, SceneError, TileSent, TilesDropped, RenderError, Calibration)
+#: What a node accepts from the coordinator.
+TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel)
+#: What the coordinator accepts from a viewer.
+FROM_VIEWER = (CameraUpdate, LatencyReport)
+
+M = TypeVar("M", bound=Message)
+
+
+def parse(text: str | bytes, allowed: Sequence[type[M]]) -> M:
+    """Decode a control message of one of the ``allowed`` kinds; raises ProtocolError with the
+    reason (InvalidMessage when the object's fields are wrong)."""
+    if len(text) > MAX_JSON_BYTES:
+        raise ProtocolError(f"control message of {len(text)} bytes exceeds {MAX_JSON_BYTES}")
+    try:
+        data = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        raise ProtocolError(_short(f"malformed JSON: {exc}")) from None
+    if not isinstance(data, dict):
+        raise ProtocolError("control message must be a JSON object")
+    kind = data.get("type")
+    for cls in allowed:
+        if cls.kind == kind:
+            return cls.from_json(data)
+    raise ProtocolError(_short(f"unexpected message type {kind!r}; expected one of {[c.kind for c in allowed]}"))
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not allowed")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{_short(text, 40)} overflows to infinity")
+    return value
+
+
+def _reason(kind: str, error: ValidationError) -> str:
+    """``kind.field.path: problem`` of the first error (and how many more), at most MAX_REASON long."""
+    errors = error.errors(include_url=False, include_input=False)
+    first = errors[0]
+    where = ".".join(str(part) for part in (kind, *first["loc"]))
+    cause = first.get("ctx", {}).get("error")
+    problem = str(cause) if first["type"] == "value_error" and cause is not None else first["msg"]
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return _short(f"{where}: {problem}{more}")
+
+
+def _short(text: str, limit: int = MAX_REASON) -> str:
+    return text if len(text) <= limit else text[:limit - 1] + "…"
