@@ -1,14 +1,18 @@
 """The real deployment: the image from the Dockerfile, run by docker-compose.yml under Compose and
-unchanged under Swarm (`docker stack deploy`).
+unchanged under Swarm (`docker stack deploy`), with docker-compose.tls.yml's TLS proxy in front.
 
-Builds the image (scripts/docker-base, then `compose build`), starts a coordinator and three
+Builds the images (scripts/docker-base, then `compose build`), starts a coordinator and three
 render nodes, checks a composited frame against ``python -m node --render-once`` on the host, the
-viewer in headless Chromium, a killed node container, a rejoin, and that `down -v` leaves nothing.
-Without Docker the tests skip, except in CI (CI=true), where they fail.
+viewer in headless Chromium, that every container is read-only with no capabilities, a killed node
+container, a rejoin, and that `down -v` leaves nothing. Then the TLS proxy: the API, frames, a
+``wss://`` viewer socket, a node on the host joining over ``wss://``, the viewer page over https, a
+self-signed and a mounted certificate. Without Docker the tests skip, except in CI (CI=true), where
+they fail.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
@@ -38,6 +42,8 @@ pytestmark = [pytest.mark.docker, pytest.mark.timeout(1500)]
 SIZE = (320, 240)
 TOKEN = "docker-test-token"
 SCENE = "bunny/bun_zipper.ply"
+COMPOSE_FILES = ["-f", "docker-compose.yml"]
+TLS_COMPOSE_FILES = [*COMPOSE_FILES, "-f", "docker-compose.tls.yml"]
 
 
 def run(args: list[str], env: dict[str, str] | None = None, timeout: float = 120.0) -> str:
@@ -86,9 +92,10 @@ def compose(request) -> list[str]:
     started = time.monotonic()
     run([str(REPO / "scripts" / "docker-base")], timeout=900)
     base_done = time.monotonic()
-    run([*command, "build"], timeout=900)
+    run([*command, *TLS_COMPOSE_FILES, "build"], timeout=900)
     built = time.monotonic()
-    report(request, f"scripts/docker-base {base_done - started:.1f} s, compose build {built - base_done:.1f} s")
+    report(request, f"scripts/docker-base {base_done - started:.1f} s, "
+                    f"compose build (tessera and the TLS proxy) {built - base_done:.1f} s")
     return command
 
 
@@ -103,9 +110,14 @@ class Deployment:
     def run(self, *args: str) -> str:
         return run([*self.compose, "-p", self.env["COMPOSE_PROJECT_NAME"], *args], env=self.env, timeout=300)
 
-    def node_containers(self) -> list[str]:
+    def containers(self, service: str | None = None) -> list[str]:
+        """IDs of the project's running containers, of one service or all."""
+        service_filter = ["--filter", f"label=com.docker.compose.service={service}"] if service else []
         return run(["docker", "ps", "-q", "--filter", f"label=com.docker.compose.project={self.project}",
-                    "--filter", "label=com.docker.compose.service=node"]).split()
+                    *service_filter]).split()
+
+    def node_containers(self) -> list[str]:
+        return self.containers("node")
 
     @property
     def project(self) -> str:
@@ -117,7 +129,8 @@ def deployment_env(port: int, **extra: str) -> dict[str, str]:
     return {"TESSERA_PORT": str(port), "TESSERA_TOKEN": TOKEN, "TESSERA_CODEC": "png",
             "TESSERA_SIZE": f"{SIZE[0]}x{SIZE[1]}", "TESSERA_BALANCER": "", "TESSERA_SCENE": "",
             "TESSERA_SCENES_DIR": "", "TESSERA_IMAGE": "", "TESSERA_RESTART": "no", "TESSERA_INTERACTIVE_QUALITY": "",
-            "TESSERA_STILL_CODEC": "", **extra}
+            "TESSERA_STILL_CODEC": "", "TESSERA_TLS_PORT": "", "TESSERA_TLS_DIR": "", "TESSERA_TLS_NAMES": "",
+            "TESSERA_PROXY_IMAGE": "", **extra}
 
 
 def coordinator_client(port: int) -> httpx.Client:
@@ -143,7 +156,7 @@ def deployment(compose) -> Iterator[Deployment]:
     env = deployment_env(port, COMPOSE_PROJECT_NAME=f"tessera-test-{uuid.uuid4().hex[:8]}",
                          TESSERA_SCENES_DIR=str(SCENES), TESSERA_SCENE=f"/scenes/{SCENE}")
     with coordinator_client(port) as client:
-        deployment = Deployment(compose, env, client)
+        deployment = Deployment([*compose, *COMPOSE_FILES], env, client)
         try:
             deployment.run("up", "-d", "--scale", "node=3")
             wait_serving(client, seconds(120))
@@ -154,6 +167,27 @@ def deployment(compose) -> Iterator[Deployment]:
 
 def health(container: str) -> str:
     return run(["docker", "inspect", "-f", "{{.State.Health.Status}}", container]).strip()
+
+
+def assert_hardened(container: str, no_new_privileges: bool = True) -> None:
+    """A read-only root filesystem with a writable /tmp, every capability dropped and (unless told
+    otherwise: Swarm ignores it) no-new-privileges: as configured (docker inspect) and as the kernel
+    applies them to the container's main process (/proc/1/status)."""
+    info = json.loads(run(["docker", "inspect", container]))[0]
+    host, name = info["HostConfig"], info["Name"]
+    assert host["ReadonlyRootfs"], f"{name}: the root filesystem is writable"
+    assert host["CapDrop"] == ["ALL"] and not host["CapAdd"] and not host["Privileged"], \
+        f"{name}: CapDrop {host['CapDrop']}, CapAdd {host['CapAdd']}, Privileged {host['Privileged']}"
+    status = dict(line.split(":", 1) for line in run(["docker", "exec", container, "cat", "/proc/1/status"])
+                  .splitlines() if ":" in line)
+    capabilities = {key: int(status[key], 16) for key in ("CapInh", "CapPrm", "CapEff", "CapBnd", "CapAmb")}
+    assert not any(capabilities.values()), f"{name}: capabilities left {capabilities}"
+    if no_new_privileges:
+        assert "no-new-privileges:true" in (host["SecurityOpt"] or []), f"{name}: {host['SecurityOpt']}"
+        assert status["NoNewPrivs"].strip() == "1", f"{name}: NoNewPrivs {status['NoNewPrivs'].strip()}"
+    write = subprocess.run(["docker", "exec", container, "touch", "/write-probe"], capture_output=True, text=True)
+    assert write.returncode != 0 and "Read-only file system" in write.stderr, f"{name}: {write.stderr!r}"
+    run(["docker", "exec", container, "sh", "-c", "touch /tmp/write-probe && rm /tmp/write-probe"])
 
 
 def test_three_containers_composite_the_reference_frame(deployment, tmp_path):
@@ -177,6 +211,14 @@ def test_viewer_from_the_host_draws_a_frame(deployment, tmp_path):
         page.goto(f"{deployment.client.base_url}/?token={TOKEN}")
         page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
         assert page.evaluate("window.tessera.framesDrawn") > 0
+
+
+def test_containers_are_read_only_without_capabilities(deployment):
+    containers = deployment.containers()
+    assert len(containers) == 4, "a coordinator and 3 nodes"
+    for container in containers:
+        assert_hardened(container)
+    # ... and they serve frames so: the tests before and after this one fetch them.
 
 
 def test_killed_node_container_frames_resume_and_it_rejoins(deployment, tmp_path, request):
