@@ -26,6 +26,7 @@ import httpx
 import websockets.sync.client as ws_client
 
 from bench.processes import orbit, start_coordinator
+from tessera.messages import CameraUpdate
 
 INPUT_HZ = 60.0
 TURN_S = 8.0
@@ -50,7 +51,7 @@ class ViewerCounter:
                 now = time.monotonic()
                 if now >= next_input:
                     turned = orbit(camera, 2.0 * math.pi * (now - started) / TURN_S)
-                    ws.send(json.dumps({"type": "camera", "camera": turned}))
+                    ws.send(CameraUpdate(camera=turned).to_text())
                     next_input += 1.0 / INPUT_HZ
                 try:
                     message = ws.recv(timeout=max(next_input - time.monotonic(), 0.0))

@@ -49,6 +49,7 @@ from PIL import Image
 from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator
 from tessera.cli_values import size_parser
 from tessera.codec import decode
+from tessera.messages import CameraUpdate
 from tessera.protocol import unpack_frame
 
 IDLE_AFTER_S = 2.0
@@ -91,7 +92,7 @@ class ScriptedViewer:
         self.seq += 1
         self.sent[self.seq] = time.perf_counter()
         self.camera = camera
-        self.ws.send(json.dumps({"type": "camera", "camera": camera, "seq": self.seq}))
+        self.ws.send(CameraUpdate(camera=camera, seq=self.seq).to_text())
 
     def stop(self) -> None:
         self._stop.set()

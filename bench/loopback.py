@@ -32,6 +32,7 @@ from PIL import Image
 from websockets.asyncio.client import ClientConnection, connect
 
 from bench.processes import LoggedProcess, cpu_seconds, orbit, start_coordinator
+from tessera.messages import CameraUpdate
 
 #: the viewer's longest pause between two cameras (s)
 INPUT_PERIOD_S = 0.005
@@ -71,7 +72,7 @@ class ClosedLoopViewer:
                 frame_came.clear()
                 self.inputs += 1
                 turned = orbit(camera, ORBIT_RAD * math.sin(self.inputs / 40.0))
-                await ws.send(json.dumps({"type": "camera", "camera": turned, "seq": self.inputs}))
+                await ws.send(CameraUpdate(camera=turned, seq=self.inputs).to_text())
             await reader
         finally:
             reader.cancel()
