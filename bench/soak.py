@@ -38,7 +38,7 @@ import tempfile
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -625,9 +625,13 @@ def _interrupt(signum: int, _frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="tessera-soak-"))
+def run_bench(args: argparse.Namespace, prefix: str, drive: Callable[[Soak], dict[str, Any]],
+              figures: Callable[[Soak, dict[str, Any]], dict[str, Any]],
+              report: Callable[[dict[str, Any]], str], argv: list[str] | None) -> dict[str, Any]:
+    """Run ``drive`` on a :class:`Soak` (logs in ``args.log_dir`` or a new temporary folder named
+    ``prefix…``), stop every process on the way out (SIGTERM too), print ``report`` of the
+    ``figures`` and write them to ``args.json`` if given; the figures."""
+    log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix=prefix))
     log_dir.mkdir(parents=True, exist_ok=True)
     soak = Soak(args, log_dir)
     in_main = threading.current_thread() is threading.main_thread()
@@ -646,6 +650,11 @@ def main(argv: list[str] | None = None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({**result, "meta": meta}, indent=2) + "\n")
         print(f"wrote {args.json}")
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    run_bench(build_parser().parse_args(argv), "tessera-soak-", drive, figures, report, argv)
     return 0
 
 
