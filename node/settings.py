@@ -96,7 +96,9 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         parser.add_argument(flag, default=environ.get(env_name, default),
                             help=f"{help_text} [env {env_name}]", **kwargs)  # type: ignore[arg-type]
 
-    add("--coordinator", DEFAULT_COORDINATOR, "coordinator URL, ws://HOST:PORT/ws/node", type=parse_coordinator)
+    add("--coordinator", DEFAULT_COORDINATOR, "coordinator URL, ws://HOST:PORT/ws/node, or wss://… through a TLS "
+        "proxy (the certificate is checked against the system's CAs; SSL_CERT_FILE=CA.pem trusts another)",
+        type=parse_coordinator)
     add("--name", None, "node name shown in the coordinator's stats (default hostname-pid)")
     add("--token", None, "shared secret the coordinator expects")
     add("--slowdown", 1.0, "emulate a node this many times slower (sleeps (F-1) x render time per tile)",

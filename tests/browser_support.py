@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -36,8 +36,9 @@ def unavailable(message: str) -> None:
 
 
 @contextlib.contextmanager
-def chromium_context(profile_dir: Path, **context_options) -> Iterator:
-    """A Playwright browser context on Debian's Chromium with a fresh ``--user-data-dir``."""
+def chromium_context(profile_dir: Path, args: Sequence[str] = (), **context_options) -> Iterator:
+    """A Playwright browser context on Debian's Chromium with a fresh ``--user-data-dir``; ``args``
+    are command-line switches added to ``CHROMIUM_ARGS``."""
     os.environ["PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD"] = "1"
     try:
         from playwright.sync_api import sync_playwright
@@ -47,7 +48,7 @@ def chromium_context(profile_dir: Path, **context_options) -> Iterator:
         unavailable(f"{CHROMIUM} is missing (apt-get install chromium)")
     with sync_playwright() as playwright:
         context = playwright.chromium.launch_persistent_context(
-            str(profile_dir), executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, **context_options)
+            str(profile_dir), executable_path=str(CHROMIUM), args=[*CHROMIUM_ARGS, *args], **context_options)
         try:
             yield context
         finally:

@@ -12,21 +12,33 @@ they fail.
 
 from __future__ import annotations
 
+import base64
+import contextlib
+import hashlib
+import io
 import json
 import os
 import shutil
 import socket
+import ssl
 import subprocess
 import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
+import websockets.sync.client as ws_client
+from PIL import Image
 
+from bench.processes import orbit
+from server.routes.deps import TOKEN_COOKIE
+from tessera.protocol import unpack_frame
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context, unavailable
-from tests.conftest import REPO, SCENES, scene_path, seconds
+from tests.conftest import PYTHON, REPO, SCENES, scene_path, seconds, start_process
 from tests.integration_support import (
     assert_matches_reference,
     fetch_frame,
@@ -70,10 +82,13 @@ def compose_command() -> list[str] | None:
     return ["docker-compose"] if shutil.which("docker-compose") else None
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+def free_ports(count: int) -> list[int]:
+    """``count`` distinct free loopback ports (all bound at once, so none repeats)."""
+    with contextlib.ExitStack() as stack:
+        probes = [stack.enter_context(socket.socket()) for _ in range(count)]
+        for probe in probes:
+            probe.bind(("127.0.0.1", 0))
+        return [probe.getsockname()[1] for probe in probes]
 
 
 def labelled(kind: str, label: str) -> list[str]:
@@ -148,21 +163,28 @@ def wait_serving(client: httpx.Client, timeout: float) -> None:
     wait_until(healthy, timeout, "GET /healthz == 200")
 
 
-@pytest.fixture(scope="module")
-def deployment(compose) -> Iterator[Deployment]:
-    """`compose up -d --scale node=3` with the real bunny from the mounted scenes folder."""
-    scene_path(SCENE)
-    port = free_port()
-    env = deployment_env(port, COMPOSE_PROJECT_NAME=f"tessera-test-{uuid.uuid4().hex[:8]}",
-                         TESSERA_SCENES_DIR=str(SCENES), TESSERA_SCENE=f"/scenes/{SCENE}")
+@contextlib.contextmanager
+def deployed(compose: list[str], files: list[str], port: int, nodes: int, **extra: str) -> Iterator[Deployment]:
+    """`compose up -d --scale node=N` of a fresh project from ``files``, serving on ``port``;
+    `down -v` at the end."""
+    env = deployment_env(port, COMPOSE_PROJECT_NAME=f"tessera-test-{uuid.uuid4().hex[:8]}", **extra)
     with coordinator_client(port) as client:
-        deployment = Deployment([*compose, *COMPOSE_FILES], env, client)
+        deployment = Deployment([*compose, *files], env, client)
         try:
-            deployment.run("up", "-d", "--scale", "node=3")
+            deployment.run("up", "-d", "--scale", f"node={nodes}")
             wait_serving(client, seconds(120))
             yield deployment
         finally:
             deployment.run("down", "-v", "--remove-orphans", "--timeout", "10")
+
+
+@pytest.fixture(scope="module")
+def deployment(compose) -> Iterator[Deployment]:
+    """`compose up -d --scale node=3` with the real bunny from the mounted scenes folder."""
+    scene_path(SCENE)
+    with deployed(compose, COMPOSE_FILES, free_ports(1)[0], 3, TESSERA_SCENES_DIR=str(SCENES),
+                  TESSERA_SCENE=f"/scenes/{SCENE}") as deployment:
+        yield deployment
 
 
 def health(container: str) -> str:
@@ -277,7 +299,7 @@ def swarm() -> Iterator[None]:
 
 def test_stack_deploy_serves_frames_on_a_swarm(compose, swarm, tmp_path):
     stack = f"tessera-test-{uuid.uuid4().hex[:8]}"
-    port = free_port()
+    port, = free_ports(1)
     env = deployment_env(port)
     label = f"com.docker.stack.namespace={stack}"
     try:
@@ -292,3 +314,225 @@ def test_stack_deploy_serves_frames_on_a_swarm(compose, swarm, tmp_path):
         run(["docker", "stack", "rm", stack])
         wait_until(lambda: not labelled("container", label) and not labelled("network", label), seconds(120),
                    f"stack {stack} to be removed")
+
+
+
+# TLS: docker-compose.tls.yml's nginx proxy in front of a deployment of its own (the coordinator,
+# one node container, builtin:cluster), verified against the proxy's certificate everywhere but the
+# browser, which is told to accept that one certificate's key.
+
+TLS_SCENE = "builtin:cluster"
+
+
+def openssl(workdir: Path, *args: str) -> str:
+    """The host's openssl, run in ``workdir``; its standard output."""
+    result = subprocess.run(["openssl", *args], cwd=workdir, capture_output=True, text=True, timeout=seconds(60))
+    assert result.returncode == 0, f"openssl {' '.join(args)} exited {result.returncode}:\n{result.stderr}"
+    return result.stdout
+
+
+def make_certificates(folder: Path) -> Path:
+    """A test CA and, signed by it, ``folder``/cert.pem and key.pem for localhost and 127.0.0.1,
+    readable by the proxy's user (uid 10001); returns the CA certificate, kept outside ``folder``."""
+    folder.mkdir()
+    folder.chmod(0o755)
+    workdir = folder.parent
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    openssl(workdir, "req", "-x509", *ec, "-days", "2", "-subj", "/CN=Tessera test CA",
+            "-keyout", "ca-key.pem", "-out", "ca.pem")
+    openssl(workdir, "req", "-new", *ec, "-subj", "/CN=localhost", "-keyout", str(folder / "key.pem"),
+            "-out", "server.csr")
+    (workdir / "server.ext").write_text(
+        "basicConstraints = critical, CA:FALSE\nkeyUsage = critical, digitalSignature\n"
+        "extendedKeyUsage = serverAuth\nsubjectAltName = DNS:localhost, IP:127.0.0.1\n"
+        "subjectKeyIdentifier = hash\nauthorityKeyIdentifier = keyid\n")
+    openssl(workdir, "x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem",
+            "-CAcreateserial", "-days", "2", "-extfile", "server.ext", "-out", str(folder / "cert.pem"))
+    for name in ("cert.pem", "key.pem"):
+        (folder / name).chmod(0o644)
+    return workdir / "ca.pem"
+
+
+def spki_sha256(certificate: Path) -> str:
+    """Base64 SHA-256 of a certificate's public key (SubjectPublicKeyInfo), as Chromium's
+    ``--ignore-certificate-errors-spki-list`` takes it."""
+    pem = openssl(certificate.parent, "x509", "-in", str(certificate), "-pubkey", "-noout")
+    der = base64.b64decode("".join(line for line in pem.splitlines() if not line.startswith("-----")))
+    return base64.b64encode(hashlib.sha256(der).digest()).decode()
+
+
+@dataclass
+class TlsProxy:
+    """The proxy in front of a deployment, and the certificate the tests trust for it."""
+
+    deployment: Deployment
+    port: int
+    workdir: Path
+    no_certificates: Path
+    trusted: Path | None = None
+
+    @property
+    def url(self) -> str:
+        return f"https://127.0.0.1:{self.port}"
+
+    def ssl_context(self) -> ssl.SSLContext:
+        """Verifies the proxy against ``trusted`` alone (host name included): no verify=False."""
+        assert self.trusted is not None
+        return ssl.create_default_context(cafile=str(self.trusted))
+
+    def client(self, token: str | None = TOKEN) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.url, verify=self.ssl_context(), timeout=seconds(30), headers=headers)
+
+    def container(self) -> str:
+        containers = self.deployment.containers("proxy")
+        assert len(containers) == 1, f"one proxy container, found {containers}"
+        return containers[0]
+
+    def served_certificate(self) -> bytes | None:
+        """The certificate the proxy presents (DER, not verified here), or None while it does not answer."""
+        try:
+            return ssl.PEM_cert_to_DER_cert(ssl.get_server_certificate(("127.0.0.1", self.port), timeout=5))
+        except OSError:
+            return None
+
+    def start(self, tls_dir: Path, ca: Path | None = None) -> None:
+        """(Re)create the proxy with TESSERA_TLS_DIR=``tls_dir`` and wait until /healthz answers over
+        verified TLS: trusting ``ca``, or with none the self-signed certificate the proxy made,
+        read from its container and checked to be the one it serves."""
+        self.deployment.env["TESSERA_TLS_DIR"] = str(tls_dir)
+        self.deployment.run("up", "-d", "proxy")  # recreates it when the folder changed, else a no-op
+        served = wait_until(self.served_certificate, seconds(60), "a TLS handshake with the proxy")
+        if ca is None:
+            pem = run(["docker", "exec", self.container(), "cat", "/tmp/tls/cert.pem"])
+            assert ssl.PEM_cert_to_DER_cert(pem) == served, "the proxy serves the certificate it made"
+            ca = self.workdir / f"self-signed-{uuid.uuid4().hex[:8]}.pem"
+            ca.write_text(pem)
+        self.trusted = ca
+        with self.client() as client:
+            wait_serving(client, seconds(60))
+
+
+@pytest.fixture(scope="module")
+def tls(compose, tmp_path_factory) -> Iterator[TlsProxy]:
+    """docker-compose.yml and docker-compose.tls.yml on free ports, one node container; the proxy
+    makes its self-signed certificate (TESSERA_TLS_DIR is an empty folder)."""
+    port, tls_port = free_ports(2)
+    workdir = tmp_path_factory.mktemp("tls")
+    no_certificates = workdir / "no-certificates"
+    no_certificates.mkdir()
+    no_certificates.chmod(0o755)
+    with deployed(compose, TLS_COMPOSE_FILES, port, 1, TESSERA_TLS_PORT=str(tls_port),
+                  TESSERA_TLS_DIR=str(no_certificates)) as deployment:
+        proxy = TlsProxy(deployment, tls_port, workdir, no_certificates)
+        proxy.start(no_certificates)
+        yield proxy
+
+
+def tls_cameras(client: httpx.Client) -> list[dict]:
+    return orbit_cameras(wait_until(lambda: client.get("/api/camera").json()["bounds"], seconds(60), "bounds"), 3)
+
+
+def wss_viewer_frame(proxy: TlsProxy, camera: dict, seq: int) -> np.ndarray:
+    """A viewer socket over ``wss://`` (verified) turns the camera (input ``seq``) and reads frames
+    until a TFRM frame answers it; that frame's tiles composited, (h, w, 3) uint8."""
+    with ws_client.connect(f"wss://127.0.0.1:{proxy.port}/ws/view", ssl=proxy.ssl_context(),
+                           additional_headers={"Authorization": f"Bearer {TOKEN}"}, max_size=64 << 20,
+                           open_timeout=seconds(30)) as ws:
+        assert json.loads(ws.recv(timeout=seconds(30)))["type"] == "hello"
+        ws.send(json.dumps({"type": "camera", "camera": camera, "seq": seq}))
+        frame = None
+        while frame is None or frame.input_seq < seq:
+            message = ws.recv(timeout=seconds(60))
+            if isinstance(message, bytes):
+                frame = unpack_frame(message)
+    assert frame.size == SIZE and frame.tiles
+    image = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
+    for entry, data in frame.tiles:
+        r = entry.rect
+        image[r.y:r.y + r.h, r.x:r.x + r.w] = np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+    return image
+
+
+def test_tls_api_and_frames_over_https(tls, tmp_path):
+    with tls.client() as client:
+        wait_until(lambda: len(ready_nodes(client)) == 1, seconds(120), "the node container ready")
+        camera = tls_cameras(client)[0]
+        _, frame = fetch_frame(client, client.put("/api/camera", json=camera).raise_for_status().json()["frame"])
+        assert_matches_reference(frame, render_once(TLS_SCENE, camera, SIZE, tmp_path), "frame.png over https")
+    with tls.client(token=None) as anonymous:
+        assert anonymous.get("/api/stats").status_code == 401, "the token guards /api through the proxy"
+        assert anonymous.get("/healthz").status_code == 200
+        metrics = anonymous.get("/metrics")
+        assert metrics.status_code == 200 and "tessera_frame_id" in metrics.text, "/metrics stays open"
+    with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):
+        httpx.get(f"{tls.url}/healthz")  # the system's CAs alone do not trust the self-signed certificate
+
+
+def test_tls_viewer_socket_gets_frames_over_wss(tls, tmp_path):
+    with tls.client() as client:
+        camera = tls_cameras(client)[1]
+    frame = wss_viewer_frame(tls, camera, seq=1)
+    assert_matches_reference(frame, render_once(TLS_SCENE, camera, SIZE, tmp_path), "TFRM frame over wss://")
+
+
+def test_tls_node_on_the_host_joins_over_wss(tls, tmp_path):
+    node = [PYTHON, "-m", "node", "--coordinator", f"wss://127.0.0.1:{tls.port}/ws/node", "--token", TOKEN]
+    system_cas = ssl.get_default_verify_paths().openssl_cafile
+    untrusting = start_process([*node, "--name", "host-untrusting"], env={"SSL_CERT_FILE": system_cas})
+    try:
+        untrusting.wait_for_line(r"cannot reach coordinator .*certificate verify failed", seconds(60))
+    finally:
+        untrusting.stop()
+    trusting = start_process([*node, "--name", "host-over-wss"], env={"SSL_CERT_FILE": str(tls.trusted)})
+    try:
+        with tls.client() as client:
+            wait_until(lambda: {n["name"] for n in ready_nodes(client)} >= {"host-over-wss"}, seconds(120),
+                       "the host's node ready over wss://")
+            assert len(stats(client)["nodes"]) == 2, "the untrusting node never joined"
+            camera = tls_cameras(client)[2]
+            _, frame = fetch_frame(client, client.put("/api/camera", json=camera).raise_for_status().json()["frame"])
+            wait_until(lambda: all(n["tiles"] and n["tiles_rendered"] for n in stats(client)["nodes"]),
+                       seconds(60), "tiles rendered by both nodes")
+            assert_matches_reference(frame, render_once(TLS_SCENE, camera, SIZE, tmp_path), "with a node over wss://")
+    finally:
+        trusting.stop()
+
+
+def test_tls_viewer_page_over_https_draws_frames_over_wss(tls, tmp_path):
+    sockets: list[str] = []
+    accept_proxy_key = f"--ignore-certificate-errors-spki-list={spki_sha256(tls.trusted)}"
+    with chromium_context(tmp_path / "chromium-profile", args=[accept_proxy_key]) as context:
+        page = context.new_page()
+        page.on("websocket", lambda socket: sockets.append(socket.url))
+        page.goto(f"{tls.url}/?token={TOKEN}")
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
+        assert page.evaluate("window.tessera.framesDrawn") > 0
+        assert sockets and all(url.startswith(f"wss://127.0.0.1:{tls.port}/ws/view") for url in sockets), sockets
+        cookie = next(c for c in context.cookies() if c["name"] == TOKEN_COOKIE)
+        assert cookie["secure"] and cookie["httpOnly"], "the token cookie is Secure behind the proxy"
+
+
+def test_tls_proxy_is_hardened_and_healthy(tls):
+    proxy = tls.container()
+    assert_hardened(proxy)
+    assert run(["docker", "exec", proxy, "id", "-u"]).strip() == "10001", "nginx runs unprivileged"
+    wait_until(lambda: health(proxy) == "healthy", seconds(60), "the proxy's healthcheck to pass")
+
+
+def test_tls_mounted_certificate_is_served_and_verified(tls, tmp_path):
+    folder = tmp_path / "certs"
+    ca = make_certificates(folder)
+    tls.start(folder, ca)
+    try:
+        cert = (folder / "cert.pem").read_text()
+        assert tls.served_certificate() == ssl.PEM_cert_to_DER_cert(cert), "the proxy serves the mounted one"
+        assert "certificate from TESSERA_TLS_DIR" in run(["docker", "logs", tls.container()])
+        with tls.client() as client:
+            camera = orbit(tls_cameras(client)[0], 0.5)
+            assert client.get("/api/stats").status_code == 200
+        frame = wss_viewer_frame(tls, camera, seq=1)
+        assert_matches_reference(frame, render_once(TLS_SCENE, camera, SIZE, tmp_path), "wss://, a CA's certificate")
+        assert_hardened(tls.container())
+    finally:
+        tls.start(tls.no_certificates)
