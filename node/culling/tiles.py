@@ -55,8 +55,9 @@ class CullingUnavailableError(RuntimeError):
 class TileCull:
     """One tile's culling outcome, ready to draw: for each ``(batch, first, count)`` in ``batches``
     (draw order), ``count`` DrawElementsIndirectCommand rows of ``commands`` from row ``first``.
-    ``path`` is "off", "cpu" or "gpu"; ``cull_ms`` the culling time; ``runs`` the index runs the
-    commands hold (off and CPU paths; None on the GPU path, whose commands stay on the GPU)."""
+    ``path`` is "off", "cpu", "gpu" or "list" (chunks given, :meth:`TileCuller.listed`); ``cull_ms``
+    the culling time; ``runs`` the index runs the commands hold (None on the GPU path, whose
+    commands stay on the GPU)."""
 
     path: str
     cull_ms: float
@@ -120,6 +121,16 @@ class TileCuller:
         if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
             return self._cull_gpu(state, planes)
         return self._cull_cpu(state, planes)
+
+    def listed(self, chunk_ids: np.ndarray) -> TileCull:
+        """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer
+        draws when hybrid ownership or a sort-last share decided (path "list")."""
+        ids = np.asarray(chunk_ids, dtype=np.int64)
+        heads = np.flatnonzero(np.diff(ids, prepend=-2) != 1)
+        runs = self.chunks.runs(ids[heads], np.append(ids[heads[1:] - 1], ids[-1:]) + 1)
+        if runs.batch.size:
+            self._cpu_commands.write(indirect_commands(_run_spans(runs)).tobytes())
+        return TileCull("list", 0.0, self._cpu_commands, runs.batch_slices(), runs)
 
     def _gpu_culler(self) -> GpuCuller:
         assert self.gpu_bvh is not None

@@ -22,6 +22,13 @@ touching visible chunks, the GPU one per chunk, zero-count where culled), and ea
 with one ``render_indirect`` (glMultiDrawElementsIndirect) over its slice: see
 :mod:`node.culling.tiles` for why it is kept over one ``render(first=, vertices=)`` per run.
 Below GL 4.3 (no multi-draw-indirect, no GPU culling) the runs are drawn one call each.
+
+Depth layers (:meth:`TileRenderer.render_layer`, for the hybrid and sort-last modes of
+:mod:`tessera.depth_compositing`): the same draw of a rect — the same full-frame viewport, scissor
+and near/far — with a given list of chunks instead of the rect's culled ones, and the rect's depth
+read back too, as float32 window depth from the one depth buffer format every node uses (moderngl's
+24-bit depth renderbuffer, cleared to 1.0 = far, ``GL_LESS``). Equal surfaces drawn on different
+nodes therefore carry equal depth bits.
 Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
 base colour × vertex colour × sRGB texture, output sRGB-encoded.
 """
@@ -96,7 +103,9 @@ void main() {{
 class RenderedTile:
     """A tile's pixels (rect.h, rect.w, 3) uint8, row 0 at the top, its measured phases (ms,
     ``render_ms`` includes culling), and what culling did: ``triangles`` submitted, chunks drawn
-    and culled (of the scene's chunks), ``cull_ms``, ``cull_path`` "off", "cpu" or "gpu"."""
+    and culled (of the scene's chunks), ``cull_ms``, ``cull_path`` "off", "cpu", "gpu" or "list";
+    ``depth`` (rect.h, rect.w) float32 window depth, 1.0 where nothing was drawn, for a depth layer
+    (None for a plain tile)."""
 
     rect: Rect
     pixels: np.ndarray
@@ -107,6 +116,7 @@ class RenderedTile:
     chunks_culled: int
     cull_ms: float
     cull_path: str
+    depth: np.ndarray | None = None
 
     def stats(self) -> dict[str, Any]:
         """The per-tile counters a node reports in ``tile_sent.stats``."""
@@ -223,10 +233,30 @@ class TileRenderer:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera``. ``slot`` names
         the tile for the hybrid culling switch (default: the rect itself)."""
         validate_rect(rect, size)
-        width, height = size
         started = time.perf_counter()
         matrix = view_projection(camera, size, self.scene.bounds)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=False)
+
+    def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
+                     slot: Hashable | None = None) -> RenderedTile:
+        """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it,
+        but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's culling keeps,
+        ``slot`` naming it as there), with its depth read back as well."""
+        validate_rect(rect, size)
+        started = time.perf_counter()
+        matrix = view_projection(camera, size, self.scene.bounds)
+        if chunk_ids is None:
+            culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
+        else:
+            culled = self.culler.listed(chunk_ids)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=True)
+
+    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
+                started: float, with_depth: bool) -> RenderedTile:
+        """Draw ``culled`` with the full-frame ``matrix`` scissored to ``rect`` and read the rect back
+        (colour, and window depth when ``with_depth``); ``started`` is when the tile's work began."""
+        width, height = size
         framebuffer = self._framebuffer_for((width, height))
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
         framebuffer.viewport = (0, 0, width, height)
@@ -240,11 +270,15 @@ class TileRenderer:
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
         pixels = np.ascontiguousarray(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 3)[::-1])
+        depth = None
+        if with_depth:
+            data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
+            depth = np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
         read = time.perf_counter()
         counts = self.culler.counts(culled)
         return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3, counts.triangles,
                             counts.chunks_drawn, self.scene.chunks.chunk_count - counts.chunks_drawn,
-                            culled.cull_ms, culled.path)
+                            culled.cull_ms, culled.path, depth)
 
     def render_frame(self, camera: Camera, size: tuple[int, int]) -> RenderedTile:
         """The whole ``size`` = (w, h) frame."""

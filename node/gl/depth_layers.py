@@ -1,0 +1,79 @@
+"""What a node draws into a depth layer in the hybrid and sort-last modes, and drawing it: the
+node-side half of :mod:`tessera.depth_compositing`.
+
+- Hybrid (seed 000 §4.4, :mod:`tessera.chunk_ownership`): tile ``index`` of the frame's tiles
+  draws into its read-back rect (the tile grown by the depth strip) the chunks it owns and the
+  shared ones touching it. The candidates are the chunks the rect's frustum keeps (the CPU tree of
+  :mod:`node.culling.bvh`), so a node projects only the chunks near its tile; ownership depends on a
+  chunk's own bound alone, so every node assigns each chunk alike without talking to the others.
+- Sort-last (:mod:`tessera.data_partition`): a node draws the chunks of its share that the whole
+  frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
+  read-back); a share with nothing in view has no layer.
+
+Chunk ids index the renderer's scene chunks (:class:`node.scene.chunks.SceneChunks`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.culling.bvh import cull
+from node.culling.frustum import frustum_planes_from_matrix
+from node.gl.renderer import RenderedTile, TileRenderer
+from tessera.chunk_ownership import assign_chunks, readback_rect
+from tessera.data_partition import covering_rect
+from tessera.depth_compositing import DepthLayer
+from tessera.geometry import Camera, Rect, view_projection
+from tessera.projection import project_boxes
+
+
+@dataclass(frozen=True, eq=False)
+class LayerPlan:
+    """A depth layer to draw: its ``rect`` in the frame and ``chunk_ids`` (K,) int64 sorted."""
+
+    rect: Rect
+    chunk_ids: np.ndarray
+
+
+def visible_chunks(renderer: TileRenderer, camera: Camera, size: tuple[int, int], rect: Rect) -> np.ndarray:
+    """(K,) int64 sorted ids of the chunks whose boxes touch ``rect``'s sub-frustum of the
+    ``size`` frame (the culler's padded planes)."""
+    planes = frustum_planes_from_matrix(view_projection(camera, size, renderer.scene.bounds), size, rect)
+    return cull(renderer.culler.bvh, planes).visible_chunks
+
+
+def chunk_bounds(renderer: TileRenderer, chunk_ids: np.ndarray, camera: Camera, size: tuple[int, int]) -> np.ndarray:
+    """(K, 4) float64 projected pixel bounds x0, y0, x1, y1 of chunks ``chunk_ids`` (K,), clipped to
+    the frame (:func:`tessera.projection.project_boxes`)."""
+    scene = renderer.scene
+    return project_boxes(scene.chunks.boxes[chunk_ids].reshape(-1, 6), camera, size, scene.bounds)
+
+
+def hybrid_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], tiles: Sequence[Rect], index: int,
+                strip_px: int) -> LayerPlan:
+    """Tile ``index`` of ``tiles`` (an exact cover of the ``size`` frame) in the hybrid mode with a
+    ``strip_px`` border strip: its read-back rect and the chunks it draws."""
+    rect = readback_rect(tiles[index], strip_px, size)
+    candidates = visible_chunks(renderer, camera, size, rect)
+    ownership = assign_chunks(chunk_bounds(renderer, candidates, camera, size), tiles, strip_px, size)
+    return LayerPlan(rect, candidates[ownership.draws[index]])
+
+
+def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
+                   share: np.ndarray) -> LayerPlan | None:
+    """The layer of a node holding chunks ``share`` (sorted ids): those in view and the rect they
+    project to; None when none is on screen."""
+    whole = visible_chunks(renderer, camera, size, Rect(0, 0, *size))
+    drawn = whole[np.isin(whole, share, assume_unique=True)]
+    rect = covering_rect(chunk_bounds(renderer, drawn, camera, size), size)
+    return None if rect is None else LayerPlan(rect, drawn)
+
+
+def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:
+    """A rendered layer (depth read back) for the compositor, ties going to lower ``slot``."""
+    if tile.depth is None:
+        raise ValueError("this tile was rendered without depth (render_tile); use render_layer")
+    return DepthLayer(tile.rect, tile.pixels, tile.depth, slot)
