@@ -16,7 +16,7 @@ ancestors are visible.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -34,10 +34,10 @@ class SceneObject:
     geometry at the base pose (None when it has none) and its ``triangles``."""
 
     name: str
-    parent: int
-    base: ObjectState
-    bounds: np.ndarray | None
-    triangles: int
+    parent: int = -1
+    base: ObjectState = field(default_factory=ObjectState)
+    bounds: np.ndarray | None = None
+    triangles: int = 0
 
     def to_json(self, graph: ObjectGraph, state: ObjectState | None = None) -> dict[str, Any]:
         """``{"name", "parent" (a name or null), "translation", "rotation", "scale", "visible",

@@ -1,9 +1,12 @@
 """A loaded scene (:class:`SceneData`): batches in draw order, split into octree chunks at load
-(seed 002 §3.4, :mod:`node.scene.chunks`), with the bounds and primitive groups a node reports.
-No GL here."""
+(seed 002 §3.4, :mod:`node.scene.chunks`), with the bounds and primitive groups a node reports,
+its named objects (:class:`tessera.scene_graph.ObjectGraph`, issue 11: each batch belongs to one)
+and its animations (:mod:`tessera.animation`). No GL here."""
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,13 +14,18 @@ import numpy as np
 from node.scene.chunks import PrimitiveGroups, SceneChunks, split_batches
 from node.scene.mesh import MeshBatch, SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from tessera.animation import Animation, sample_animations
+from tessera.scene_graph import ObjectGraph, SceneObject
+from tessera.scene_state import ObjectPatch, SceneState, SceneStateError
 
 
 @dataclass(frozen=True, eq=False)
 class SceneData:
-    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64, its
-    ``chunks`` (batches over the face limit are split; their faces are in chunk order) and the
-    primitive ``groups`` sent to the coordinator (chunk boxes and triangle counts)."""
+    """A loaded scene: batches in draw order (opaque first), world ``bounds`` (2, 3) float64 at the
+    base pose, its ``chunks`` (batches over the face limit are split; their faces are in chunk
+    order), the primitive ``groups`` sent to the coordinator (chunk boxes and triangle counts), its
+    ``objects`` (each batch's ``owner`` indexes them; their bounds and triangles are the batches')
+    and its ``animations``."""
 
     name: str
     batches: tuple[MeshBatch, ...]
@@ -25,10 +33,20 @@ class SceneData:
     triangle_count: int
     groups: PrimitiveGroups
     chunks: SceneChunks
+    objects: ObjectGraph
+    animations: tuple[Animation, ...] = ()
 
     @classmethod
-    def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> SceneData:
-        """Drop empty batches, order blended ones last, split by octree, compute bounds and groups."""
+    def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT,
+                     objects: Sequence[SceneObject] | None = None, animations: Sequence[Animation] = ()) -> SceneData:
+        """Drop empty batches, order blended ones last, split by octree, compute bounds and groups.
+        ``objects`` (their bounds and triangles are filled in here) default to one per batch, named
+        after it, each batch its owner."""
+        if objects is None:
+            objects = _one_object_per_batch(batches)
+            batches = [dataclasses.replace(b, owner=number) for number, b in enumerate(batches)]
+        if any(not 0 <= b.owner < len(objects) for b in batches):
+            raise SceneError(f"{name}: a mesh belongs to no object")
         kept = [b for b in batches if b.triangle_count > 0]
         if not kept:
             raise SceneError(f"{name}: no triangles")
@@ -37,14 +55,48 @@ class SceneData:
         boxes = np.array([b.bounds() for b in split], dtype=np.float64)
         bounds = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
         triangles = sum(b.triangle_count for b in split)
-        return cls(name, tuple(split), bounds, triangles, chunks.primitive_groups(), chunks)
+        try:
+            graph = ObjectGraph(_measured(objects, split, boxes))
+        except SceneStateError as exc:
+            raise SceneError(f"{name}: {exc}") from None
+        return cls(name, tuple(split), bounds, triangles, chunks.primitive_groups(), chunks, graph, tuple(animations))
 
     def with_face_limit(self, face_limit: int) -> SceneData:
         """The same scene split with another face limit (itself when the limit is the same)."""
         if face_limit == self.chunks.face_limit:
             return self
-        return SceneData.from_batches(self.name, list(self.batches), face_limit)
+        return SceneData.from_batches(self.name, list(self.batches), face_limit, self.objects.objects, self.animations)
 
     @property
     def vertex_count(self) -> int:
         return sum(b.vertex_count for b in self.batches)
+
+    def state_at(self, time: float, overrides: Mapping[str, ObjectPatch] | None = None) -> SceneState:
+        """The scene at ``time`` seconds: its animations sampled there, then ``overrides`` (a pose
+        given by name); raises UnknownObjectError naming an object the scene lacks."""
+        return self.objects.posed(time, sample_animations(self.animations, time), overrides)
+
+
+def _one_object_per_batch(batches: Sequence[MeshBatch]) -> list[SceneObject]:
+    """A root object per batch, named after it (``name#2``, … where names repeat)."""
+    objects, seen = [], set()
+    for batch in batches:
+        name, copy = batch.name, 1
+        while name in seen:
+            copy += 1
+            name = f"{batch.name}#{copy}"
+        seen.add(name)
+        objects.append(SceneObject(name))
+    return objects
+
+
+def _measured(objects: Sequence[SceneObject], batches: Sequence[MeshBatch], boxes: np.ndarray) -> list[SceneObject]:
+    """``objects`` with the bounds (2, 3) and triangle counts of the ``batches`` (boxes (B, 2, 3)) they own."""
+    owners = np.array([b.owner for b in batches], np.int64)
+    out = []
+    for number, item in enumerate(objects):
+        own = owners == number
+        bounds = None if not own.any() else np.stack([boxes[own, 0].min(axis=0), boxes[own, 1].max(axis=0)])
+        triangles = sum(b.triangle_count for b, mine in zip(batches, own, strict=True) if mine)
+        out.append(dataclasses.replace(item, bounds=bounds, triangles=triangles))
+    return out

@@ -11,12 +11,16 @@ textures stay sRGB-encoded bytes (the renderer samples them as sRGB).
 
 Batches over the face limit are pre-split into octree chunks as they are gathered into a
 :class:`SceneData` (seed 002 §3.4, :mod:`node.scene.chunks`).
+
+Objects (issue 11): a glTF file's nodes, each batch owned by the node that carries its mesh, and
+the file's animations (:mod:`node.scene.objects`); a PLY, OBJ or STL file is one object, named
+after the file without its suffix.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +29,10 @@ import numpy as np
 from node.scene.builtin import build_builtin_scene
 from node.scene.data import SceneData
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
+from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from tessera.animation import Animation
+from tessera.scene_graph import SceneObject
 
 BUILTIN_PREFIX = "builtin:"
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
@@ -63,12 +70,24 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
         raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
     report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances, splitting")
     try:
-        batches = batches_from_trimesh(loaded)
+        objects, owners, animations = _file_objects(path, loaded)
+        batches = batches_from_trimesh(loaded, owners)
     except SceneError as exc:
         raise SceneError(f"{spec}: {exc}") from None
     except Exception as exc:
         raise SceneError(f"{spec}: corrupt geometry ({_one_line(exc)})") from None
-    return SceneData.from_batches(spec, batches, face_limit)
+    return SceneData.from_batches(spec, batches, face_limit, objects, animations)
+
+
+def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...]]:
+    """The objects of the file at ``path`` (loaded as the trimesh ``scene``), each geometry node's
+    owner among them (None: all the first's) and the file's animations."""
+    if path.suffix.lower() in GLTF_SUFFIXES:
+        document = read_gltf(path)
+        objects, index = gltf_objects(document.json)
+        if objects:
+            return objects, geometry_owners(scene.graph, objects), file_animations(document, index, objects)
+    return [SceneObject(path.stem)], None, ()
 
 
 def _one_line(exc: BaseException) -> str:
@@ -76,8 +95,9 @@ def _one_line(exc: BaseException) -> str:
     return text if len(text) <= 200 else text[:197] + "..."
 
 
-def batches_from_trimesh(scene: Any) -> list[MeshBatch]:
-    """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh)."""
+def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None) -> list[MeshBatch]:
+    """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh), owned by
+    object ``owners[graph node]`` (None: object 0)."""
     import trimesh
 
     textures: dict[int, np.ndarray] = {}
@@ -87,11 +107,13 @@ def batches_from_trimesh(scene: Any) -> list[MeshBatch]:
         mesh = scene.geometry[geometry_name]
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             continue
-        batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures))
+        owner = 0 if owners is None else owners[node_name]
+        batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures, owner))
     return batches
 
 
-def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray]) -> MeshBatch:
+def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray],
+                     owner: int) -> MeshBatch:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
@@ -147,6 +169,7 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         texture=texture,
         alpha_mode=alpha_mode if alpha_mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
         alpha_cutoff=alpha_cutoff,
+        owner=owner,
     )
 
 

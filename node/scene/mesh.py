@@ -23,6 +23,8 @@ class MeshBatch:
     ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
     float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
     sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
+    ``owner``: the index of the scene object it belongs to (:class:`tessera.scene_graph.ObjectGraph`),
+    whose model matrix moves it.
     """
 
     name: str
@@ -35,6 +37,7 @@ class MeshBatch:
     texture: np.ndarray | None = None
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
+    owner: int = 0
 
     @property
     def triangle_count(self) -> int:

@@ -1,0 +1,72 @@
+"""A loaded scene's objects (issue 11, no GL): glTF nodes matched to trimesh's graph, one object per
+PLY file or built-in batch, each batch's owner, the file's animations, and the scene at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from node.scene.loading import load_scene
+from node.scene.objects import geometry_owners, gltf_objects, read_gltf
+from tessera.scene_graph import ObjectGraph
+from tessera.scene_state import ObjectPatch, UnknownObjectError
+from tests.conftest import scene_path
+
+TRUCK = "gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf"
+ENGINE = "gltf_small/2CylinderEngine.glb"
+
+
+def test_milk_truck_objects_and_animation() -> None:
+    scene = load_scene(str(scene_path(TRUCK)))
+    objects = scene.objects
+    # Unnamed glTF nodes take their index as name, as in trimesh's graph: 0 the body, 1 and 3 the
+    # axles (matrices), 2 and 4 the wheels (rotations, animated).
+    assert sorted(objects.names) == ["0", "1", "2", "3", "4"]
+    assert {name: objects.objects[objects.objects[objects.lookup(name)].parent].name for name in ("2", "4")} \
+        == {"2": "1", "4": "3"}
+    assert objects.objects[objects.lookup("1")].base.translation == pytest.approx((-1.35233, 0.427722, 0.0), abs=1e-6)
+    assert sum(item.triangles for item in objects.objects) == scene.triangle_count
+    wheel_batches = {objects.names[b.owner] for b in scene.batches if b.name.endswith("Wheels")}
+    assert wheel_batches == {"2", "4"}
+    (animation,) = scene.animations
+    assert {c.target for c in animation.channels} == {"2", "4"}
+    state = scene.state_at(0.5)
+    assert state.time == 0.5
+    assert state.objects["2"].rotation == pytest.approx(tuple(animation.sample(0.5)["2"].rotation or ()))
+    assert state.objects["0"] == objects.objects[objects.lookup("0")].base
+    posed = scene.state_at(0.5, {"2": ObjectPatch(visible=False)})
+    assert not posed.objects["2"].visible and posed.objects["2"].rotation == state.objects["2"].rotation
+    with pytest.raises(UnknownObjectError, match="unknown object 'wheel'"):
+        scene.state_at(0.0, {"wheel": ObjectPatch()})
+
+
+@pytest.mark.parametrize("relative", [TRUCK, ENGINE, "gltf_small/Duck.glb"])
+def test_base_pose_matches_trimesh_graph(relative: str) -> None:
+    path = scene_path(relative)
+    loaded = trimesh.load(str(path), force="scene", process=False)
+    objects, _ = gltf_objects(read_gltf(path).json)
+    graph = ObjectGraph(objects)
+    world = graph.world_matrices(graph.base)
+    for node, owner in geometry_owners(loaded.graph, objects).items():
+        scale = np.abs(world[owner]).max()
+        np.testing.assert_allclose(world[owner], loaded.graph[node][0], rtol=1e-7, atol=1e-7 * scale)
+
+
+def test_engine_keeps_its_hierarchy_and_face_limit_keeps_the_objects() -> None:
+    scene = load_scene(str(scene_path(ENGINE)))
+    assert len(scene.objects) == 82 and scene.animations == ()
+    assert sum(item.triangles for item in scene.objects.objects) == scene.triangle_count
+    resplit = scene.with_face_limit(64)
+    assert resplit.objects.names == scene.objects.names
+    assert [item.triangles for item in resplit.objects.objects] == [item.triangles for item in scene.objects.objects]
+
+
+def test_a_ply_file_is_one_object_and_a_builtin_batch_is_one() -> None:
+    bunny = load_scene(str(scene_path("bunny/bun_zipper.ply")))
+    (only,) = bunny.objects.objects
+    assert (only.name, only.parent, only.triangles) == ("bun_zipper", -1, bunny.triangle_count)
+    np.testing.assert_array_equal(only.bounds, bunny.bounds)
+    spheres = load_scene("builtin:spheres")
+    assert spheres.objects.names == ("ground", "sphere0", "sphere1", "sphere2", "sphere3")
+    assert [spheres.objects.names[b.owner] for b in spheres.batches] == list(spheres.objects.names)
