@@ -28,7 +28,10 @@ def bind_socket(host: str, port: int) -> socket.socket:
 async def serve(settings: Settings) -> None:
     sock = bind_socket(settings.host, settings.port)
     port = sock.getsockname()[1]
-    config = uvicorn.Config(create_app(settings), log_level=settings.log_level, ws_max_size=64 << 20,
+    # The socket layer's own cap is the largest message any socket may send; /ws/view's lower limit
+    # is checked per message (server/routes/guards.py).
+    max_message = max(settings.node_message_bytes, settings.max_viewer_message_bytes)
+    config = uvicorn.Config(create_app(settings), log_level=settings.log_level, ws_max_size=max_message,
                             ws_ping_interval=10, ws_ping_timeout=20, access_log=False, lifespan="on")
     server = uvicorn.Server(config)
     nodes = LocalNodes()

@@ -9,6 +9,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from server.origins import normalise_origins
 from tessera.cli_values import parse_background, size_parser
 from tessera.codec import Codec
 
@@ -18,6 +19,63 @@ DEFAULT_SCENE = "builtin:cluster"
 #: within 2–3 % of the best on the others, the lowest or second-lowest imbalance on all four.
 DEFAULT_BALANCER = "adaptive-predict"
 parse_size = size_parser(16, 8192)
+#: Most viewer sockets at once: every viewer gets every frame, about 23 KB at 720p × 60 frames/s
+#: = 1.4 MB/s, so 64 of them fill a gigabit link; a slow viewer only skips frames.
+DEFAULT_MAX_VIEWERS = 64
+#: Largest message a viewer may send: it sends camera and latency JSON of a few hundred bytes.
+DEFAULT_MAX_VIEWER_MESSAGE_BYTES = 64 << 10
+#: Messages per second a viewer may send (burst: one second's worth): it sends the camera at most
+#: once per display refresh (60–240 Hz) and its latency once a second.
+DEFAULT_MAX_VIEWER_MESSAGES_PER_S = 500.0
+#: Messages per second a node may send (burst: one second's worth): two per tile (the binary tile and
+#: its ``tile_sent``). Receiving a tile costs the coordinator 0.13–0.15 ms (README, loopback bench), so
+#: it takes at most about 7,700 tiles/s (15,400 messages/s) from all nodes together, whatever the tiles
+#: per frame (768 tiles at 60 frames/s would be 46,000): no node doing its work comes near 40,000.
+DEFAULT_MAX_NODE_MESSAGES_PER_S = 40000.0
+
+
+#: Bytes per pixel of the largest tile encoding, with room: raw RGB is 3, PNG of noise 3.003, JPEG of noise
+#: at quality 100 4.1, and a colour + depth layer in the active-pixel encoding (tessera/depth_compositing.py)
+#: 7 when every pixel is active, 7.5 when every other one is.
+MAX_TILE_BYTES_PER_PIXEL = 12
+
+
+def auto_node_message_bytes(size: tuple[int, int]) -> int:
+    """Largest message a node may send by default: a tile is at most the whole frame, at most
+    :data:`MAX_TILE_BYTES_PER_PIXEL` (four raw RGB frames), plus 1 MiB for the tile header and the
+    largest JSON (``tessera.messages.MAX_JSON_BYTES``): 12.1 MB at 1280x720, 806 MB at 8192x8192."""
+    return MAX_TILE_BYTES_PER_PIXEL * size[0] * size[1] + (1 << 20)
+
+
+_BYTE_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
+
+
+def _byte_count(text: str) -> int:
+    """Bytes, optionally with K, M or G (powers of 1024): ``65536``, ``64K``, ``256M``; at least 1."""
+    cleaned = text.strip().upper().removesuffix("B").removesuffix("I")
+    unit = cleaned[-1:] if cleaned[-1:] in _BYTE_UNITS else ""
+    value = _count(cleaned[:len(cleaned) - len(unit)]) * _BYTE_UNITS[unit]
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 byte, got {text!r}")
+    return value
+
+
+def _rate(text: str) -> float:
+    """Messages per second, 0 for no limit."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (0: no limit), got {text!r}")
+    return value
+
+
+def _origins(text: str) -> tuple[str, ...]:
+    try:
+        return normalise_origins(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _count(text: str) -> int:
@@ -91,6 +149,19 @@ class Settings:
     background: tuple[float, float, float] | None = None
     node_slowdowns: tuple[float, ...] = ()
     log_level: str = "info"
+    #: Pages of other origins whose viewers may open the sockets (``*``: any page); same origin always may.
+    allowed_origins: tuple[str, ...] = ()
+    max_viewers: int = DEFAULT_MAX_VIEWERS
+    max_viewer_message_bytes: int = DEFAULT_MAX_VIEWER_MESSAGE_BYTES
+    #: None: :func:`auto_node_message_bytes` of ``size``.
+    max_node_message_bytes: int | None = None
+    max_viewer_messages_per_s: float = DEFAULT_MAX_VIEWER_MESSAGES_PER_S
+    max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
+
+    @property
+    def node_message_bytes(self) -> int:
+        """The largest message a node may send, given or from the frame size."""
+        return self.max_node_message_bytes or auto_node_message_bytes(self.size)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -127,6 +198,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
     parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")
     parser.add_argument("--log-level", help="debug, info (default), warning")
+    parser.add_argument("--allowed-origins", type=_origins,
+                        help="comma-separated origins (scheme://host[:port]) of other sites whose pages may open "
+                             "the viewer and node sockets, or * for any; the coordinator's own origin always may")
+    parser.add_argument("--max-viewers", type=_count,
+                        help=f"viewer sockets at once (default {DEFAULT_MAX_VIEWERS}; 0: no limit)")
+    parser.add_argument("--max-viewer-message-bytes", type=_byte_count,
+                        help="largest message a viewer may send, bytes, K/M/G allowed (default 64K)")
+    parser.add_argument("--max-node-message-bytes", type=_byte_count,
+                        help="largest message (a tile) a node may send (default: 12 bytes per pixel of --size "
+                             "plus 1M, 12.1 MB at 1280x720)")
+    parser.add_argument("--max-viewer-messages-per-s", type=_rate,
+                        help=f"messages per second per viewer socket, a second's worth at once "
+                             f"(default {DEFAULT_MAX_VIEWER_MESSAGES_PER_S:.0f}; 0: no limit)")
+    parser.add_argument("--max-node-messages-per-s", type=_rate,
+                        help=f"messages per second per node socket, a second's worth at once "
+                             f"(default {DEFAULT_MAX_NODE_MESSAGES_PER_S:.0f}; 0: no limit)")
     return parser
 
 

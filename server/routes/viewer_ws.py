@@ -1,6 +1,8 @@
 """``WS /ws/view``: browsers. Each viewer gets a latest-frame slot and its own sender task;
 it sends camera JSON back (with its input sequence number) and reports the input → display
-latency it measured. Invalid input gets an ``error`` message, never a crash."""
+latency it measured. Invalid input gets an ``error`` message, never a crash. Pages of other origins,
+viewers over ``--max-viewers`` and sockets over their message size or rate are refused
+(``server/routes/guards.py``)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
+from server.routes import guards
 from server.routes.balancer import BALANCERS
 from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
@@ -32,10 +35,18 @@ async def _send(ws: WebSocket, slot: ViewerSlot) -> None:
 @router.websocket("/ws/view")
 async def viewer_socket(ws: WebSocket) -> None:
     service: RenderService = ws.app.state.service
+    settings = ws.app.state.settings
+    if not await guards.admit_origin(ws, "viewer"):
+        return
     await ws.accept()
-    if not token_ok(ws.app.state.settings.token, presented_token(ws)):
+    if not token_ok(settings.token, presented_token(ws)):
         await ws.close(4401, "wrong token")
         return
+    if full := guards.viewers_full(len(service.viewers.slots), settings.max_viewers):
+        log.warning("viewer from %s refused: %s", guards.peer(ws), full)
+        await guards.close(ws, 1008, full)
+        return
+    limits = guards.limits_for(ws, "viewer")
     slot = service.viewers.join()
     slot.put_control(ViewerHello(
         size=service.size, viewer=slot.viewer_id, camera=service.camera,
@@ -46,8 +57,8 @@ async def viewer_socket(ws: WebSocket) -> None:
     sender = asyncio.create_task(_send(ws, slot))
     try:
         while True:
-            message = await ws.receive()
-            if message["type"] == "websocket.disconnect":
+            message = await guards.receive(ws, limits, f"viewer {slot.viewer_id}")
+            if message is None:
                 break
             try:
                 request = parse(message.get("text") or "", FROM_VIEWER)

@@ -1,0 +1,111 @@
+"""What every coordinator WebSocket passes (``/ws/view``, ``/ws/node``).
+
+* **Origin**, before the handshake: a browser page of another origin gets HTTP 403 with the reason
+  (``server/origins.py``: same origin, ``--allowed-origins``, no ``Origin`` header for non-browsers).
+* **Message size and rate**, on every message received: over ``--max-*-message-bytes`` closes with
+  1009, over ``--max-*-messages-per-s`` (a token bucket holding a second's worth) with 1008; the
+  reason names the limit and its flag.
+
+Each refusal is logged as one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from typing import Any
+
+from fastapi import WebSocket
+from fastapi.responses import PlainTextResponse
+
+from server.origins import own_origin
+from tessera.limits import TokenBucket
+
+log = logging.getLogger("tessera.server")
+
+#: WebSocket close reasons are at most 123 bytes.
+MAX_CLOSE_REASON = 120
+
+
+def peer(ws: WebSocket) -> str:
+    return f"{ws.client.host}:{ws.client.port}" if ws.client else "unknown peer"
+
+
+async def close(ws: WebSocket, code: int, reason: str) -> None:
+    """Close with ``code`` and ``reason`` (cut to fit a close frame); nothing if already closed."""
+    with contextlib.suppress(RuntimeError):
+        await ws.close(code, reason.encode()[:MAX_CLOSE_REASON].decode(errors="ignore"))
+
+
+async def admit_origin(ws: WebSocket, what: str) -> bool:
+    """True when the page that opens ``ws`` (if a page does) may; else answers 403 with the reason
+    before the handshake and logs it."""
+    headers = ws.headers
+    own = own_origin(ws.url.scheme, headers.get("host"), headers.get("x-forwarded-proto"),
+                     headers.get("x-forwarded-host"))
+    reason = ws.app.state.origins.refusal(headers.get("origin"), own)
+    if reason is None:
+        return True
+    log.warning("%s socket from %s refused: %s", what, peer(ws), reason)
+    try:
+        await ws.send_denial_response(PlainTextResponse(reason + "\n", status_code=403))
+    except RuntimeError:  # a server without the denial-response extension: a plain 403
+        await ws.close(1008, reason[:MAX_CLOSE_REASON])
+    return False
+
+
+class SocketLimits:
+    """One socket's message limits: at most ``max_bytes`` a message and ``rate`` messages per
+    second, a second's worth at once (``rate`` 0: no rate limit). Pure: ``now`` is passed in."""
+
+    def __init__(self, kind: str, max_bytes: int, rate: float, now: float) -> None:
+        self.kind = kind
+        self.max_bytes = max_bytes
+        self.rate = rate
+        self.bucket = TokenBucket(rate, max(rate, 1.0), now) if rate > 0 else None
+
+    def refusal(self, message: dict[str, Any], now: float) -> tuple[int, str] | None:
+        """(close code, reason) when the ASGI ``message`` breaks a limit, else None."""
+        data, text = message.get("bytes"), message.get("text")
+        if data is not None:
+            size = len(data)
+        elif text is not None:
+            size = len(text) if 4 * len(text) <= self.max_bytes else len(text.encode())
+        else:
+            size = 0
+        if size > self.max_bytes:
+            return 1009, f"message of {size} bytes over the limit of {self.max_bytes} (--max-{self.kind}-message-bytes)"
+        if self.bucket is not None and not self.bucket.take(now):
+            return 1008, f"over {self.rate:g} messages/s (--max-{self.kind}-messages-per-s)"
+        return None
+
+
+def limits_for(ws: WebSocket, kind: str) -> SocketLimits:
+    """The limits of a ``kind`` ("viewer" or "node") socket, from the settings."""
+    settings = ws.app.state.settings
+    if kind == "node":
+        return SocketLimits(kind, settings.node_message_bytes, settings.max_node_messages_per_s, time.monotonic())
+    return SocketLimits(kind, settings.max_viewer_message_bytes, settings.max_viewer_messages_per_s, time.monotonic())
+
+
+async def receive(ws: WebSocket, limits: SocketLimits, who: str) -> dict[str, Any] | None:
+    """The next message; None when the peer left, or broke a limit (then logged and closed with the
+    reason)."""
+    message = await ws.receive()
+    if message["type"] == "websocket.disconnect":
+        return None
+    refused = limits.refusal(message, time.monotonic())
+    if refused is None:
+        return message
+    code, reason = refused
+    log.warning("%s (%s) closed: %s", who, peer(ws), reason)
+    await close(ws, code, reason)
+    return None
+
+
+def viewers_full(count: int, limit: int) -> str | None:
+    """Why one more viewer is refused when ``count`` are connected (``limit`` 0: no limit)."""
+    if limit and count >= limit:
+        return f"too many viewers: {count} of {limit} (--max-viewers)"
+    return None
