@@ -1,6 +1,10 @@
 """``python -m node --render-once OUT.png``: one full frame rendered alone, no coordinator — the
 reference image every composited frame is checked against. ``--face-limit`` and ``--culling`` apply
-as on a serving node; neither changes the image."""
+as on a serving node; neither changes the image.
+
+The frame shows the scene state (issue 11) at ``--time T`` seconds (default 0): the scene's
+animations sampled at T, then the poses of ``--objects STATE.json``, ``{name: {"translation",
+"rotation", "scale", "visible"}}`` with any subset of those fields per object."""
 
 from __future__ import annotations
 
@@ -13,11 +17,13 @@ import moderngl
 from node.culling.tiles import CullingUnavailableError
 from node.gl.context import GLUnavailableError, create_gl_context
 from node.gl.renderer import TileRenderer
+from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
 from node.settings import NodeSettings
 from tessera.codec import encode_png
 from tessera.geometry import Camera, CameraError, default_camera
+from tessera.scene_state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
 
 
 def read_camera(path: Path) -> Camera:
@@ -36,19 +42,39 @@ def read_camera(path: Path) -> Camera:
         raise CameraError(f"camera file {path}: {exc}") from None
 
 
+def read_objects(path: Path) -> dict[str, ObjectPatch]:
+    """Parse an object state file; raises SceneStateError whose message names the file and the reason."""
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SceneStateError(f"objects file {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneStateError(f"objects file {path}: unreadable ({exc})") from None
+    except ValueError as exc:
+        raise SceneStateError(f"objects file {path}: invalid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise SceneStateError(f"objects file {path}: must be a JSON object of name: state")
+    try:
+        return {str(name): ObjectPatch.from_json(value, str(name)) for name, value in data.items()}
+    except SceneStateError as exc:
+        raise SceneStateError(f"objects file {path}: {exc}") from None
+
+
 def render_once(settings: NodeSettings) -> int:
     """Render ``settings.scene`` to ``settings.render_once`` (PNG); returns the exit code and
     prints one ``error: …`` line on failure."""
     assert settings.render_once is not None
     try:
         camera = read_camera(settings.camera) if settings.camera is not None else None
+        overrides = read_objects(settings.objects) if settings.objects is not None else None
         scene = load_scene(settings.scene, face_limit=settings.face_limit)
+        state = _state(scene, settings.time, overrides, settings.objects)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
         renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling)
-        frame = renderer.render_frame(camera, settings.size)
+        frame = renderer.render_frame(camera, settings.size, state)
         settings.render_once.write_bytes(encode_png(frame.pixels))
-    except (CameraError, SceneError, GLUnavailableError, CullingUnavailableError) as exc:
+    except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except moderngl.Error as exc:
@@ -62,3 +88,14 @@ def render_once(settings: NodeSettings) -> int:
           f"{scene.chunks.chunk_count} chunks, {frame.triangles} drawn, {frame.cull_path} culling, "
           f"render {frame.render_ms:.1f} ms)")
     return 0
+
+
+def _state(scene: SceneData, time: float, overrides: dict[str, ObjectPatch] | None, path: Path | None) -> SceneState:
+    """``scene`` at ``time`` with ``overrides`` (read from ``path``); an unknown name lists the
+    scene's objects."""
+    try:
+        return scene.state_at(time, overrides)
+    except UnknownObjectError as exc:
+        names = scene.objects.names
+        listed = ", ".join(names[:20]) + (f", … ({len(names)} in all)" if len(names) > 20 else "")
+        raise SceneStateError(f"objects file {path}: {exc}; the scene's objects are {listed}") from None

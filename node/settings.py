@@ -44,6 +44,19 @@ class NodeSettings:
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
     culling: CullMode = CullMode.AUTO
     face_limit: int = DEFAULT_FACE_LIMIT
+    time: float = 0.0
+    objects: Path | None = None
+
+
+def parse_time(text: str) -> float:
+    """A finite scene time in seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"time must be a finite number of seconds, got {text!r}")
+    return value
 
 
 def parse_slowdown(text: str) -> float:
@@ -112,6 +125,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         type=parse_background)
     add("--culling", CullMode.AUTO.value, "per-tile frustum culling: hybrid (CPU, GPU when CPU culling is slow; "
         "seed 001), cpu, gpu, off, or auto (hybrid on a hardware GPU, cpu on llvmpipe)", type=parse_culling)
+    add("--time", 0.0, "scene time in seconds for --render-once: the scene's animations are sampled there",
+        type=parse_time)
+    add("--objects", None, "object state JSON file for --render-once, {name: {translation, rotation, scale, "
+        "visible}} (any subset of those)", type=Path, metavar="STATE.json")
     add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into octree chunks of at most this many faces at load "
         "(seed 002)", type=parse_face_limit)
     return parser

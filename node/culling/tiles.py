@@ -159,12 +159,22 @@ class TileCuller:
             state.switch = state.switch.step(None)
         return TileCull("gpu", elapsed * 1e3, state.gpu.commands, self._gpu_batches, None)
 
-    def counts(self, tile: TileCull) -> CullCounts:
-        """Chunks drawn and triangles submitted by ``tile`` (reads a GPU tile's commands back)."""
-        if tile.runs is not None:
-            return CullCounts(tile.runs.chunks, tile.runs.triangles)
+    def counts(self, tile: TileCull, skip: np.ndarray | None = None) -> CullCounts:
+        """Chunks drawn and triangles submitted by ``tile`` (reads a GPU tile's commands back),
+        leaving out the batches ``skip`` (B,) bool marks (the renderer did not draw them from ``tile``)."""
+        runs = tile.runs
+        if runs is not None and skip is None:
+            return CullCounts(runs.chunks, runs.triangles)
+        if runs is not None:
+            keep = ~skip[runs.batch]
+            first, count = runs.first[keep], runs.count[keep]
+            bounds = self.chunks.index_bounds
+            chunks = np.searchsorted(bounds, first + count) - np.searchsorted(bounds, first)
+            return CullCounts(int(chunks.sum()), int(count.sum()) // 3)
         commands = np.frombuffer(tile.commands.read(), np.uint32).reshape(-1, 5)
         heads = np.flatnonzero(commands[:, 0])
+        if skip is not None:
+            heads = heads[~skip[self.chunks.batch[heads]]]
         counts = commands[heads, 0].astype(np.int64)
         ends = np.searchsorted(self.chunks.index_bounds, commands[heads, 2].astype(np.int64) + counts)
         return CullCounts(int((ends - heads).sum()), int(counts.sum()) // 3)

@@ -29,12 +29,18 @@ and near/far — with a given list of chunks instead of the rect's culled ones, 
 read back too, as float32 window depth from the one depth buffer format every node uses (moderngl's
 24-bit depth renderbuffer, cleared to 1.0 = far, ``GL_LESS``). Equal surfaces drawn on different
 nodes therefore carry equal depth bits.
+
+Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
+batch with its object's model matrix (folded into the view-projection uniform, so an unmoved
+object draws exactly as before) and normal matrix; a moved object is drawn whole, a hidden one not
+at all; near/far come from the state's bounds. Tile and whole frame get the same uniforms.
 Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
 base colour × vertex colour × sRGB texture, output sRGB-encoded.
 """
 
 from __future__ import annotations
 
+import heapq
 import time
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
@@ -47,7 +53,9 @@ from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
+from node.scene.pose import ScenePose
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
+from tessera.scene_state import SceneState
 
 GL_SRGB8_ALPHA8 = 0x8C43
 VERTEX_FORMAT = "3f 3f 2f 4f"
@@ -60,6 +68,7 @@ HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
 VERTEX_SHADER = """
 #version 330
 uniform mat4 u_view_projection;
+uniform mat3 u_normal_matrix;
 in vec3 in_position;
 in vec3 in_normal;
 in vec2 in_uv;
@@ -68,7 +77,7 @@ out vec3 v_normal;
 out vec2 v_uv;
 out vec4 v_color;
 void main() {
-    v_normal = in_normal;
+    v_normal = u_normal_matrix * in_normal;
     v_uv = in_uv;
     v_color = in_color;
     gl_Position = u_view_projection * vec4(in_position, 1.0);
@@ -176,6 +185,8 @@ class TileRenderer:
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
         self._blending = False
+        self._base_pose = ScenePose.of(scene, None)
+        self._pose: tuple[SceneState | None, ScenePose] = (None, self._base_pose)
 
     @property
     def background(self) -> tuple[float, float, float]:
@@ -229,14 +240,22 @@ class TileRenderer:
         return framebuffer
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
-                    slot: Hashable | None = None) -> RenderedTile:
-        """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera``. ``slot`` names
-        the tile for the hybrid culling switch (default: the rect itself)."""
+                    slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
+        """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
+        (None: the base pose). ``slot`` names the tile for the hybrid culling switch (default: the
+        rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        matrix = view_projection(camera, size, self.scene.bounds)
+        pose = self._pose_of(state)
+        matrix = view_projection(camera, size, pose.bounds)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=False)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose)
+
+    def _pose_of(self, state: SceneState | None) -> ScenePose:
+        """The pose of ``state``, kept for the next tiles of the same state."""
+        if state is not self._pose[0]:
+            self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
+        return self._pose[1]
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None) -> RenderedTile:
@@ -250,12 +269,13 @@ class TileRenderer:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
             culled = self.culler.listed(chunk_ids)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=True)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=self._base_pose)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
-                started: float, with_depth: bool) -> RenderedTile:
-        """Draw ``culled`` with the full-frame ``matrix`` scissored to ``rect`` and read the rect back
-        (colour, and window depth when ``with_depth``); ``started`` is when the tile's work began."""
+                started: float, with_depth: bool, pose: ScenePose) -> RenderedTile:
+        """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
+        rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
+        began."""
         width, height = size
         framebuffer = self._framebuffer_for((width, height))
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
@@ -263,9 +283,8 @@ class TileRenderer:
         framebuffer.scissor = gl_box
         framebuffer.use()
         framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
-        self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
         self.program["u_light_direction"].value = headlight_direction(camera)
-        self._draw(framebuffer, culled)
+        self._draw(framebuffer, culled, pose, matrix)
         self.ctx.finish()
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
@@ -275,19 +294,22 @@ class TileRenderer:
             data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
             depth = np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
         read = time.perf_counter()
-        counts = self.culler.counts(culled)
-        return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3, counts.triangles,
-                            counts.chunks_drawn, self.scene.chunks.chunk_count - counts.chunks_drawn,
-                            culled.cull_ms, culled.path, depth)
+        counts = self.culler.counts(culled, pose.skip if pose.skip.any() else None)
+        drawn_chunks = counts.chunks_drawn + pose.whole_chunks
+        return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3,
+                            counts.triangles + pose.whole_triangles, drawn_chunks,
+                            self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
-    def render_frame(self, camera: Camera, size: tuple[int, int]) -> RenderedTile:
-        """The whole ``size`` = (w, h) frame."""
-        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]))
+    def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None) -> RenderedTile:
+        """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose)."""
+        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state)
 
-    def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull) -> None:
-        """Issue the draw calls batch by batch (opaque and masked first, blended last): one
-        multi-draw-indirect over each batch's commands, or without :attr:`multi_draw` one draw per
-        index run."""
+    def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
+              view_proj: np.ndarray) -> None:
+        """Issue the draw calls batch by batch in batch order (opaque and masked first, blended last),
+        each with its object's matrices: one multi-draw-indirect over each culled batch's commands
+        (without :attr:`multi_draw` one draw per index run), one draw of the whole batch for a moved
+        one (``first`` −1 below); batches ``pose`` hides are left out."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
@@ -295,9 +317,21 @@ class TileRenderer:
         if not self.multi_draw:
             assert culled.runs is not None, "GPU culling draws its commands by multi-draw-indirect"
             firsts, counts = culled.runs.first.tolist(), culled.runs.count.tolist()
-        for number, first, count in culled.batches:
+        draws = culled.batches
+        if pose.skip.any():
+            culled_draws = [draw for draw in culled.batches if not pose.skip[draw[0]]]
+            draws = list(heapq.merge(culled_draws, [(number, -1, 0) for number in pose.whole]))
+        model = None
+        for number, first, count in draws:
             self._use_material(framebuffer, number)
-            if self.multi_draw:
+            owner = int(pose.owner[number])
+            if (key := owner if pose.moved[owner] else -1) != model:
+                model = key
+                self._use_model(pose, model, view_proj)
+            if first < 0:
+                whole_first, whole_count = pose.index_range(self.scene, number)
+                self.vertex_array.render(moderngl.TRIANGLES, vertices=whole_count, first=whole_first)
+            elif self.multi_draw:
                 self.vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
                 continue
             for run in range(first, first + count):
@@ -305,6 +339,13 @@ class TileRenderer:
         if self._blending:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
+
+    def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
+        """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
+        matrix, normal = (view_proj, np.identity(3)) if owner < 0 else (view_proj @ pose.models[owner],
+                                                                         pose.normals[owner])
+        self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
+        self.program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
 
     def _use_material(self, framebuffer: moderngl.Framebuffer, number: int) -> None:
         """Set batch ``number``'s uniforms and texture; the first blended batch turns blending on."""
