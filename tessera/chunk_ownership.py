@@ -6,7 +6,9 @@ bound falls, and only its owner draws it, also beyond the tile's edge: every til
 reads back colour and depth of its tile grown by a fixed-width border strip (the seed's choice over
 the minimal rectangle or a full-height band, which cost O(objects)), and the strips are merged by
 depth (:mod:`tessera.depth_compositing`). A chunk whose bound does not fit inside any tile's strip
-is *shared*: drawn by every tile it touches, as in plain sort-first.
+is *shared*: drawn by every tile it touches, as in plain sort-first. Only the strips need depth
+(the seed's Fig. 4.6): a tile's core, :func:`exclusive_rect`, is reached by no other tile and
+travels as colour alone.
 
 Where the seed is vague, this module decides:
 
@@ -67,6 +69,20 @@ def readback_rect(tile: Rect, strip_px: int, size: tuple[int, int]) -> Rect:
     x0, y0 = max(tile.x - strip_px, 0), max(tile.y - strip_px, 0)
     x1, y1 = min(tile.x1 + strip_px, width), min(tile.y1 + strip_px, height)
     return Rect(x0, y0, x1 - x0, y1 - y0)
+
+
+def exclusive_rect(tile: Rect, strip_px: int, size: tuple[int, int]) -> Rect | None:
+    """The part of ``tile`` that no other tile's read-back rect reaches, for tiles that cover the
+    ``size`` = (w, h) frame exactly: the tile shrunk by ``strip_px`` on every side not on the frame's
+    edge (every such side has a neighbour, whose strip reaches ``strip_px`` in). Only the strips
+    need depth (seed 000 Fig. 4.6, the area "that requires sending Z-buffer"): these pixels are
+    final as the tile drew them and travel as colour alone. None when nothing is left."""
+    width, height = size
+    x0 = tile.x + (strip_px if tile.x > 0 else 0)
+    y0 = tile.y + (strip_px if tile.y > 0 else 0)
+    x1 = tile.x1 - (strip_px if tile.x1 < width else 0)
+    y1 = tile.y1 - (strip_px if tile.y1 < height else 0)
+    return Rect(x0, y0, x1 - x0, y1 - y0) if x1 > x0 and y1 > y0 else None
 
 
 def assign_chunks(bounds: np.ndarray, tiles: Sequence[Rect], strip_px: int, size: tuple[int, int],

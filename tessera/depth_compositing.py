@@ -99,12 +99,16 @@ def background_pixel(rgb: Sequence[float]) -> np.ndarray:
     return np.rint(values * 255.0).astype(np.uint8)
 
 
-def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
+def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
+              exclusive: Iterable[tuple[Rect, np.ndarray]] = ()) -> np.ndarray:
     """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
-    (3,) uint8 where none drew. Layers are merged in slot order with a strict depth test, so a tie
-    goes to the lower slot whatever order they came in; raises ValueError for a layer outside the
-    frame or two layers with one slot. O(summed layer pixels): depth by ``minimum``, colour by one
-    masked copy of whole pixels (:func:`_pixels`)."""
+    (3,) uint8 where none drew, then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
+    pasted as they are: regions only one node drew (the hybrid's tile cores,
+    :func:`tessera.chunk_ownership.exclusive_rect`), which travel without depth and which the
+    layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
+    to the lower slot whatever order they came in; raises ValueError for a layer or region outside
+    the frame or two layers with one slot. O(summed layer pixels): depth by ``minimum``, colour by
+    one masked copy of whole pixels (:func:`_pixels`)."""
     width, height = size
     if width <= 0 or height <= 0:
         raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -124,7 +128,25 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
         np.minimum(depth[window], layer.depth, out=depth[window])
         np.copyto(pixels[window], _pixels(layer.color), where=wins)
     np.copyto(pixels, _pixels(np.asarray(background, np.uint8).reshape(1, 1, 3)), where=depth >= FAR)
+    for rect, region in exclusive:
+        if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height or region.shape != (rect.h, rect.w, 3):
+            raise ValueError(f"exclusive region {rect.as_list()} with colour {region.shape} does not fit the "
+                             f"{width}x{height} frame")
+        color[rect.y:rect.y1, rect.x:rect.x1] = region
     return color
+
+
+def clear_region(depth: np.ndarray, rect: Rect, region: Rect | None) -> np.ndarray:
+    """A copy of a layer's ``depth`` (rect.h, rect.w) over ``rect`` with ``region`` (frame
+    coordinates, inside ``rect``; None: nothing) set to :data:`FAR`: those pixels then travel
+    without depth (an exclusive region of :func:`composite`), and not at all in the active-pixel
+    encoding."""
+    cleared = depth.copy()
+    if region is not None:
+        if region.x < rect.x or region.y < rect.y or region.x1 > rect.x1 or region.y1 > rect.y1:
+            raise ValueError(f"region {region.as_list()} is not inside the layer {rect.as_list()}")
+        cleared[region.y - rect.y:region.y1 - rect.y, region.x - rect.x:region.x1 - rect.x] = FAR
+    return cleared
 
 
 def _pixels(color: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.chunk_ownership import OFF_SCREEN, SHARED, assign_chunks, readback_rect
+from tessera.chunk_ownership import OFF_SCREEN, SHARED, assign_chunks, exclusive_rect, readback_rect
 from tessera.geometry import Rect
 from tessera.partition import equal_strip_partition
 
@@ -124,3 +124,27 @@ def test_every_pixel_of_every_chunk_lies_in_a_layer_that_draws_it(seed, tiles, s
                 if owner == SHARED:
                     home = next(t for t, r in enumerate(rects) if r.x <= x < r.x1 and r.y <= y < r.y1)
                     assert home in drawn_by
+
+
+@settings(max_examples=60, deadline=None)
+@given(tiles=st.integers(1, 24), strip=st.sampled_from([0, 1, 8, 40]), width=st.integers(16, 400),
+       height=st.integers(16, 300))
+def test_a_tile_core_is_reached_by_no_other_read_back_rect(tiles, strip, width, height):
+    size = (width, height)
+    rects = equal_strip_partition(tiles, size)
+    for index, tile in enumerate(rects):
+        core = exclusive_rect(tile, strip, size)
+        if core is None:
+            assert min(tile.w, tile.h) <= 2 * strip
+            continue
+        assert tile.x <= core.x and core.x1 <= tile.x1 and tile.y <= core.y and core.y1 <= tile.y1
+        for other, rect in enumerate(rects):
+            if other != index:
+                assert readback_rect(rect, strip, size).intersection_area(core) == 0
+
+
+def test_a_tile_core_keeps_the_frame_edges():
+    assert exclusive_rect(TILES[0], 8, SIZE) == Rect(0, 0, 112, 100)
+    assert exclusive_rect(TILES[1], 8, SIZE) == Rect(128, 0, 72, 100)
+    assert exclusive_rect(Rect(50, 30, 20, 20), 8, SIZE) == Rect(58, 38, 4, 4)
+    assert exclusive_rect(Rect(50, 30, 16, 20), 8, SIZE) is None

@@ -16,6 +16,7 @@ from tessera.depth_compositing import (
     DepthCodecError,
     DepthLayer,
     background_pixel,
+    clear_region,
     composite,
     decode_active,
     depth_from_integer,
@@ -233,3 +234,21 @@ def test_layers_and_codec_take_arrays_that_are_not_contiguous():
     np.testing.assert_array_equal(depth, flipped.depth)
     live = depth < FAR
     np.testing.assert_array_equal(color[live], flipped.color[live])
+
+
+def test_exclusive_regions_are_pasted_over_the_merge_and_travel_without_depth():
+    rng = np.random.default_rng(11)
+    band = random_layer(rng, Rect(0, 0, 8, 6), 0, empty_share=0.0)
+    core = Rect(2, 1, 4, 3)
+    cleared = clear_region(band.depth, band.rect, core)
+    assert (cleared[1:4, 2:6] == FAR).all() and (band.depth[1:4, 2:6] < FAR).all()
+    np.testing.assert_array_equal(np.delete(cleared, np.s_[2:6], axis=1), np.delete(band.depth, np.s_[2:6], axis=1))
+    depth, color = decode_active(encode_active(cleared, band.color))
+    carried = DepthLayer(band.rect, color, depth, 0)
+    frame = composite([carried], (8, 6), BACKGROUND, [(core, band.color[1:4, 2:6])])
+    np.testing.assert_array_equal(frame, band.color)
+    with pytest.raises(ValueError, match="exclusive"):
+        composite([], (8, 6), BACKGROUND, [(Rect(6, 0, 4, 1), np.zeros((1, 4, 3), np.uint8))])
+    with pytest.raises(ValueError, match="inside"):
+        clear_region(band.depth, band.rect, Rect(6, 0, 4, 1))
+    np.testing.assert_array_equal(clear_region(band.depth, band.rect, None), band.depth)

@@ -16,7 +16,7 @@ from node.scene.loading import load_scene
 from node.scene.mesh import MeshBatch
 from tessera.chunk_ownership import SHARED, assign_chunks
 from tessera.data_partition import split_chunks
-from tessera.depth_compositing import FAR, background_pixel, composite
+from tessera.depth_compositing import FAR, DepthLayer, background_pixel, clear_region, composite
 from tessera.geometry import Camera, Rect, default_camera
 from tessera.partition import equal_strip_partition
 from tests.conftest import scene_path
@@ -80,6 +80,7 @@ def test_a_chunk_straddling_a_tile_edge_composes_identically_to_the_whole_render
     plans = [hybrid_plan(renderer, CAMERA, SIZE, HALVES, index, STRIP) for index in range(2)]
     assert [plan.chunk_ids.tolist() for plan in plans] == [[wall, near], [wall, far]]
     assert [plan.rect for plan in plans] == [Rect(0, 0, 88, 120), Rect(72, 0, 88, 120)]
+    assert [plan.exclusive for plan in plans] == [Rect(0, 0, 72, 120), Rect(88, 0, 72, 120)]
     layers = [renderer.render_layer(CAMERA, SIZE, plan.rect, plan.chunk_ids) for plan in plans]
     assert [layer.triangles for layer in layers] == [2 + 288, 2 + 288]
 
@@ -111,9 +112,20 @@ def test_hybrid_tiles_compose_the_whole_render(bunny, tiles, strip):
     background = background_pixel(bunny.background)
     for camera in bunny_cameras(bunny.scene):
         plans = [hybrid_plan(bunny, camera, SIZE, rects, index, strip) for index in range(tiles)]
-        layers = [as_depth_layer(bunny.render_layer(camera, SIZE, plan.rect, plan.chunk_ids), slot)
-                  for slot, plan in enumerate(plans)]
-        np.testing.assert_array_equal(composite(layers, SIZE, background), bunny.render_frame(camera, SIZE).pixels)
+        rendered = [bunny.render_layer(camera, SIZE, plan.rect, plan.chunk_ids) for plan in plans]
+        whole = bunny.render_frame(camera, SIZE).pixels
+        layers = [as_depth_layer(layer, slot) for slot, layer in enumerate(rendered)]
+        np.testing.assert_array_equal(composite(layers, SIZE, background), whole)
+        # the seed's way: depth only in the strips, each tile's core as colour alone
+        strips, cores = [], []
+        for slot, (plan, layer) in enumerate(zip(plans, rendered, strict=True)):
+            strips.append(DepthLayer(plan.rect, layer.pixels, clear_region(layer.depth, plan.rect, plan.exclusive),
+                                     slot))
+            if plan.exclusive is not None:
+                core = plan.exclusive
+                cores.append((core, layer.pixels[core.y - plan.rect.y:core.y1 - plan.rect.y,
+                                                 core.x - plan.rect.x:core.x1 - plan.rect.x]))
+        np.testing.assert_array_equal(composite(strips, SIZE, background, cores), whole)
 
 
 @pytest.mark.parametrize("weights", [[1.0, 1.0], [1.0, 2.0, 1.0], [1.0, 1.0, 1.0, 1.0]])

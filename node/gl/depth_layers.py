@@ -6,6 +6,8 @@ node-side half of :mod:`tessera.depth_compositing`.
   shared ones touching it. The candidates are the chunks the rect's frustum keeps (the CPU tree of
   :mod:`node.culling.bvh`), so a node projects only the chunks near its tile; ownership depends on a
   chunk's own bound alone, so every node assigns each chunk alike without talking to the others.
+  The plan names the tile's core too (:func:`tessera.chunk_ownership.exclusive_rect`), the part
+  that needs no depth.
 - Sort-last (:mod:`tessera.data_partition`): a node draws the chunks of its share that the whole
   frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
   read-back); a share with nothing in view has no layer.
@@ -23,7 +25,7 @@ import numpy as np
 from node.culling.bvh import cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.gl.renderer import RenderedTile, TileRenderer
-from tessera.chunk_ownership import assign_chunks, readback_rect
+from tessera.chunk_ownership import assign_chunks, exclusive_rect, readback_rect
 from tessera.data_partition import covering_rect
 from tessera.depth_compositing import DepthLayer
 from tessera.geometry import Camera, Rect, view_projection
@@ -32,10 +34,13 @@ from tessera.projection import project_boxes
 
 @dataclass(frozen=True, eq=False)
 class LayerPlan:
-    """A depth layer to draw: its ``rect`` in the frame and ``chunk_ids`` (K,) int64 sorted."""
+    """A depth layer to draw: its ``rect`` in the frame, ``chunk_ids`` (K,) int64 sorted, and the
+    ``exclusive`` part of it no other layer reaches (a hybrid tile's core, sent as colour alone;
+    None: all of the layer carries depth)."""
 
     rect: Rect
     chunk_ids: np.ndarray
+    exclusive: Rect | None = None
 
 
 def visible_chunks(renderer: TileRenderer, camera: Camera, size: tuple[int, int], rect: Rect) -> np.ndarray:
@@ -55,11 +60,11 @@ def chunk_bounds(renderer: TileRenderer, chunk_ids: np.ndarray, camera: Camera, 
 def hybrid_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], tiles: Sequence[Rect], index: int,
                 strip_px: int) -> LayerPlan:
     """Tile ``index`` of ``tiles`` (an exact cover of the ``size`` frame) in the hybrid mode with a
-    ``strip_px`` border strip: its read-back rect and the chunks it draws."""
+    ``strip_px`` border strip: its read-back rect, the chunks it draws and its core."""
     rect = readback_rect(tiles[index], strip_px, size)
     candidates = visible_chunks(renderer, camera, size, rect)
     ownership = assign_chunks(chunk_bounds(renderer, candidates, camera, size), tiles, strip_px, size)
-    return LayerPlan(rect, candidates[ownership.draws[index]])
+    return LayerPlan(rect, candidates[ownership.draws[index]], exclusive_rect(tiles[index], strip_px, size))
 
 
 def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
