@@ -150,3 +150,19 @@ def test_render_once_names_a_bad_objects_file(tmp_path):
                                  "--objects", str(tmp_path / "state.json")], cwd=REPO, capture_output=True, text=True,
                                 timeout=seconds(120))
         assert result.returncode == 1 and message in result.stderr, result.stderr
+
+
+def test_traffic_tiles_equal_the_whole_frame_while_cars_move(ctx):
+    scene = load_scene("builtin:traffic")
+    renderer = TileRenderer(ctx, scene, culling=CullMode.CPU)
+    camera = default_camera(scene.bounds, aspect=SIZE[0] / SIZE[1])
+    frames = []
+    for time in (0.0, 2.3):
+        state = scene.state_at(time)
+        whole = renderer.render_frame(camera, SIZE, state).pixels
+        for number, rect in enumerate(RECTS[:4]):
+            tile = renderer.render_tile(camera, SIZE, rect, slot=number, state=state).pixels
+            assert np.array_equal(tile, whole[rect.y:rect.y1, rect.x:rect.x1]), f"t={time} tile {rect}"
+        frames.append(whole)
+    assert (frames[0] != frames[1]).any(axis=2).mean() > 0.02
+    renderer.release()

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from node.scene.builtin import TRAFFIC_HALF, TRAFFIC_LOOP_S
 from node.scene.loading import load_scene
 from node.scene.objects import geometry_owners, gltf_objects, read_gltf
 from tessera.scene_graph import ObjectGraph
@@ -70,3 +71,22 @@ def test_a_ply_file_is_one_object_and_a_builtin_batch_is_one() -> None:
     spheres = load_scene("builtin:spheres")
     assert spheres.objects.names == ("ground", "sphere0", "sphere1", "sphere2", "sphere3")
     assert [spheres.objects.names[b.owner] for b in spheres.batches] == list(spheres.objects.names)
+
+
+def test_traffic_moves_deterministically_and_loops() -> None:
+    scene = load_scene("builtin:traffic")
+    again = load_scene("builtin:traffic")
+    assert scene.objects.names[0] == "road" and "sign" in scene.objects.names and len(scene.objects) == 13
+    assert not scene.objects.moved(scene.state_at(0.0)).any()        # t = 0 is the base pose
+    for time in (0.0, 1.7, 33.3):
+        assert scene.state_at(time).same_as(again.state_at(time))
+    assert dict(scene.state_at(TRAFFIC_LOOP_S).objects) == dict(scene.state_at(0.0).objects)   # it loops
+    # Lane 0 drives +x at 16 units / 8 s; lane 1 −x at 16 / 16 s (no wrap in these 0.5 s).
+    first, later = scene.state_at(0.0).objects, scene.state_at(0.5).objects
+    assert later["car0_0"].translation[0] - first["car0_0"].translation[0] == pytest.approx(1.0)
+    assert later["car1_0"].translation[0] - first["car1_0"].translation[0] == pytest.approx(-0.5)
+    xs = [scene.state_at(t).objects["car3_1"].translation[0] for t in np.linspace(0.0, 40.0, 401)]
+    assert min(xs) >= -TRAFFIC_HALF and max(xs) <= TRAFFIC_HALF and max(xs) - min(xs) > 15.0
+    # The sign turns about y, 45° a second.
+    np.testing.assert_allclose(scene.state_at(1.0).objects["sign"].rotation,
+                               [0.0, np.sin(np.pi / 8), 0.0, np.cos(np.pi / 8)], atol=1e-12)

@@ -4,17 +4,29 @@
 of detailed objects (spheres, tori, capsules, ~250 k triangles) on one side of a wide, sparse
 ground — so that equal tiles are badly balanced and load balancing visibly matters (seed 000 §4).
 ``spheres`` is a small scene (~4 k triangles) for fast tests.
+
+``traffic`` is the dynamic one (issue 11): cars of uneven detail drive along four lanes across a
+road at different speeds, wrapping round at the lane ends, and a sign turns above the middle, so
+the screen load moves with them (~90 k triangles). The motion is a glTF-style animation
+(:mod:`tessera.animation`: LINEAR translation and rotation keyframes), so the scene at time t is
+deterministic and sampled like a file's; it loops seamlessly every :data:`TRAFFIC_LOOP_S` seconds
+(every lane's period divides it). A car's wrap is two keyframes at the same time, the lane's end
+and its start: the sampler jumps there instead of sliding the car back across the road.
 """
 
 from __future__ import annotations
 
 import colorsys
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
 
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch, SceneError
+from tessera.animation import Animation, Channel, Sampler
+from tessera.scene_graph import SceneObject
+from tessera.scene_state import ObjectState, matrix_quaternion
 
 #: ``(positions (N, 3), normals (N, 3), faces (F, 3))`` of an object in its local frame.
 Surface = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -24,6 +36,13 @@ CLUSTER_OBJECTS = 48
 #: Centre of the dense cluster on the ground plane (x, z) and the ground's half extent.
 CLUSTER_CENTER = (-2.6, -0.5)
 GROUND_HALF = 5.0
+#: Traffic: lane half length (x from −L to L), and (z, direction, period s, cars, detail, size) per lane.
+TRAFFIC_HALF = 8.0
+TRAFFIC_LANES = ((-3.0, 1, 8.0, 3, 48, 1.0), (-1.0, -1, 16.0, 3, 24, 0.9), (1.0, 1, 10.0, 3, 32, 1.0),
+                 (3.0, -1, 20.0, 2, 64, 1.6))
+#: The traffic animation's length: a multiple of every lane's period and of the sign's turn.
+TRAFFIC_LOOP_S = 80.0
+TRAFFIC_SIGN_TURN_S = 8.0
 
 
 def grid_faces(rows: int, cols: int) -> np.ndarray:
@@ -133,7 +152,73 @@ def spheres_scene() -> SceneData:
     return SceneData.from_batches("builtin:spheres", batches)
 
 
-_BUILDERS: dict[str, Callable[[], SceneData]] = {"cluster": cluster_scene, "spheres": spheres_scene}
+def traffic_scene() -> SceneData:
+    """Cars on four lanes and a turning sign, animated (see the module docstring)."""
+    length = 2.0 * TRAFFIC_HALF
+    batches = [place("road", ground(TRAFFIC_HALF, 8), np.array([1.0, 1.0, 0.55]), np.identity(3), np.zeros(3),
+                     (0.2, 0.2, 0.22))]
+    objects = [SceneObject("road")]
+    channels = []
+    for lane, (z, direction, period, cars, detail, size) in enumerate(TRAFFIC_LANES):
+        turn = rotation(np.array([0.0, 0.0, 1.0]), np.pi / 2)            # the capsule's long axis along x
+        if direction < 0:
+            turn = rotation(np.array([0.0, 1.0, 0.0]), np.pi) @ turn
+        color = colorsys.hsv_to_rgb(0.08 + 0.22 * lane, 0.7, 0.8)
+        for number in range(cars):
+            name = f"car{lane}_{number}"
+            start = _wrap((number + 0.5 + 0.3 * lane) * length / cars - TRAFFIC_HALF)
+            offset = np.array([start, 0.35 * size, z])
+            batches.append(dataclasses.replace(
+                place(name, sphere(detail, 2 * detail, stretch=2.0), np.full(3, 0.3 * size), turn, offset, color),
+                owner=len(objects)))
+            objects.append(SceneObject(name, base=ObjectState(tuple(offset.tolist()), matrix_quaternion(turn))))
+            channels.append(Channel(name, "translation", _lane_sampler(offset, direction * length / period)))
+    sign_height = 2.4
+    batches.append(dataclasses.replace(
+        place("sign", torus(48, 96), np.full(3, 0.6), rotation(np.array([1.0, 0.0, 0.0]), np.pi / 2),
+              np.array([0.0, sign_height, 0.0]), (0.85, 0.75, 0.2)), owner=len(objects)))
+    objects.append(SceneObject("sign", base=ObjectState((0.0, sign_height, 0.0))))
+    channels.append(Channel("sign", "rotation", _turn_sampler()))
+    return SceneData.from_batches("builtin:traffic", batches, objects=objects,
+                                  animations=[Animation("traffic", tuple(channels))])
+
+
+def _wrap(x: float) -> float:
+    """``x`` wrapped into the lane, [−L, L)."""
+    return (x + TRAFFIC_HALF) % (2.0 * TRAFFIC_HALF) - TRAFFIC_HALF
+
+
+def _lane_sampler(start: np.ndarray, speed: float) -> Sampler:
+    """LINEAR translation keyframes (K, 3) over [0, TRAFFIC_LOOP_S] of a car leaving ``start`` at
+    ``speed`` (units/s along x, signed), a pair of keyframes at each wrap (the lane's end, then its
+    other end)."""
+    end, begin = (TRAFFIC_HALF, -TRAFFIC_HALF) if speed > 0 else (-TRAFFIC_HALF, TRAFFIC_HALF)
+    period = 2.0 * TRAFFIC_HALF / abs(speed)
+    times, xs = [0.0], [float(start[0])]
+    wrap = (end - start[0]) / speed
+    while wrap < TRAFFIC_LOOP_S:
+        times += [wrap, wrap]
+        xs += [end, begin]
+        wrap += period
+    times.append(TRAFFIC_LOOP_S)
+    xs.append(float(start[0]))          # the loop is a whole number of periods: back at the start
+    values = np.tile(start, (len(xs), 1))
+    values[:, 0] = xs
+    return Sampler(np.array(times), values, "LINEAR")
+
+
+def _turn_sampler() -> Sampler:
+    """LINEAR rotation keyframes about y, an eighth of a turn apart (slerp turns at a steady rate),
+    a full turn every TRAFFIC_SIGN_TURN_S seconds."""
+    steps = round(8 * TRAFFIC_LOOP_S / TRAFFIC_SIGN_TURN_S)
+    times = np.linspace(0.0, TRAFFIC_LOOP_S, steps + 1)
+    half_angles = (np.arange(steps + 1) % 16) * (np.pi / 8)     # a quaternion repeats every two turns
+    values = np.stack([np.zeros_like(times), np.sin(half_angles), np.zeros_like(times), np.cos(half_angles)], axis=1)
+    return Sampler(times, values, "LINEAR", rotation=True)
+
+
+_BUILDERS: dict[str, Callable[[], SceneData]] = {"cluster": cluster_scene, "spheres": spheres_scene,
+                                                 "traffic": traffic_scene}
 BUILTIN_SCENES: tuple[str, ...] = tuple(_BUILDERS)
 
 
