@@ -13,6 +13,7 @@ from server.errors import validation_error
 from server.metrics import CoordinatorMetrics
 from server.origins import OriginPolicy
 from server.routes import balancer, camera, frames, health, node_ws, nodes, stats, viewer_ws, web
+from server.routes.guards import refuse_cross_site_writes
 from server.routes.web import WEB_DIR
 from server.service import RenderService
 from server.settings import Settings
@@ -36,6 +37,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.metrics = metrics
     app.state.settings = settings
     app.state.origins = OriginPolicy(settings.allowed_origins)
+    app.middleware("http")(refuse_cross_site_writes)
     for module in (health, stats, camera, frames, balancer, nodes, node_ws, viewer_ws, web):
         app.include_router(module.router)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")

@@ -66,6 +66,26 @@ def test_no_origin_is_accepted_for_nodes_and_tools(client):
         assert ws.receive_json()["type"] == "hello"
 
 
+@pytest.mark.parametrize(("method", "path", "body"), [
+    ("PUT", "/api/camera", {"eye": [3.0, 1.0, 3.0], "target": [0, 0, 0], "up": [0, 1, 0]}),
+    ("PUT", "/api/balancer", {"name": "static"}),
+    ("POST", "/api/nodes/calibrate", None),
+])
+def test_writes_from_pages_elsewhere_are_refused_and_change_nothing(client, method, path, body, caplog):
+    def state(headers: dict[str, str]) -> tuple:
+        camera = client.get("/api/camera", headers=headers).json()
+        return camera, client.get("/api/stats", headers=headers).json()["balancer"]
+
+    before = state({})
+    refused = client.request(method, path, json=body, headers=EVIL)
+    assert refused.status_code == 403, refused.text
+    assert "--allowed-origins" in refused.json()["detail"]
+    assert any(path in r.getMessage() and "refused" in r.getMessage() for r in caplog.records), "one log line"
+    assert state(EVIL) == before, "nothing changed (and reading is not refused: CORS decides what a page reads)"
+    for headers in (SAME, {}):
+        assert client.request(method, path, json=body, headers=headers).status_code < 400, (method, path, headers)
+
+
 def test_allow_listed_origins_are_accepted_and_others_not():
     with make_client(allowed_origins=("http://localhost:5173",)) as client:
         with client.websocket_connect("/ws/view", headers={"origin": "http://localhost:5173"}) as ws:

@@ -1,7 +1,10 @@
-"""What every coordinator WebSocket passes (``/ws/view``, ``/ws/node``).
+"""What every coordinator WebSocket passes (``/ws/view``, ``/ws/node``), and every request that
+changes something (``POST``/``PUT``/``DELETE``…).
 
 * **Origin**, before the handshake: a browser page of another origin gets HTTP 403 with the reason
   (``server/origins.py``: same origin, ``--allowed-origins``, no ``Origin`` header for non-browsers).
+  Requests other than GET, HEAD and OPTIONS get the same check (cross-site request forgery: a page
+  elsewhere may send a form-like ``POST`` without a preflight), answered by a JSON 403.
 * **Message size and rate**, on every message received: over ``--max-*-message-bytes`` closes with
   1009, over ``--max-*-messages-per-s`` (a token bucket holding a second's worth) with 1008; the
   reason names the limit and its flag.
@@ -16,8 +19,9 @@ import logging
 import time
 from typing import Any
 
-from fastapi import WebSocket
-from fastapi.responses import PlainTextResponse
+from fastapi import Request, WebSocket
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
+from starlette.middleware.base import RequestResponseEndpoint
 
 from server.origins import own_origin
 from tessera.limits import TokenBucket
@@ -38,13 +42,33 @@ async def close(ws: WebSocket, code: int, reason: str) -> None:
         await ws.close(code, reason.encode()[:MAX_CLOSE_REASON].decode(errors="ignore"))
 
 
+def origin_refusal(connection: Request | WebSocket) -> str | None:
+    """Why the page behind this request or handshake (if a page) may not use it, or None."""
+    headers = connection.headers
+    own = own_origin(connection.url.scheme, headers.get("host"), headers.get("x-forwarded-proto"),
+                     headers.get("x-forwarded-host"))
+    return connection.app.state.origins.refusal(headers.get("origin"), own)
+
+
+#: Methods that change nothing: a page elsewhere may read what CORS lets it, never write.
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+
+async def refuse_cross_site_writes(request: Request, call_next: RequestResponseEndpoint) -> Response:
+    """HTTP middleware: a request that may change something, sent by a page of another origin, gets
+    403 with the reason (logged) instead of reaching its route."""
+    reason = None if request.method in SAFE_METHODS else origin_refusal(request)
+    if reason is None:
+        return await call_next(request)
+    log.warning("%s %s from %s refused: %s", request.method, request.url.path,
+                f"{request.client.host}:{request.client.port}" if request.client else "unknown peer", reason)
+    return JSONResponse({"detail": reason}, status_code=403)
+
+
 async def admit_origin(ws: WebSocket, what: str) -> bool:
     """True when the page that opens ``ws`` (if a page does) may; else answers 403 with the reason
     before the handshake and logs it."""
-    headers = ws.headers
-    own = own_origin(ws.url.scheme, headers.get("host"), headers.get("x-forwarded-proto"),
-                     headers.get("x-forwarded-host"))
-    reason = ws.app.state.origins.refusal(headers.get("origin"), own)
+    reason = origin_refusal(ws)
     if reason is None:
         return True
     log.warning("%s socket from %s refused: %s", what, peer(ws), reason)
