@@ -57,10 +57,10 @@ from tessera.data_partition import split_chunks
 from tessera.depth_compositing import (
     DepthLayer,
     background_pixel,
-    clear_region,
     composite,
     decode_active,
     encode_active,
+    split_layer,
 )
 from tessera.geometry import Camera, Rect
 from tessera.partition import equal_strip_partition
@@ -91,35 +91,46 @@ def active_pixels(data: bytes) -> int:
 
 @dataclass(frozen=True, eq=False)
 class Payload:
-    """What one layer sends: the active-pixel encoding of its ``rect`` (``data``) and, for a hybrid
-    tile, its ``core`` rect's colour (``core_pixels``, raw RGB), which needs no depth."""
+    """What one layer sends: the active-pixel encoding of each piece that carries depth (``pieces``:
+    (rect, bytes)), and for a hybrid tile its ``core`` rect's colour (``core_pixels``, raw RGB)."""
 
-    rect: Rect
-    data: bytes
+    slot: int
+    pieces: list[tuple[Rect, bytes]]
     core: Rect | None = None
     core_pixels: np.ndarray | None = None
 
     @property
-    def color_bytes(self) -> int:
-        core = 0 if self.core_pixels is None else self.core_pixels.nbytes
-        return 3 * active_pixels(self.data) + core
+    def core_bytes(self) -> int:
+        return 0 if self.core_pixels is None else self.core_pixels.nbytes
 
     @property
     def sent(self) -> int:
-        return len(self.data) + (0 if self.core_pixels is None else self.core_pixels.nbytes)
+        return sum(len(data) for _, data in self.pieces) + self.core_bytes
+
+    @property
+    def color_bytes(self) -> int:
+        return 3 * sum(active_pixels(data) for _, data in self.pieces) + self.core_bytes
 
     def deflated(self) -> int:
         core = 0 if self.core_pixels is None else len(zlib.compress(self.core_pixels.tobytes(), 1))
-        return len(zlib.compress(self.data, 1)) + core
+        return sum(len(zlib.compress(data, 1)) for _, data in self.pieces) + core
+
+
+def encode_layer(layer: Any, slot: int, core: Rect | None) -> Payload:
+    """A rendered layer as it travels: its ``core`` (None: none) as raw colour, the pieces around it
+    active-pixel encoded with depth (:func:`tessera.depth_compositing.split_layer`)."""
+    pieces, core_pixels = split_layer(DepthLayer(layer.rect, layer.pixels, layer.depth, slot), core)
+    return Payload(slot, [(piece.rect, encode_active(piece.depth, piece.color)) for piece in pieces], core,
+                   core_pixels)
 
 
 def merge_payloads(payloads: Sequence[Payload], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
-    """The compositor's work on a frame's layers: decode each, merge by depth (slot = order), paste
-    the cores."""
+    """The compositor's work on a frame's layers: decode each piece, merge by depth, paste the cores."""
     layers, cores = [], []
-    for slot, payload in enumerate(payloads):
-        depth, color = decode_active(payload.data)
-        layers.append(DepthLayer(payload.rect, color, depth, slot))
+    for payload in payloads:
+        for rect, data in payload.pieces:
+            depth, color = decode_active(data)
+            layers.append(DepthLayer(rect, color, depth, payload.slot))
         if payload.core is not None and payload.core_pixels is not None:
             cores.append((payload.core, payload.core_pixels))
     return composite(layers, size, background, cores)
@@ -167,17 +178,6 @@ def sort_first_frame(renderer: Any, camera: Camera, size: tuple[int, int], rects
                    "node_ms_max": max(times), "readback_px": width * height}
 
 
-def encode_layer(layer: Any, core: Rect | None) -> Payload:
-    """A rendered layer as it travels: its ``core`` (None: none) as raw colour, the rest active-pixel
-    encoded with depth."""
-    rect = layer.rect
-    data = encode_active(clear_region(layer.depth, rect, core), layer.pixels)
-    if core is None:
-        return Payload(rect, data)
-    pixels = np.ascontiguousarray(layer.pixels[core.y - rect.y:core.y1 - rect.y, core.x - rect.x:core.x1 - rect.x])
-    return Payload(rect, data, core, pixels)
-
-
 def depth_frame(renderer: Any, camera: Camera, size: tuple[int, int], planners: Sequence[Callable[[], Any]],
                 slowdowns: Sequence[float]) -> tuple[np.ndarray, dict[str, float]]:
     """One frame of a depth mode: each of ``planners`` makes a layer's plan (None: no layer), which is
@@ -191,7 +191,8 @@ def depth_frame(renderer: Any, camera: Camera, size: tuple[int, int], planners: 
         if plan is None:
             continue
         layer, draw_ms = cpu_ms(lambda plan=plan: renderer.render_layer(camera, size, plan.rect, plan.chunk_ids))
-        payload, encode_ms = cpu_ms(lambda layer=layer, plan=plan: encode_layer(layer, plan.exclusive))
+        payload, encode_ms = cpu_ms(lambda layer=layer, plan=plan: encode_layer(layer, len(payloads),
+                                                                                plan.exclusive))
         payloads.append(payload)
         figures["triangles"] += layer.triangles
         figures["render_ms"] += plan_ms + draw_ms

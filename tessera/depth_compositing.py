@@ -12,6 +12,9 @@ Conventions every node and the compositor share (IceT's, seed 000 leaves them op
   go to the lower ``slot``, whatever order the layers arrive in.
 - The background is applied once, at the end, where no layer drew: a layer's colour where its
   depth is far is never looked at (and the codec does not carry it).
+- A hybrid tile's core, which no other tile reaches, travels as colour alone (as drawn, like a
+  sort-first tile) and is pasted after the merge (:func:`split_layer`); only its strips carry
+  depth, as in the seed's Fig. 4.6.
 - Integer depth (a 24-bit depth buffer read as integers) is refused by :class:`DepthLayer`;
   :func:`depth_from_integer` converts it explicitly.
 
@@ -106,16 +109,20 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
     pasted as they are: regions only one node drew (the hybrid's tile cores,
     :func:`tessera.chunk_ownership.exclusive_rect`), which travel without depth and which the
     layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
-    to the lower slot whatever order they came in; raises ValueError for a layer or region outside
-    the frame or two layers with one slot. O(summed layer pixels): depth by ``minimum``, colour by
-    one masked copy of whole pixels (:func:`_pixels`)."""
+    to the lower slot whatever order they came in; layers that share a slot (the pieces of one
+    node's layer, :func:`split_layer`) must not overlap. Raises ValueError for a layer or region
+    outside the frame or overlapping layers of one slot. O(summed layer pixels): depth by
+    ``minimum``, colour by one masked copy of whole pixels (:func:`_pixels`)."""
     width, height = size
     if width <= 0 or height <= 0:
         raise ValueError(f"frame size must be positive, got {width}x{height}")
     ordered = sorted(layers, key=lambda item: item.slot)
-    slots = [item.slot for item in ordered]
-    if len(set(slots)) != len(slots):
-        raise ValueError(f"each layer needs its own slot, got {slots}")
+    by_slot: dict[int, list[Rect]] = {}
+    for layer in ordered:
+        same = by_slot.setdefault(layer.slot, [])
+        if any(layer.rect.intersection_area(other) for other in same):
+            raise ValueError(f"layers of slot {layer.slot} overlap: each node's layer needs its own slot")
+        same.append(layer.rect)
     depth = np.full((height, width), FAR, np.float32)
     color = np.zeros((height, width, 3), np.uint8)
     pixels = _pixels(color)
@@ -136,17 +143,27 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
     return color
 
 
-def clear_region(depth: np.ndarray, rect: Rect, region: Rect | None) -> np.ndarray:
-    """A copy of a layer's ``depth`` (rect.h, rect.w) over ``rect`` with ``region`` (frame
-    coordinates, inside ``rect``; None: nothing) set to :data:`FAR`: those pixels then travel
-    without depth (an exclusive region of :func:`composite`), and not at all in the active-pixel
-    encoding."""
-    cleared = depth.copy()
-    if region is not None:
-        if region.x < rect.x or region.y < rect.y or region.x1 > rect.x1 or region.y1 > rect.y1:
-            raise ValueError(f"region {region.as_list()} is not inside the layer {rect.as_list()}")
-        cleared[region.y - rect.y:region.y1 - rect.y, region.x - rect.x:region.x1 - rect.x] = FAR
-    return cleared
+def split_layer(layer: DepthLayer, core: Rect | None) -> tuple[list[DepthLayer], np.ndarray | None]:
+    """``layer`` as a hybrid tile sends it: the pieces that carry depth — its rect minus ``core``
+    (frame coordinates, inside the rect; None: no core), at most four rects (top and bottom bands
+    full width, left and right ones between), each with the layer's slot — and the core's colour
+    (core.h, core.w, 3) uint8 (None without a core), an exclusive region of :func:`composite`. The
+    core goes as drawn, as a sort-first tile does: where nothing was drawn it holds the node's clear
+    colour, which is the frame's background on every node."""
+    rect = layer.rect
+    if core is None:
+        return [layer], None
+    if core.x < rect.x or core.y < rect.y or core.x1 > rect.x1 or core.y1 > rect.y1:
+        raise ValueError(f"core {core.as_list()} is not inside the layer {rect.as_list()}")
+    pieces = [Rect(rect.x, rect.y, rect.w, core.y - rect.y), Rect(rect.x, core.y1, rect.w, rect.y1 - core.y1),
+              Rect(rect.x, core.y, core.x - rect.x, core.h), Rect(core.x1, core.y, rect.x1 - core.x1, core.h)]
+
+    def window(piece: Rect) -> tuple[slice, slice]:
+        return slice(piece.y - rect.y, piece.y1 - rect.y), slice(piece.x - rect.x, piece.x1 - rect.x)
+
+    strips = [DepthLayer(piece, layer.color[window(piece)], layer.depth[window(piece)], layer.slot)
+              for piece in pieces if piece.w > 0 and piece.h > 0]
+    return strips, np.ascontiguousarray(layer.color[window(core)])
 
 
 def _pixels(color: np.ndarray) -> np.ndarray:

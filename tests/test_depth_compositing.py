@@ -16,11 +16,11 @@ from tessera.depth_compositing import (
     DepthCodecError,
     DepthLayer,
     background_pixel,
-    clear_region,
     composite,
     decode_active,
     depth_from_integer,
     encode_active,
+    split_layer,
 )
 from tessera.geometry import Rect
 
@@ -117,7 +117,7 @@ def test_merge_matches_a_per_pixel_reference(seed, count):
 def test_layer_outside_the_frame_or_slot_reused_is_refused():
     with pytest.raises(ValueError, match="outside"):
         composite([layer(Rect(2, 2, 3, 1), 0.5, (0, 0, 0), slot=0)], (4, 4), BACKGROUND)
-    twins = [layer(Rect(0, 0, 1, 1), 0.5, (0, 0, 0), slot=0), layer(Rect(1, 1, 1, 1), 0.5, (0, 0, 0), slot=0)]
+    twins = [layer(Rect(0, 0, 2, 2), 0.5, (0, 0, 0), slot=0), layer(Rect(1, 1, 1, 1), 0.5, (0, 0, 0), slot=0)]
     with pytest.raises(ValueError, match="own slot"):
         composite(twins, (4, 4), BACKGROUND)
     with pytest.raises(ValueError, match="slot"):
@@ -236,19 +236,29 @@ def test_layers_and_codec_take_arrays_that_are_not_contiguous():
     np.testing.assert_array_equal(color[live], flipped.color[live])
 
 
-def test_exclusive_regions_are_pasted_over_the_merge_and_travel_without_depth():
+def test_a_split_layer_composes_as_the_whole_and_only_its_strips_carry_depth():
     rng = np.random.default_rng(11)
-    band = random_layer(rng, Rect(0, 0, 8, 6), 0, empty_share=0.0)
-    core = Rect(2, 1, 4, 3)
-    cleared = clear_region(band.depth, band.rect, core)
-    assert (cleared[1:4, 2:6] == FAR).all() and (band.depth[1:4, 2:6] < FAR).all()
-    np.testing.assert_array_equal(np.delete(cleared, np.s_[2:6], axis=1), np.delete(band.depth, np.s_[2:6], axis=1))
-    depth, color = decode_active(encode_active(cleared, band.color))
-    carried = DepthLayer(band.rect, color, depth, 0)
-    frame = composite([carried], (8, 6), BACKGROUND, [(core, band.color[1:4, 2:6])])
-    np.testing.assert_array_equal(frame, band.color)
-    with pytest.raises(ValueError, match="exclusive"):
-        composite([], (8, 6), BACKGROUND, [(Rect(6, 0, 4, 1), np.zeros((1, 4, 3), np.uint8))])
+    whole = random_layer(rng, Rect(3, 2, 8, 6), 4, empty_share=0.2)
+    whole.color[whole.depth >= FAR] = BACKGROUND     # as GL clears it: the core goes as drawn
+    other = random_layer(rng, Rect(0, 0, 6, 5), 1)
+    core = Rect(5, 3, 4, 3)
+    strips, core_color = split_layer(whole, core)
+    assert [piece.rect for piece in strips] == [Rect(3, 2, 8, 1), Rect(3, 6, 8, 2), Rect(3, 3, 2, 3),
+                                                 Rect(9, 3, 2, 3)]
+    assert all(piece.slot == 4 for piece in strips) and sum(p.rect.area for p in strips) + core.area == 48
+    assert core_color is not None
+    np.testing.assert_array_equal(core_color, whole.color[1:4, 2:6])
+    # the core is exclusive: nothing else reaches it here, so merging the pieces and pasting it is exact
+    reference = reference_composite([whole], (12, 9), BACKGROUND)
+    np.testing.assert_array_equal(composite(strips, (12, 9), BACKGROUND, [(core, core_color)]), reference)
+    assert split_layer(whole, None) == ([whole], None)
     with pytest.raises(ValueError, match="inside"):
-        clear_region(band.depth, band.rect, Rect(6, 0, 4, 1))
-    np.testing.assert_array_equal(clear_region(band.depth, band.rect, None), band.depth)
+        split_layer(whole, Rect(9, 3, 4, 1))
+    # pieces of one slot may not overlap; other slots may
+    np.testing.assert_array_equal(composite([*strips, other], (12, 9), BACKGROUND),
+                                  composite([*strips, other][::-1], (12, 9), BACKGROUND))
+    with pytest.raises(ValueError, match="overlap"):
+        composite([*strips, DepthLayer(Rect(0, 0, 4, 3), other.color[:3, :4], other.depth[:3, :4], 4)], (12, 9),
+                  BACKGROUND)
+    with pytest.raises(ValueError, match="exclusive"):
+        composite([], (12, 9), BACKGROUND, [(Rect(10, 0, 4, 1), np.zeros((1, 4, 3), np.uint8))])

@@ -16,7 +16,7 @@ from node.scene.loading import load_scene
 from node.scene.mesh import MeshBatch
 from tessera.chunk_ownership import SHARED, assign_chunks
 from tessera.data_partition import split_chunks
-from tessera.depth_compositing import FAR, DepthLayer, background_pixel, clear_region, composite
+from tessera.depth_compositing import FAR, background_pixel, composite, split_layer
 from tessera.geometry import Camera, Rect, default_camera
 from tessera.partition import equal_strip_partition
 from tests.conftest import scene_path
@@ -118,13 +118,11 @@ def test_hybrid_tiles_compose_the_whole_render(bunny, tiles, strip):
         np.testing.assert_array_equal(composite(layers, SIZE, background), whole)
         # the seed's way: depth only in the strips, each tile's core as colour alone
         strips, cores = [], []
-        for slot, (plan, layer) in enumerate(zip(plans, rendered, strict=True)):
-            strips.append(DepthLayer(plan.rect, layer.pixels, clear_region(layer.depth, plan.rect, plan.exclusive),
-                                     slot))
-            if plan.exclusive is not None:
-                core = plan.exclusive
-                cores.append((core, layer.pixels[core.y - plan.rect.y:core.y1 - plan.rect.y,
-                                                 core.x - plan.rect.x:core.x1 - plan.rect.x]))
+        for layer, plan in zip(layers, plans, strict=True):
+            pieces, core_color = split_layer(layer, plan.exclusive)
+            strips += pieces
+            if plan.exclusive is not None and core_color is not None:
+                cores.append((plan.exclusive, core_color))
         np.testing.assert_array_equal(composite(strips, SIZE, background, cores), whole)
 
 
