@@ -32,6 +32,8 @@ class NodeLink:
     can_calibrate: bool = False
     calibration_ms: float | None = None
     tiles_dropped: int = 0
+    #: (frame id, tile id) of the binary tile just received, until its ``tile_sent``.
+    last_tile: tuple[int, int] | None = None
     outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
 
     @property

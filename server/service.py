@@ -188,9 +188,14 @@ class RenderService:
                 link.state, link.scene_message = "error", message.message[:500]
                 log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
             case TileSent():
+                if link.last_tile != (message.frame, message.tile):
+                    raise ProtocolError(f"tile_sent for tile {message.tile} of frame {message.frame}, which is not "
+                                        "the tile this node just sent")
+                link.last_tile = None
                 self.scheduler.tile_sent(link.node_id, message.frame, message.tile, message.send_ms, message.stats)
                 self.metrics.tile_sent(message.send_ms)
             case TilesDropped():
+                self.scheduler.tiles_skipped(link.node_id, message.frame, message.tiles)
                 link.tiles_dropped += len(message.tiles)
             case Calibration():
                 self._on_calibration(link, message.ms)
@@ -203,7 +208,8 @@ class RenderService:
         log.warning("node %d (%s) could not render tile %d of frame %d: %s", link.node_id, link.name, tile_id,
                     frame_id, reason)
         if frame_id == 0:
-            self.calibration.finished(link.node_id)
+            if not self.calibration.finished(link.node_id):
+                raise ProtocolError("calibration failure without a calibrate request")
             self._start_calibration()
             return
         self.scheduler.tile_failed(link.node_id, frame_id, tile_id, time.monotonic())
@@ -289,8 +295,12 @@ class RenderService:
         published_before = self.cpu_ms["publish"]
         try:
             header, payload = unpack_tile(message)
+            if not (header.rect.x1 <= self.size[0] and header.rect.y1 <= self.size[1]):
+                raise ProtocolError(f"tile rect {header.rect.as_list()} lies outside the {self.size[0]}x{self.size[1]} "
+                                    "frame")  # before its payload is decoded: no decompression bombs
             check_payload_size(payload, header.codec, header.rect)
             self.scheduler.tile_arrived(link.node_id, header, bytes(payload), time.monotonic())
+            link.last_tile = (header.frame_id, header.tile_id)
             self.metrics.tile_arrived(header)
             self._apply()
         finally:

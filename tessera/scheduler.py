@@ -39,7 +39,7 @@ What it decides:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +62,9 @@ AWAITING_SEND_FRAMES = 8
 MAX_NODE_SLOTS = 1 << 16
 #: How often frames in flight are looked at for stragglers (s).
 STRAGGLER_CHECK_S = 0.1
+#: Tiles of dropped frames a node is remembered to have owed (it may still send the one it was
+#: on, or report the others skipped); the oldest are forgotten first.
+DROPPED_MEMORY = 4096
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,7 +138,9 @@ class NodeSchedule:
     the order the node works through them (its head is the tile it is on, since ``head_since``);
     ``slot``: the small index viewers see the node by; ``suspect``: overdue, given no work until it
     answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
-    failed in a row; the rest is the last complete frame's roll-up."""
+    failed in a row; ``dropped``: (frame id, tile id) it owed when their frame was dropped (the
+    newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
+    owed; the rest is the last complete frame's roll-up."""
 
     node_id: int
     slot: int
@@ -147,6 +152,7 @@ class NodeSchedule:
     ms_per_px: float | None = None
     failures: int = 0
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
+    dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)
     last_phases: dict[str, float] = field(default_factory=dict)
     counters: dict[str, Any] = field(default_factory=dict)
@@ -332,13 +338,15 @@ class FrameScheduler:
     # ----------------------------------------------------------------- tile events
     def tile_arrived(self, node_id: int, header: TileHeader, payload: bytes, now: float) -> FrameJob | None:
         """A node's tile; returns its frame, or None for a tile of a dropped frame (ignored).
-        Raises ProtocolError when the node was not owed it (wrong tile, rect or codec)."""
+        Raises ProtocolError when the node was not owed it (wrong frame, tile, rect or codec, or a
+        second copy)."""
         node = self.nodes[node_id]
         key = (header.frame_id, header.tile_id)
         job = self.in_flight.get(header.frame_id)
         if job is None:
             if header.frame_id >= self.next_frame_id or header.frame_id < 1:
                 raise ProtocolError(f"tile of frame {header.frame_id}, which was never dispatched")
+            self._check_owed(node, key, "tile")
             self._answered(node, key, now)
             self._advance(now)
             return None
@@ -364,10 +372,14 @@ class FrameScheduler:
 
     def tile_failed(self, node_id: int, frame_id: int, tile_id: int, now: float) -> None:
         """The node could not render a tile it owes: it goes to another node (to this one again
-        when it is alone); ``max_tile_failures`` in a row close the node. Tiles not owed are ignored."""
+        when it is alone); ``max_tile_failures`` in a row close the node. A tile of a frame dropped
+        since is ignored; ProtocolError for one the node never owed (or already answered)."""
         node = self.nodes.get(node_id)
         key = (frame_id, tile_id)
-        if node is None or key not in node.outstanding:
+        if node is None:
+            return
+        self._check_owed(node, key, "render_error for tile")
+        if key not in node.outstanding:
             return
         self._answered(node, key, now)
         node.failures += 1
@@ -384,6 +396,18 @@ class FrameScheduler:
                 others = [n for n in self._ready() if n is not node] or [node]
                 self._push(job, min(others, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
         self._advance(now)
+
+    def tiles_skipped(self, node_id: int, frame_id: int, tile_ids: Iterable[int]) -> None:
+        """The node skipped these queued tiles of a frame it was told was dropped (its
+        ``tiles_dropped``); ProtocolError for a tile that was not dropped while it owed it."""
+        node = self.nodes.get(node_id)
+        if node is None:
+            return
+        for tile_id in tile_ids:
+            key = (frame_id, tile_id)
+            if node.dropped.pop(key, ...) is not None:
+                raise ProtocolError(f"tiles_dropped names tile {tile_id} of frame {frame_id}, "
+                                    "which was not dropped from this node")
 
     def tick(self, now: float) -> None:
         """Time passed: back up stragglers' tiles, drop nodes that owe a tile for over
@@ -405,6 +429,14 @@ class FrameScheduler:
         if self._ready_nodes is None:
             self._ready_nodes = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.schedulable]
         return self._ready_nodes
+
+    @staticmethod
+    def _check_owed(node: NodeSchedule, key: tuple[int, int], what: str) -> None:
+        """About ``key``, whose frame may be gone: the node must owe it, or have owed it when its
+        frame was dropped (that memory is used up); ProtocolError otherwise."""
+        if key not in node.outstanding and node.dropped.pop(key, ...) is not None:
+            raise ProtocolError(f"{what} {key[1]} of frame {key[0]}, which this node does not owe "
+                                "(never asked of it, or already answered)")
 
     def _answered(self, node: NodeSchedule, key: tuple[int, int], now: float) -> None:
         """``node`` sent back (or gave up) tile ``key``: it is no longer owed, and a suspect node that
@@ -479,6 +511,9 @@ class FrameScheduler:
             if keys:
                 for key in keys:
                     del node.outstanding[key]
+                    node.dropped[key] = None
+                while len(node.dropped) > DROPPED_MEMORY:
+                    del node.dropped[next(iter(node.dropped))]
                 node.head_since = now
                 self._touch(node)
                 self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))

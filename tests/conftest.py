@@ -62,10 +62,14 @@ def ctx(gl_context: moderngl.Context) -> Iterator[moderngl.Context]:
 
 @dataclass
 class RunningProcess:
-    """A child process whose combined output is collected line by line in the background."""
+    """A child process whose combined output is collected line by line in the background (the last
+    2000 lines); ``tracebacks`` counts the lines with "Traceback" in all of it, and the first
+    traceback is kept in ``first_traceback``."""
 
     process: subprocess.Popen
     lines: deque = field(default_factory=lambda: deque(maxlen=2000))
+    tracebacks: int = 0
+    first_traceback: list[str] = field(default_factory=list)
     _ended: bool = False
 
     def __post_init__(self) -> None:
@@ -79,6 +83,9 @@ class RunningProcess:
         for line in self.process.stdout:
             with self._changed:
                 self.lines.append(line.rstrip("\n"))
+                self.tracebacks += "Traceback" in line
+                if self.tracebacks == 1 and len(self.first_traceback) < 60:
+                    self.first_traceback.append(line.rstrip("\n"))
                 self._changed.notify_all()
         with self._changed:
             self._ended = True

@@ -88,18 +88,22 @@ class FakeNode:
         """Answer every render message until one for ``frame`` or later was answered."""
         while True:
             render = next_json(self.ws, "render")
-            codec = Codec.parse(render["codec"])
-            for tile in render["tiles"]:
-                rect = Rect(*tile["rect"])
-                pixels = np.full((rect.h, rect.w, 3), 40 * (tile["tile"] % 5), dtype=np.uint8)
-                header = TileHeader(render["frame"], tile["tile"], rect, codec, TILE_MS["render"],
-                                    TILE_MS["readback"], TILE_MS["encode"])
-                self.ws.send_bytes(pack_tile(header, encode(pixels, codec)))
-                self.ws.send_json({"type": "tile_sent", "frame": render["frame"], "tile": tile["tile"],
-                                   "send_ms": TILE_MS["send"], "stats": {}})
-                self.tiles_sent += 1
+            self.answer(render)
             if render["frame"] >= frame:
                 return
+
+    def answer(self, render: dict[str, Any]) -> None:
+        """Send every tile of ``render``, each followed by its ``tile_sent``."""
+        codec = Codec.parse(render["codec"])
+        for tile in render["tiles"]:
+            rect = Rect(*tile["rect"])
+            pixels = np.full((rect.h, rect.w, 3), 40 * (tile["tile"] % 5), dtype=np.uint8)
+            header = TileHeader(render["frame"], tile["tile"], rect, codec, TILE_MS["render"],
+                                TILE_MS["readback"], TILE_MS["encode"])
+            self.ws.send_bytes(pack_tile(header, encode(pixels, codec)))
+            self.ws.send_json({"type": "tile_sent", "frame": render["frame"], "tile": tile["tile"],
+                               "send_ms": TILE_MS["send"], "stats": {}})
+            self.tiles_sent += 1
 
 
 def published(client: TestClient, frame: int) -> bool:
@@ -175,6 +179,35 @@ def test_a_node_sending_a_broken_tile_is_closed_with_the_reason(client):
         assert code == 1008 and "shorter than its header" in text
 
 
+def test_a_tile_outside_the_frame_is_refused_before_its_payload_is_decoded(client):
+    """Fuzz finding: a 240 KB PNG of 9000 x 9000 black pixels, sent as a tile of that size by any node
+    past its hello, was decoded whole (about 300 MB and 0.7 s of the event loop) before the tile
+    was found not to be owed. Its rect is checked against the frame first now."""
+    with client.websocket_connect("/ws/node") as ws:
+        ws.send_json(HELLO)
+        next_json(ws, "welcome")
+        ws.send_bytes(pack_tile(TileHeader(1, 0, Rect(0, 0, 9000, 9000), Codec.PNG, 1.0, 1.0, 1.0), b"\x89PNG"))
+        code, text = closed_with(ws)
+        assert code == 1008 and "outside the 64x48 frame" in text, text
+
+
+@pytest.mark.parametrize(("message", "reason"), [
+    ({"type": "tile_sent", "frame": 1, "tile": 0, "send_ms": 1.0}, "not the tile this node just sent"),
+    ({"type": "render_error", "frame": 0, "tile": 0, "message": "x"}, "without a calibrate request"),
+    ({"type": "render_error", "frame": 1, "tile": 0, "message": "x"}, "does not owe"),
+    ({"type": "tiles_dropped", "frame": 1, "tiles": [0]}, "was not dropped"),
+], ids=["tile-sent-without-tile", "calibration-error-unasked", "render-error-not-owed", "tiles-dropped-not-dropped"])
+def test_a_node_answering_what_it_was_not_asked_is_closed_with_the_reason(client, message, reason):
+    """Fuzz findings (tests/test_fuzz.py): these well-formed messages about tiles the node never
+    owed were ignored; each is now answered with a close and its reason."""
+    with client.websocket_connect("/ws/node") as ws:
+        ws.send_json(HELLO)
+        next_json(ws, "welcome")
+        ws.send_json(message)
+        code, text = closed_with(ws)
+        assert code == 1008 and reason in text, (code, text)
+
+
 
 
 @pytest.mark.parametrize("bad", [
@@ -194,6 +227,23 @@ def test_invalid_camera_is_refused_with_reasons(client, bad):
 def test_invalid_balancer_is_refused(client):
     assert client.put("/api/balancer", json={"name": "no-such"}).status_code == 422
     assert client.put("/api/balancer", json={"name": "static", "params": {"nope": 1}}).status_code == 422
+    huge = client.put("/api/balancer", content='{"name": "adaptive", "params": {"tau_ms": 1%s}}' % ("0" * 400),
+                      headers={"content-type": "application/json"})
+    assert huge.status_code == 422 and "tau_ms" in huge.text, "fuzz finding: was a 500 (int too large for a float)"
+
+
+
+def test_a_body_of_bytes_that_are_no_utf8_gets_a_422(client):
+    """Fuzz finding: a 422 that echoed such a body failed to encode it (HTTP 500, a traceback)."""
+    for path in ("/api/camera", "/api/balancer"):
+        response = client.put(path, content=b"\xff\xfe\x00", headers={"content-type": "text/plain"})
+        assert response.status_code == 422 and "\ufffd" in response.json()["detail"][0]["input"], response.text
+
+
+def test_a_frame_beyond_the_next_one_is_refused_at_once(client):
+    """Fuzz finding: ``after`` past every frame on its way waited out the timeout for a 504."""
+    response = client.get("/api/frame.png", params={"after": 10**30})
+    assert response.status_code == 422 and "beyond the next frame" in response.text
 
 
 def test_invalid_viewer_input_gets_an_error_message_and_the_socket_stays_open(client):
@@ -202,6 +252,8 @@ def test_invalid_viewer_input_gets_an_error_message_and_the_socket_stays_open(cl
         assert "must be numbers" in next_json(ws, "error")["message"]
         ws.send_text("{not json")
         assert "malformed JSON" in next_json(ws, "error")["message"]
+        ws.send_bytes(b"\x00camera")
+        assert "not binary" in next_json(ws, "error")["message"]
         ws.send_text(json.dumps({"type": "camera", "camera": camera_at(0.3), "seq": -1}))
         assert "camera.seq" in next_json(ws, "error")["message"]
         ws.send_text(json.dumps({"type": "latency", "p50_ms": "fast"}))
@@ -307,7 +359,8 @@ def test_a_tile_a_node_cannot_render_goes_to_another_node(client):
         failing, working = FakeNode(first), FakeNode(second)
         frame = client.put("/api/camera", json=camera_at(0.4)).json()["frame"]
         render = next_json(failing.ws, "render")
-        while render["frame"] < frame:
+        while render["frame"] < frame:  # earlier frames hold back the new one until they complete
+            failing.answer(render)
             render = next_json(failing.ws, "render")
         for tile in render["tiles"]:
             failing.ws.send_json({"type": "render_error", "frame": render["frame"], "tile": tile["tile"],

@@ -272,6 +272,32 @@ def test_a_tile_of_a_frame_never_dispatched_is_a_protocol_error():
         deliver(s, 2, 1, 0, 0.01)
 
 
+
+def test_a_tile_a_node_does_not_owe_is_a_protocol_error_even_when_its_frame_is_gone():
+    """Fuzz finding (tests/test_fuzz.py): a tile of a published or dropped frame was ignored whoever
+    sent it. Only the node that owed it when its frame was dropped may still send it, once."""
+    s = scheduler(still_delay_s=0.1)
+    s.set_camera(camera(0), 0.0)
+    finish(s, 1, 0.01)
+    with pytest.raises(ProtocolError, match="does not owe"):
+        deliver(s, 1, 1, 0, 0.02)  # a second copy of a tile of the published frame
+    with pytest.raises(ProtocolError, match="does not owe"):
+        deliver(s, 2, 1, 0, 0.02)  # node 1's tile, sent by node 2
+    s.tick(0.2)
+    s.drain()
+    s.set_camera(camera(1), 0.22)
+    assert cancels(s.drain()) == {1: (2,), 2: (2,)}, "the still frame is dropped"
+    assert deliver(s, 2, 2, 1, 0.23) == [], "the tile node 2 was on when it was dropped: ignored"
+    with pytest.raises(ProtocolError, match="does not owe"):
+        deliver(s, 2, 2, 1, 0.24)
+    with pytest.raises(ProtocolError, match="does not owe"):
+        s.tile_failed(2, 2, 1, 0.24)
+    s.tiles_skipped(1, 2, [0])
+    with pytest.raises(ProtocolError, match="was not dropped"):
+        s.tiles_skipped(1, 2, [0])
+    assert published(finish(s, 3, 0.3)) == [3], "the others serve on"
+
+
 def test_the_frame_rate_cap_spaces_frame_starts():
     s = scheduler(max_fps=20.0, max_in_flight=1, still_codec=None)
     s.set_camera(camera(0), 0.0)
@@ -555,8 +581,9 @@ def test_a_failed_tile_goes_to_another_node_and_repeated_failures_close_the_node
     s.drain()
     s.tile_failed(2, 1, 1, 0.01)
     assert renders(s.drain()) == {1: [(1, 1)]} and 2 in s.nodes
-    s.tile_failed(2, 1, 1, 0.02)
-    assert s.drain() == [], "a tile it no longer owes is ignored"
+    with pytest.raises(ProtocolError, match="does not owe"):
+        s.tile_failed(2, 1, 1, 0.02)
+    assert s.drain() == [], "a failure of a tile it no longer owes is refused, and changes nothing"
     deliver(s, 1, 1, 0, 0.03)
     assert published(deliver(s, 1, 1, 1, 0.04)) == [1]
     s.set_camera(camera(1), 0.05)

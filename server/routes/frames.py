@@ -16,7 +16,8 @@ router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 
 
 @router.get("/api/frame.png", response_class=Response,
-            responses={200: {"content": {"image/png": {}}}, 504: {"description": "no such frame in time"}})
+            responses={200: {"content": {"image/png": {}}}, 422: {"description": "a bad or unreachable ``after``"},
+                       504: {"description": "no such frame in time"}})
 async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(None, gt=0, le=300),
                     still: bool = Query(False), service: RenderService = Depends(get_service)) -> Response:
     """Waits up to ``timeout`` seconds (default ``--frame-wait-s``); a frame is rendered for the
@@ -24,7 +25,13 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
     *still* frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
     Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0. The image is lossless PNG of the tiles as
     received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
-    ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding."""
+    ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
+    ``after`` beyond the next frame to start (no id the API handed out) → 422: no frame is on its way."""
+    upcoming = service.scheduler.next_frame_id
+    if after > upcoming:
+        shown = str(after) if after < 10**20 else f"{str(after)[:20]}…"
+        raise HTTPException(status_code=422, detail=f"after={shown} is beyond the next frame, {upcoming}: "
+                                                    "no such frame is on its way")
     if service.store.first_at_or_after(after, still) is None:
         service.request_frame()
     frame = await service.store.wait_for(after, timeout or service.settings.frame_wait_s, still)

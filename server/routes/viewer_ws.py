@@ -61,7 +61,9 @@ async def viewer_socket(ws: WebSocket) -> None:
             if message is None:
                 break
             try:
-                request = parse(message.get("text") or "", FROM_VIEWER)
+                if message.get("text") is None:
+                    raise ProtocolError("a viewer sends JSON text messages, not binary ones")
+                request = parse(message["text"], FROM_VIEWER)
             except ProtocolError as exc:
                 log.info("viewer sent invalid input: %s", exc)
                 slot.put_control(ViewerError(message=str(exc)))

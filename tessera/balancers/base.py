@@ -118,20 +118,32 @@ def imbalance(busy_ms: Mapping[int, float]) -> float:
     return max(values) / mean if mean > 0.0 else 1.0
 
 
+#: Largest magnitude of a balancer parameter (a JSON integer may be too large for a float).
+MAX_PARAM = 10**15
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)`` cut to 60 characters, for an error message that echoes a client's input."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:59] + "…"
+
+
 def _coerce_param(key: str, value: Any, default: Any) -> Any:
     """``value`` as the type of ``default``: bools only from bools, ints only from whole numbers,
     floats finite; anything else is a ValueError naming the parameter."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
-            raise ValueError(f"balancer parameter {key!r} must be true or false, got {value!r}")
+            raise ValueError(f"balancer parameter {key!r} must be true or false, got {_shown(value)}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"balancer parameter {key!r} must be a number, got {value!r}")
-    if not math.isfinite(value):
+        raise ValueError(f"balancer parameter {key!r} must be a number, got {_shown(value)}")
+    if isinstance(value, float) and not math.isfinite(value):
         raise ValueError(f"balancer parameter {key!r} must be finite")
+    if abs(value) > MAX_PARAM:
+        raise ValueError(f"balancer parameter {key!r} must be within ±{MAX_PARAM:.0e}")
     if isinstance(default, int):
         if not float(value).is_integer():
-            raise ValueError(f"balancer parameter {key!r} must be a whole number, got {value!r}")
+            raise ValueError(f"balancer parameter {key!r} must be a whole number, got {_shown(value)}")
         return int(value)
     return float(value)
 
