@@ -1,7 +1,10 @@
 """Viewer fan-out: every viewer has a latest-frame slot and its own sender task, so a slow
 browser only ever skips frames and never stalls the frame loop (websockets' broadcast pattern).
-Control messages (camera, scene) are queued, never dropped. Each viewer's copy of a frame says
-which of that viewer's inputs it answers; each viewer reports its own input → display latency."""
+Control messages (hello, scene, errors) are queued in order, never dropped; a viewer that lets
+:data:`MAX_QUEUED_CONTROL` pile up is not reading its socket and is closed (``behind``). Cameras
+other viewers set have a latest-camera slot of their own, as frames do. Each viewer's copy of a
+frame says which of that viewer's inputs it answers; each viewer reports its own input → display
+latency."""
 
 from __future__ import annotations
 
@@ -10,7 +13,10 @@ import itertools
 from collections import deque
 from typing import Any, Protocol
 
-from tessera.messages import Message
+from tessera.messages import CameraUpdate, Message
+
+#: Control messages a viewer may have waiting before it counts as not reading its socket.
+MAX_QUEUED_CONTROL = 256
 
 
 class ViewerMessages(Protocol):
@@ -24,6 +30,8 @@ class ViewerSlot:
         self.viewer_id = viewer_id
         self.frame: bytes | None = None
         self.control: deque[str] = deque()
+        self.camera: str | None = None
+        self.behind = False
         self.ready = asyncio.Event()
         self.frames_dropped = 0
         self.frames_sent = 0
@@ -36,14 +44,24 @@ class ViewerSlot:
         self.ready.set()
 
     def put_control(self, message: Message) -> None:
-        self.control.append(message.to_text())
+        """Queue ``message``; a camera replaces one not sent yet. A full queue sets ``behind``."""
+        if isinstance(message, CameraUpdate):
+            self.camera = message.to_text()
+        elif len(self.control) >= MAX_QUEUED_CONTROL:
+            self.behind = True
+        else:
+            self.control.append(message.to_text())
         self.ready.set()
 
     async def next_message(self) -> str | bytes:
-        """The next control message if any, else the newest frame (waits for one)."""
+        """The next control message if any, else the newest camera, else the newest frame (waits
+        for one)."""
         while True:
             if self.control:
                 return self.control.popleft()
+            if self.camera is not None:
+                camera, self.camera = self.camera, None
+                return camera
             if self.frame is not None:
                 frame, self.frame = self.frame, None
                 self.frames_sent += 1

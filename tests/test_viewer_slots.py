@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 
-from server.viewers import ViewerHub, ViewerSlot
+from server.viewers import MAX_QUEUED_CONTROL, ViewerHub, ViewerSlot
 from tessera.geometry import Camera
 from tessera.messages import CameraUpdate, ViewerError
 
@@ -69,6 +69,35 @@ def test_control_messages_come_first_in_order_and_are_never_dropped():
         assert all(isinstance(m, str) for m in received[:100])
         assert received[100] == b"new"
         assert (slot.frames_dropped, slot.frames_sent) == (1, 1)
+
+    asyncio.run(scenario())
+
+
+def test_a_viewer_that_does_not_read_is_behind_once_its_queue_is_full():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        for i in range(MAX_QUEUED_CONTROL):
+            slot.put_control(ViewerError(message=str(i)))
+        assert not slot.behind, "a full queue is still every message"
+        slot.put_control(ViewerError(message="one too many"))
+        assert slot.behind and len(slot.control) == MAX_QUEUED_CONTROL
+        assert json.loads(await slot.next_message())["message"] == "0"
+
+    asyncio.run(scenario())
+
+
+def test_cameras_from_other_viewers_keep_only_the_newest_after_queued_control():
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        cameras = [CameraUpdate(camera=Camera(eye=(0.0, 0.0, 2.0 + i), target=(0.0, 0.0, 0.0))) for i in range(1000)]
+        slot.put_frame(b"frame")
+        slot.put_control(ViewerError(message="first"))
+        for camera in cameras:
+            slot.put_control(camera)
+        assert not slot.behind, "cameras never fill the queue"
+        assert json.loads(await slot.next_message())["message"] == "first"
+        assert await slot.next_message() == cameras[-1].to_text()
+        assert await slot.next_message() == b"frame"
 
     asyncio.run(scenario())
 

@@ -15,11 +15,12 @@ from server.routes import guards
 from server.routes.balancer import BALANCERS
 from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
-from server.viewers import ViewerSlot
+from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
 from tessera.messages import FROM_VIEWER, CameraUpdate, LatencyReport, ViewerError, ViewerHello, parse
 from tessera.protocol import ProtocolError
 
 router = APIRouter()
+NOT_READING = f"not reading its socket: {MAX_QUEUED_CONTROL} control messages waiting"
 log = logging.getLogger("tessera.server")
 
 
@@ -67,6 +68,10 @@ async def viewer_socket(ws: WebSocket) -> None:
             except ProtocolError as exc:
                 log.info("viewer sent invalid input: %s", exc)
                 slot.put_control(ViewerError(message=str(exc)))
+                if slot.behind:
+                    log.warning("viewer %d closed: %s", slot.viewer_id, NOT_READING)
+                    await guards.close(ws, 1008, NOT_READING)
+                    break
                 continue
             match request:
                 case LatencyReport():
