@@ -8,7 +8,9 @@ again. Meanwhile
   frame arrives (it reconnects, and counts it, should the coordinator drop it);
 * every second another viewer connects, reads its hello and one frame, and leaves;
 * every ``--sample-every-s`` the coordinator's and each node's RSS (``/proc/PID/status`` VmRSS),
-  threads and open file descriptors (``/proc/PID/fd``) are sampled, with no churn viewer open.
+  threads and open file descriptors (``/proc/PID/fd``) are sampled, with no churn viewer open, and
+  with them the CPU seconds of those processes and of the whole machine (``/proc/stat``): on a shared
+  machine the report says how many cores other processes took, on average and at each gap over 1 s.
 
 It reports, per process kind, the first sample after the warm-up and the last one (both taken with
 every node up and no restart under way) and their growth; the longest gap between frames on the
@@ -46,7 +48,7 @@ from typing import Any
 import httpx
 import websockets.sync.client as ws_client
 
-from bench.processes import REPO, orbit
+from bench.processes import CLOCK_TICKS, REPO, orbit
 from server.local_nodes import llvmpipe_threads_per_node
 from tessera.cli_values import size_parser
 from tessera.protocol import unpack_frame
@@ -136,15 +138,26 @@ class Child:
         return self.process.returncode, killed
 
 
-def proc_figures(pid: int) -> dict[str, int] | None:
-    """RSS (kB), threads and open file descriptors of ``pid`` from /proc; None once it is gone."""
+def proc_figures(pid: int) -> dict[str, Any] | None:
+    """RSS (kB), threads, open file descriptors and CPU seconds so far (user + system) of ``pid``
+    from /proc; None once it is gone."""
     try:
         with open(f"/proc/{pid}/status") as status:
             fields = dict(line.split(":", 1) for line in status if ":" in line)
+        with open(f"/proc/{pid}/stat") as stat:
+            times = stat.read().rsplit(")", 1)[1].split()[11:13]
         return {"rss_kb": int(fields["VmRSS"].split()[0]), "threads": int(fields["Threads"]),
-                "fds": len(os.listdir(f"/proc/{pid}/fd"))}
-    except (OSError, KeyError, ValueError):
+                "fds": len(os.listdir(f"/proc/{pid}/fd")), "cpu_s": (int(times[0]) + int(times[1])) / CLOCK_TICKS}
+    except (OSError, KeyError, ValueError, IndexError):
         return None
+
+
+def machine_busy_s() -> float:
+    """CPU seconds the whole machine spent busy so far, summed over its cores (/proc/stat: all
+    but idle and iowait)."""
+    with open("/proc/stat") as stat:
+        ticks = [int(v) for v in stat.readline().split()[1:]]
+    return (sum(ticks[:8]) - ticks[3] - ticks[4]) / CLOCK_TICKS
 
 
 class PersistentViewer:
@@ -367,7 +380,8 @@ class Soak:
             restarting = self.restarting
             coordinator = proc_figures(self.coordinator.pid) if self.coordinator else None
         sample: dict[str, Any] = {"t": round(time.monotonic() - t0, 2), "restarting": restarting,
-                                  "coordinator": coordinator, "nodes": nodes}
+                                  "coordinator": coordinator, "nodes": nodes, "soak": proc_figures(os.getpid()),
+                                  "machine_busy_s": machine_busy_s(), "loadavg_1m": os.getloadavg()[0]}
         with contextlib.suppress(httpx.HTTPError):
             stats = self.stats(client)
             sample.update(viewers=stats["viewers"], viewer_stats=len(stats["viewer_stats"]),
@@ -485,7 +499,7 @@ def memory_figures(samples: list[dict[str, Any]], nodes: int, warmup_s: float) -
 
     def kind(sample: dict[str, Any], key: str) -> dict[str, int]:
         if key == "coordinator":
-            return sample["coordinator"]
+            return {m: sample["coordinator"][m] for m in ("rss_kb", "fds", "threads")}
         return {m: sum(v[m] for v in sample["nodes"].values()) for m in ("rss_kb", "fds", "threads")}
 
     out: dict[str, Any] = {"steady_samples": len(after), "first_t": first["t"], "last_t": last["t"]}
@@ -494,6 +508,42 @@ def memory_figures(samples: list[dict[str, Any]], nodes: int, warmup_s: float) -
         out[key] = {"first": a, "last": b, **{f"{m}_growth_pct": growth(a[m], b[m]) for m in a},
                     "rss_kb_peak": max(kind(s, key)["rss_kb"] for s in after)}
     return out
+
+
+def machine_figures(samples: list[dict[str, Any]], gaps_over_goal: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the machine did besides the soak, per sampling interval: its busy cores (/proc/stat), the
+    cores the soak's own processes used (coordinator, nodes, this process; a node started or ended
+    within the interval is left out, so a restart counts a little to the others), the others' cores
+    (busy − own), the 1-minute load average and the coordinator's frames/s. Summed up, and for each
+    gap over the goal outside restart windows, the interval it began in."""
+    intervals = []
+    for a, b in itertools.pairwise(samples):
+        dt = b["t"] - a["t"]
+        if dt <= 0 or "machine_busy_s" not in a:
+            continue
+        pairs = [(a["coordinator"], b["coordinator"]), (a["soak"], b["soak"]),
+                 *((a["nodes"].get(name), figures) for name, figures in b["nodes"].items())]
+        own = sum(y["cpu_s"] - x["cpu_s"] for x, y in pairs if x and y) / dt
+        busy = (b["machine_busy_s"] - a["machine_busy_s"]) / dt
+        intervals.append({"t": a["t"], "t_end": b["t"], "busy_cores": busy, "own_cores": own,
+                          "others_cores": max(0.0, busy - own), "loadavg_1m": b["loadavg_1m"],
+                          "fps": (b["frame"] - a["frame"]) / dt if "frame" in a and "frame" in b else None,
+                          "restarting": a["restarting"] or b["restarting"]})
+    if not intervals:
+        return {"cores": os.cpu_count(), "intervals": []}
+    others = [i["others_cores"] for i in intervals]
+    fps = sorted(i["fps"] for i in intervals if i["fps"] is not None)
+    for gap in gaps_over_goal:
+        at = next((i for i in intervals if i["t"] <= gap["at_s"] < i["t_end"]), None)
+        if at is not None:
+            gap.update(others_cores=round(at["others_cores"], 2), busy_cores=round(at["busy_cores"], 2),
+                       fps=None if at["fps"] is None else round(at["fps"], 1))
+    return {"cores": os.cpu_count(), "busy_cores_mean": sum(i["busy_cores"] for i in intervals) / len(intervals),
+            "own_cores_mean": sum(i["own_cores"] for i in intervals) / len(intervals),
+            "others_cores_mean": sum(others) / len(others), "others_cores_max": max(others),
+            "others_over_1_core_share": sum(o >= 1.0 for o in others) / len(others),
+            "loadavg_1m_max": max(i["loadavg_1m"] for i in intervals),
+            "fps_median": fps[len(fps) // 2] if fps else None, "intervals": intervals}
 
 
 def node_instances(samples: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -536,7 +586,8 @@ def figures(soak: Soak, run: dict[str, Any]) -> dict[str, Any]:
         "viewer_failures": [{"at_s": t - t0, "why": why} for t, why in churn.failures],
         "restarts_done": len(soak.restarts), "restarts_rejoined": sum(r.ready is not None for r in soak.restarts),
         "restarts": restarts,
-        "memory": memory, "node_instances": node_instances(soak.samples), "samples": soak.samples,
+        "memory": memory, "node_instances": node_instances(soak.samples),
+        "machine": machine_figures(soak.samples, gaps["gaps_over_goal_outside"]), "samples": soak.samples,
         "crashes": soak.crashes, "exits": soak.exits, "unclean_exits": unclean, "tracebacks": tracebacks,
         "coordinator_tracebacks": soak.coordinator.tracebacks if soak.coordinator else 0,
         "first_traceback": next((c.first_traceback for c in [soak.coordinator, *soak.retired, *soak.nodes]
@@ -576,7 +627,8 @@ def report(result: dict[str, Any]) -> str:
                      f"   {a['threads']} → {b['threads']}")
     lines.append("  over time (t s: coordinator RSS / FDs; nodes' RSS sum / FDs sum; viewers listed):")
     samples = result["samples"]
-    for s in samples[::max(1, math.ceil(len(samples) / 12))] + samples[-1:]:
+    shown = sorted({*range(0, len(samples), max(1, math.ceil(len(samples) / 12))), len(samples) - 1})
+    for s in (samples[i] for i in shown if i >= 0):
         c = s["coordinator"] or {"rss_kb": 0, "fds": 0}
         live = [v for v in s["nodes"].values() if v is not None]
         lines.append(f"    {s['t']:7.1f}  {mb(c['rss_kb']):>9} / {c['fds']:3d}   "
@@ -589,6 +641,7 @@ def report(result: dict[str, Any]) -> str:
         f"  longest gap     {result['longest_gap_outside_s']:.2f} s outside restart windows "
         f"(at {result['longest_gap_outside_at_s']:.0f} s), {result['longest_gap_inside_s']:.2f} s inside; "
         f"{len(result['gaps_over_goal_outside'])} gaps > {GAP_GOAL_S:g} s outside",
+        *gap_lines(result),
         f"  viewers         {result['viewer_connections']} connected, read hello + a frame, left; "
         f"{len(result['viewer_failures'])} failed",
         f"  restarts        {result['restarts_done']} done, {result['restarts_rejoined']} rejoined"
@@ -599,6 +652,24 @@ def report(result: dict[str, Any]) -> str:
         f"  logs            {result['log_dir']}",
     ]
     return "\n".join(lines)
+
+
+def gap_lines(result: dict[str, Any]) -> list[str]:
+    """The machine besides the soak, and what it was doing at each gap over the goal."""
+    machine = result.get("machine", {})
+    if not machine.get("intervals"):
+        return []
+    m = machine
+    lines = [f"  machine         {m['cores']} cores, busy {m['busy_cores_mean']:.2f} on average: the soak's "
+             f"processes {m['own_cores_mean']:.2f}, others {m['others_cores_mean']:.2f} (≥ 1 core "
+             f"{100 * m['others_over_1_core_share']:.0f} % of the time, at most {m['others_cores_max']:.2f}; "
+             f"load average up to {m['loadavg_1m_max']:.1f}); coordinator {m['fps_median']:.1f} frames/s "
+             "(median of the sample intervals)"]
+    for gap in result["gaps_over_goal_outside"]:
+        if "others_cores" in gap:
+            lines.append(f"    gap {gap['gap_s']:.2f} s at {gap['at_s']:.0f} s: others {gap['others_cores']:.2f} "
+                         f"cores, busy {gap['busy_cores']:.2f}, coordinator {gap['fps']} frames/s in that interval")
+    return lines
 
 
 def build_parser() -> argparse.ArgumentParser:
