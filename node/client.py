@@ -6,7 +6,10 @@ thread), encoding (an encoder thread) and sending (the event loop's sender task)
 drawn while tile i is compressed and sent. moderngl keeps the GIL inside GL calls, so on CPython the
 overlap is the kernel's transfer of queued bytes and the encoder's GIL-free stretches.
 
-Messages follow the catalogue in :mod:`tessera.messages`.
+Messages follow the catalogue in :mod:`tessera.messages`. Each ``render`` message brings the
+node's :class:`tessera.scene_state.StateReplica` to its frame's scene state (issue 11), applied in
+message order, also for a frame cancelled since; the tiles are drawn in exactly that state and
+their headers say which.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import logging
 import signal
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Hashable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -57,7 +60,8 @@ from tessera.messages import (
     Welcome,
     parse,
 )
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile
+from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile, state_tag
+from tessera.scene_state import SceneState, SceneStateError, StateReplica
 
 log = logging.getLogger("tessera.node")
 
@@ -76,12 +80,13 @@ Job = LoadScene | Render | Calibrate | InvalidMessage
 
 
 def encode_tile(frame: int, tile: RenderTile, rendered: RenderedTile, render_ms: float,
-                codec: Codec, jpeg_quality: int) -> bytes:
-    """The binary tile message: header with the phase times + the encoded pixels."""
+                codec: Codec, jpeg_quality: int, state: SceneState | None = None) -> bytes:
+    """The binary tile message: header with the phase times and the ``state`` drawn + the encoded pixels."""
     started = time.perf_counter()
     payload = encode(rendered.pixels, codec, jpeg_quality)
     encode_ms = (time.perf_counter() - started) * 1e3
-    header = TileHeader(frame, tile.tile, tile.rect, codec, render_ms, rendered.readback_ms, encode_ms)
+    header = TileHeader(frame, tile.tile, tile.rect, codec, render_ms, rendered.readback_ms, encode_ms,
+                        state_tag(None if state is None else state.version))
     return pack_tile(header, payload)
 
 
@@ -130,14 +135,17 @@ class GLWorker:
         self.scene_spec = spec
         return scene
 
-    async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: int) -> RenderedTile:
-        """Render ``rect``; ``slot`` (the tile id) keys the tile's hybrid culling switch."""
-        return await self._call(self._render, camera, size, rect, slot)
+    async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
+                     state: SceneState | None = None) -> RenderedTile:
+        """Render ``rect`` in scene ``state`` (None: the base pose); ``slot`` (the tile id) keys the
+        tile's hybrid culling switch."""
+        return await self._call(self._render, camera, size, rect, slot, state)
 
-    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: int) -> RenderedTile:
+    def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
+                state: SceneState | None) -> RenderedTile:
         if self._renderer is None:
             raise RuntimeError("no scene loaded")
-        return self._renderer.render_tile(camera, size, rect, slot)
+        return self._renderer.render_tile(camera, size, rect, slot, state=state)
 
     def _release_scene(self) -> None:
         if self._renderer is not None:
@@ -180,6 +188,7 @@ class NodeClient:
         self.node_id: int | None = None
         self._welcomed = False
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
+        self._replica = StateReplica()
         self.tiles_dropped = 0
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -233,6 +242,7 @@ class NodeClient:
                          capabilities=Capabilities(slowdown=self.settings.slowdown, calibrate=True))
 
     async def _session(self, ws: ClientConnection) -> None:
+        self._replica = StateReplica()
         await ws.send(self.hello().to_text())
         jobs: asyncio.Queue[Job] = asyncio.Queue()
         outbox: asyncio.Queue[Message | PendingTile] = asyncio.Queue()
@@ -322,18 +332,25 @@ class NodeClient:
         log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
                  len(scene.batches), scene.chunks.chunk_count, load_ms)
         groups = SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist())
-        outbox.put_nowait(SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups))
+        outbox.put_nowait(SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups,
+                                     objects=scene.objects.to_json(),
+                                     animations=[a.keyframes_json() for a in scene.animations]))
 
     async def _render(self, job: Render, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         loop = asyncio.get_running_loop()
         slowdown = self.settings.slowdown
+        try:
+            state = None if job.state is None else self._replica.receive(job.state)
+        except SceneStateError as exc:
+            self._render_errors(outbox, job.frame, [t.tile for t in job.tiles], f"scene state: {exc}")
+            return
         dropped: list[int] = []
         for request in job.tiles:
             if job.frame in self._cancelled:
                 dropped.append(request.tile)
                 continue
             try:
-                rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile)
+                rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state)
             except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
                 self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
                 continue
@@ -342,7 +359,7 @@ class NodeClient:
                 await self._sleep((slowdown - 1.0) * render_ms / 1e3)
                 render_ms *= slowdown
             packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
-                                          job.codec, job.jpeg_quality)
+                                          job.codec, job.jpeg_quality, state)
             outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
         if dropped:
             self.tiles_dropped += len(dropped)

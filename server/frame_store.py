@@ -23,9 +23,11 @@ from tessera.protocol import pack_frame, with_input_seq
 
 @dataclass
 class PublishedFrame:
-    """A complete frame: every tile of one camera. ``tiles`` = (rect, codec, node slot, payload);
-    ``still``: the lossless frame after motion stopped; ``inputs``: viewer id → the newest input
-    sequence number of that viewer the frame accounts for."""
+    """A complete frame: every tile of one camera and one scene state. ``tiles`` = (rect, codec,
+    node slot, payload); ``still``: the lossless frame after motion stopped; ``inputs``: viewer id →
+    the newest input sequence number of that viewer the frame accounts for; ``state_version`` and
+    ``scene_time`` (s): its scene state (None: the base pose); ``tile_states``: the state each
+    tile's node says it rendered (the tile header's tag)."""
 
     frame_id: int
     camera: Camera
@@ -34,6 +36,9 @@ class PublishedFrame:
     published_at: float
     still: bool = False
     inputs: dict[object, int] = field(default_factory=dict)
+    state_version: int | None = None
+    scene_time: float | None = None
+    tile_states: tuple[int, ...] = ()
     _viewer_message: bytes | None = field(default=None, repr=False)
 
     @property

@@ -25,6 +25,7 @@ from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.nodes import NodeLink
 from server.settings import Settings
 from server.viewers import ViewerHub
+from tessera.animation import Animation, AnimationError
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
 from tessera.balancers.hetero import calibration_weights
@@ -46,6 +47,9 @@ from tessera.messages import (
     Welcome,
 )
 from tessera.protocol import ProtocolError, unpack_tile
+from tessera.scene_graph import ObjectGraph
+from tessera.scene_state import ObjectPatch, SceneStateError
+from tessera.scene_timeline import SceneTimeline
 from tessera.scheduler import (
     CancelFrames,
     CloseNode,
@@ -61,6 +65,18 @@ log = logging.getLogger("tessera.server")
 TIMER_MAX_WAIT_S = 1.0
 #: Unknown rendering node in a viewer frame's tile table.
 NO_SLOT = 0xFFFF
+
+
+def scene_timeline(message: SceneReady, now: float) -> SceneTimeline:
+    """The scene's objects and animations as a node reported them; ProtocolError when they do not
+    make a scene."""
+    assert message.objects is not None
+    try:
+        graph = ObjectGraph.from_json([item.model_dump() for item in message.objects])
+        animations = [Animation.from_keyframes_json(item.model_dump()) for item in message.animations]
+        return SceneTimeline(graph, animations, now)
+    except (SceneStateError, AnimationError) as exc:
+        raise ProtocolError(f"scene_ready: {exc}") from None
 
 
 def scheduler_config(settings: Settings) -> SchedulerConfig:
@@ -221,6 +237,8 @@ class RenderService:
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
         if self.bounds is None:
+            if message.objects is not None:
+                self.scheduler.set_scene(scene_timeline(message, now), now)
             self.bounds = bounds
             if message.groups is not None:
                 self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
@@ -278,6 +296,21 @@ class RenderService:
         self._apply()
         return balancer
 
+    def set_objects(self, patches: dict[str, ObjectPatch]) -> int:
+        """Pose objects; returns the first frame id that shows it. UnknownObjectError, and nothing
+        changes, for a name that is not an object."""
+        frame = self.scheduler.set_objects(patches, time.monotonic())
+        self._apply()
+        return frame
+
+    def set_animation(self, playing: bool | None = None, time_s: float | None = None,
+                      speed: float | None = None) -> int:
+        """Play, pause, jump to ``time_s``, change speed; returns the first frame id that shows it.
+        SceneStateError, and nothing changes, for a bad value."""
+        frame = self.scheduler.set_animation(time.monotonic(), playing, time_s, speed)
+        self._apply()
+        return frame
+
     def request_frame(self) -> None:
         """Someone waits for a newer frame: render one if nothing is on its way (render on demand)."""
         if self.scheduler.settled:
@@ -310,15 +343,28 @@ class RenderService:
     def _publish(self, job: FrameJob) -> None:
         started = time.thread_time()
         slots = {n.node_id: n.slot for n in self.scheduler.nodes.values()}
+        state = job.state
         frame = PublishedFrame(job.frame_id, job.camera, job.size,
                                [(t.rect, job.codec, slots.get(t.rendered_by or 0, NO_SLOT), t.payload or b"")
-                                for t in job.tiles], time.monotonic(), still=job.still, inputs=job.inputs)
+                                for t in job.tiles], time.monotonic(), still=job.still, inputs=job.inputs,
+                               state_version=None if state is None else state.version,
+                               scene_time=None if state is None else state.time,
+                               tile_states=tuple(t.header.state if t.header else 0 for t in job.tiles))
         self.store.add(frame)
         if self.viewers.slots:
             self.viewers.publish_frame(frame)
         self.cpu_ms["publish"] += (time.thread_time() - started) * 1000.0
 
     # ----------------------------------------------------------------- reporting
+    def scene_state(self) -> dict[str, Any] | None:
+        """The newest state version a frame was bound to, the scene time now (s), whether the
+        animation plays; None until a node reported the scene's objects."""
+        scene = self.scheduler.scene
+        if scene is None:
+            return None
+        return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
+                "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
+
     def describe(self) -> dict[str, Any]:
         scheduler, stats = self.scheduler, self.scheduler.stats
         latest = self.store.latest
@@ -336,6 +382,7 @@ class RenderService:
             "still": bool(latest and latest.still),
             "settled": scheduler.settled,
             "scene": self.settings.scene,
+            "scene_state": self.scene_state(),
             "codec": self.settings.codec.name.lower(),
             "interactive_quality": self.settings.interactive_quality,
             "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec else "none",

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -126,8 +127,43 @@ class Animation:
         return sample_animations([self], time)
 
     def to_json(self) -> dict[str, object]:
+        """The summary: name, start and end (s), the objects it moves."""
         return {"name": self.name, "start": self.start, "end": self.end,
                 "targets": sorted({c.target for c in self.channels})}
+
+    def keyframes_json(self) -> dict[str, Any]:
+        """Everything sampling needs, ``{"name", "channels": [{"target", "path", "interpolation",
+        "times", "values"}]}``: what a node sends the coordinator (:meth:`from_keyframes_json`
+        gives back the same numbers, bit for bit)."""
+        return {"name": self.name, "channels": [
+            {"target": c.target, "path": c.path, "interpolation": c.sampler.interpolation,
+             "times": c.sampler.times.tolist(), "values": c.sampler.values.tolist()} for c in self.channels]}
+
+    @classmethod
+    def from_keyframes_json(cls, data: Mapping[str, Any]) -> Animation:
+        """The animation :meth:`keyframes_json` describes, values kept as they are; raises
+        AnimationError naming the channel and what is wrong."""
+        name = str(data.get("name", ""))
+        channels = []
+        for index, channel in enumerate(data.get("channels") or []):
+            where = f"animation {name!r} channel {index}"
+            path, interpolation = channel.get("path"), channel.get("interpolation")
+            if path not in PATHS:
+                raise AnimationError(f"{where}: path {path!r}; expected one of {list(PATHS)}")
+            if interpolation not in INTERPOLATIONS:
+                raise AnimationError(f"{where}: interpolation {interpolation!r}; "
+                                     f"expected one of {list(INTERPOLATIONS)}")
+            try:
+                times = np.asarray(channel.get("times"), dtype=np.float64)
+                values = np.asarray(channel.get("values"), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise AnimationError(f"{where}: times and values must be numbers") from None
+            sampler = Sampler(times, values, str(interpolation), rotation=path == "rotation")
+            _check_keyframes(sampler, str(path), where)
+            channels.append(Channel(str(channel.get("target")), str(path), sampler))
+        if not channels:
+            raise AnimationError(f"animation {name!r} has no channel")
+        return cls(name, tuple(channels))
 
 
 def sample_animations(animations: Sequence[Animation], time: float) -> dict[str, ObjectPatch]:
@@ -178,21 +214,25 @@ def _sampler(document: GltfDocument, spec: Mapping[str, object], path: str, wher
         raise AnimationError(f"{where}: {exc}") from None
     if times.shape[1] != 1 or times.dtype != np.float64:
         raise AnimationError(f"{where}: input must be float SCALAR keyframe times")
-    times = times[:, 0]
-    if not np.isfinite(times).all() or (np.diff(times) < 0.0).any():
+    sampler = Sampler(times[:, 0], values.astype(np.float64), str(interpolation), rotation=path == "rotation")
+    _check_keyframes(sampler, str(path), where)
+    if path == "rotation" and interpolation != "CUBICSPLINE":   # slerp needs unit keyframes
+        sampler = Sampler(sampler.times, sampler.values / np.linalg.norm(sampler.values, axis=1)[:, None],
+                          sampler.interpolation, rotation=True)
+    return sampler
+
+
+def _check_keyframes(sampler: Sampler, path: str, where: str) -> None:
+    """At least one keyframe; finite, non-decreasing times; as many finite values of ``path``'s
+    components as the interpolation needs (3 per keyframe for CUBICSPLINE); no zero rotation keyframe."""
+    times, values, components = sampler.times, sampler.values, PATHS[path]
+    if times.ndim != 1 or len(times) == 0 or not np.isfinite(times).all() or (np.diff(times) < 0.0).any():
         raise AnimationError(f"{where}: keyframe times must be finite and increasing")
-    expected = (3 if interpolation == "CUBICSPLINE" else 1) * len(times)
-    if values.shape != (expected, PATHS[path]):
-        raise AnimationError(f"{where}: {path} output must be {expected} values of {PATHS[path]} components, "
-                             f"got {values.shape[0]} of {values.shape[1]}")
-    values = values.astype(np.float64)
+    expected = (3 if sampler.cubic else 1) * len(times)
+    if values.ndim != 2 or values.shape != (expected, components):
+        got = f"{values.shape[0]} of {values.shape[1]}" if values.ndim == 2 else f"shape {values.shape}"
+        raise AnimationError(f"{where}: {path} output must be {expected} values of {components} components, got {got}")
     if not np.isfinite(values).all():
         raise AnimationError(f"{where}: output values must be finite")
-    if path == "rotation":
-        keys = values[1::3] if interpolation == "CUBICSPLINE" else values
-        lengths = np.linalg.norm(keys, axis=1)
-        if (lengths == 0.0).any():
-            raise AnimationError(f"{where}: a rotation keyframe is a zero quaternion")
-        if interpolation != "CUBICSPLINE":
-            values = values / lengths[:, None]   # slerp needs unit keyframes
-    return Sampler(times, values, str(interpolation), rotation=path == "rotation")
+    if sampler.rotation and (np.linalg.norm(values[1::3] if sampler.cubic else values, axis=1) == 0.0).any():
+        raise AnimationError(f"{where}: a rotation keyframe is a zero quaternion")

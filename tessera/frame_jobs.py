@@ -1,5 +1,5 @@
 """Frames in flight: which tile each node owes, what has arrived, and the checks that keep a
-published frame whole (every tile, one camera, the right size).
+published frame whole (every tile, one camera, one scene state, the right size).
 
 Pure bookkeeping (no sockets, no clocks: times are passed in), so it is tested directly. The
 payload bytes are opaque here; :func:`check_payload_size` is the coordinator's cheap check of
@@ -18,7 +18,8 @@ from tessera.balancers.base import Partition, TileTiming
 from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
 from tessera.messages import Render, RenderTile
-from tessera.protocol import ProtocolError, TileHeader
+from tessera.protocol import ProtocolError, TileHeader, state_tag
+from tessera.scene_state import SceneState, StateDelta
 
 
 @dataclass
@@ -44,7 +45,8 @@ class TileJob:
 
 @dataclass
 class FrameJob:
-    """A frame being rendered: one camera, one partition, every tile tracked.
+    """A frame being rendered: one camera, one scene ``state`` (None: the base pose, a scene whose
+    nodes reported no objects), one partition, every tile tracked.
 
     ``still``: the lossless frame rendered once motion stopped (else an interactive frame);
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
@@ -66,17 +68,19 @@ class FrameJob:
     version: int = 0
     changed_at: float = 0.0
     inputs: dict[object, int] = field(default_factory=dict)
+    state: SceneState | None = None
     tiles_done: int = 0
     sends_done: int = 0
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
                partition: Partition, started_at: float, *, still: bool = False, version: int = 0,
-               changed_at: float = 0.0, inputs: dict[object, int] | None = None) -> FrameJob:
+               changed_at: float = 0.0, inputs: dict[object, int] | None = None,
+               state: SceneState | None = None) -> FrameJob:
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
-                  inputs=dict(inputs or {}))
+                  inputs=dict(inputs or {}), state=state)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -90,11 +94,12 @@ class FrameJob:
         """Every tile arrived and its send time too (counted, O(1): asked on every ``tile_sent``)."""
         return self.complete and self.sends_done == len(self.tiles)
 
-    def render_message(self, tile_ids: list[int]) -> Render:
-        """The ``render`` control message for some of this frame's tiles."""
+    def render_message(self, tile_ids: list[int], state: SceneState | StateDelta | None = None) -> Render:
+        """The ``render`` control message for some of this frame's tiles; ``state`` brings the node
+        to this frame's state (the state itself, or a delta on the one the node has)."""
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
-                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids))
+                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state)
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob | None:
         """Record a tile result after checking it is the tile this node owes; ProtocolError if not.
@@ -110,6 +115,10 @@ class FrameJob:
                 f"tile {header.tile_id} has rect {header.rect.as_list()}, expected {tile.rect.as_list()}")
         if header.codec != self.codec:
             raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
+        expected = state_tag(None if self.state is None else self.state.version)
+        if header.state != expected:
+            raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} shows scene state {header.state}, "
+                                f"the frame's is {expected}")
         if tile.done:
             if tile.rendered_by == node_id:
                 raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was already received")

@@ -13,7 +13,8 @@ node → coordinator
 * ``hello`` :class:`NodeHello` — the first message: name, token, GL renderer, protocol version,
   capabilities (slowdown, calibrate)
 * ``scene_progress`` :class:`SceneProgress`, ``scene_ready`` :class:`SceneReady` (triangles,
-  bounds, world-space primitive groups), ``scene_error`` :class:`SceneError`
+  bounds, world-space primitive groups, the named objects and the animations' keyframes),
+  ``scene_error`` :class:`SceneError`
 * ``tile_sent`` :class:`TileSent` — after each binary tile: its send time and the node's per-tile
   counters (triangles, chunks_drawn, chunks_culled, cull_ms, cull_path)
 * ``render_error`` :class:`RenderError` — a tile the node could not render (frame 0, tile 0: a
@@ -25,7 +26,8 @@ node → coordinator
 coordinator → node
 
 * ``welcome`` :class:`Welcome` (node id), ``load_scene`` :class:`LoadScene`
-* ``render`` :class:`Render` — tiles are rendered in list order, each sent as soon as done
+* ``render`` :class:`Render` — tiles are rendered in list order, each sent as soon as done, in
+  the message's scene ``state`` (a full state, or a delta on the one the node was sent last)
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
 
@@ -44,7 +46,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from typing import Annotated, Any, ClassVar, Self, TypeVar
+from typing import Annotated, Any, ClassVar, Literal, Self, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -63,6 +65,7 @@ from pydantic import (
 from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
 from tessera.protocol import PROTOCOL_VERSION, ProtocolError
+from tessera.scene_state import SceneState, StateDelta, state_from_json
 
 MAX_JSON_BYTES = 1 << 20
 #: Largest frame side (px) a ``render`` or ``calibrate`` may ask for.
@@ -103,6 +106,10 @@ def _codec(value: Any) -> Codec:
     return Codec.parse(value)
 
 
+def _state(value: Any) -> SceneState | StateDelta:
+    return value if isinstance(value, SceneState | StateDelta) else state_from_json(value)
+
+
 def _counter(value: Any) -> int | float | str:
     if isinstance(value, str) and len(value) <= MAX_COUNTER_TEXT:
         return value
@@ -127,6 +134,8 @@ CameraJson = Annotated[Camera, PlainValidator(_camera), PlainSerializer(Camera.t
 RectJson = Annotated[Rect, PlainValidator(_rect), PlainSerializer(Rect.as_list)]
 CodecName = Annotated[Codec, PlainValidator(_codec), PlainSerializer(lambda codec: codec.name.lower())]
 Counter = Annotated[int | float | str, PlainValidator(_counter)]
+#: A scene state or a delta (:func:`tessera.scene_state.state_from_json`).
+StateJson = Annotated[SceneState | StateDelta, PlainValidator(_state), PlainSerializer(lambda state: state.to_json())]
 CounterName = Annotated[StrictStr, Field(max_length=MAX_COUNTER_TEXT)]
 
 _FIELDS = ConfigDict(frozen=True, extra="ignore", allow_inf_nan=False)
@@ -205,13 +214,49 @@ class SceneGroups(BaseModel):
         return self
 
 
+class SceneObjectJson(BaseModel):
+    """A named object (:meth:`tessera.scene_graph.ObjectGraph.to_json`): its parent's name (null for
+    a root; parents come first), base local transform and visibility, its geometry's world box at
+    the base pose (null: none) and triangle count."""
+
+    model_config = _FIELDS
+    name: Text
+    parent: Text | None = None
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: tuple[Number, Number, Number, Number] = (0.0, 0.0, 0.0, 1.0)
+    scale: Vec3 = (1.0, 1.0, 1.0)
+    visible: StrictBool = True
+    bounds: Bounds | None = None
+    triangles: Annotated[StrictInt, Field(ge=0)] = 0
+
+
+class AnimationChannelJson(BaseModel):
+    """One channel's keyframes (:meth:`tessera.animation.Animation.keyframes_json`)."""
+
+    model_config = _FIELDS
+    target: Text
+    path: Literal["translation", "rotation", "scale"]
+    interpolation: Literal["LINEAR", "STEP", "CUBICSPLINE"]
+    times: list[Number]
+    values: list[list[Number]]
+
+
+class AnimationJson(BaseModel):
+    model_config = _FIELDS
+    name: Text
+    channels: list[AnimationChannelJson]
+
+
 class SceneReady(Message):
-    """The scene is loaded: what the coordinator needs of it (the node logs the rest itself)."""
+    """The scene is loaded: what the coordinator needs of it (the node logs the rest itself). A
+    node that lists no ``objects`` renders every frame at the base pose."""
 
     kind = "scene_ready"
     triangles: Annotated[StrictInt, Field(ge=0)]
     bounds: Bounds
     groups: SceneGroups | None = None
+    objects: list[SceneObjectJson] | None = None
+    animations: list[AnimationJson] = Field(default_factory=list)
 
 
 class SceneError(Message):
@@ -278,6 +323,14 @@ class Render(Message):
     codec: CodecName
     jpeg_quality: Annotated[StrictInt, Field(ge=1, le=100)] = 85
     tiles: tuple[RenderTile, ...]
+    state: StateJson | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """Without ``state`` when there is none (a scene whose nodes listed no objects)."""
+        data = super().to_json()
+        if self.state is None:
+            del data["state"]
+        return data
 
 
 class Calibrate(Message):

@@ -2,7 +2,9 @@
 
 Binary WebSocket messages start with a magic:
 
-* ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image.
+* ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image. Its u16 at
+  offset 6 is the low 16 bits of the scene state version the tile was rendered with (issue 11: a
+  frame's tiles all show one state; 0 for a static scene, as before).
 * ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
   still frame; ``input_seq``: the viewer's newest input sequence number the frame accounts for,
   0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
@@ -35,6 +37,8 @@ NODE_PHASES = ("render", "readback", "encode", "send")
 _TILE_HEADER = struct.Struct("<4sBBHIIIIIIfffI")
 _FRAME_HEADER = struct.Struct("<4sBBHIIII")
 _INPUT_SEQ_OFFSET = 20
+#: The bits of a scene state version a tile header carries.
+STATE_TAG_MASK = 0xFFFF
 #: Frame header flag: the lossless still frame shown once motion stopped.
 FRAME_STILL = 0x01
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
@@ -46,7 +50,8 @@ class ProtocolError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class TileHeader:
-    """A rendered tile: which frame and tile, where, how encoded, and the node's phase times (ms)."""
+    """A rendered tile: which frame and tile, where, how encoded, the node's phase times (ms) and
+    ``state``, the scene state version it shows (:func:`state_tag`: its low 16 bits)."""
 
     frame_id: int
     tile_id: int
@@ -55,13 +60,20 @@ class TileHeader:
     render_ms: float
     readback_ms: float
     encode_ms: float
+    state: int = 0
+
+
+def state_tag(version: int | None) -> int:
+    """What a tile header carries of scene state version ``version`` (None: no state, 0). Versions a
+    frame in flight may show lie within the state log's history, far fewer than 2¹⁶ apart."""
+    return 0 if version is None else version & STATE_TAG_MASK
 
 
 def pack_tile(header: TileHeader, payload: bytes) -> bytes:
     """Binary tile message: 48-byte header + encoded image."""
     r = header.rect
     head = _TILE_HEADER.pack(
-        TILE_MAGIC, PROTOCOL_VERSION, int(header.codec), 0, header.frame_id, header.tile_id,
+        TILE_MAGIC, PROTOCOL_VERSION, int(header.codec), state_tag(header.state), header.frame_id, header.tile_id,
         r.x, r.y, r.w, r.h, header.render_ms, header.readback_ms, header.encode_ms, len(payload),
     )
     return head + payload
@@ -71,7 +83,7 @@ def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
     """Parse a binary tile message; raises ProtocolError on anything malformed."""
     if len(message) < _TILE_HEADER.size:
         raise ProtocolError(f"tile message of {len(message)} bytes is shorter than its header")
-    (magic, version, codec, _, frame_id, tile_id, x, y, w, h, render_ms, readback_ms, encode_ms,
+    (magic, version, codec, state, frame_id, tile_id, x, y, w, h, render_ms, readback_ms, encode_ms,
      length) = _TILE_HEADER.unpack_from(message)
     if magic != TILE_MAGIC:
         raise ProtocolError(f"bad tile magic {magic!r}")
@@ -88,7 +100,7 @@ def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
         raise ProtocolError(f"tile timings must be finite and >= 0, got {times}")
     if w == 0 or h == 0:
         raise ProtocolError("tile has zero size")
-    header = TileHeader(frame_id, tile_id, Rect(x, y, w, h), codec_value, render_ms, readback_ms, encode_ms)
+    header = TileHeader(frame_id, tile_id, Rect(x, y, w, h), codec_value, render_ms, readback_ms, encode_ms, state)
     return header, memoryview(message)[_TILE_HEADER.size:]
 
 

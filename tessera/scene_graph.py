@@ -21,7 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from tessera.scene_state import ObjectPatch, ObjectState, SceneState, SceneStateError, UnknownObjectError
+from tessera.scene_state import (
+    OBJECT_FIELDS,
+    ObjectPatch,
+    ObjectState,
+    SceneState,
+    SceneStateError,
+    UnknownObjectError,
+)
 
 #: The 8 corners of a box as (min, max) selectors per axis: (8, 3) 0/1.
 _CORNERS = np.array([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)])
@@ -156,6 +163,35 @@ class ObjectGraph:
     def to_json(self, state: SceneState | None = None) -> list[dict[str, Any]]:
         """Every object's JSON (:meth:`SceneObject.to_json`) with its state in ``state``."""
         return [item.to_json(self, None if state is None else state.objects[item.name]) for item in self.objects]
+
+    @classmethod
+    def from_json(cls, data: Sequence[Mapping[str, Any]]) -> ObjectGraph:
+        """The graph :meth:`to_json` describes (its base states, parents named before their
+        children, bounds and triangles), numbers kept bit for bit; raises SceneStateError."""
+        objects: list[SceneObject] = []
+        index: dict[str, int] = {}
+        for entry in data:
+            name = str(entry.get("name"))
+            parent = entry.get("parent")
+            if parent is not None and parent not in index:
+                raise SceneStateError(f"object {name!r}: parent {parent!r} does not come before it")
+            base = ObjectState.from_json({key: entry[key] for key in OBJECT_FIELDS if key in entry}, name)
+            bounds = entry.get("bounds")
+            box = None if bounds is None else np.asarray(bounds, dtype=np.float64)
+            if box is not None and (box.shape != (2, 3) or not np.isfinite(box).all()):
+                raise SceneStateError(f"object {name!r}: bounds must be [[x0, y0, z0], [x1, y1, z1]]")
+            triangles = entry.get("triangles", 0)
+            if isinstance(triangles, bool) or not isinstance(triangles, int) or triangles < 0:
+                raise SceneStateError(f"object {name!r}: triangles must be an integer >= 0")
+            index.setdefault(name, len(objects))
+            objects.append(SceneObject(name, -1 if parent is None else index[parent], base, box, triangles))
+        return cls(objects)
+
+    def world_bounds(self, state: SceneState) -> list[np.ndarray | None]:
+        """Each object's own geometry's world box (2, 3) in ``state`` (None: it has none)."""
+        models = self.model_matrices(state)
+        return [None if item.bounds is None else transform_boxes(item.bounds[None], model)[0]
+                for item, model in zip(self.objects, models, strict=True)]
 
 
 def _transform(state: ObjectState) -> tuple[tuple[float, ...], ...]:

@@ -409,11 +409,13 @@ class StateReplica:
         self.current: SceneState | None = None
 
     def receive(self, payload: SceneState | StateDelta) -> SceneState:
-        """The state ``payload`` stands for; raises SceneStateError for a delta without its base."""
+        """The state ``payload`` stands for; raises SceneStateError for a delta without its base. A
+        delta that changes nothing gives the very same state object (a renderer keeps its pose)."""
         if isinstance(payload, SceneState):
             self.current = payload
         elif self.current is None:
             raise SceneStateError(f"delta {payload.base}→{payload.version} arrived before any full state")
-        else:
+        elif not (payload.base == payload.version == self.current.version and not payload.objects
+                  and payload.time == self.current.time):
             self.current = self.current.apply(payload)
         return self.current

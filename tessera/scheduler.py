@@ -9,7 +9,8 @@ the virtual-clock benchmarks drive this same object.
 What it decides:
 
 * **Render on demand.** A frame starts only when something changed since the newest frame
-  (camera, scene state, balancer, node set), while the balancer settles (at most
+  (camera, scene state, balancer, node set; a playing animation changes the state all the time),
+  while the balancer settles (at most
   ``settle_frames`` more frames after a change, and only while the partition still moves), or
   when the still frame is owed: once nothing changed for ``still_delay_s``, one frame in the
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality). Otherwise nothing
@@ -20,8 +21,15 @@ What it decides:
   When the state changes, frames that are superseded are dropped: a still frame, and any frame
   no node has begun (no tile arrived, none at the head of a node's queue). Nodes are told to
   drop their queued tiles of dropped frames; the scheduler stops waiting for them.
+* **Late scene state binding** (issue 11; seed 004: a frame's dynamic data). A frame also takes
+  the scene's state when it starts (:class:`tessera.scene_timeline.SceneTimeline`: the animation
+  at the frame's scene time, the user's poses) as one version of the state log. Each render
+  message carries that state: a delta on the version last sent to that node (messages reach a
+  node in order), the full state when the node has none (it just joined) or that version is no
+  longer kept. A node renders a tile with exactly that state, and its tile says which.
 * **Never torn, never backwards.** A frame is published only when every tile arrived, all made
-  for its one camera; publishing frame F drops every older frame still in flight.
+  for its one camera and its one scene state; publishing frame F drops every older frame still
+  in flight.
 * **Push and pull dispatch.** Push partitions go to their nodes at once; pull partitions (tile
   rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
   first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
@@ -39,7 +47,7 @@ What it decides:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +63,8 @@ from tessera.messages import Render
 from tessera.partition import check_exact_cover
 from tessera.projection import project_groups
 from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
+from tessera.scene_state import ObjectPatch, SceneState, StateDelta
+from tessera.scene_timeline import SceneTimeline
 
 #: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
 AWAITING_SEND_FRAMES = 8
@@ -140,7 +150,8 @@ class NodeSchedule:
     answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
     failed in a row; ``dropped``: (frame id, tile id) it owed when their frame was dropped (the
     newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
-    owed; the rest is the last complete frame's roll-up."""
+    owed; ``state_sent``: the scene state version its last render message brought it to (None:
+    none yet, or unsure after a failed tile); the rest is the last complete frame's roll-up."""
 
     node_id: int
     slot: int
@@ -151,6 +162,7 @@ class NodeSchedule:
     suspect: bool = False
     ms_per_px: float | None = None
     failures: int = 0
+    state_sent: int | None = None
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)
@@ -182,6 +194,8 @@ class FrameScheduler:
         self.balancer = balancer
         self.nodes: dict[int, NodeSchedule] = {}
         self.camera: Camera | None = None
+        #: The scene's objects, animations and state log (None: frames show the base pose).
+        self.scene: SceneTimeline | None = None
         self.in_flight: dict[int, FrameJob] = {}
         self.stats = FrameStats()
         self.next_frame_id = 1
@@ -261,6 +275,29 @@ class FrameScheduler:
         first = self.next_frame_id
         self._changed(now, supersede=True)
         return first
+
+    def set_scene(self, scene: SceneTimeline, now: float) -> None:
+        """Frames from now on show ``scene``'s state."""
+        self.scene = scene
+        self._changed(now, supersede=True)
+
+    def set_objects(self, patches: Mapping[str, ObjectPatch], now: float) -> int:
+        """Pose objects (:meth:`SceneTimeline.set_objects`); returns the first frame id that shows
+        it. UnknownObjectError (and nothing changes) for a name that is not an object."""
+        self._scene().set_objects(patches)
+        return self.invalidate(now)
+
+    def set_animation(self, now: float, playing: bool | None = None, time: float | None = None,
+                      speed: float | None = None) -> int:
+        """Play, pause, jump, change speed (:meth:`SceneTimeline.set_animation`); returns the first
+        frame id that shows it. SceneStateError (and nothing changes) for a bad value."""
+        self._scene().set_animation(now, playing, time, speed)
+        return self.invalidate(now)
+
+    def _scene(self) -> SceneTimeline:
+        if self.scene is None:
+            raise RuntimeError("no scene yet: no node has loaded it")
+        return self.scene
 
     def set_balancer(self, balancer: Balancer, now: float) -> None:
         """Partition with ``balancer`` from the next frame."""
@@ -383,6 +420,7 @@ class FrameScheduler:
             return
         self._answered(node, key, now)
         node.failures += 1
+        node.state_sent = None   # the failure may be a state it could not apply: send it whole
         if node.failures >= self.config.max_tile_failures:
             self._actions.append(CloseNode(node_id, 1011, f"{node.failures} tiles failed in a row"))
             self.remove_node(node_id, now)
@@ -522,7 +560,7 @@ class FrameScheduler:
         """"interactive", "still" or None: the kind of frame the state asks for at ``now``."""
         if self.camera is None:
             return None
-        if self._version > self._started_version:
+        if self._version > self._started_version or (self.scene is not None and self.scene.animating):
             return "interactive"
         if self._settle_left > 0 and self._unsettled():
             return "interactive"
@@ -566,7 +604,7 @@ class FrameScheduler:
             self._started_version = self._version
         job = FrameJob.create(self.next_frame_id, self.camera, config.size, codec, quality, partition, now,
                               still=still, version=self._version, changed_at=self._changed_at,
-                              inputs=dict(self._inputs))
+                              inputs=dict(self._inputs), state=self.scene.bind(now) if self.scene else None)
         self.next_frame_id += 1
         self._next_start_at = now + 1.0 / config.max_fps
         self.in_flight[job.frame_id] = job
@@ -606,7 +644,17 @@ class FrameScheduler:
             job.tiles[tile_id].node_id = node.node_id
             node.outstanding[(job.frame_id, tile_id)] = now
         self._idle.discard(node.node_id)
-        self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids)))
+        self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, self._state_for(node, job))))
+
+    def _state_for(self, node: NodeSchedule, job: FrameJob) -> SceneState | StateDelta | None:
+        """What brings ``node`` to ``job``'s state: a delta on the version it was sent last while the
+        log keeps that one, else the whole state."""
+        state = job.state
+        if state is None or self.scene is None:
+            return None
+        base = None if node.state_sent is None else self.scene.log.get(node.state_sent)
+        node.state_sent = state.version
+        return state if base is None else state.delta_from(base)
 
     def _pump_pull(self, now: float) -> None:
         """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame

@@ -41,6 +41,7 @@ from tessera.messages import (
     parse,
 )
 from tessera.protocol import PROTOCOL_VERSION, ProtocolError
+from tessera.scene_state import ObjectState, SceneState, StateDelta
 
 CAMERA = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0), fovy_deg=40.0)
 BOUNDS = ((-1.0, -2.0, -3.0), (1.0, 2.0, 3.0))
@@ -180,3 +181,31 @@ def test_reasons_are_bounded_whatever_the_peer_sends():
 def test_messages_are_frozen():
     with pytest.raises(ValueError, match="frozen"):
         EXAMPLES[8].node_id = 3  # type: ignore[misc]
+
+
+def test_scene_ready_carries_objects_and_keyframes():
+    ready = SceneReady(triangles=10, bounds=BOUNDS, objects=[
+        {"name": "car", "translation": [1.0, 0.0, 0.0], "bounds": BOUNDS, "triangles": 10},
+        {"name": "wheel", "parent": "car", "rotation": [0.0, 0.0, 0.0, 1.0], "visible": False}],
+        animations=[{"name": "drive", "channels": [{"target": "car", "path": "translation", "interpolation": "STEP",
+                                                    "times": [0.0, 1.0], "values": [[0, 0, 0], [1, 0, 0]]}]}])
+    assert parse(ready.to_text(), [SceneReady]) == ready
+    assert ready.objects is not None and ready.objects[1].parent == "car" and not ready.objects[1].visible
+    with pytest.raises(InvalidMessage, match="scene_ready.animations.0.channels.0.path"):
+        parse(json.dumps({**ready.to_json(), "animations": [{"name": "x", "channels": [
+            {"target": "car", "path": "weights", "interpolation": "STEP", "times": [], "values": []}]}]}),
+            [SceneReady])
+
+
+def test_render_carries_a_state_or_a_delta_and_leaves_out_none():
+    state = SceneState(3, 0.5, {"car": ObjectState((1.0, 2.0, 3.0))})
+    delta = StateDelta(3, 4, 0.75, {"car": ObjectState(visible=False)})
+    for payload in (state, delta):
+        render = Render(frame=5, camera=CAMERA, size=(64, 64), codec=Codec.PNG, tiles=(), state=payload)
+        parsed = parse(render.to_text(), [Render])
+        assert parsed.state is not None and parsed.state.to_json() == payload.to_json()
+        assert type(parsed.state) is type(payload)
+    assert "state" not in EXAMPLES[10].to_json()
+    bad = {**EXAMPLES[10].to_json(), "state": {"version": 1, "time": 0.0, "objects": {"car": {"scale": [0, 1, 1]}}}}
+    with pytest.raises(InvalidMessage, match="render.state: car.scale must be non-zero"):
+        parse(json.dumps(bad), [Render])

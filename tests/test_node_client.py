@@ -5,6 +5,7 @@ order with their ``tile_sent``, errors, slowdown, reconnection."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import os
 
@@ -22,6 +23,7 @@ from node.settings import NodeSettings, parse_settings
 from tessera.codec import Codec, decode
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.protocol import PROTOCOL_VERSION, unpack_tile
+from tessera.scene_state import ObjectPatch
 from tests.conftest import seconds
 
 SIZE = (96, 64)
@@ -76,9 +78,10 @@ async def receive_tile(ws: ServerConnection, frame: int, tile: int, scene: dict)
     return header, decode(bytes(payload), header.codec, header.rect.w, header.rect.h), stats
 
 
-async def play_coordinator(coordinator: FakeCoordinator, scene_data: SceneData) -> tuple[np.ndarray, list[float]]:
+async def play_coordinator(coordinator: FakeCoordinator,
+                           scene_data: SceneData) -> tuple[np.ndarray, list[float], np.ndarray]:
     """The whole conversation with a node that loads ``scene_data``'s scene; returns the stitched
-    frame-1 image and its tiles' render_ms."""
+    frame-1 image, its tiles' render_ms and the stitched frame in :data:`MOVED`."""
     triangles, chunks = scene_data.triangle_count, scene_data.chunks.chunk_count
     ws = await coordinator.accept()
     hello = await receive_json(ws)
@@ -91,7 +94,10 @@ async def play_coordinator(coordinator: FakeCoordinator, scene_data: SceneData) 
     while (message := await receive_json(ws))["type"] == "scene_progress":
         progress.append(message["fraction"])
     assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
-    assert set(message) == {"type", "triangles", "bounds", "groups"}, "what the coordinator reads, no more"
+    assert set(message) == {"type", "triangles", "bounds", "groups", "objects", "animations"}, \
+        "what the coordinator reads, no more"
+    assert [o["name"] for o in message["objects"]] == list(scene_data.objects.names)
+    assert message["animations"] == []
     assert message["triangles"] == triangles and np.allclose(message["bounds"], scene_data.bounds)
     assert chunks > 5, "the spheres' meshes are split into octree chunks"
     assert len(message["groups"]["boxes"]) == len(message["groups"]["counts"]) == chunks
@@ -129,6 +135,7 @@ async def play_coordinator(coordinator: FakeCoordinator, scene_data: SceneData) 
     render_ms.append(calibration["ms"])
 
     await superseded_tiles_are_dropped(ws)
+    moved = await frames_show_their_scene_state(ws, scene_data, tiles, scene)
 
     await ws.close(4401, "wrong token")
     ws = await coordinator.accept()
@@ -136,7 +143,44 @@ async def play_coordinator(coordinator: FakeCoordinator, scene_data: SceneData) 
     await send(ws, type="welcome", node_id=8)
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
     assert (await receive_json(ws))["type"] == "scene_ready", "the loaded scene must be reused, not reloaded"
-    return stitched, render_ms
+    await send(ws, type="render", frame=1, camera=CAMERA, size=list(SIZE), codec="png", tiles=tiles[:1],
+               state={"base": 4, "version": 5, "time": 0.0, "objects": {}})
+    error = await receive_json(ws)
+    assert error["type"] == "render_error" and "before any full state" in error["message"], \
+        "a new connection starts without a state"
+    return stitched, render_ms, moved
+
+
+#: sphere0 moved right and grown, sphere2 hidden (version 3 of the state).
+MOVED = {"sphere0": ObjectPatch(translation=(0.9, 0.5, 0.2), scale=(1.3, 1.3, 1.3)),
+         "sphere2": ObjectPatch(visible=False)}
+
+
+async def frames_show_their_scene_state(ws: ServerConnection, scene_data: SceneData, tiles: list[dict],
+                                        scene: dict) -> np.ndarray:
+    """Frame 5 carries a full state (version 3), frame 6 a delta to version 4, frame 7 a delta on a
+    version the node never had: tiles say the version they show, the last frame fails. Returns
+    frame 5 stitched."""
+    full = dataclasses.replace(scene_data.state_at(0.0, MOVED), version=3)
+    await send(ws, type="render", frame=5, camera=CAMERA, size=list(SIZE), codec="png", tiles=tiles,
+               state=full.to_json())
+    stitched = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
+    for tile in (0, 1):
+        header, pixels, _ = await receive_tile(ws, 5, tile, scene)
+        assert header.state == 3
+        stitched[header.rect.y:header.rect.y1, header.rect.x:header.rect.x1] = pixels
+    delta = full.patched({"sphere0": ObjectPatch(translation=(0.0, 0.0, 0.0))}).delta_from(full)
+    await send(ws, type="render", frame=6, camera=CAMERA, size=list(SIZE), codec="png", tiles=tiles[:1],
+               state=delta.to_json())
+    header, _, _ = await receive_tile(ws, 6, 0, scene)
+    assert header.state == 4
+    await send(ws, type="render", frame=7, camera=CAMERA, size=list(SIZE), codec="png", tiles=tiles,
+               state={"base": 9, "version": 10, "time": 0.0, "objects": {}})
+    for tile in (0, 1):
+        error = await receive_json(ws)
+        assert error["type"] == "render_error" and (error["frame"], error["tile"]) == (7, tile)
+        assert "scene state" in error["message"] and "does not apply" in error["message"]
+    return stitched
 
 
 CANCEL_SIZE = (3840, 2160)
@@ -163,7 +207,7 @@ async def superseded_tiles_are_dropped(ws: ServerConnection) -> None:
     assert message["tiles"] == list(range(len(rendered), 8)), "the tiles not begun yet, in order"
 
 
-async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float]]:
+async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float], np.ndarray]:
     coordinator = FakeCoordinator()
     slept: list[float] = []
 
@@ -177,11 +221,11 @@ async def run_node_against_fake() -> tuple[np.ndarray, list[float], list[float]]
         stop = asyncio.Event()
         node = asyncio.create_task(NodeClient(settings, sleep=record_sleep).run(stop))
         try:
-            stitched, render_ms = await play_coordinator(coordinator, load_scene("builtin:spheres"))
+            stitched, render_ms, moved = await play_coordinator(coordinator, load_scene("builtin:spheres"))
         finally:
             stop.set()
             await asyncio.wait_for(node, seconds(30))
-    return stitched, render_ms, slept
+    return stitched, render_ms, slept, moved
 
 
 def test_settings_come_from_environment_and_argv_wins():
@@ -223,12 +267,16 @@ def test_settings_refuse_bad_values(argv, capsys):
 
 @pytest.mark.gl
 def test_node_serves_a_fake_coordinator(ctx):
-    stitched, render_ms, slept = asyncio.run(run_node_against_fake())
+    stitched, render_ms, slept, moved = asyncio.run(run_node_against_fake())
     # Slowdown: each tile and the calibration wait (F - 1) x their render time and report F x it.
     assert len(slept) >= 5, "frames 1 and 3, the calibration and frame 4's first tile"
     for reported, wait_s in zip(render_ms, [*slept[:2], slept[3]], strict=True):
         assert reported == pytest.approx(wait_s * 1e3 * SLOWDOWN / (SLOWDOWN - 1.0), rel=1e-4)
-    renderer = TileRenderer(ctx, load_scene("builtin:spheres"), BACKGROUND)
+    scene = load_scene("builtin:spheres")
+    renderer = TileRenderer(ctx, scene, BACKGROUND)
     reference = renderer.render_tile(Camera.from_json(CAMERA), SIZE, Rect(0, 0, *SIZE)).pixels
+    posed = renderer.render_frame(Camera.from_json(CAMERA), SIZE, scene.state_at(0.0, MOVED)).pixels
     renderer.release()
     assert np.array_equal(stitched, reference), "the tiles do not compose the node's own full frame"
+    assert np.array_equal(moved, posed), "the tiles of a frame with a state compose that state's frame"
+    assert not np.array_equal(moved, reference)

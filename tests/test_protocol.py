@@ -26,6 +26,7 @@ from tessera.protocol import (
     ViewerFrame,
     pack_frame,
     pack_tile,
+    state_tag,
     unpack_frame,
     unpack_tile,
     with_input_seq,
@@ -58,6 +59,13 @@ def test_tile_header_is_48_bytes_and_little_endian():
     assert message[:4] == b"TTIL" and message[8:12] == bytes([4, 3, 2, 1])
     assert message == tile_bytes(codec=2, frame=0x01020304, tile=7, rect=(1, 2, 3, 4), times=(1.5, 0.25, 2.0),
                                  payload=b"xyz")
+
+
+def test_tile_header_carries_the_low_16_bits_of_the_scene_state_version():
+    header = TileHeader(1, 2, Rect(0, 0, 4, 4), Codec.PNG, 1.0, 1.0, 1.0, state=state_tag(0x12345))
+    message = pack_tile(header, b"x")
+    assert message[6:8] == bytes([0x45, 0x23]) and unpack_tile(message)[0].state == 0x2345
+    assert state_tag(None) == 0 and state_tag(0xFFFF) == 0xFFFF and state_tag(0x10000) == 0
 
 
 @settings(max_examples=100, deadline=None)

@@ -7,7 +7,7 @@ import asyncio
 from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import Response
 
-from server.frame_store import composite_png
+from server.frame_store import PublishedFrame, composite_png
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
 from tessera.codec import CodecError
@@ -23,7 +23,9 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
     """Waits up to ``timeout`` seconds (default ``--frame-wait-s``); a frame is rendered for the
     request when none is kept or on its way (frames render on demand). With ``still=true``, the first
     *still* frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
-    Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0. The image is lossless PNG of the tiles as
+    Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0; for a scene with objects, ``X-State-Version``
+    and ``X-Scene-Time`` (s, ``repr`` of the float: exact) of the frame's scene state, and
+    ``X-Tile-States``, the state tag each tile's node reported (tile order). The image is lossless PNG of the tiles as
     received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
     ``after`` beyond the next frame to start (no id the API handed out) → 422: no frame is on its way."""
@@ -44,5 +46,13 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
         raise HTTPException(status_code=502, detail=f"frame {frame.frame_id} cannot be composited: {exc}") from None
     return Response(png, media_type="image/png", headers={
         "X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": frame.tiles[0][1].name.lower() if frame.tiles else "",
-        "X-Frame-Still": "1" if frame.still else "0",
+        "X-Frame-Still": "1" if frame.still else "0", **state_headers(frame),
         "X-Composite-Ms": f"{decode_ms:.3f}", "X-Png-Encode-Ms": f"{encode_ms:.3f}", "Cache-Control": "no-store"})
+
+
+def state_headers(frame: PublishedFrame) -> dict[str, str]:
+    """The frame's scene state headers (none for a frame without one)."""
+    if frame.state_version is None:
+        return {}
+    return {"X-State-Version": str(frame.state_version), "X-Scene-Time": repr(frame.scene_time),
+            "X-Tile-States": ",".join(map(str, frame.tile_states))}
