@@ -12,7 +12,19 @@ from fastapi.staticfiles import StaticFiles
 from server.errors import validation_error
 from server.metrics import CoordinatorMetrics
 from server.origins import OriginPolicy
-from server.routes import balancer, camera, frames, health, node_ws, nodes, stats, viewer_ws, web
+from server.routes import (
+    animation,
+    balancer,
+    camera,
+    frames,
+    health,
+    node_ws,
+    nodes,
+    objects,
+    stats,
+    viewer_ws,
+    web,
+)
 from server.routes.guards import refuse_cross_site_writes
 from server.routes.web import WEB_DIR
 from server.service import RenderService
@@ -38,7 +50,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.settings = settings
     app.state.origins = OriginPolicy(settings.allowed_origins)
     app.middleware("http")(refuse_cross_site_writes)
-    for module in (health, stats, camera, frames, balancer, nodes, node_ws, viewer_ws, web):
+    for module in (health, stats, camera, objects, animation, frames, balancer, nodes, node_ws, viewer_ws, web):
         app.include_router(module.router)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

@@ -191,7 +191,7 @@ def test_scene_ready_carries_objects_and_keyframes():
                                                     "times": [0.0, 1.0], "values": [[0, 0, 0], [1, 0, 0]]}]}])
     assert parse(ready.to_text(), [SceneReady]) == ready
     assert ready.objects is not None and ready.objects[1].parent == "car" and not ready.objects[1].visible
-    with pytest.raises(InvalidMessage, match="scene_ready.animations.0.channels.0.path"):
+    with pytest.raises(InvalidMessage, match=r"scene_ready\.animations\.0\.channels\.0\.path"):
         parse(json.dumps({**ready.to_json(), "animations": [{"name": "x", "channels": [
             {"target": "car", "path": "weights", "interpolation": "STEP", "times": [], "values": []}]}]}),
             [SceneReady])
@@ -207,5 +207,5 @@ def test_render_carries_a_state_or_a_delta_and_leaves_out_none():
         assert type(parsed.state) is type(payload)
     assert "state" not in EXAMPLES[10].to_json()
     bad = {**EXAMPLES[10].to_json(), "state": {"version": 1, "time": 0.0, "objects": {"car": {"scale": [0, 1, 1]}}}}
-    with pytest.raises(InvalidMessage, match="render.state: car.scale must be non-zero"):
+    with pytest.raises(InvalidMessage, match=r"render\.state: car\.scale must be non-zero"):
         parse(json.dumps(bad), [Render])
