@@ -20,15 +20,22 @@ from bench.processes import orbit
 from tests.conftest import PYTHON, REPO, seconds
 
 
-def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path) -> np.ndarray:
-    """The single-node reference: ``python -m node --render-once``; (h, w, 3) uint8."""
+def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
+                scene_time: float | None = None, objects: dict[str, Any] | None = None) -> np.ndarray:
+    """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
+    ``objects`` poses: ``--time``, ``--objects``); (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))
     out = workdir / f"reference-{index}.png"
+    extra = [] if scene_time is None else ["--time", repr(float(scene_time))]
+    if objects is not None:
+        objects_file = workdir / f"objects-{index}.json"
+        objects_file.write_text(json.dumps(objects))
+        extra += ["--objects", str(objects_file)]
     result = subprocess.run(
         [PYTHON, "-m", "node", "--render-once", str(out), "--scene", scene, "--camera", str(camera_file),
-         "--size", f"{size[0]}x{size[1]}"],
+         "--size", f"{size[0]}x{size[1]}", *extra],
         cwd=REPO, capture_output=True, text=True, timeout=seconds(180))
     assert result.returncode == 0, f"render-once failed:\n{result.stdout}\n{result.stderr}"
     return np.asarray(Image.open(out).convert("RGB"))
