@@ -2,6 +2,7 @@
 // controls, the input → display latency tracker and the stats panel together, and exposes
 // read-only state as `window.tessera`.
 
+import { AnimationControls } from "./animation.js";
 import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
 import { Controls } from "./controls.js";
@@ -55,6 +56,7 @@ Object.defineProperty(window, "tessera", {
       Object.keys(state).map((key) => [key, { get: () => structuredClone(state[key]), enumerable: true }]),
     ),
     framesDropped: { get: () => compositor.dropped, enumerable: true },
+    animation: { get: () => structuredClone(animation.state), enumerable: true },
   })),
 });
 
@@ -160,6 +162,7 @@ function onText(message) {
       state.bounds = message.bounds;
       adoptCamera(message.camera);
       panel.showBalancer({ name: message.balancer, available: message.balancers });
+      if (message.bounds) animation.load();
       break;
     case "camera":
       adoptCamera(message.camera);
@@ -167,6 +170,7 @@ function onText(message) {
     case "scene":
       state.bounds = message.bounds;
       adoptCamera(message.camera);
+      animation.load();
       break;
     case "error":
       console.warn("tessera: coordinator says:", message.message);
@@ -199,6 +203,9 @@ function resetView() {
 const panel = new Panel(document, api, (nodes) => {
   nodeNames.clear();
   for (const node of nodes) nodeNames.set(node.slot, node.name ?? `node ${node.id}`);
+});
+const animation = new AnimationControls(document, api, (message) => {
+  $("panel-message").textContent = message;
 });
 const connection = new Connection(address("ws/view", location.protocol === "https:" ? "wss:" : "ws:"), {
   onText,
