@@ -10,6 +10,13 @@ Messages follow the catalogue in :mod:`tessera.messages`. Each ``render`` messag
 node's :class:`tessera.scene_state.StateReplica` to its frame's scene state (issue 11), applied in
 message order, also for a frame cancelled since; the tiles are drawn in exactly that state and
 their headers say which.
+
+Depth modes (issue 10): a ``render`` with a depth request has each tile drawn as a depth layer
+(:func:`node.gl.depth_layers.live_plan`: a hybrid tile's owned chunks into tile + strip, or the
+node's sort-last share into the rect it projects to) and sent as a depth tile
+(:mod:`tessera.depth_tiles`), its byte counts added to the tile's ``tile_sent`` counters. A
+``load_scene`` with a share keeps only that share (:mod:`node.scene.shares`); of several
+``load_scene`` messages waiting, only the newest is loaded.
 """
 
 from __future__ import annotations
@@ -31,12 +38,16 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 
 from node.culling.switch import CullMode
 from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
+from node.gl.depth_layers import live_plan
 from node.gl.renderer import RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from node.scene.shares import keep_share
 from node.settings import NodeSettings
 from tessera.codec import Codec, encode
+from tessera.depth_compositing import DepthLayer
+from tessera.depth_tiles import encode_depth_tile
 from tessera.geometry import Camera, Rect
 from tessera.messages import (
     TO_NODE,
@@ -44,6 +55,7 @@ from tessera.messages import (
     Calibration,
     Cancel,
     Capabilities,
+    DepthRequest,
     InvalidMessage,
     LoadScene,
     Message,
@@ -55,6 +67,7 @@ from tessera.messages import (
     SceneGroups,
     SceneProgress,
     SceneReady,
+    ShareSpec,
     TilesDropped,
     TileSent,
     Welcome,
@@ -90,11 +103,30 @@ def encode_tile(frame: int, tile: RenderTile, rendered: RenderedTile, render_ms:
     return pack_tile(header, payload)
 
 
+def encode_depth_message(frame: int, tile: RenderTile, rendered: RenderedTile | None, core: Rect | None,
+                         render_ms: float, codec: Codec, jpeg_quality: int, state: SceneState | None, version: int,
+                         stats: dict[str, Any]) -> bytes:
+    """The binary depth tile message of ``rendered`` (None: nothing in view) with its ``core`` as an
+    image in ``codec``; the tile's byte counts are added to ``stats`` (its ``tile_sent`` counters)."""
+    started = time.perf_counter()
+    layer = None if rendered is None or rendered.depth is None else DepthLayer(rendered.rect, rendered.pixels,
+                                                                                rendered.depth, 0)
+    payload, counts = encode_depth_tile(layer, core, codec, jpeg_quality, version)
+    encode_ms = (time.perf_counter() - started) * 1e3
+    stats.update(counts.as_stats())
+    readback_ms = 0.0 if rendered is None else rendered.readback_ms
+    header = TileHeader(frame, tile.tile, tile.rect, codec, render_ms, readback_ms, encode_ms,
+                        state_tag(None if state is None else state.version), depth=True)
+    return pack_tile(header, payload)
+
+
 class GLWorker:
     """The one thread that owns the GL context: scenes are loaded (split into chunks of at most
-    ``face_limit`` faces), uploaded and drawn (with ``culling``) only there.
+    ``face_limit`` faces; in sort-last only a share kept), uploaded and drawn (with ``culling``)
+    only there.
 
-    The loaded scene survives reconnects; asking for the same scene again reuses it.
+    The loaded scene survives reconnects; asking for the same scene (and share) again reuses it.
+    ``share_version``: the data partition version of the share loaded (None: the whole scene).
     """
 
     def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT) -> None:
@@ -102,6 +134,8 @@ class GLWorker:
         self._ctx: moderngl.Context | None = None
         self._renderer: TileRenderer | None = None
         self.scene_spec: str | None = None
+        self._share: tuple[int, tuple[float, ...]] | None = None
+        self.share_version: int | None = None
         self.culling, self.face_limit = culling, face_limit
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
@@ -115,24 +149,33 @@ class GLWorker:
         self._ctx = create_gl_context()
         return renderer_string(self._ctx)
 
-    async def load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback) -> SceneData:
-        """Load and upload ``spec`` (or reuse it when already loaded); raises SceneError."""
-        return await self._call(self._load, spec, background, progress)
+    async def load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback,
+                   share: ShareSpec | None = None) -> SceneData:
+        """Load and upload ``spec`` (only ``share`` of it, if given), or reuse it when already
+        loaded; raises SceneError."""
+        return await self._call(self._load, spec, background, progress, share)
 
-    def _load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback) -> SceneData:
+    def _load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback,
+              share: ShareSpec | None) -> SceneData:
         assert self._ctx is not None
-        if self._renderer is not None and spec == self.scene_spec:
+        share_key = None if share is None else (share.index, share.weights)
+        if self._renderer is not None and spec == self.scene_spec and share_key == self._share:
             if background is not None:
                 self._renderer.background = background
+            self.share_version = None if share is None else share.version
             return self._renderer.scene
         self._release_scene()
         scene = load_scene(spec, progress, self.face_limit)
+        if share is not None:
+            progress(0.8, f"keeping share {share.index + 1} of {len(share.weights)}")
+            scene = keep_share(scene, share.weights, share.index)
         progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         if background is None:
             self._renderer = TileRenderer(self._ctx, scene, culling=self.culling)
         else:
             self._renderer = TileRenderer(self._ctx, scene, background, culling=self.culling)
-        self.scene_spec = spec
+        self.scene_spec, self._share = spec, share_key
+        self.share_version = None if share is None else share.version
         return scene
 
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
@@ -147,10 +190,32 @@ class GLWorker:
             raise RuntimeError("no scene loaded")
         return self._renderer.render_tile(camera, size, rect, slot, state=state)
 
+    async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
+                           state: SceneState | None) -> tuple[RenderedTile | None, Rect | None, float]:
+        """Tile ``tile_id`` of a depth ``request`` in scene ``state`` as a depth layer: the rendered
+        layer (None: nothing of it in view), its core (sent without depth; None: none) and the ms
+        spent choosing its chunks."""
+        return await self._call(self._render_depth, camera, size, request, tile_id, state)
+
+    def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
+                      state: SceneState | None) -> tuple[RenderedTile | None, Rect | None, float]:
+        if self._renderer is None:
+            raise RuntimeError("no scene loaded")
+        if request.mode == "sort-last" and request.share != self.share_version:
+            raise RuntimeError(f"share of partition {request.share} asked for; this node holds "
+                               f"{self.share_version or 'the whole scene'}")
+        started = time.perf_counter()
+        plan = live_plan(self._renderer, camera, size, request, tile_id, state)
+        plan_ms = (time.perf_counter() - started) * 1e3
+        if plan is None:
+            return None, None, plan_ms
+        layer = self._renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state)
+        return layer, plan.exclusive, plan_ms
+
     def _release_scene(self) -> None:
         if self._renderer is not None:
             self._renderer.release()
-        self._renderer, self.scene_spec = None, None
+        self._renderer, self.scene_spec, self._share, self.share_version = None, None, None, None
 
     def _close(self) -> None:
         self._release_scene()
@@ -167,7 +232,8 @@ class GLWorker:
 @dataclass(frozen=True, slots=True)
 class PendingTile:
     """A tile whose encoding may still run; the sender awaits it in order. ``stats``: its
-    ``tile_sent`` counters (:meth:`RenderedTile.stats`)."""
+    ``tile_sent`` counters (:meth:`RenderedTile.stats`; a depth tile's encoder adds its byte
+    counts before ``packed`` is done)."""
 
     frame: int
     tile: int
@@ -189,6 +255,7 @@ class NodeClient:
         self._welcomed = False
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
         self._replica = StateReplica()
+        self._newest_load: LoadScene | None = None
         self.tiles_dropped = 0
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -239,7 +306,7 @@ class NodeClient:
     def hello(self) -> NodeHello:
         return NodeHello(name=self.settings.name, token=self.settings.token or "", renderer=self.renderer_name,
                          version=PROTOCOL_VERSION,
-                         capabilities=Capabilities(slowdown=self.settings.slowdown, calibrate=True))
+                         capabilities=Capabilities(slowdown=self.settings.slowdown, calibrate=True, depth=True))
 
     async def _session(self, ws: ClientConnection) -> None:
         self._replica = StateReplica()
@@ -282,7 +349,10 @@ class NodeClient:
                     self.node_id = message.node_id
                     self._welcomed = True
                     log.info("registered as node %s", self.node_id)
-                case LoadScene() | Render() | Calibrate():
+                case LoadScene():
+                    self._newest_load = message
+                    jobs.put_nowait(message)
+                case Render() | Calibrate():
                     jobs.put_nowait(message)
 
     async def _job_loop(self, jobs: asyncio.Queue[Job], outbox: asyncio.Queue[Message | PendingTile]) -> None:
@@ -290,7 +360,8 @@ class NodeClient:
             job = await jobs.get()
             match job:
                 case LoadScene():
-                    await self._load_scene(job, outbox)
+                    if job is self._newest_load:   # a newer one waits: this one is superseded
+                        await self._load_scene(job, outbox)
                 case Calibrate():
                     await self._calibrate(job, outbox)
                 case Render():
@@ -322,7 +393,7 @@ class NodeClient:
 
         started = time.perf_counter()
         try:
-            scene = await self.worker.load(spec, message.background, progress)
+            scene = await self.worker.load(spec, message.background, progress, message.share)
         except Exception as exc:  # SceneError, or a GL failure while uploading
             reason = " ".join(str(exc).split()) or type(exc).__name__
             log.warning("scene %s failed: %s", spec, reason)
@@ -334,11 +405,11 @@ class NodeClient:
         groups = SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist())
         outbox.put_nowait(SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups,
                                      objects=scene.objects.to_json(),
-                                     animations=[a.keyframes_json() for a in scene.animations]))
+                                     animations=[a.keyframes_json() for a in scene.animations],
+                                     share=self.worker.share_version))
 
     async def _render(self, job: Render, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         loop = asyncio.get_running_loop()
-        slowdown = self.settings.slowdown
         try:
             state = None if job.state is None else self._replica.receive(job.state)
         except SceneStateError as exc:
@@ -349,15 +420,15 @@ class NodeClient:
             if job.frame in self._cancelled:
                 dropped.append(request.tile)
                 continue
+            if job.depth is not None:
+                await self._render_depth_tile(job, job.depth, request, state, outbox)
+                continue
             try:
                 rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state)
             except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
                 self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
                 continue
-            render_ms = rendered.render_ms
-            if slowdown > 1.0:
-                await self._sleep((slowdown - 1.0) * render_ms / 1e3)
-                render_ms *= slowdown
+            render_ms = await self._slow_down(rendered.render_ms)
             packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, request, rendered, render_ms,
                                           job.codec, job.jpeg_quality, state)
             outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
@@ -365,6 +436,30 @@ class NodeClient:
             self.tiles_dropped += len(dropped)
             log.debug("frame %d superseded: %d queued tiles dropped", job.frame, len(dropped))
             outbox.put_nowait(TilesDropped(frame=job.frame, tiles=tuple(dropped)))
+
+    async def _slow_down(self, render_ms: float) -> float:
+        """Sleep the emulated slowdown's extra time for a render of ``render_ms``; its time as reported."""
+        slowdown = self.settings.slowdown
+        if slowdown > 1.0:
+            await self._sleep((slowdown - 1.0) * render_ms / 1e3)
+            render_ms *= slowdown
+        return render_ms
+
+    async def _render_depth_tile(self, job: Render, depth: DepthRequest, request: RenderTile,
+                                 state: SceneState | None, outbox: asyncio.Queue[Message | PendingTile]) -> None:
+        """One tile of a depth ``job``: drawn as a layer, encoded as a depth tile in the encoder thread."""
+        try:
+            rendered, core, plan_ms = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state)
+        except Exception as exc:  # a bad tile id, no scene, another share, or a GL failure: report, keep serving
+            self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
+            return
+        render_ms = await self._slow_down(plan_ms + (0.0 if rendered is None else rendered.render_ms))
+        stats: dict[str, Any] = {"triangles": 0} if rendered is None else rendered.stats()
+        stats["plan_ms"] = round(plan_ms, 4)
+        packed = asyncio.get_running_loop().run_in_executor(
+            self._encoder, encode_depth_message, job.frame, request, rendered, core, render_ms, job.codec,
+            job.jpeg_quality, state, self.worker.share_version or 0, stats)
+        outbox.put_nowait(PendingTile(job.frame, request.tile, packed, stats))
 
     async def _calibrate(self, job: Calibrate, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and

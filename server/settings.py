@@ -10,8 +10,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from server.origins import normalise_origins
+from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.cli_values import parse_background, size_parser
 from tessera.codec import Codec
+from tessera.scheduler import MODES
 
 DEFAULT_SCENE = "builtin:cluster"
 #: The best measured balancer (README "Balancing": bench.balance on Lucy's orbit, fly-through and orbit
@@ -157,6 +159,9 @@ class Settings:
     max_node_message_bytes: int | None = None
     max_viewer_messages_per_s: float = DEFAULT_MAX_VIEWER_MESSAGES_PER_S
     max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
+    #: Decomposition mode, one of :data:`tessera.scheduler.MODES`; ``depth_strip``: the hybrid's strip (px).
+    mode: str = "sort-first"
+    depth_strip: int = DEFAULT_DEPTH_STRIP
 
     @property
     def node_message_bytes(self) -> int:
@@ -175,6 +180,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
     parser.add_argument("--size", type=parse_size, help="frame size WxH (default 1280x720)")
     parser.add_argument("--balancer", help=f"load balancer (default {DEFAULT_BALANCER})")
+    parser.add_argument("--mode", choices=MODES,
+                        help="sort-first (default: disjoint tiles, every node holds the scene), hybrid (seed 000 "
+                             "§4.4: each chunk drawn once, by the tile owning it, into a border strip merged by "
+                             "depth) or sort-last (each node holds a share of the scene; layers merged by depth)")
+    parser.add_argument("--depth-strip", type=_count,
+                        help=f"hybrid border strip, px (default {DEFAULT_DEPTH_STRIP}, measured by bench.compose)")
     parser.add_argument("--token", help="shared secret that nodes and viewers must present")
     parser.add_argument("--local-nodes", type=_count, help="spawn N render nodes on this machine")
     parser.add_argument("--codec", type=_codec,

@@ -23,6 +23,12 @@ Where the seed is vague, this module decides:
 - The result depends only on the bounds, the tiles and the strip: every node computes the same
   owner for the chunks it looks at, so ownership needs no messages (the seed's implicit,
   per-server model partition).
+- Blended chunks (glTF ``BLEND``) write no depth, and their colour depends on everything drawn
+  behind them, which a tile's layer holds only in part: a tile that a blended chunk's bound
+  touches is drawn *complete* (every chunk touching it, as in sort-first, besides those it owns)
+  and all of it is final as drawn: its core is the whole tile. Its neighbours' strips reach into
+  it but are pasted over; any blended fragment in a strip lies in such a tile (the chunk's bound
+  touches it), so merging by depth stays exact for the other tiles.
 
 Why the merge is exact: a pixel p lies in exactly one tile V. A chunk that covers p is either owned,
 and then its owner's read-back rect holds all of its pixels, p included, or shared, and then it
@@ -46,6 +52,10 @@ SHARED = -1
 OFF_SCREEN = -2
 #: Bounds are grown by this many pixels before testing them against tiles and strips.
 DEFAULT_MARGIN_PX = 1.0
+#: The border strip's default width (``--depth-strip``): the narrowest that kept the hybrid's
+#: redundancy within 1.02 on the Pan's orbit, zoom and fly-through (bench.compose's strip sweep,
+#: docs/depth_compositing.md).
+DEFAULT_DEPTH_STRIP = 32
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,13 +64,21 @@ class Ownership:
 
     ``owner`` (K,) int64: the owning tile's index, :data:`SHARED` or :data:`OFF_SCREEN`;
     ``draws``: per tile, (n_t,) int64 sorted indices (into the K chunks) of what it draws — the
-    chunks it owns and the shared ones touching it; ``readback``: per tile, the rect it draws into
-    and reads back (the tile grown by the strip, clipped to the frame).
+    chunks it owns and the shared ones touching it (a complete tile: every chunk touching it,
+    too); ``readback``: per tile, the rect it draws into and reads back (the tile grown by the
+    strip, clipped to the frame); ``complete`` (T,) bool: tiles a blended chunk touches.
     """
 
     owner: np.ndarray
     draws: tuple[np.ndarray, ...]
     readback: tuple[Rect, ...]
+    complete: np.ndarray
+
+
+def core_rect(tile: Rect, strip_px: int, size: tuple[int, int], complete: bool = False) -> Rect | None:
+    """What of ``tile`` is final as its node drew it and travels as colour alone: the whole tile
+    when it is drawn complete, else :func:`exclusive_rect`."""
+    return tile if complete else exclusive_rect(tile, strip_px, size)
 
 
 def readback_rect(tile: Rect, strip_px: int, size: tuple[int, int]) -> Rect:
@@ -86,11 +104,12 @@ def exclusive_rect(tile: Rect, strip_px: int, size: tuple[int, int]) -> Rect | N
 
 
 def assign_chunks(bounds: np.ndarray, tiles: Sequence[Rect], strip_px: int, size: tuple[int, int],
-                  margin_px: float = DEFAULT_MARGIN_PX) -> Ownership:
+                  margin_px: float = DEFAULT_MARGIN_PX, blended: np.ndarray | None = None) -> Ownership:
     """Owners and per-tile draw lists of chunks with projected ``bounds`` (K, 4) float64 pixels x0,
     y0, x1, y1 (origin top-left, clipped to the frame, empty where x1 ≤ x0 or y1 ≤ y0, as
     :func:`tessera.projection.project_boxes` gives them), for ``tiles`` that cover the ``size``
-    frame exactly, with border strips ``strip_px`` ≥ 0 wide. Cost O(K × T) in numpy."""
+    frame exactly, with border strips ``strip_px`` ≥ 0 wide; ``blended`` (K,) bool marks the
+    chunks that blend (None: none). Cost O(K × T) in numpy."""
     if strip_px < 0:
         raise ValueError(f"the depth strip must be >= 0 px, got {strip_px}")
     if not tiles:
@@ -115,5 +134,8 @@ def assign_chunks(bounds: np.ndarray, tiles: Sequence[Rect], strip_px: int, size
                      np.where(fits.any(axis=1), fits.argmax(axis=1), SHARED)).astype(np.int64)
     owner[~on_screen] = OFF_SCREEN
     shared = owner == SHARED
-    draws = tuple(np.flatnonzero((owner == t) | (shared & touches[:, t])) for t in range(len(tiles)))
-    return Ownership(owner, draws, readback)
+    touches &= on_screen[:, None]
+    complete = np.zeros(len(tiles), dtype=bool) if blended is None else \
+        (touches & np.asarray(blended, dtype=bool)[:, None]).any(axis=0)
+    draws = tuple(np.flatnonzero((owner == t) | ((shared | complete[t]) & touches[:, t])) for t in range(len(tiles)))
+    return Ownership(owner, draws, readback, complete)

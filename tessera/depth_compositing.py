@@ -153,17 +153,24 @@ def split_layer(layer: DepthLayer, core: Rect | None) -> tuple[list[DepthLayer],
     rect = layer.rect
     if core is None:
         return [layer], None
-    if core.x < rect.x or core.y < rect.y or core.x1 > rect.x1 or core.y1 > rect.y1:
-        raise ValueError(f"core {core.as_list()} is not inside the layer {rect.as_list()}")
-    pieces = [Rect(rect.x, rect.y, rect.w, core.y - rect.y), Rect(rect.x, core.y1, rect.w, rect.y1 - core.y1),
-              Rect(rect.x, core.y, core.x - rect.x, core.h), Rect(core.x1, core.y, rect.x1 - core.x1, core.h)]
 
     def window(piece: Rect) -> tuple[slice, slice]:
         return slice(piece.y - rect.y, piece.y1 - rect.y), slice(piece.x - rect.x, piece.x1 - rect.x)
 
     strips = [DepthLayer(piece, layer.color[window(piece)], layer.depth[window(piece)], layer.slot)
-              for piece in pieces if piece.w > 0 and piece.h > 0]
+              for piece in ring_rects(rect, core)]
     return strips, np.ascontiguousarray(layer.color[window(core)])
+
+
+def ring_rects(rect: Rect, core: Rect) -> list[Rect]:
+    """``rect`` minus ``core`` (inside it) as at most four disjoint non-empty rects: the top and
+    bottom bands full width, the left and right ones between. Raises ValueError for a core that
+    is not inside the rect."""
+    if core.x < rect.x or core.y < rect.y or core.x1 > rect.x1 or core.y1 > rect.y1:
+        raise ValueError(f"core {core.as_list()} is not inside the layer {rect.as_list()}")
+    pieces = [Rect(rect.x, rect.y, rect.w, core.y - rect.y), Rect(rect.x, core.y1, rect.w, rect.y1 - core.y1),
+              Rect(rect.x, core.y, core.x - rect.x, core.h), Rect(core.x1, core.y, rect.x1 - core.x1, core.h)]
+    return [piece for piece in pieces if piece.w > 0 and piece.h > 0]
 
 
 def _pixels(color: np.ndarray) -> np.ndarray:

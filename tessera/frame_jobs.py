@@ -16,8 +16,9 @@ from PIL import Image
 
 from tessera.balancers.base import Partition, TileTiming
 from tessera.codec import Codec
+from tessera.depth_tiles import DecodedDepthTile
 from tessera.geometry import Camera, Rect
-from tessera.messages import Render, RenderTile
+from tessera.messages import DepthRequest, Render, RenderTile
 from tessera.protocol import ProtocolError, TileHeader, state_tag
 from tessera.scene_state import SceneState, StateDelta
 
@@ -26,7 +27,8 @@ from tessera.scene_state import SceneState, StateDelta
 class TileJob:
     """One tile of a frame: assigned node (None while waiting to be pulled), result when back.
     ``earlier``: nodes it was assigned to before a backup copy went to ``node_id``; the first copy
-    back wins."""
+    back wins. ``depth_tile``: a depth tile's decoded layers, set by the coordinator when it
+    accepts one (the payload then holds its bytes)."""
 
     tile_id: int
     rect: Rect
@@ -37,6 +39,7 @@ class TileJob:
     rendered_by: int | None = None
     send_ms: float | None = None
     counters: dict[str, float | str] = field(default_factory=dict)
+    depth_tile: DecodedDepthTile | None = None
 
     @property
     def done(self) -> bool:
@@ -51,7 +54,8 @@ class FrameJob:
     ``still``: the lossless frame rendered once motion stopped (else an interactive frame);
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
-    it accounts for.
+    it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
+    sort-first), its tiles then depth tiles.
     """
 
     frame_id: int
@@ -69,6 +73,7 @@ class FrameJob:
     changed_at: float = 0.0
     inputs: dict[object, int] = field(default_factory=dict)
     state: SceneState | None = None
+    depth: DepthRequest | None = None
     tiles_done: int = 0
     sends_done: int = 0
 
@@ -76,11 +81,11 @@ class FrameJob:
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
                partition: Partition, started_at: float, *, still: bool = False, version: int = 0,
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
-               state: SceneState | None = None) -> FrameJob:
+               state: SceneState | None = None, depth: DepthRequest | None = None) -> FrameJob:
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
-                  inputs=dict(inputs or {}), state=state)
+                  inputs=dict(inputs or {}), state=state, depth=depth)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -99,12 +104,15 @@ class FrameJob:
         to this frame's state (the state itself, or a delta on the one the node has)."""
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
-                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state)
+                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state,
+                      depth=self.depth)
 
-    def accept(self, node_id: int, header: TileHeader, payload: bytes) -> TileJob | None:
+    def accept(self, node_id: int, header: TileHeader, payload: bytes,
+               depth_tile: DecodedDepthTile | None = None) -> TileJob | None:
         """Record a tile result after checking it is the tile this node owes; ProtocolError if not.
         None: the second copy of a tile that was also given to another node (dropped). The payload
-        is kept as it is (see :func:`check_payload_size`)."""
+        is kept as it is (see :func:`check_payload_size`); a depth frame's tiles come with their
+        ``depth_tile`` decoded."""
         if not 0 <= header.tile_id < len(self.tiles):
             raise ProtocolError(f"frame {self.frame_id} has no tile {header.tile_id}")
         tile = self.tiles[header.tile_id]
@@ -115,6 +123,10 @@ class FrameJob:
                 f"tile {header.tile_id} has rect {header.rect.as_list()}, expected {tile.rect.as_list()}")
         if header.codec != self.codec:
             raise ProtocolError(f"tile codec {header.codec.name} but {self.codec.name} was requested")
+        if header.depth != (self.depth is not None) or (depth_tile is None) == header.depth:
+            mode = "sort-first" if self.depth is None else self.depth.mode
+            raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} is "
+                                f"{'' if header.depth else 'not '}a depth tile; the frame's mode is {mode}")
         expected = state_tag(None if self.state is None else self.state.version)
         if header.state != expected:
             raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} shows scene state {header.state}, "
@@ -123,7 +135,7 @@ class FrameJob:
             if tile.rendered_by == node_id:
                 raise ProtocolError(f"tile {header.tile_id} of frame {self.frame_id} was already received")
             return None
-        tile.header, tile.payload, tile.rendered_by = header, payload, node_id
+        tile.header, tile.payload, tile.rendered_by, tile.depth_tile = header, payload, node_id, depth_tile
         self.tiles_done += 1
         return tile
 

@@ -11,10 +11,10 @@ Binary tiles and frames, and the protocol version, are in :mod:`tessera.protocol
 node → coordinator
 
 * ``hello`` :class:`NodeHello` — the first message: name, token, GL renderer, protocol version,
-  capabilities (slowdown, calibrate)
+  capabilities (slowdown, calibrate, depth)
 * ``scene_progress`` :class:`SceneProgress`, ``scene_ready`` :class:`SceneReady` (triangles,
-  bounds, world-space primitive groups, the named objects and the animations' keyframes),
-  ``scene_error`` :class:`SceneError`
+  bounds, world-space primitive groups, the named objects and the animations' keyframes; in
+  sort-last, the data partition version of the share loaded), ``scene_error`` :class:`SceneError`
 * ``tile_sent`` :class:`TileSent` — after each binary tile: its send time and the node's per-tile
   counters (triangles, chunks_drawn, chunks_culled, cull_ms, cull_path)
 * ``render_error`` :class:`RenderError` — a tile the node could not render (frame 0, tile 0: a
@@ -25,9 +25,11 @@ node → coordinator
 
 coordinator → node
 
-* ``welcome`` :class:`Welcome` (node id), ``load_scene`` :class:`LoadScene`
+* ``welcome`` :class:`Welcome` (node id), ``load_scene`` :class:`LoadScene` (in sort-last, with the
+  node's ``share`` of the scene: :class:`ShareSpec`; sent again when the data is re-partitioned)
 * ``render`` :class:`Render` — tiles are rendered in list order, each sent as soon as done, in
-  the message's scene ``state`` (a full state, or a delta on the one the node was sent last)
+  the message's scene ``state`` (a full state, or a delta on the one the node was sent last); with
+  ``depth`` (:class:`DepthRequest`, issue 10) as depth tiles of the hybrid or sort-last mode
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
 
@@ -76,6 +78,8 @@ MAX_CALIBRATION_REPEATS = 20
 MAX_COUNTER_TEXT = 40
 #: Longest reason a ProtocolError of this module gives.
 MAX_REASON = 300
+#: Most tiles a hybrid ``render`` may list, and most shares a sort-last partition may have.
+MAX_DEPTH_TILES = 4096
 
 
 class InvalidMessage(ProtocolError):
@@ -166,11 +170,14 @@ class Message(BaseModel):
 
 
 class Capabilities(BaseModel):
-    """``slowdown``: the node's emulated slowdown factor; ``calibrate``: it answers ``calibrate``."""
+    """``slowdown``: the node's emulated slowdown factor; ``calibrate``: it answers ``calibrate``;
+    ``depth``: it renders depth tiles (``render.depth``) and loads shares (``load_scene.share``),
+    which the coordinator's hybrid and sort-last modes need."""
 
     model_config = _FIELDS
     slowdown: Number = 1.0
     calibrate: StrictBool = False
+    depth: StrictBool = False
 
 
 class NodeHello(Message):
@@ -257,6 +264,16 @@ class SceneReady(Message):
     groups: SceneGroups | None = None
     objects: list[SceneObjectJson] | None = None
     animations: list[AnimationJson] = Field(default_factory=list)
+    #: Sort-last: the data partition version whose share the node loaded (``triangles`` are the
+    #: share's, ``bounds`` the whole scene's).
+    share: Annotated[StrictInt, Field(ge=1)] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """Without ``share`` when the node holds the whole scene."""
+        data = super().to_json()
+        if self.share is None:
+            del data["share"]
+        return data
 
 
 class SceneError(Message):
@@ -301,18 +318,65 @@ class Welcome(Message):
     node_id: Int
 
 
+class ShareSpec(BaseModel):
+    """Sort-last (issue 10): keep only share ``index`` of data partition ``version``, the scene's
+    chunks split by :func:`tessera.data_partition.split_chunks` over ``weights``, one per share
+    (the nodes' calibrated speeds)."""
+
+    model_config = _FIELDS
+    version: Annotated[StrictInt, Field(ge=1)]
+    index: Annotated[StrictInt, Field(ge=0)]
+    weights: Annotated[tuple[Annotated[StrictFloat, Field(gt=0)], ...], Field(min_length=1,
+                                                                              max_length=MAX_DEPTH_TILES)]
+
+    @model_validator(mode="after")
+    def _index_in_range(self) -> Self:
+        if self.index >= len(self.weights):
+            raise ValueError(f"share {self.index} of {len(self.weights)}")
+        return self
+
+
 class LoadScene(Message):
-    """``scene``: ``builtin:NAME`` or a path; ``background``: clear colour, RGB in 0…1."""
+    """``scene``: ``builtin:NAME`` or a path; ``background``: clear colour, RGB in 0…1; ``share``:
+    sort-last, the part of the scene to keep (None: all of it)."""
 
     kind = "load_scene"
     scene: Text
     background: tuple[Unit, Unit, Unit] | None = None
+    share: ShareSpec | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """Without ``share`` when there is none (the sort-first and hybrid modes)."""
+        data = super().to_json()
+        if self.share is None:
+            del data["share"]
+        return data
 
 
 class RenderTile(BaseModel):
     model_config = _FIELDS
     tile: Int
     rect: RectJson
+
+
+class DepthRequest(BaseModel):
+    """Render the tiles as depth tiles (issue 10, :mod:`tessera.depth_tiles`). ``mode`` "hybrid"
+    (seed 000 §4.4): ``tiles`` is the frame's whole partition (tile ids index it; a node needs
+    every tile to find which chunks its tile owns) and ``strip`` the border strip in pixels;
+    "sort-last": ``share`` is the data partition version the node's share must be of, and its one
+    tile is the whole frame."""
+
+    model_config = _FIELDS
+    mode: Literal["hybrid", "sort-last"]
+    tiles: Annotated[tuple[RectJson, ...], Field(max_length=MAX_DEPTH_TILES)] = ()
+    strip: Annotated[StrictInt, Field(ge=0, le=MAX_SIDE)] = 0
+    share: Annotated[StrictInt, Field(ge=0)] = 0
+
+    @model_validator(mode="after")
+    def _hybrid_has_tiles(self) -> Self:
+        if self.mode == "hybrid" and not self.tiles:
+            raise ValueError("a hybrid render lists the frame's tiles")
+        return self
 
 
 class Render(Message):
@@ -324,12 +388,15 @@ class Render(Message):
     jpeg_quality: Annotated[StrictInt, Field(ge=1, le=100)] = 85
     tiles: tuple[RenderTile, ...]
     state: StateJson | None = None
+    depth: DepthRequest | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Without ``state`` when there is none (a scene whose nodes listed no objects)."""
+        """Without ``state`` when there is none (a scene whose nodes listed no objects), without
+        ``depth`` in sort-first."""
         data = super().to_json()
-        if self.state is None:
-            del data["state"]
+        for key in ("state", "depth"):
+            if getattr(self, key) is None:
+                del data[key]
         return data
 
 

@@ -4,7 +4,12 @@ Binary WebSocket messages start with a magic:
 
 * ``TTIL`` tile result, node → coordinator: :class:`TileHeader` + one encoded image. Its u16 at
   offset 6 is the low 16 bits of the scene state version the tile was rendered with (issue 11: a
-  frame's tiles all show one state; 0 for a static scene, as before).
+  frame's tiles all show one state; 0 for a static scene, as before). Its codec byte with
+  :data:`DEPTH_TILE` set (issue 10: the hybrid and sort-last modes) marks a depth tile, whose
+  payload is a :mod:`tessera.depth_tiles` layer (its core image in the codec of the low bits);
+  nodes send one only when a ``render`` message asks for depth, which the coordinator does only
+  of nodes whose ``hello`` says they can (``capabilities.depth``): the flag extends version 2
+  without changing a byte of what older nodes and viewers exchange.
 * ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
   still frame; ``input_seq``: the viewer's newest input sequence number the frame accounts for,
   0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
@@ -41,6 +46,8 @@ _INPUT_SEQ_OFFSET = 20
 STATE_TAG_MASK = 0xFFFF
 #: Frame header flag: the lossless still frame shown once motion stopped.
 FRAME_STILL = 0x01
+#: Tile header codec flag: the payload is a depth tile (:mod:`tessera.depth_tiles`).
+DEPTH_TILE = 0x80
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
 
 
@@ -51,7 +58,8 @@ class ProtocolError(ValueError):
 @dataclass(frozen=True, slots=True)
 class TileHeader:
     """A rendered tile: which frame and tile, where, how encoded, the node's phase times (ms) and
-    ``state``, the scene state version it shows (:func:`state_tag`: its low 16 bits)."""
+    ``state``, the scene state version it shows (:func:`state_tag`: its low 16 bits); ``depth``:
+    a depth tile (:data:`DEPTH_TILE`), ``codec`` then being its core's."""
 
     frame_id: int
     tile_id: int
@@ -61,6 +69,7 @@ class TileHeader:
     readback_ms: float
     encode_ms: float
     state: int = 0
+    depth: bool = False
 
 
 def state_tag(version: int | None) -> int:
@@ -72,8 +81,9 @@ def state_tag(version: int | None) -> int:
 def pack_tile(header: TileHeader, payload: bytes) -> bytes:
     """Binary tile message: 48-byte header + encoded image."""
     r = header.rect
+    codec = int(header.codec) | (DEPTH_TILE if header.depth else 0)
     head = _TILE_HEADER.pack(
-        TILE_MAGIC, PROTOCOL_VERSION, int(header.codec), state_tag(header.state), header.frame_id, header.tile_id,
+        TILE_MAGIC, PROTOCOL_VERSION, codec, state_tag(header.state), header.frame_id, header.tile_id,
         r.x, r.y, r.w, r.h, header.render_ms, header.readback_ms, header.encode_ms, len(payload),
     )
     return head + payload
@@ -90,7 +100,7 @@ def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
     if version != PROTOCOL_VERSION:
         raise ProtocolError(f"tile protocol version {version}, expected {PROTOCOL_VERSION}")
     try:
-        codec_value = Codec(codec)
+        codec_value = Codec(codec & ~DEPTH_TILE)
     except ValueError:
         raise ProtocolError(f"unknown tile codec {codec}") from None
     if length != len(message) - _TILE_HEADER.size:
@@ -100,7 +110,8 @@ def unpack_tile(message: bytes) -> tuple[TileHeader, memoryview]:
         raise ProtocolError(f"tile timings must be finite and >= 0, got {times}")
     if w == 0 or h == 0:
         raise ProtocolError("tile has zero size")
-    header = TileHeader(frame_id, tile_id, Rect(x, y, w, h), codec_value, render_ms, readback_ms, encode_ms, state)
+    header = TileHeader(frame_id, tile_id, Rect(x, y, w, h), codec_value, render_ms, readback_ms, encode_ms, state,
+                        bool(codec & DEPTH_TILE))
     return header, memoryview(message)[_TILE_HEADER.size:]
 
 

@@ -39,6 +39,10 @@ What it decides:
   tasks; the first copy back wins, the other is dropped) and it gets no new work until it answers
   again. A tile the node reports it could not render goes to another node; ``max_tile_failures``
   failures in a row close the node. A node silent past ``tile_timeout_s`` is closed.
+* **Decomposition modes** (issue 10). ``sort-first``: tiles as above. ``hybrid`` (seed 000
+  §4.4): the same tiles, the same balancers, but each render message asks for depth tiles and
+  lists the frame's whole partition and the border strip, from which every node finds alone
+  which chunks its tile owns (:mod:`tessera.chunk_ownership`); the coordinator merges the strips.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
   frame completes, so the next frame is partitioned with them; send times, which each node
@@ -55,11 +59,13 @@ import numpy as np
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, TileTiming
 from tessera.balancers.static import StaticBalancer
+from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.codec import Codec
+from tessera.depth_tiles import DecodedDepthTile
 from tessera.frame_jobs import FrameJob
 from tessera.frame_stats import FrameStats
 from tessera.geometry import Camera
-from tessera.messages import Render
+from tessera.messages import DepthRequest, Render
 from tessera.partition import check_exact_cover
 from tessera.projection import project_groups
 from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
@@ -72,6 +78,8 @@ AWAITING_SEND_FRAMES = 8
 MAX_NODE_SLOTS = 1 << 16
 #: How often frames in flight are looked at for stragglers (s).
 STRAGGLER_CHECK_S = 0.1
+#: The decomposition modes (``--mode``); sort-first is the default.
+MODES = ("sort-first", "hybrid")
 #: Tiles of dropped frames a node is remembered to have owed (it may still send the one it was
 #: on, or report the others skipped); the oldest are forgotten first.
 DROPPED_MEMORY = 4096
@@ -80,7 +88,8 @@ DROPPED_MEMORY = 4096
 @dataclass(frozen=True, slots=True)
 class SchedulerConfig:
     """``codec``/``interactive_quality``: tiles while things change; ``still_codec`` (None: no still
-    frame) and ``still_quality`` (JPEG only) once nothing changed for ``still_delay_s`` seconds."""
+    frame) and ``still_quality`` (JPEG only) once nothing changed for ``still_delay_s`` seconds;
+    ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border strip (px)."""
 
     size: tuple[int, int]
     codec: Codec = Codec.JPEG
@@ -95,8 +104,12 @@ class SchedulerConfig:
     backup_factor: float = 4.0
     backup_floor_s: float = 0.25
     max_tile_failures: int = 3
+    mode: str = "sort-first"
+    depth_strip: int = DEFAULT_DEPTH_STRIP
 
     def __post_init__(self) -> None:
+        if self.mode not in MODES or self.depth_strip < 0:
+            raise ValueError(f"mode must be one of {MODES} and depth_strip >= 0, got {self.mode}, {self.depth_strip}")
         if self.max_in_flight < 1:
             raise ValueError("max_in_flight must be >= 1")
         if not self.max_fps > 0.0:
@@ -373,10 +386,11 @@ class FrameScheduler:
             self._advance(now)
 
     # ----------------------------------------------------------------- tile events
-    def tile_arrived(self, node_id: int, header: TileHeader, payload: bytes, now: float) -> FrameJob | None:
-        """A node's tile; returns its frame, or None for a tile of a dropped frame (ignored).
-        Raises ProtocolError when the node was not owed it (wrong frame, tile, rect or codec, or a
-        second copy)."""
+    def tile_arrived(self, node_id: int, header: TileHeader, payload: bytes, now: float,
+                     depth_tile: DecodedDepthTile | None = None) -> FrameJob | None:
+        """A node's tile (a depth frame's with its ``depth_tile`` decoded); returns its frame, or
+        None for a tile of a dropped frame (ignored). Raises ProtocolError when the node was not
+        owed it (wrong frame, tile, rect or codec, or a second copy)."""
         node = self.nodes[node_id]
         key = (header.frame_id, header.tile_id)
         job = self.in_flight.get(header.frame_id)
@@ -387,7 +401,7 @@ class FrameScheduler:
             self._answered(node, key, now)
             self._advance(now)
             return None
-        tile = job.accept(node_id, header, payload)
+        tile = job.accept(node_id, header, payload, depth_tile)
         self._answered(node, key, now)
         if tile is None:
             self._advance(now)
@@ -604,7 +618,8 @@ class FrameScheduler:
             self._started_version = self._version
         job = FrameJob.create(self.next_frame_id, self.camera, config.size, codec, quality, partition, now,
                               still=still, version=self._version, changed_at=self._changed_at,
-                              inputs=dict(self._inputs), state=self.scene.bind(now) if self.scene else None)
+                              inputs=dict(self._inputs), state=self.scene.bind(now) if self.scene else None,
+                              depth=self._depth_request(partition))
         self.next_frame_id += 1
         self._next_start_at = now + 1.0 / config.max_fps
         self.in_flight[job.frame_id] = job
@@ -615,6 +630,12 @@ class FrameScheduler:
                 by_node.setdefault(tile.node_id, []).append(tile.tile_id)
             for node_id, tile_ids in by_node.items():
                 self._push(job, self.nodes[node_id], tile_ids, now)
+
+    def _depth_request(self, partition: Partition) -> DepthRequest | None:
+        """What a frame of ``partition`` asks of the nodes in the configured mode (None: plain tiles)."""
+        if self.config.mode == "hybrid":
+            return DepthRequest(mode="hybrid", tiles=tuple(partition.rects), strip=self.config.depth_strip)
+        return None
 
     def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera) -> Partition:
         """The balancer's partition for the ready nodes (the static split if it fails)."""

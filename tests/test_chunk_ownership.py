@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.chunk_ownership import OFF_SCREEN, SHARED, assign_chunks, exclusive_rect, readback_rect
+from tessera.chunk_ownership import OFF_SCREEN, SHARED, assign_chunks, core_rect, exclusive_rect, readback_rect
 from tessera.geometry import Rect
 from tessera.partition import equal_strip_partition
 
@@ -38,6 +38,19 @@ def test_a_chunk_wider_than_the_strip_is_shared_and_drawn_by_every_tile_it_touch
     result = assign_chunks(np.array([[100, 10, 140, 20.0]]), TILES, 8, SIZE)
     assert result.owner.tolist() == [SHARED]
     assert [d.tolist() for d in result.draws] == [[0], [0]]
+
+
+def test_a_tile_a_blended_chunk_touches_is_drawn_complete_and_all_of_it_is_its_core():
+    """Blended chunks write no depth: the tiles they touch draw every chunk touching them (the
+    ones the neighbour owns too), and their whole rect is final as drawn."""
+    bounds = np.array([[100, 10, 126, 20], [150, 60, 170, 80], [10, 10, 30, 40.0]])
+    result = assign_chunks(bounds, TILES, 8, SIZE, blended=np.array([False, True, False]))
+    assert result.owner.tolist() == [0, 1, 0]
+    assert result.complete.tolist() == [False, True]
+    assert [d.tolist() for d in result.draws] == [[0, 2], [0, 1]]
+    assert core_rect(TILES[1], 8, SIZE, complete=True) == TILES[1]
+    assert core_rect(TILES[0], 8, SIZE) == exclusive_rect(TILES[0], 8, SIZE)
+    assert not assign_chunks(bounds, TILES, 8, SIZE).complete.any()
 
 
 def test_strip_zero_owns_only_chunks_inside_a_tile():

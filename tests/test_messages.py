@@ -20,6 +20,7 @@ from tessera.messages import (
     CameraUpdate,
     Cancel,
     Capabilities,
+    DepthRequest,
     InvalidMessage,
     LatencyReport,
     LoadScene,
@@ -32,6 +33,7 @@ from tessera.messages import (
     SceneGroups,
     SceneProgress,
     SceneReady,
+    ShareSpec,
     TilesDropped,
     TileSent,
     ViewerError,
@@ -69,6 +71,15 @@ EXAMPLES: list[Message] = [
     ViewerScene(bounds=BOUNDS, camera=CAMERA),
     ViewerError(message="bad camera"),
     LatencyReport(p50_ms=40.0, p90_ms=60.0, samples=30.0, interval_ms=33.3),
+    # the depth modes (issue 10)
+    Render(frame=6, camera=CAMERA, size=(640, 480), codec=Codec.JPEG,
+           tiles=(RenderTile(tile=1, rect=Rect(320, 0, 320, 480)),),
+           depth=DepthRequest(mode="hybrid", tiles=(Rect(0, 0, 320, 480), Rect(320, 0, 320, 480)), strip=32)),
+    Render(frame=7, camera=CAMERA, size=(640, 480), codec=Codec.PNG,
+           tiles=(RenderTile(tile=0, rect=Rect(0, 0, 640, 480)),), depth=DepthRequest(mode="sort-last", share=3)),
+    LoadScene(scene="x.ply", share=ShareSpec(version=3, index=1, weights=(1.0, 2.5))),
+    SceneReady(triangles=600, bounds=BOUNDS, share=3),
+    NodeHello(name="n2", version=PROTOCOL_VERSION, capabilities=Capabilities(calibrate=True, depth=True)),
 ]
 
 
@@ -95,6 +106,14 @@ def test_render_carries_the_wire_forms():
     assert data["camera"] == CAMERA.to_json()
     assert data["tiles"][1] == {"tile": 1, "rect": [320, 0, 320, 480]}
     assert data["size"] == [640, 480]
+
+
+def test_depth_fields_are_left_out_where_there_are_none():
+    """Sort-first messages are byte for byte what they were before the depth modes."""
+    assert "depth" not in EXAMPLES[10].to_json() and "share" not in LoadScene(scene="s").to_json()
+    assert "share" not in EXAMPLES[2].to_json()
+    hybrid = EXAMPLES[-5].to_json()["depth"]
+    assert hybrid == {"mode": "hybrid", "tiles": [[0, 0, 320, 480], [320, 0, 320, 480]], "strip": 32, "share": 0}
 
 
 def test_camera_update_leaves_out_a_missing_seq():
@@ -128,6 +147,14 @@ def test_fields_a_side_does_not_know_are_ignored():
     ({"type": "camera", "camera": CAMERA.to_json(), "seq": 2**32}, "camera.seq"),
     ({"type": "camera", "camera": {"eye": [0, 0, 1], "target": [0, 0, 1]}}, "camera.camera"),
     ({"type": "latency", "p50_ms": 1.0, "p90_ms": 2.0, "samples": 3.0}, "latency.interval_ms"),
+    ({"type": "render", "frame": 1, "camera": CAMERA.to_json(), "size": [64, 64], "codec": "png", "tiles": [],
+      "depth": {"mode": "hybrid", "strip": 8}}, "render.depth"),
+    ({"type": "render", "frame": 1, "camera": CAMERA.to_json(), "size": [64, 64], "codec": "png", "tiles": [],
+      "depth": {"mode": "sort-first"}}, "render.depth.mode"),
+    ({"type": "load_scene", "scene": "s", "share": {"version": 1, "index": 2, "weights": [1.0, 1.0]}},
+     "load_scene.share"),
+    ({"type": "load_scene", "scene": "s", "share": {"version": 1, "index": 0, "weights": [0.0]}},
+     "load_scene.share.weights.0"),
     ({"type": "hello", "name": "n", "version": PROTOCOL_VERSION - 1}, "hello"),
 ])
 def test_a_wrong_field_is_named_in_the_reason(data, where):

@@ -87,7 +87,7 @@ async def play_coordinator(coordinator: FakeCoordinator,
     hello = await receive_json(ws)
     assert hello["type"] == "hello" and hello["name"] == "tester" and hello["token"] == "s3cret"
     assert hello["version"] == PROTOCOL_VERSION and hello["renderer"]
-    assert hello["capabilities"] == {"slowdown": SLOWDOWN, "calibrate": True}
+    assert hello["capabilities"] == {"slowdown": SLOWDOWN, "calibrate": True, "depth": True}
     await send(ws, type="welcome", node_id=7)
     await send(ws, type="load_scene", scene="builtin:spheres", background=list(BACKGROUND))
     progress = []

@@ -7,7 +7,7 @@ control messages are tested in tests/test_messages.py.
 from __future__ import annotations
 
 import struct
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import pytest
 from hypothesis import given, settings
@@ -17,6 +17,7 @@ from tessera.balancers.base import TileTiming
 from tessera.codec import Codec
 from tessera.geometry import Rect
 from tessera.protocol import (
+    DEPTH_TILE,
     FRAME_MAGIC,
     NODE_PHASES,
     PROTOCOL_VERSION,
@@ -66,6 +67,13 @@ def test_tile_header_carries_the_low_16_bits_of_the_scene_state_version():
     message = pack_tile(header, b"x")
     assert message[6:8] == bytes([0x45, 0x23]) and unpack_tile(message)[0].state == 0x2345
     assert state_tag(None) == 0 and state_tag(0xFFFF) == 0xFFFF and state_tag(0x10000) == 0
+
+
+def test_depth_tiles_set_the_codec_byte_s_high_bit():
+    header = TileHeader(1, 2, Rect(0, 0, 4, 4), Codec.JPEG, 1.0, 1.0, 1.0, depth=True)
+    message = pack_tile(header, b"x")
+    assert message[5] == DEPTH_TILE | Codec.JPEG and unpack_tile(message)[0] == header
+    assert pack_tile(replace(header, depth=False), b"x")[5] == Codec.JPEG, "sort-first tiles as before"
 
 
 @settings(max_examples=100, deadline=None)

@@ -6,11 +6,15 @@ node-side half of :mod:`tessera.depth_compositing`.
   shared ones touching it. The candidates are the chunks the rect's frustum keeps (the CPU tree of
   :mod:`node.culling.bvh`), so a node projects only the chunks near its tile; ownership depends on a
   chunk's own bound alone, so every node assigns each chunk alike without talking to the others.
-  The plan names the tile's core too (:func:`tessera.chunk_ownership.exclusive_rect`), the part
-  that needs no depth.
+  The plan names the tile's core too (:func:`tessera.chunk_ownership.core_rect`), the part
+  that needs no depth: all of a tile that a blended chunk touches, which is then drawn complete.
 - Sort-last (:mod:`tessera.data_partition`): a node draws the chunks of its share that the whole
   frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
   read-back); a share with nothing in view has no layer.
+- Live (:func:`live_plan`): what a ``render`` message's depth request asks of a serving node. In
+  sort-last the node holds only its share, so its share is all its chunks; while the frame's
+  scene state moves an object its chunk boxes no longer say where it is, so the whole frame is
+  read back (moved objects are drawn whole, as in every tile of the hybrid).
 
 Chunk ids index the renderer's scene chunks (:class:`node.scene.chunks.SceneChunks`).
 """
@@ -25,11 +29,13 @@ import numpy as np
 from node.culling.bvh import cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.gl.renderer import RenderedTile, TileRenderer
-from tessera.chunk_ownership import assign_chunks, exclusive_rect, readback_rect
+from tessera.chunk_ownership import assign_chunks, core_rect, readback_rect
 from tessera.data_partition import covering_rect
 from tessera.depth_compositing import DepthLayer
 from tessera.geometry import Camera, Rect, view_projection
+from tessera.messages import DepthRequest
 from tessera.projection import project_boxes
+from tessera.scene_state import SceneState
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,8 +69,17 @@ def hybrid_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], t
     ``strip_px`` border strip: its read-back rect, the chunks it draws and its core."""
     rect = readback_rect(tiles[index], strip_px, size)
     candidates = visible_chunks(renderer, camera, size, rect)
-    ownership = assign_chunks(chunk_bounds(renderer, candidates, camera, size), tiles, strip_px, size)
-    return LayerPlan(rect, candidates[ownership.draws[index]], exclusive_rect(tiles[index], strip_px, size))
+    ownership = assign_chunks(chunk_bounds(renderer, candidates, camera, size), tiles, strip_px, size,
+                              blended=blended_chunks(renderer)[candidates])
+    core = core_rect(tiles[index], strip_px, size, bool(ownership.complete[index]))
+    return LayerPlan(rect, candidates[ownership.draws[index]], core)
+
+
+def blended_chunks(renderer: TileRenderer) -> np.ndarray:
+    """(C,) bool: the scene's chunks whose batch blends (glTF ``BLEND``)."""
+    scene = renderer.scene
+    blends = np.array([batch.alpha_mode == "BLEND" for batch in scene.batches], dtype=bool)
+    return blends[scene.chunks.batch]
 
 
 def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
@@ -75,6 +90,21 @@ def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int]
     drawn = whole[np.isin(whole, share, assume_unique=True)]
     rect = covering_rect(chunk_bounds(renderer, drawn, camera, size), size)
     return None if rect is None else LayerPlan(rect, drawn)
+
+
+def live_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
+              state: SceneState | None) -> LayerPlan | None:
+    """The layer tile ``tile_id`` of a ``render`` message with depth ``request`` asks for, in scene
+    ``state``: a hybrid tile of ``request.tiles``, or (sort-last) the node's whole share; None:
+    nothing of it in view. Raises ValueError for a tile id the request does not list."""
+    if request.mode == "hybrid":
+        if not 0 <= tile_id < len(request.tiles):
+            raise ValueError(f"tile {tile_id} is not one of the frame's {len(request.tiles)} tiles")
+        return hybrid_plan(renderer, camera, size, request.tiles, tile_id, request.strip)
+    if renderer.pose_of(state).whole:
+        frame = Rect(0, 0, *size)
+        return LayerPlan(frame, visible_chunks(renderer, camera, size, frame))
+    return sort_last_plan(renderer, camera, size, np.arange(renderer.scene.chunks.chunk_count))
 
 
 def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:

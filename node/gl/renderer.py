@@ -246,30 +246,32 @@ class TileRenderer:
         rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose = self._pose_of(state)
+        pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose)
 
-    def _pose_of(self, state: SceneState | None) -> ScenePose:
+    def pose_of(self, state: SceneState | None) -> ScenePose:
         """The pose of ``state``, kept for the next tiles of the same state."""
         if state is not self._pose[0]:
             self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
         return self._pose[1]
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
-                     slot: Hashable | None = None) -> RenderedTile:
-        """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it,
-        but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's culling keeps,
-        ``slot`` naming it as there), with its depth read back as well."""
+                     slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
+        """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
+        scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
+        culling keeps, ``slot`` naming it as there; of moved objects, all is drawn, of hidden ones
+        nothing), with its depth read back as well."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        matrix = view_projection(camera, size, self.scene.bounds)
+        pose = self.pose_of(state)
+        matrix = view_projection(camera, size, pose.bounds)
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
             culled = self.culler.listed(chunk_ids)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=self._base_pose)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose) -> RenderedTile:

@@ -61,6 +61,11 @@ async def node_socket(ws: WebSocket) -> None:
     hello = await _read_hello(ws, ws.app.state.settings.token, limits)
     if hello is None:
         return
+    refusal = service.refusal(hello)
+    if refusal is not None:
+        log.warning("node %r refused: %s", hello.name, refusal)
+        await guards.close(ws, 1008, refusal)
+        return
     link = service.add_node(hello, lambda code, reason: asyncio.create_task(guards.close(ws, code, reason)))
     writer = asyncio.create_task(_write(ws, link))
     who = f"node {link.node_id} ({link.name})"
