@@ -430,11 +430,11 @@ class FrameScheduler:
         if node is None:
             return
         self._check_owed(node, key, "render_error for tile")
+        node.state_sent = None   # the failure may be a state it could not apply: send it whole
         if key not in node.outstanding:
             return
         self._answered(node, key, now)
         node.failures += 1
-        node.state_sent = None   # the failure may be a state it could not apply: send it whole
         if node.failures >= self.config.max_tile_failures:
             self._actions.append(CloseNode(node_id, 1011, f"{node.failures} tiles failed in a row"))
             self.remove_node(node_id, now)

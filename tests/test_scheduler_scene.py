@@ -192,3 +192,19 @@ def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still
     assert still.still and still.codec is Codec.PNG and still.state is paused_state, "the same state, lossless"
     finish(s, still_id, now + 0.6)
     assert s.settled and s.next_deadline(now + 1.0) is None
+
+
+def test_a_failed_tile_of_a_dropped_frame_also_gets_the_node_the_whole_state():
+    s = scene_scheduler(nodes=1, still_delay_s=0.2)
+    s.drain()
+    finish(s, 1, 0.01)
+    s.tick(0.5)
+    (still,) = frames(s.drain())
+    s.set_objects({"tree": ObjectPatch(visible=False)}, 0.6)
+    (next_frame,) = frames(s.drain())
+    assert still not in s.in_flight, "the still frame was dropped"
+    s.tile_failed(1, still, 0, 0.7)
+    finish(s, next_frame, 0.8)
+    s.set_objects({"tree": ObjectPatch(visible=True)}, 0.9)
+    (payload,) = states(s.drain())[1]
+    assert isinstance(payload, SceneState), "its replica may be what failed"
