@@ -204,7 +204,6 @@ def test_a_failed_tile_of_a_dropped_frame_also_gets_the_node_the_whole_state():
     (next_frame,) = frames(s.drain())
     assert still not in s.in_flight, "the still frame was dropped"
     s.tile_failed(1, still, 0, 0.7)
-    finish(s, next_frame, 0.8)
-    s.set_objects({"tree": ObjectPatch(visible=True)}, 0.9)
-    (payload,) = states(s.drain())[1]
+    s.set_objects({"tree": ObjectPatch(visible=True)}, 0.7)
+    (payload,) = states(finish(s, next_frame, 0.75))[1]
     assert isinstance(payload, SceneState), "its replica may be what failed"
