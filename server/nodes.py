@@ -29,6 +29,8 @@ class NodeLink:
     progress: float = 0.0
     triangles: int = 0
     bounds: np.ndarray | None = None
+    #: Sort-last: the data partition version whose share the node holds (``triangles`` are the share's).
+    share: int | None = None
     can_calibrate: bool = False
     calibration_ms: float | None = None
     tiles_dropped: int = 0
@@ -55,6 +57,8 @@ class NodeLink:
             "scene_progress": round(self.progress, 3),
             "scene_message": self.scene_message,
             "triangles": self.triangles,
+            "triangles_loaded": self.triangles,
+            "share": self.share,
             "tiles": schedule.last_tiles,
             **{f"{phase}_ms": round(phases.get(phase, 0.0), 3) for phase in NODE_PHASES},
             "busy_ms": round(sum(phases.values()), 3),

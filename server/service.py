@@ -53,6 +53,7 @@ from tessera.messages import (
     SceneError,
     SceneProgress,
     SceneReady,
+    ShareSpec,
     TilesDropped,
     TileSent,
     ViewerScene,
@@ -66,6 +67,7 @@ from tessera.scheduler import (
     CancelFrames,
     CloseNode,
     FrameScheduler,
+    LoadShare,
     PublishFrame,
     RenderTiles,
     SchedulerConfig,
@@ -166,6 +168,8 @@ class RenderService:
                 self.nodes[action.node_id].send(action.message)
             elif isinstance(action, CancelFrames):
                 self.nodes[action.node_id].send(Cancel(frames=action.frames))
+            elif isinstance(action, LoadShare):
+                self.nodes[action.node_id].send(self._load_scene(action.share))
             elif isinstance(action, PublishFrame):
                 self._publish(action.job)
             elif isinstance(action, CloseNode):
@@ -193,11 +197,17 @@ class RenderService:
                         can_calibrate=hello.capabilities.calibrate)
         self._next_node_id += 1
         self.nodes[link.node_id] = link
-        self.scheduler.add_node(link.node_id, time.monotonic())
         link.send(Welcome(node_id=link.node_id))
-        link.send(LoadScene(scene=self.settings.scene, background=self.settings.background or DEFAULT_BACKGROUND))
+        self.scheduler.add_node(link.node_id, time.monotonic())
+        if self.scheduler.shares is None:
+            link.send(self._load_scene())
+        self._apply()   # sort-last: every node's share of the new partition
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link
+
+    def _load_scene(self, share: ShareSpec | None = None) -> LoadScene:
+        return LoadScene(scene=self.settings.scene, background=self.settings.background or DEFAULT_BACKGROUND,
+                         share=share)
 
     def remove_node(self, link: NodeLink) -> None:
         """The node's connection ended: what it owed goes to the others."""
@@ -254,7 +264,7 @@ class RenderService:
 
     def _on_scene_ready(self, link: NodeLink, message: SceneReady) -> None:
         bounds = np.asarray(message.bounds, dtype=np.float64)
-        link.bounds, link.triangles = bounds, message.triangles
+        link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
         if self.bounds is None:
@@ -267,8 +277,9 @@ class RenderService:
             if self.scheduler.camera is None:
                 self.scheduler.set_camera(default_camera(bounds, aspect=self.size[0] / self.size[1]), now)
             self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.camera))
-        log.info("node %d (%s) ready: %d triangles", link.node_id, link.name, link.triangles)
-        self.scheduler.node_ready(link.node_id, now)
+        log.info("node %d (%s) ready: %d triangles%s", link.node_id, link.name, link.triangles,
+                 "" if message.share is None else f", its share of partition {message.share}")
+        self.scheduler.node_ready(link.node_id, now, message.share)
         self._apply()
         if link.can_calibrate:
             self.calibration.request(link.node_id)
@@ -428,6 +439,18 @@ class RenderService:
         return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
                 "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
 
+    def partition(self) -> dict[str, Any] | None:
+        """Sort-last: the newest data partition (its version, shares, their holders and weights)
+        and whether a share of it is still loading (frames wait); None in the other modes."""
+        shares = self.scheduler.shares
+        if shares is None:
+            return None
+        plan = shares.plan
+        if plan is None:
+            return {"version": None, "shares": 0, "pending": True, "holders": [], "weights": []}
+        return {"version": plan.version, "shares": len(plan.holders), "pending": not shares.complete,
+                "holders": list(plan.holders), "weights": [round(w, 4) for w in plan.weights]}
+
     def describe(self) -> dict[str, Any]:
         scheduler, stats = self.scheduler, self.scheduler.stats
         latest = self.store.latest
@@ -438,6 +461,7 @@ class RenderService:
             "balancer": scheduler.balancer.name,
             "mode": self.settings.mode,
             "depth_strip": self.settings.depth_strip if self.settings.mode == "hybrid" else None,
+            "partition": self.partition(),
             "balancer_params": scheduler.balancer.params,
             "imbalance": round(stats.imbalance, 4),
             "imbalance_avg": round(stats.imbalance_avg, 4),

@@ -43,6 +43,12 @@ What it decides:
   §4.4): the same tiles, the same balancers, but each render message asks for depth tiles and
   lists the frame's whole partition and the border strip, from which every node finds alone
   which chunks its tile owns (:mod:`tessera.chunk_ownership`); the coordinator merges the strips.
+  ``sort-last``: no balancer; each node holds a share of the scene (:mod:`tessera.share_plan`:
+  a node joining or leaving makes a new partition, frames in flight are dropped, each node is
+  told to load its share of it, and frames start again once every share is loaded), and a frame
+  is one whole-frame tile per share, each from the node holding it. Its tiles are never backed up
+  nor moved to another node (no other node holds that share): a failing node's frames wait for
+  the next partition.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
   frame completes, so the next frame is partitioned with them; send times, which each node
@@ -57,20 +63,21 @@ from typing import Any
 
 import numpy as np
 
-from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, TileTiming
+from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile, TileTiming
 from tessera.balancers.static import StaticBalancer
 from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.codec import Codec
 from tessera.depth_tiles import DecodedDepthTile
 from tessera.frame_jobs import FrameJob
 from tessera.frame_stats import FrameStats
-from tessera.geometry import Camera
-from tessera.messages import DepthRequest, Render
+from tessera.geometry import Camera, Rect
+from tessera.messages import DepthRequest, Render, ShareSpec
 from tessera.partition import check_exact_cover
 from tessera.projection import project_groups
 from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
 from tessera.scene_state import ObjectPatch, SceneState, StateDelta
 from tessera.scene_timeline import SceneTimeline
+from tessera.share_plan import ShareBook
 
 #: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
 AWAITING_SEND_FRAMES = 8
@@ -79,7 +86,7 @@ MAX_NODE_SLOTS = 1 << 16
 #: How often frames in flight are looked at for stragglers (s).
 STRAGGLER_CHECK_S = 0.1
 #: The decomposition modes (``--mode``); sort-first is the default.
-MODES = ("sort-first", "hybrid")
+MODES = ("sort-first", "hybrid", "sort-last")
 #: Tiles of dropped frames a node is remembered to have owed (it may still send the one it was
 #: on, or report the others skipped); the oldest are forgotten first.
 DROPPED_MEMORY = 4096
@@ -152,7 +159,15 @@ class CloseNode:
     reason: str
 
 
-Action = RenderTiles | CancelFrames | PublishFrame | CloseNode
+@dataclass(frozen=True, slots=True)
+class LoadShare:
+    """Sort-last: tell node ``node_id`` to load ``share`` of the scene (and drop what it held)."""
+
+    node_id: int
+    share: ShareSpec
+
+
+Action = RenderTiles | CancelFrames | PublishFrame | CloseNode | LoadShare
 
 
 @dataclass
@@ -235,6 +250,8 @@ class FrameScheduler:
         self._idle: set[int] = set()
         self._next_straggler_check = 0.0
         self.backups = 0
+        #: Sort-last: the data partitions and the shares the nodes hold (None in the other modes).
+        self.shares = ShareBook() if config.mode == "sort-last" else None
 
     # ----------------------------------------------------------------- output
     def drain(self) -> list[Action]:
@@ -343,13 +360,18 @@ class FrameScheduler:
             raise ValueError(f"more than {MAX_NODE_SLOTS} nodes at once")
         node = NodeSchedule(node_id, slot, idle_since=now)
         self.nodes[node_id] = node
+        if self.shares is not None:
+            self._repartition(now)
         return node
 
-    def node_ready(self, node_id: int, now: float) -> None:
+    def node_ready(self, node_id: int, now: float, share: int | None = None) -> None:
+        """The node loaded the scene (sort-last: its share of partition ``share``)."""
         node = self.nodes[node_id]
         node.ready, node.idle_since = True, now
         self._ready_nodes = None
         self._touch(node)
+        if self.shares is not None and share is not None:
+            self.shares.share_loaded(node_id, share)
         self._changed(now, supersede=False)
 
     def set_speed(self, node_id: int, speed: float) -> None:
@@ -365,6 +387,11 @@ class FrameScheduler:
         node.outstanding.clear()
         self._ready_nodes = None
         self._idle.discard(node_id)
+        if self.shares is not None:
+            self.shares.forget(node_id)
+            self._repartition(now)
+            self._changed(now, supersede=False)
+            return
         ready = self._ready()
         for job in list(self.in_flight.values()):
             owed = job.owed_by(node_id)
@@ -445,7 +472,7 @@ class FrameScheduler:
                 job.tiles[tile_id].node_id = None
                 job.pull_queue.appendleft(tile_id)
             else:
-                others = [n for n in self._ready() if n is not node] or [node]
+                others = [n for n in self._ready() if n is not node and self.shares is None] or [node]
                 self._push(job, min(others, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
         self._advance(now)
 
@@ -504,7 +531,10 @@ class FrameScheduler:
         self._touch(node)
 
     def _back_up_stragglers(self, now: float) -> None:
-        """Copy the tiles of overdue nodes to the others (see the module docstring)."""
+        """Copy the tiles of overdue nodes to the others (see the module docstring); not in
+        sort-last, where no other node holds the share."""
+        if self.shares is not None:
+            return
         for node in list(self.nodes.values()):
             if node.suspect or node.ms_per_px is None:
                 continue
@@ -595,6 +625,8 @@ class FrameScheduler:
             ready = self._ready()
             if not ready or len(self.in_flight) >= self.config.max_in_flight or now < self._next_start_at:
                 return
+            if self.shares is not None and not self.shares.complete:
+                return
             if not self._idle:
                 return
             kind = self._owed(now)
@@ -635,10 +667,30 @@ class FrameScheduler:
         """What a frame of ``partition`` asks of the nodes in the configured mode (None: plain tiles)."""
         if self.config.mode == "hybrid":
             return DepthRequest(mode="hybrid", tiles=tuple(partition.rects), strip=self.config.depth_strip)
+        if self.shares is not None and self.shares.plan is not None:
+            return DepthRequest(mode="sort-last", share=self.shares.plan.version)
         return None
 
+    def _repartition(self, now: float) -> None:
+        """Sort-last: a new data partition over the nodes connected, weighted by their speeds; frames
+        in flight are dropped (their shares are about to go) and every node is told its share."""
+        assert self.shares is not None
+        for job in list(self.in_flight.values()):
+            self._cancel(job, now)
+        plan = self.shares.repartition({n.node_id: n.speed for n in self.nodes.values()})
+        if plan is not None:
+            for index, node_id in enumerate(plan.holders):
+                self._actions.append(LoadShare(node_id, ShareSpec(version=plan.version, index=index,
+                                                                  weights=plan.weights)))
+
     def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera) -> Partition:
-        """The balancer's partition for the ready nodes (the static split if it fails)."""
+        """The balancer's partition for the ready nodes (the static split if it fails); in
+        sort-last one whole-frame tile per share, to its holder."""
+        if self.shares is not None and self.shares.plan is not None:
+            frame = Rect(0, 0, *self.config.size)
+            partition = Partition(tuple(Tile(frame, node_id) for node_id in self.shares.plan.holders))
+            self._partitions = [*self._partitions[-1:], partition]
+            return partition
         previous = self._partitions[-1] if self._partitions else None
         elapsed_ms = 0.0 if self._last_partition_at is None else (now - self._last_partition_at) * 1000.0
         inputs = BalanceInput(

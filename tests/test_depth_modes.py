@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 from collections.abc import Iterator
 
 import httpx
 import pytest
 
-from tests.conftest import scene_path, seconds
+from tests.conftest import PYTHON, scene_path, seconds, start_process
 from tests.integration_support import (
     assert_matches_reference,
+    camera_moving,
     fetch_frame,
     orbit_cameras,
     ready_nodes,
@@ -39,10 +41,13 @@ FULL_MATRIX = os.environ.get("TESSERA_FULL_DEPTH_MATRIX") == "1"
 #: The cases run by default: each mode on each scene once, the node counts spread over them.
 DEFAULT_CASES = {("hybrid", "bunny", 2), ("hybrid", "dragon", 3), ("hybrid", "diorama", 4),
                  ("sort-last", "bunny", 4), ("sort-last", "dragon", 2), ("sort-last", "diorama", 3)}
+#: Blended geometry (the diorama has a BLEND mesh) is not merged exactly by sort-last yet.
+BLEND_XFAIL = pytest.mark.xfail(strict=True, reason="sort-last: blended geometry writes no depth")
 MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}",
-                       marks=[] if FULL_MATRIX or (mode, scene, nodes) in DEFAULT_CASES else
-                       [pytest.mark.skip(reason="the full matrix runs with TESSERA_FULL_DEPTH_MATRIX=1")])
-          for mode in ("hybrid",) for scene in SCENES for nodes in (2, 3, 4)]
+                       marks=([] if FULL_MATRIX or (mode, scene, nodes) in DEFAULT_CASES else
+                              [pytest.mark.skip(reason="the full matrix runs with TESSERA_FULL_DEPTH_MATRIX=1")])
+                       + ([BLEND_XFAIL] if (mode, scene) == ("sort-last", "diorama") else []))
+          for mode in ("hybrid", "sort-last") for scene in SCENES for nodes in (2, 3, 4)]
 
 
 @contextlib.contextmanager
@@ -90,3 +95,37 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
         assert all(n["color_px"] >= n["depth_px"] >= 0 and n["color_bytes"] > 0 for n in nodes_stats), nodes_stats
         assert sum(n["depth_px"] for n in nodes_stats) > 0 and sum(n["depth_bytes"] for n in nodes_stats) > 0
         assert sum(n["triangles"] for n in nodes_stats) > 0
+
+
+def test_a_node_killed_mid_stream_in_sort_last_loses_no_frame(coordinator_factory, tmp_path):
+    """Three nodes of their own (so that one can be killed) while the camera turns: the killed
+    node's share is loaded again by the two left (a new partition), and the frames asked for
+    after the kill come, whole and equal to the reference."""
+    scene = str(scene_path(SCENES["bunny"]))
+    coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
+                                      "--mode", "sort-last")
+    nodes = [start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
+                            "--name", f"share-{i}"]) for i in range(3)]
+    try:
+        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+            wait_until(lambda: shares_settled(client, 3), seconds(180), "3 shares of one partition")
+            before = stats(client)["partition"]
+            cameras = orbit_cameras(scene_bounds(client), 3)
+            with camera_moving(coordinator.url, cameras[0]):
+                wait_until(lambda: stats(client)["frames_in_flight"] > 0, seconds(30), "frames in flight")
+                nodes[1].process.send_signal(signal.SIGKILL)
+                nodes[1].process.wait()
+                after_kill = client.put("/api/camera", json=cameras[1]).raise_for_status().json()["frame"]
+                frame_id, frame = fetch_frame(client, after_kill)
+            assert frame_id >= after_kill and frame.std() > 2.0, "a whole frame after the kill"
+            wait_until(lambda: shares_settled(client, 2), seconds(60), "2 shares of one partition")
+            partition = stats(client)["partition"]
+            assert partition["version"] > before["version"] and len(partition["holders"]) == 2
+            last = client.put("/api/camera", json=cameras[2]).raise_for_status().json()["frame"]
+            _, frame = fetch_frame(client, last)
+            assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "after the kill")
+            loaded = [n["triangles_loaded"] for n in stats(client)["nodes"]]
+            assert sum(loaded) == 69451 and max(loaded) < 69451, loaded
+    finally:
+        for node in nodes:
+            node.stop()

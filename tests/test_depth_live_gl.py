@@ -1,0 +1,104 @@
+"""The live depth modes' node half on llvmpipe, in one process (issue 10): a sort-last node keeps
+only its share (every triangle in exactly one share, the whole scene's bounds kept), and what the
+nodes send — planned by :func:`node.gl.depth_layers.live_plan`, drawn, encoded as depth tiles,
+checked and decoded by the coordinator's reader, merged — equals the whole render bit for bit,
+for sort-last shares held by separate renderers and for hybrid tiles of a scene with blended
+geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from node.gl.depth_layers import live_plan
+from node.gl.renderer import TileRenderer
+from node.scene.loading import load_scene
+from node.scene.shares import keep_share
+from tessera.chunk_ownership import exclusive_rect, readback_rect
+from tessera.codec import Codec, decode
+from tessera.data_partition import split_chunks
+from tessera.depth_compositing import DepthLayer, background_pixel
+from tessera.depth_tiles import encode_depth_tile, hybrid_frame_tiles, merge_depth_tiles, read_depth_tile
+from tessera.geometry import Rect, default_camera
+from tessera.messages import DepthRequest
+from tests.conftest import scene_path
+
+pytestmark = pytest.mark.gl
+
+SIZE = (200, 150)
+WEIGHTS = (1.0, 1.0, 2.0)
+
+
+@pytest.fixture(scope="module")
+def bunny():
+    return load_scene(str(scene_path("bunny/bun_zipper.ply")))
+
+
+def test_each_triangle_lands_in_exactly_one_share(bunny):
+    shares = [keep_share(bunny, WEIGHTS, index) for index in range(len(WEIGHTS))]
+    share_of = split_chunks(bunny.chunks.boxes, bunny.chunks.face_counts, WEIGHTS)
+    expected = [int(bunny.chunks.face_counts[share_of == i].sum()) for i in range(len(WEIGHTS))]
+    assert [s.triangle_count for s in shares] == expected and sum(expected) == bunny.triangle_count
+    assert expected[2] > expected[0], "the heavier weight holds more"
+
+    def triangles(scene):
+        return {tuple(np.round(b.positions[face].reshape(-1), 6)) for b in scene.batches for face in b.faces}
+
+    assert set().union(*map(triangles, shares)) == triangles(bunny)
+    for share in shares:
+        assert np.array_equal(share.bounds, bunny.bounds) and share.objects is bunny.objects
+        assert share.vertex_count < bunny.vertex_count, "only the vertices its faces use"
+
+
+def through_the_wire(layer, core, slot, bound, core_range):
+    """What the coordinator keeps of a node's layer: encoded as a depth tile, read back."""
+    depth_layer = None if layer is None else DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
+    return read_depth_tile(encode_depth_tile(depth_layer, core, Codec.PNG, 90)[0], bound, core_range, slot)
+
+
+def test_sort_last_shares_on_their_own_renderers_merge_into_the_whole_render(ctx, bunny):
+    camera = default_camera(bunny.bounds, aspect=SIZE[0] / SIZE[1])
+    whole_renderer = TileRenderer(ctx, bunny)
+    whole = whole_renderer.render_frame(camera, SIZE).pixels
+    background = background_pixel(whole_renderer.background)
+    whole_renderer.release()
+    request = DepthRequest(mode="sort-last", share=1)
+    tiles = []
+    for index in range(len(WEIGHTS)):
+        renderer = TileRenderer(ctx, keep_share(bunny, WEIGHTS, index))
+        plan = live_plan(renderer, camera, SIZE, request, 0, None)
+        assert plan is not None and plan.rect.area < SIZE[0] * SIZE[1], "bounding-box read-back"
+        layer = renderer.render_layer(camera, SIZE, plan.rect, plan.chunk_ids)
+        tiles.append(through_the_wire(layer, None, index, Rect(0, 0, *SIZE), None))
+        renderer.release()
+    assert np.array_equal(merge_depth_tiles(tiles, SIZE, background), whole)
+
+
+def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_render(ctx):
+    scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
+    assert any(batch.alpha_mode == "BLEND" for batch in scene.batches)
+    renderer = TileRenderer(ctx, scene)
+    size, strip = (320, 240), 32
+    rects = [Rect(0, 0, 176, 139), Rect(176, 0, 144, 139), Rect(0, 139, 320, 101)]
+    request = DepthRequest(mode="hybrid", tiles=tuple(rects), strip=strip)
+    bounds = np.asarray(scene.bounds)
+    for turn in (0.0, 2.1, 4.2):
+        camera = default_camera(bounds, aspect=size[0] / size[1])
+        eye = np.asarray(camera.eye) - np.asarray(camera.target)
+        rotation = np.array([[np.cos(turn), 0, np.sin(turn)], [0, 1, 0], [-np.sin(turn), 0, np.cos(turn)]])
+        camera = type(camera)(eye=tuple((rotation @ eye + camera.target).tolist()), target=camera.target,
+                              up=camera.up, fovy_deg=camera.fovy_deg)
+        whole = renderer.render_frame(camera, size).pixels
+        decoded = []
+        for index, rect in enumerate(rects):
+            plan = live_plan(renderer, camera, size, request, index, None)
+            assert plan is not None
+            layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
+            decoded.append(through_the_wire(layer, plan.exclusive, index, readback_rect(rect, strip, size),
+                                            (exclusive_rect(rect, strip, size), rect)))
+        merged = merge_depth_tiles(decoded, size, background_pixel(renderer.background))
+        frame = np.zeros_like(whole)
+        for region, _, data in hybrid_frame_tiles(list(zip(rects, decoded, strict=True)), merged, Codec.PNG, 90):
+            frame[region.y:region.y1, region.x:region.x1] = decode(data, Codec.PNG, region.w, region.h)
+        assert np.array_equal(frame, whole), f"turn {turn}"
+    renderer.release()
