@@ -39,14 +39,14 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 from node.culling.switch import CullMode
 from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
 from node.gl.depth_layers import live_plan
-from node.gl.renderer import RenderedTile, TileRenderer
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.shares import keep_share
 from node.settings import NodeSettings
 from tessera.codec import Codec, encode
-from tessera.depth_compositing import DepthLayer
+from tessera.depth_compositing import BlendLayer, DepthLayer
 from tessera.depth_tiles import encode_depth_tile
 from tessera.geometry import Camera, Rect
 from tessera.messages import (
@@ -103,19 +103,17 @@ def encode_tile(frame: int, tile: RenderTile, rendered: RenderedTile, render_ms:
     return pack_tile(header, payload)
 
 
-def encode_depth_message(frame: int, tile: RenderTile, rendered: RenderedTile | None, core: Rect | None,
-                         render_ms: float, codec: Codec, jpeg_quality: int, state: SceneState | None, version: int,
-                         stats: dict[str, Any]) -> bytes:
-    """The binary depth tile message of ``rendered`` (None: nothing in view) with its ``core`` as an
-    image in ``codec``; the tile's byte counts are added to ``stats`` (its ``tile_sent`` counters)."""
+def encode_depth_message(frame: int, tile: RenderTile, layer: DepthLayer | None, core: Rect | None,
+                         blend: BlendLayer | None, times: tuple[float, float], codec: Codec, jpeg_quality: int,
+                         state: SceneState | None, version: int, stats: dict[str, Any]) -> bytes:
+    """The binary depth tile message of ``layer`` (None: nothing in view) with its ``core`` as an
+    image in ``codec`` and its ``blend`` layer, drawn and read back in ``times`` (ms); the tile's
+    byte counts are added to ``stats`` (its ``tile_sent`` counters)."""
     started = time.perf_counter()
-    layer = None if rendered is None or rendered.depth is None else DepthLayer(rendered.rect, rendered.pixels,
-                                                                                rendered.depth, 0)
-    payload, counts = encode_depth_tile(layer, core, codec, jpeg_quality, version)
+    payload, counts = encode_depth_tile(layer, core, codec, jpeg_quality, version, blend)
     encode_ms = (time.perf_counter() - started) * 1e3
     stats.update(counts.as_stats())
-    readback_ms = 0.0 if rendered is None else rendered.readback_ms
-    header = TileHeader(frame, tile.tile, tile.rect, codec, render_ms, readback_ms, encode_ms,
+    header = TileHeader(frame, tile.tile, tile.rect, codec, *times, encode_ms,
                         state_tag(None if state is None else state.version), depth=True)
     return pack_tile(header, payload)
 
@@ -191,14 +189,12 @@ class GLWorker:
         return self._renderer.render_tile(camera, size, rect, slot, state=state)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                           state: SceneState | None) -> tuple[RenderedTile | None, Rect | None, float]:
-        """Tile ``tile_id`` of a depth ``request`` in scene ``state`` as a depth layer: the rendered
-        layer (None: nothing of it in view), its core (sent without depth; None: none) and the ms
-        spent choosing its chunks."""
+                           state: SceneState | None) -> DepthRender:
+        """Tile ``tile_id`` of a depth ``request`` in scene ``state`` as a depth layer."""
         return await self._call(self._render_depth, camera, size, request, tile_id, state)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                      state: SceneState | None) -> tuple[RenderedTile | None, Rect | None, float]:
+                      state: SceneState | None) -> DepthRender:
         if self._renderer is None:
             raise RuntimeError("no scene loaded")
         if request.mode == "sort-last" and request.share != self.share_version:
@@ -208,9 +204,13 @@ class GLWorker:
         plan = live_plan(self._renderer, camera, size, request, tile_id, state)
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
-            return None, None, plan_ms
+            return DepthRender(None, None, None, plan_ms)
         layer = self._renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state)
-        return layer, plan.exclusive, plan_ms
+        blend = None
+        if plan.blend_ids is not None:
+            assert layer.depth is not None
+            blend = self._renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state)
+        return DepthRender(layer, plan.exclusive, blend, plan_ms)
 
     def _release_scene(self) -> None:
         if self._renderer is not None:
@@ -227,6 +227,42 @@ class GLWorker:
         """Free GL resources on the GL thread and stop it (waits for a running draw)."""
         self._executor.submit(self._close)
         self._executor.shutdown(wait=True)
+
+
+@dataclass(frozen=True, slots=True)
+class DepthRender:
+    """A depth tile as drawn: its ``layer`` (None: nothing of it in view), its ``core`` (sent
+    without depth; None: none), its blended fragments drawn apart (sort-last; None: none) and the
+    ms spent choosing its chunks."""
+
+    layer: RenderedTile | None
+    core: Rect | None
+    blend: BlendedFragments | None
+    plan_ms: float
+
+    def depth_layer(self) -> DepthLayer | None:
+        layer = self.layer
+        return None if layer is None or layer.depth is None else DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
+
+    def blend_layer(self) -> BlendLayer | None:
+        if self.blend is None or self.layer is None:
+            return None
+        return BlendLayer(self.layer.rect, self.blend.color, self.blend.alpha, self.blend.depth, 0)
+
+    @property
+    def times(self) -> tuple[float, float]:
+        """(render ms with the planning, read-back ms)."""
+        blend = self.blend
+        render = self.plan_ms + (0.0 if self.layer is None else self.layer.render_ms)
+        readback = 0.0 if self.layer is None else self.layer.readback_ms
+        return (render + (blend.render_ms if blend else 0.0), readback + (blend.readback_ms if blend else 0.0))
+
+    def stats(self) -> dict[str, Any]:
+        """Its ``tile_sent`` counters before encoding (the encoder adds the byte counts)."""
+        stats: dict[str, Any] = {"triangles": 0} if self.layer is None else self.layer.stats()
+        stats["triangles"] += 0 if self.blend is None else self.blend.triangles
+        stats["plan_ms"] = round(self.plan_ms, 4)
+        return stats
 
 
 @dataclass(frozen=True, slots=True)
@@ -449,16 +485,17 @@ class NodeClient:
                                  state: SceneState | None, outbox: asyncio.Queue[Message | PendingTile]) -> None:
         """One tile of a depth ``job``: drawn as a layer, encoded as a depth tile in the encoder thread."""
         try:
-            rendered, core, plan_ms = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state)
+            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state)
         except Exception as exc:  # a bad tile id, no scene, another share, or a GL failure: report, keep serving
             self._render_errors(outbox, job.frame, [request.tile], " ".join(str(exc).split()))
             return
-        render_ms = await self._slow_down(plan_ms + (0.0 if rendered is None else rendered.render_ms))
-        stats: dict[str, Any] = {"triangles": 0} if rendered is None else rendered.stats()
-        stats["plan_ms"] = round(plan_ms, 4)
+        render_ms, readback_ms = drawn.times
+        render_ms = await self._slow_down(render_ms)
+        stats = drawn.stats()
         packed = asyncio.get_running_loop().run_in_executor(
-            self._encoder, encode_depth_message, job.frame, request, rendered, core, render_ms, job.codec,
-            job.jpeg_quality, state, self.worker.share_version or 0, stats)
+            self._encoder, encode_depth_message, job.frame, request, drawn.depth_layer(), drawn.core,
+            drawn.blend_layer(), (render_ms, readback_ms), job.codec, job.jpeg_quality, state,
+            self.worker.share_version or 0, stats)
         outbox.put_nowait(PendingTile(job.frame, request.tile, packed, stats))
 
     async def _calibrate(self, job: Calibrate, outbox: asyncio.Queue[Message | PendingTile]) -> None:

@@ -20,7 +20,11 @@ Conventions every node and the compositor share (IceT's, seed 000 leaves them op
 
 Blended geometry (glTF ``BLEND``) writes no depth, so merging by depth is exact for opaque and
 alpha-masked geometry only: a blended surface keeps its colour only if the layer that drew it also
-wins on the depth behind it.
+wins on the depth behind it. A node can send its blended fragments apart instead, as a
+:class:`BlendLayer` (what they add, premultiplied, and how much they let through, with the depth
+of the nearest): :func:`composite` lays them over the merged frame where they lie in front of it,
+as GL blends them over the opaque frame (exact where one blended surface covers a pixel, or all
+lie in front of the merged surface; up to a level or two of rounding).
 
 Codec (IceT's active-pixel encoding): the pixels of a layer in raster order, as alternating runs of
 inactive and active pixels; only active pixels carry depth (float32, bit-exact) and colour (RGB).
@@ -78,6 +82,28 @@ class DepthLayer:
             raise ValueError(f"layer slot must be >= 0, got {self.slot}")
 
 
+@dataclass(frozen=True, eq=False)
+class BlendLayer:
+    """One node's blended fragments over ``rect``, accumulated in draw order into a cleared buffer
+    as GL's ``SRC_ALPHA, ONE_MINUS_SRC_ALPHA`` (alpha: ``ONE, ONE_MINUS_SRC_ALPHA``) blending gives
+    them: ``color`` (rect.h, rect.w, 3) uint8 premultiplied, ``alpha`` (rect.h, rect.w) uint8 their
+    coverage, ``depth`` (rect.h, rect.w) float32 the nearest one's window depth (:data:`FAR` where
+    none); ``slot`` orders overlapping blend layers (lower first)."""
+
+    rect: Rect
+    color: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    slot: int
+
+    def __post_init__(self) -> None:
+        shape = (self.rect.h, self.rect.w)
+        if self.color.shape != (*shape, 3) or self.alpha.shape != shape or self.depth.shape != shape or \
+                self.color.dtype != np.uint8 or self.alpha.dtype != np.uint8 or self.depth.dtype != np.float32:
+            raise ValueError(f"blend layer {self.rect.as_list()} needs {shape} uint8 colour ×3, uint8 alpha and "
+                             "float32 depth")
+
+
 def depth_from_integer(values: np.ndarray, bits: int) -> np.ndarray:
     """``values`` (any shape) of a ``bits``-bit integer depth buffer as float32 window depth in
     [0, 1]: value / (2^bits − 1), so the buffer's clear value 2^bits − 1 becomes exactly :data:`FAR`.
@@ -103,9 +129,11 @@ def background_pixel(rgb: Sequence[float]) -> np.ndarray:
 
 
 def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
-              exclusive: Iterable[tuple[Rect, np.ndarray]] = ()) -> np.ndarray:
+              exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = ()) -> np.ndarray:
     """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
-    (3,) uint8 where none drew, then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
+    (3,) uint8 where none drew, the ``blends`` laid over it in slot order where their nearest
+    fragment is in front of the merged depth (colour + (255 − alpha) / 255 × what is there, rounded),
+    then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
     pasted as they are: regions only one node drew (the hybrid's tile cores,
     :func:`tessera.chunk_ownership.exclusive_rect`), which travel without depth and which the
     layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
@@ -135,6 +163,16 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
         np.minimum(depth[window], layer.depth, out=depth[window])
         np.copyto(pixels[window], _pixels(layer.color), where=wins)
     np.copyto(pixels, _pixels(np.asarray(background, np.uint8).reshape(1, 1, 3)), where=depth >= FAR)
+    for blend in sorted(blends, key=lambda item: item.slot):
+        rect = blend.rect
+        if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
+            raise ValueError(f"blend layer {rect.as_list()} lies outside the {width}x{height} frame")
+        window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
+        front = blend.depth < depth[window]
+        under = color[window][front].astype(np.float32)
+        through = (255.0 - blend.alpha[front].astype(np.float32))[:, None] / np.float32(255.0)
+        mixed = blend.color[front].astype(np.float32) + through * under
+        color[window][front] = np.minimum(np.rint(mixed), 255.0).astype(np.uint8)
     for rect, region in exclusive:
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height or region.shape != (rect.h, rect.w, 3):
             raise ValueError(f"exclusive region {rect.as_list()} with colour {region.shape} does not fit the "

@@ -6,7 +6,8 @@ A depth tile is the payload of a ``TTIL`` tile message whose header carries the 
 (:data:`tessera.protocol.DEPTH_TILE`). All integers little-endian:
 
 - header: u32 ``version`` (sort-last: the data partition version the layer was drawn from; 0 in
-  the hybrid), u16 piece count P, u8 flags (bit 0: a core follows), u8 0;
+  the hybrid), u16 piece count P, u8 flags (bit 0: a core follows; bit 1: the last piece is a
+  blend piece), u8 0;
 - the core, when flagged: u16 x, y, w, h, u32 length. A hybrid tile's core (the part no other
   tile reaches, :func:`tessera.chunk_ownership.exclusive_rect`) is an image in the frame's tile
   codec, exactly as a sort-first tile: it needs no depth;
@@ -16,6 +17,11 @@ A depth tile is the payload of a ``TTIL`` tile message whose header carries the 
   depths: coverage and depth, always lossless) and the *colour part* (RGB of the active pixels,
   lossless too). Cutting them lets a node report depth bytes apart from colour bytes;
 - the bodies: the core's image, then each piece's depth part and colour part.
+
+A blend piece (sort-last: the node's blended fragments, :class:`tessera.depth_compositing.BlendLayer`)
+is encoded the same way, active where a blended fragment lies (its depth the nearest one's), its
+colour part the premultiplied RGB of the active pixels followed by their alpha. It may overlap
+the other pieces; the coordinator lays it over the merged frame.
 
 Pieces with no active pixel are not sent; a sort-last node with nothing in view sends no piece.
 The coordinator checks every rect against what it expects of the tile (:func:`read_depth_tile`:
@@ -37,6 +43,7 @@ import numpy as np
 from tessera.codec import Codec, encode
 from tessera.depth_compositing import (
     FAR,
+    BlendLayer,
     DepthCodecError,
     DepthLayer,
     composite,
@@ -52,7 +59,9 @@ _HEADER = struct.Struct("<IHBB")
 _CORE = struct.Struct("<HHHHI")
 _PIECE = struct.Struct("<HHHHII")
 _CORE_FLAG = 0x01
-#: Most pieces a depth tile may hold: a hybrid tile's ring is at most four rects.
+_BLEND_FLAG = 0x02
+#: Most pieces a depth tile may hold: a hybrid tile's ring is at most four rects (a sort-last
+#: layer is one, and its blend piece one more).
 MAX_PIECES = 4
 #: zlib level of the piece parts: level 1 deflates the runs and the colour of active pixels well
 #: at a fraction of level 6's time (docs/depth_compositing.md).
@@ -79,18 +88,20 @@ class DepthTileCounts:
 class DecodedDepthTile:
     """A depth tile as the coordinator keeps it: the ``version`` it names, its ``core`` (rect and
     the image bytes, forwarded to viewers as they are; None: no core) and its pieces decoded into
-    ``layers`` (with the slot they merge at)."""
+    ``layers`` (with the slot they merge at) and ``blends`` (at most one blend layer)."""
 
     version: int
     core: tuple[Rect, bytes] | None
     layers: tuple[DepthLayer, ...]
+    blends: tuple[BlendLayer, ...] = ()
 
 
 def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec, quality: int,
-                      version: int = 0) -> tuple[bytes, DepthTileCounts]:
+                      version: int = 0, blend: BlendLayer | None = None) -> tuple[bytes, DepthTileCounts]:
     """The payload of a rendered ``layer`` (None: nothing drawn, no piece) whose ``core`` (inside
     the layer's rect; None: all of it carries depth) goes as an image in ``codec`` (JPEG
-    ``quality``) and the rest as pieces; with the counts of what it carries."""
+    ``quality``) and the rest as pieces, and of its ``blend`` layer (None: no blended fragments);
+    with the counts of what it carries."""
     pieces: list[DepthLayer] = []
     core_bytes = b""
     if layer is not None:
@@ -99,11 +110,18 @@ def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec,
             core_bytes = encode(core_pixels, codec, quality)
     parts, entries = [core_bytes], []
     depth_px = depth_bytes = color_bytes = 0
+    blend_piece = None
+    if blend is not None and (blend.depth < FAR).any():
+        blend_piece = DepthLayer(blend.rect, blend.color, blend.depth, 0)
+        pieces = [*pieces, blend_piece]
     for piece in pieces:
         active = int(np.count_nonzero(piece.depth < FAR))
         if active == 0:
             continue
         depth_part, color_part = _active_parts(piece)
+        if piece is blend_piece:
+            assert blend is not None
+            color_part += blend.alpha[blend.depth < FAR].tobytes()
         depth_zip, color_zip = zlib.compress(depth_part, DEFLATE_LEVEL), zlib.compress(color_part, DEFLATE_LEVEL)
         rect = piece.rect
         entries.append(_PIECE.pack(rect.x, rect.y, rect.w, rect.h, len(depth_zip), len(color_zip)))
@@ -111,7 +129,8 @@ def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec,
         depth_px += active
         depth_bytes += len(depth_zip)
         color_bytes += len(color_zip)
-    head = [_HEADER.pack(version, len(entries), _CORE_FLAG if core_bytes else 0, 0)]
+    flags = (_CORE_FLAG if core_bytes else 0) | (_BLEND_FLAG if blend_piece is not None else 0)
+    head = [_HEADER.pack(version, len(entries), flags, 0)]
     if core_bytes:
         assert core is not None
         head.append(_CORE.pack(core.x, core.y, core.w, core.h, len(core_bytes)))
@@ -142,10 +161,12 @@ def read_depth_tile(payload: bytes, bound: Rect, core_range: tuple[Rect | None, 
     if len(data) < _HEADER.size:
         raise ProtocolError(f"depth tile of {len(data)} bytes has no header")
     version, count, flags, _ = _HEADER.unpack_from(data)
-    if flags & ~_CORE_FLAG:
+    if flags & ~(_CORE_FLAG | _BLEND_FLAG):
         raise ProtocolError(f"depth tile flags {flags:#x} unknown")
-    if count > MAX_PIECES:
-        raise ProtocolError(f"depth tile of {count} pieces; at most {MAX_PIECES}")
+    blended = bool(flags & _BLEND_FLAG)
+    if count > MAX_PIECES + blended or (blended and count == 0):
+        raise ProtocolError(f"depth tile of {count} pieces{' and a blend flag' if blended else ''}; at most "
+                            f"{MAX_PIECES} and a blend piece")
     offset = _HEADER.size
     sent_core: tuple[Rect, int] | None = None
     if flags & _CORE_FLAG:
@@ -163,29 +184,46 @@ def read_depth_tile(payload: bytes, bound: Rect, core_range: tuple[Rect | None, 
         x, y, w, h, depth_length, color_length = _PIECE.unpack_from(data, offset)
         entries.append((Rect(x, y, w, h), depth_length, color_length))
         offset += _PIECE.size
-    _check_rects([rect for rect, _, _ in entries], bound, core)
+    _check_rects([rect for rect, _, _ in entries[:count - blended]], bound, core)
+    if blended and not _inside(entries[-1][0], bound):
+        raise ProtocolError(f"depth tile blend piece {entries[-1][0].as_list()} is empty or outside "
+                            f"{bound.as_list()}")
     body = offset + (sent_core[1] if sent_core else 0)
     if len(data) != body + sum(d + c for _, d, c in entries):
         raise ProtocolError(f"depth tile of {len(data)} bytes; its tables say "
                             f"{body + sum(d + c for _, d, c in entries)}")
-    layers = []
-    for rect, depth_length, color_length in entries:
+    layers, blends = [], []
+    for number, (rect, depth_length, color_length) in enumerate(entries):
+        is_blend = blended and number == count - 1
         depth_part = _inflate(data[body:body + depth_length], 8 + 8 * ((rect.area + 1) // 2 + 1) + 4 * rect.area)
         body += depth_length
-        color_part = _inflate(data[body:body + color_length], 3 * rect.area)
+        color_part = _inflate(data[body:body + color_length], (4 if is_blend else 3) * rect.area)
         body += color_length
+        alpha_part = b""
+        if is_blend:
+            cut = len(color_part) * 3 // 4
+            color_part, alpha_part = color_part[:cut], color_part[cut:]
         try:
             depth, color = decode_active(depth_part + color_part)
         except DepthCodecError as exc:
             raise ProtocolError(f"depth tile piece {rect.as_list()}: {exc}") from None
         if depth.shape != (rect.h, rect.w):
             raise ProtocolError(f"depth tile piece {rect.as_list()} holds a {depth.shape[1]}x{depth.shape[0]} layer")
-        layers.append(DepthLayer(rect, color, depth, slot))
+        if not is_blend:
+            layers.append(DepthLayer(rect, color, depth, slot))
+            continue
+        active = depth < FAR
+        if len(alpha_part) != int(active.sum()):
+            raise ProtocolError(f"depth tile blend piece {rect.as_list()} has {len(alpha_part)} alpha values for "
+                                f"{int(active.sum())} pixels")
+        alpha = np.zeros(depth.shape, np.uint8)
+        alpha[active] = np.frombuffer(alpha_part, np.uint8)
+        blends.append(BlendLayer(rect, color, alpha, depth, slot))
     core_entry = None
     if sent_core is not None:
         start = _HEADER.size + _CORE.size + _PIECE.size * count
         core_entry = (sent_core[0], bytes(data[start:start + sent_core[1]]))
-    return DecodedDepthTile(version, core_entry, tuple(layers))
+    return DecodedDepthTile(version, core_entry, tuple(layers), tuple(blends))
 
 
 def _check_core(core: Rect | None, core_range: tuple[Rect | None, Rect] | None) -> None:
@@ -230,9 +268,11 @@ def _inflate(data: memoryview, limit: int) -> bytes:
 
 def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
     """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
-    (3,) uint8 where none drew (:func:`tessera.depth_compositing.composite`). Cores are not pasted:
-    they are published as they came (:func:`hybrid_frame_tiles`)."""
-    return composite([layer for tile in tiles for layer in tile.layers], size, background)
+    (3,) uint8 where none drew, their blend layers laid over it
+    (:func:`tessera.depth_compositing.composite`). Cores are not pasted: they are published as
+    they came (:func:`hybrid_frame_tiles`)."""
+    return composite([layer for tile in tiles for layer in tile.layers], size, background,
+                     blends=[blend for tile in tiles for blend in tile.blends])
 
 
 def hybrid_frame_tiles(tiles: Sequence[tuple[Rect, DecodedDepthTile]], merged: np.ndarray, codec: Codec,

@@ -17,7 +17,7 @@ from node.scene.shares import keep_share
 from tessera.chunk_ownership import exclusive_rect, readback_rect
 from tessera.codec import Codec, decode
 from tessera.data_partition import split_chunks
-from tessera.depth_compositing import DepthLayer, background_pixel
+from tessera.depth_compositing import BlendLayer, DepthLayer, background_pixel
 from tessera.depth_tiles import encode_depth_tile, hybrid_frame_tiles, merge_depth_tiles, read_depth_tile
 from tessera.geometry import Rect, default_camera
 from tessera.messages import DepthRequest
@@ -101,4 +101,28 @@ def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_rend
         for region, _, data in hybrid_frame_tiles(list(zip(rects, decoded, strict=True)), merged, Codec.PNG, 90):
             frame[region.y:region.y1, region.x:region.x1] = decode(data, Codec.PNG, region.w, region.h)
         assert np.array_equal(frame, whole), f"turn {turn}"
+    renderer.release()
+
+
+def test_blended_fragments_drawn_apart_and_laid_over_equal_blending_in_place(ctx):
+    """One share holding all of the diorama: its blended mesh drawn apart over the opaque layer
+    (premultiplied, with the nearest depth) and laid over the merge gives the frame GL blends in
+    place, up to rounding (a level or two where blending rounds once instead of per fragment)."""
+    scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
+    renderer = TileRenderer(ctx, keep_share(scene, (1.0,), 0))
+    size = (320, 240)
+    camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
+    whole = renderer.render_frame(camera, size).pixels
+    plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, None)
+    assert plan is not None and plan.blend_ids is not None and plan.blend_ids.size == 1
+    layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
+    blend = renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth)
+    assert (blend.depth < 1.0).sum() > 50 and blend.triangles > 0
+    depth_layer = DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
+    tile = read_depth_tile(encode_depth_tile(depth_layer, None, Codec.PNG, 90, 1,
+                                             BlendLayer(layer.rect, blend.color, blend.alpha, blend.depth, 0))[0],
+                           Rect(0, 0, *size), None, 0)
+    merged = merge_depth_tiles([tile], size, background_pixel(renderer.background))
+    difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
+    assert difference.max() <= 2 and (difference > 0).sum() > 0, "the blend is there, rounded once"
     renderer.release()

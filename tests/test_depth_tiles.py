@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tessera.codec import Codec, decode
-from tessera.depth_compositing import FAR, DepthLayer, background_pixel, composite
+from tessera.depth_compositing import FAR, BlendLayer, DepthLayer, background_pixel, composite
 from tessera.depth_tiles import (
     encode_depth_tile,
     hybrid_frame_tiles,
@@ -116,7 +116,8 @@ DEPTH_PART, COLOR_PART = good_piece(PIECE)
 
 @pytest.mark.parametrize(("payload", "fragment"), [
     pytest.param(b"\x00" * 7, "no header", id="short"),
-    pytest.param(pack(flags=2), "flags", id="flags"),
+    pytest.param(pack(flags=4), "flags", id="flags"),
+    pytest.param(pack(flags=2), "blend", id="blend-flag-without-pieces"),
     pytest.param(pack(pieces=[(PIECE, 1, 1)] * 5), "at most 4", id="too-many"),
     pytest.param(pack(pieces=[(PIECE, 1, 1)])[:-4], "piece table", id="table-cut"),
     pytest.param(pack(core=(Rect(0, 0, 4, 4), 1))[:-2], "core entry", id="core-cut"),
@@ -149,3 +150,44 @@ def test_a_hybrid_core_must_hold_the_exclusive_part_and_stay_in_its_tile():
     with pytest.raises(ProtocolError, match="no core"):
         read_depth_tile(pack(), Rect(0, 0, 40, 48), (exclusive, tile), 0)
     assert read_depth_tile(pack(), Rect(0, 0, 40, 48), (None, tile), 0).core is None, "too narrow for a core"
+
+
+def test_a_blend_piece_round_trips_and_is_laid_over_the_merge_where_it_is_in_front():
+    """Sort-last blended fragments: premultiplied colour and alpha with the nearest one's depth; the
+    compositor lays them over the merged frame (colour + (255 − alpha) / 255 × what is there) only
+    where they lie in front of it."""
+    rect = Rect(0, 0, 8, 4)
+    opaque = DepthLayer(rect, np.full((4, 8, 3), 200, np.uint8), np.full((4, 8), 0.5, np.float32), 0)
+    blend_depth = np.full((4, 8), FAR, np.float32)
+    blend_depth[:, :3] = 0.25   # in front
+    blend_depth[:, 3:5] = 0.75  # behind the opaque surface
+    blend = BlendLayer(rect, np.full((4, 8, 3), 40, np.uint8), np.full((4, 8), 128, np.uint8), blend_depth, 0)
+    payload, counts = encode_depth_tile(opaque, None, Codec.PNG, 90, version=2, blend=blend)
+    tile = read_depth_tile(payload, FRAME, None, slot=1)
+    assert len(tile.layers) == 1 and len(tile.blends) == 1 and counts.depth_px == 32 + 20
+    (back,) = tile.blends
+    assert back.slot == 1 and np.array_equal(back.depth, blend_depth)
+    assert np.array_equal(back.alpha[blend_depth < FAR], np.full(20, 128, np.uint8))
+    frame = merge_depth_tiles([tile], SIZE, BACKGROUND)
+    assert (frame[0, :3] == 40 + round(127 / 255 * 200)).all(), "blended over the opaque colour"
+    assert (frame[0, 3:8] == 200).all(), "behind the opaque surface, or no fragment: unchanged"
+    assert (frame[10, 10] == BACKGROUND).all()
+    with pytest.raises(ProtocolError, match=r"active pixels|alpha values"):
+        _cut_alpha(payload)
+
+
+def _cut_alpha(payload: bytes) -> None:
+    """A blend piece whose colour part lacks one alpha value."""
+    version, count, flags, _ = struct.unpack_from("<IHBB", payload)
+    entries = [struct.unpack_from("<HHHHII", payload, 8 + 16 * i) for i in range(count)]
+    body = 8 + 16 * count
+    parts, offset = [], body
+    for *_, depth_length, color_length in entries:
+        parts.append((payload[offset:offset + depth_length], payload[offset + depth_length:offset + depth_length
+                                                                      + color_length]))
+        offset += depth_length + color_length
+    colour = zlib.decompress(parts[-1][1])[:-1]
+    parts[-1] = (parts[-1][0], zlib.compress(colour))
+    rebuilt = pack(version, [(Rect(*entry[:4]), len(d), len(c)) for entry, (d, c) in zip(entries, parts, strict=True)],
+                   flags=flags, body=b"".join(d + c for d, c in parts))
+    read_depth_tile(rebuilt, FRAME, None, 0)

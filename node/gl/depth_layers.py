@@ -12,9 +12,11 @@ node-side half of :mod:`tessera.depth_compositing`.
   frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
   read-back); a share with nothing in view has no layer.
 - Live (:func:`live_plan`): what a ``render`` message's depth request asks of a serving node. In
-  sort-last the node holds only its share, so its share is all its chunks; while the frame's
-  scene state moves an object its chunk boxes no longer say where it is, so the whole frame is
-  read back (moved objects are drawn whole, as in every tile of the hybrid).
+  sort-last the node holds only its share, so its share is all its chunks; its blended chunks are
+  drawn apart, over its layer (:meth:`node.gl.renderer.TileRenderer.render_blend`), since their
+  colour depends on what other shares draw behind them; while the frame's scene state moves an
+  object its chunk boxes no longer say where it is, so the whole frame is read back (moved
+  objects are drawn whole, as in every tile of the hybrid).
 
 Chunk ids index the renderer's scene chunks (:class:`node.scene.chunks.SceneChunks`).
 """
@@ -40,13 +42,15 @@ from tessera.scene_state import SceneState
 
 @dataclass(frozen=True, eq=False)
 class LayerPlan:
-    """A depth layer to draw: its ``rect`` in the frame, ``chunk_ids`` (K,) int64 sorted, and the
+    """A depth layer to draw: its ``rect`` in the frame, ``chunk_ids`` (K,) int64 sorted, the
     ``exclusive`` part of it no other layer reaches (a hybrid tile's core, sent as colour alone;
-    None: all of the layer carries depth)."""
+    None: all of the layer carries depth), and ``blend_ids`` (sorted) blended chunks to draw apart
+    over it (None: none; blended chunks are then among ``chunk_ids``, if any)."""
 
     rect: Rect
     chunk_ids: np.ndarray
     exclusive: Rect | None = None
+    blend_ids: np.ndarray | None = None
 
 
 def visible_chunks(renderer: TileRenderer, camera: Camera, size: tuple[int, int], rect: Rect) -> np.ndarray:
@@ -103,8 +107,15 @@ def live_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], req
         return hybrid_plan(renderer, camera, size, request.tiles, tile_id, request.strip)
     if renderer.pose_of(state).whole:
         frame = Rect(0, 0, *size)
-        return LayerPlan(frame, visible_chunks(renderer, camera, size, frame))
-    return sort_last_plan(renderer, camera, size, np.arange(renderer.scene.chunks.chunk_count))
+        plan: LayerPlan | None = LayerPlan(frame, visible_chunks(renderer, camera, size, frame))
+    else:
+        plan = sort_last_plan(renderer, camera, size, np.arange(renderer.scene.chunks.chunk_count))
+    if plan is None:
+        return None
+    blends = blended_chunks(renderer)[plan.chunk_ids]
+    if not blends.any():
+        return plan
+    return LayerPlan(plan.rect, plan.chunk_ids[~blends], blend_ids=plan.chunk_ids[blends])
 
 
 def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:

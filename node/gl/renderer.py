@@ -28,7 +28,9 @@ Depth layers (:meth:`TileRenderer.render_layer`, for the hybrid and sort-last mo
 and near/far — with a given list of chunks instead of the rect's culled ones, and the rect's depth
 read back too, as float32 window depth from the one depth buffer format every node uses (moderngl's
 24-bit depth renderbuffer, cleared to 1.0 = far, ``GL_LESS``). Equal surfaces drawn on different
-nodes therefore carry equal depth bits.
+nodes therefore carry equal depth bits. Blended chunks may be drawn apart, over such a layer
+(:meth:`TileRenderer.render_blend`, sort-last): premultiplied into a cleared colour buffer, as a
+:class:`tessera.depth_compositing.BlendLayer` the compositor lays over the merged frame.
 
 Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
 batch with its object's model matrix (folded into the view-projection uniform, so an unmoved
@@ -108,6 +110,26 @@ void main() {{
 """
 
 
+#: How :meth:`TileRenderer._use_material` blends blended batches: over the frame (as shown), or
+#: premultiplied into a cleared buffer, alpha accumulated as coverage (:meth:`TileRenderer.render_blend`).
+BLEND_OVER = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA)
+BLEND_ACCUMULATE = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA, moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
+
+
+@dataclass(frozen=True, slots=True)
+class BlendedFragments:
+    """Blended chunks drawn over a depth layer (:meth:`TileRenderer.render_blend`): ``color``
+    (h, w, 3) uint8 premultiplied, ``alpha`` (h, w) uint8, ``depth`` (h, w) float32 of the nearest
+    fragment (1.0 where none lies in front of the layer), ``triangles`` submitted, times in ms."""
+
+    color: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    triangles: int
+    render_ms: float
+    readback_ms: float
+
+
 @dataclass(frozen=True, slots=True)
 class RenderedTile:
     """A tile's pixels (rect.h, rect.w, 3) uint8, row 0 at the top, its measured phases (ms,
@@ -185,6 +207,8 @@ class TileRenderer:
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
         self._blending = False
+        #: How blended batches are drawn (None: into depth only, as if opaque, colour writes off).
+        self._blend_func: tuple[int, ...] | None = BLEND_OVER
         self._base_pose = ScenePose.of(scene, None)
         self._pose: tuple[SceneState | None, ScenePose] = (None, self._base_pose)
 
@@ -302,6 +326,47 @@ class TileRenderer:
                             counts.triangles + pose.whole_triangles, drawn_chunks,
                             self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
+    def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
+                     under: np.ndarray, state: SceneState | None = None) -> BlendedFragments:
+        """Blended chunks ``chunk_ids`` (sorted, unique) over the layer :meth:`render_layer` has just
+        drawn of the same ``rect``, camera, size and ``state``, whose depth ``under`` (rect.h,
+        rect.w) float32 the framebuffer still holds: their colour accumulated in draw order into a
+        cleared buffer (:data:`BLEND_ACCUMULATE`), tested against the layer's depth and not
+        written, then drawn again into the depth buffer alone for the nearest one's depth."""
+        started = time.perf_counter()
+        pose = self.pose_of(state)
+        matrix = view_projection(camera, size, pose.bounds)
+        culled = self.culler.listed(chunk_ids)
+        framebuffer = self._framebuffer_for(size)
+        gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
+        framebuffer.scissor = gl_box
+        framebuffer.use()
+        framebuffer.depth_mask = False
+        framebuffer.clear(0.0, 0.0, 0.0, 0.0, viewport=gl_box)
+        framebuffer.depth_mask = True
+        self.program["u_light_direction"].value = headlight_direction(camera)
+        try:
+            self._blend_func = BLEND_ACCUMULATE
+            self._draw(framebuffer, culled, pose, matrix)
+            self.ctx.finish()
+            color = framebuffer.read(viewport=gl_box, components=4, alignment=1)
+            self._blend_func = None
+            framebuffer.color_mask = (False, False, False, False)
+            self._draw(framebuffer, culled, pose, matrix)
+            self.ctx.finish()
+        finally:
+            self._blend_func = BLEND_OVER
+            framebuffer.color_mask = (True, True, True, True)
+        drawn = time.perf_counter()
+        depth_data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
+        rgba = np.frombuffer(color, np.uint8).reshape(rect.h, rect.w, 4)[::-1]
+        nearest = np.frombuffer(depth_data, np.float32).reshape(rect.h, rect.w)[::-1]
+        depth = np.where(nearest < under, nearest, np.float32(1.0)).astype(np.float32)
+        read = time.perf_counter()
+        triangles = self.culler.counts(culled, pose.skip if pose.skip.any() else None).triangles
+        return BlendedFragments(np.ascontiguousarray(rgba[..., :3]), np.ascontiguousarray(rgba[..., 3]), depth,
+                                triangles, (drawn - started) * 1e3, (read - drawn) * 1e3)
+
     def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None) -> RenderedTile:
         """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose)."""
         return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state)
@@ -350,12 +415,13 @@ class TileRenderer:
         self.program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
 
     def _use_material(self, framebuffer: moderngl.Framebuffer, number: int) -> None:
-        """Set batch ``number``'s uniforms and texture; the first blended batch turns blending on."""
+        """Set batch ``number``'s uniforms and texture; the first blended batch turns blending on
+        (with :attr:`_blend_func`; None: it is drawn into depth as if opaque)."""
         batch = self.scene.batches[number]
-        if batch.alpha_mode == "BLEND" and not self._blending:
+        if batch.alpha_mode == "BLEND" and not self._blending and self._blend_func is not None:
             self._blending = True
             self.ctx.enable(moderngl.BLEND)
-            self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+            self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
         self.program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
         self.program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
