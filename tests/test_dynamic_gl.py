@@ -1,6 +1,7 @@
 """Rendering a scene state on real GL (issue 11): moved, turned, scaled and hidden objects render
-identically in a tile and in the whole frame under every culling mode; CesiumMilkTruck's wheel
-animation changes only the wheels, and ``--render-once --time`` equals a hand-posed ``--objects``."""
+identically in a tile and in the whole frame under every culling mode, and a moved object is culled
+where it is now; CesiumMilkTruck's wheel animation changes only the wheels, and ``--render-once
+--time`` equals a hand-posed ``--objects``."""
 
 from __future__ import annotations
 
@@ -87,6 +88,29 @@ def test_moved_object_shows_where_it_went(renderers, spheres):
     assert (with_it != without).any(axis=2).sum() > 200
 
 
+@pytest.mark.parametrize("mode", [CullMode.CPU, CullMode.GPU])
+def test_a_moved_object_is_culled_where_it_is_now(renderers, spheres, mode):
+    renderer = renderers[mode]
+    camera = default_camera(spheres.bounds, aspect=SIZE[0] / SIZE[1])
+    state = moved_state(spheres)
+    gone = spheres.state_at(0.0, {"sphere0": ObjectPatch(visible=False), "sphere2": ObjectPatch(visible=False)})
+    sphere0 = spheres.objects.objects[spheres.objects.lookup("sphere0")].triangles
+
+    def extra(rect):
+        """Triangles sphere0 adds to the tile ``rect`` in its moved place."""
+        moved = renderer.render_tile(camera, SIZE, rect, slot=("moved", rect), state=state)
+        return moved.triangles - renderer.render_tile(camera, SIZE, rect, slot=("moved", rect), state=gone).triangles
+
+    # It left the far left for the right half: culled there (its base-pose boxes are on the left), all drawn here.
+    assert extra(Rect(0, 0, 80, 240)) == 0
+    assert extra(RECTS[0]) == sphere0
+    assert extra(RECTS[0]) > extra(RECTS[1]) and extra(Rect(0, 0, 320, 240)) == sphere0
+    # Without culling every tile draws it whole.
+    off = renderers[CullMode.OFF]
+    assert off.render_tile(camera, SIZE, Rect(0, 0, 80, 240), state=state).triangles == \
+        spheres.triangle_count - spheres.objects.objects[spheres.objects.lookup("sphere2")].triangles
+
+
 def test_the_base_state_draws_the_static_scene_and_counts_what_it_draws(renderers, spheres):
     renderer = renderers[CullMode.OFF]
     camera = default_camera(spheres.bounds, aspect=SIZE[0] / SIZE[1])
@@ -152,9 +176,10 @@ def test_render_once_names_a_bad_objects_file(tmp_path):
         assert result.returncode == 1 and message in result.stderr, result.stderr
 
 
-def test_traffic_tiles_equal_the_whole_frame_while_cars_move(ctx):
+@pytest.mark.parametrize("mode", [CullMode.OFF, CullMode.CPU, CullMode.GPU])
+def test_traffic_tiles_equal_the_whole_frame_while_cars_move(ctx, mode):
     scene = load_scene("builtin:traffic")
-    renderer = TileRenderer(ctx, scene, culling=CullMode.CPU)
+    renderer = TileRenderer(ctx, scene, culling=mode)
     camera = default_camera(scene.bounds, aspect=SIZE[0] / SIZE[1])
     frames = []
     for time in (0.0, 2.3):
@@ -165,4 +190,7 @@ def test_traffic_tiles_equal_the_whole_frame_while_cars_move(ctx):
             assert np.array_equal(tile, whole[rect.y:rect.y1, rect.x:rect.x1]), f"t={time} tile {rect}"
         frames.append(whole)
     assert (frames[0] != frames[1]).any(axis=2).mean() > 0.02
+    if mode is not CullMode.OFF:   # a quarter tile draws fewer of the moved cars' triangles than the frame
+        quarter = renderer.render_tile(camera, SIZE, Rect(0, 0, 160, 120), slot="q", state=state)
+        assert quarter.triangles < renderer.render_frame(camera, SIZE, state).triangles
     renderer.release()

@@ -12,6 +12,9 @@ switch needs one tile's timings over consecutive frames. The tree over the scene
   on the CPU). When the switch hands a slot over to the GPU, the slot's GPU input is seeded with
   the CPU's last terminal nodes (seed 001 §6.1.2).
 - Hybrid: CPU until the switch says GPU, and back.
+- Moved objects (issue 11): their batches are left out of the above (the tree is at the base
+  pose) and culled on the CPU in every mode but off by :meth:`TileCuller.cull_moved`, in their own
+  frame (:mod:`node.culling.objects`).
 - Auto (the default): hybrid on a hardware GPU, CPU on a software rasterizer
   (:func:`node.culling.switch.resolve_culling`).
 
@@ -33,7 +36,7 @@ the GPU path the counts are read back from the command buffer after drawing.
 from __future__ import annotations
 
 import time
-from collections.abc import Hashable
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 
 import moderngl
@@ -42,6 +45,7 @@ import numpy as np
 from node.culling.bvh import build_chunk_bvh, cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.gpu import GpuBvh, GpuCuller
+from node.culling.objects import MovedCuller
 from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
 from node.scene.chunks import DrawRuns, SceneChunks
 from tessera.geometry import Rect
@@ -98,6 +102,8 @@ class TileCuller:
                                           f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")
         self.chunks, self.mode, self.params = chunks, mode, params
         self.bvh = build_chunk_bvh(chunks.boxes)
+        #: Moved objects' batches, culled on the CPU in every mode but off (:mod:`node.culling.objects`).
+        self.moved = MovedCuller(chunks)
         self._slots: dict[Hashable, _Slot] = {}
         self._cpu_commands = ctx.buffer(reserve=20 * chunks.chunk_count)   # runs never outnumber chunks
         self._all_runs = chunks.all_runs()
@@ -121,6 +127,14 @@ class TileCuller:
         if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
             return self._cull_gpu(state, planes)
         return self._cull_cpu(state, planes)
+
+    def cull_moved(self, view_proj: np.ndarray, size: tuple[int, int], rect: Rect, batches: Sequence[int],
+                   models: np.ndarray) -> DrawRuns:
+        """The runs of moved ``batches`` (sorted ids) that the ``rect`` tile keeps, each batch moved by
+        its row of ``models`` (len, 4, 4) (:meth:`MovedCuller.cull`; mode off: all of them)."""
+        planes = (None if self.mode is CullMode.OFF or not batches
+                  else frustum_planes_from_matrix(view_proj, size, rect))
+        return self.moved.cull(planes, batches, models)
 
     def listed(self, chunk_ids: np.ndarray) -> TileCull:
         """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer

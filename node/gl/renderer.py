@@ -34,8 +34,9 @@ nodes therefore carry equal depth bits. Blended chunks may be drawn apart, over 
 
 Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
 batch with its object's model matrix (folded into the view-projection uniform, so an unmoved
-object draws exactly as before) and normal matrix; a moved object is drawn whole, a hidden one not
-at all; near/far come from the state's bounds. Tile and whole frame get the same uniforms.
+object draws exactly as before) and normal matrix; a moved object is culled per tile in its own
+frame (:mod:`node.culling.objects`; drawn whole among listed chunks), a hidden one not drawn at
+all; near/far come from the state's bounds. Tile and whole frame get the same uniforms.
 Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
 base colour × vertex colour × sRGB texture, output sRGB-encoded.
 """
@@ -53,6 +54,7 @@ import numpy as np
 
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
+from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
 from node.scene.pose import ScenePose
@@ -273,7 +275,8 @@ class TileRenderer:
         pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose)
+        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved)
 
     def pose_of(self, state: SceneState | None) -> ScenePose:
         """The pose of ``state``, kept for the next tiles of the same state."""
@@ -285,23 +288,25 @@ class TileRenderer:
                      slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
-        culling keeps, ``slot`` naming it as there; of moved objects, all is drawn, of hidden ones
-        nothing), with its depth read back as well."""
+        culling keeps, ``slot`` naming it as there, moved objects culled too; of listed chunks, a moved
+        object's are drawn whole; of hidden ones nothing), with its depth read back as well."""
         validate_rect(rect, size)
         started = time.perf_counter()
         pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
+        moved = None
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
+            moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         else:
             culled = self.culler.listed(chunk_ids)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
-                started: float, with_depth: bool, pose: ScenePose) -> RenderedTile:
+                started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
-        began."""
+        began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole)."""
         width, height = size
         framebuffer = self._framebuffer_for((width, height))
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
@@ -310,7 +315,7 @@ class TileRenderer:
         framebuffer.use()
         framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self.program["u_light_direction"].value = headlight_direction(camera)
-        self._draw(framebuffer, culled, pose, matrix)
+        self._draw(framebuffer, culled, pose, matrix, moved)
         self.ctx.finish()
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
@@ -321,9 +326,11 @@ class TileRenderer:
             depth = np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
         read = time.perf_counter()
         counts = self.culler.counts(culled, pose.skip if pose.skip.any() else None)
-        drawn_chunks = counts.chunks_drawn + pose.whole_chunks
+        moved_chunks, moved_triangles = ((pose.whole_chunks, pose.whole_triangles) if moved is None
+                                         else (moved.chunks, moved.triangles))
+        drawn_chunks = counts.chunks_drawn + moved_chunks
         return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3,
-                            counts.triangles + pose.whole_triangles, drawn_chunks,
+                            counts.triangles + moved_triangles, drawn_chunks,
                             self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
@@ -372,11 +379,12 @@ class TileRenderer:
         return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state)
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
-              view_proj: np.ndarray) -> None:
+              view_proj: np.ndarray, moved: DrawRuns | None = None) -> None:
         """Issue the draw calls batch by batch in batch order (opaque and masked first, blended last),
         each with its object's matrices: one multi-draw-indirect over each culled batch's commands
-        (without :attr:`multi_draw` one draw per index run), one draw of the whole batch for a moved
-        one (``first`` −1 below); batches ``pose`` hides are left out."""
+        (without :attr:`multi_draw` one draw per index run), one draw per run of ``moved`` for a moved
+        batch, or of the whole batch when ``moved`` is None (``first`` −1 below); batches ``pose``
+        hides are left out."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
@@ -385,9 +393,10 @@ class TileRenderer:
             assert culled.runs is not None, "GPU culling draws its commands by multi-draw-indirect"
             firsts, counts = culled.runs.first.tolist(), culled.runs.count.tolist()
         draws = culled.batches
+        whole = pose.whole_runs(self.scene, moved)
         if pose.skip.any():
             culled_draws = [draw for draw in culled.batches if not pose.skip[draw[0]]]
-            draws = list(heapq.merge(culled_draws, [(number, -1, 0) for number in pose.whole]))
+            draws = list(heapq.merge(culled_draws, [(number, -1, 0) for number in whole]))
         model = None
         for number, first, count in draws:
             self._use_material(framebuffer, number)
@@ -396,8 +405,8 @@ class TileRenderer:
                 model = key
                 self._use_model(pose, model, view_proj)
             if first < 0:
-                whole_first, whole_count = pose.index_range(self.scene, number)
-                self.vertex_array.render(moderngl.TRIANGLES, vertices=whole_count, first=whole_first)
+                for run_first, run_count in whole[number]:
+                    self.vertex_array.render(moderngl.TRIANGLES, vertices=run_count, first=run_first)
             elif self.multi_draw:
                 self.vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
                 continue

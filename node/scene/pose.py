@@ -3,9 +3,9 @@ asks of a node's renderer, per batch: the model matrix that moves it, whether it
 bounds that set the frame's near and far planes. No GL.
 
 Geometry and its chunk boxes stay in world space at the base pose. A batch whose object has not
-moved is culled per tile as before (seed 001); a moved batch is drawn whole in every tile (its
-chunk boxes no longer say where it is; a transformed box per object for culling is the later step
-that keeps culling exact while objects move); a hidden batch is not drawn. Tiles and the whole
+moved is culled per tile as before (seed 001) by the scene's chunk tree; a moved batch is left out
+of that tree's cull and culled apart in its object's frame (:mod:`node.culling.objects`), or drawn
+whole where a tile's chunks are listed (depth layers); a hidden batch is not drawn. Tiles and the whole
 frame get the same matrices and the same near/far, so a tile stays identical to its region of the
 whole frame.
 """
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from tessera.scene_state import SceneState
 
@@ -25,7 +26,7 @@ class ScenePose:
     """``bounds`` (2, 3) float64 world box of what is drawn (near/far come from it); per object
     ``models`` (N, 4, 4) float64 and ``normals`` (N, 3, 3) float64 (the inverse-transpose of the
     model's linear part), ``moved`` (N,) bool; per batch ``owner`` (B,) int64, ``skip`` (B,) bool
-    (not drawn from a tile's culled chunks: hidden, or moved and drawn whole) and ``whole``, the
+    (not drawn from the scene tree's cull: hidden, or moved and culled apart) and ``whole``, the
     moved visible batches in draw order, with their chunk and triangle totals."""
 
     bounds: np.ndarray
@@ -62,6 +63,16 @@ class ScenePose:
         chunk_counts = np.diff(scene.chunks.batch_bounds)
         return cls(bounds, models, normals, moved, owner, whole_mask | ~shown[owner], whole,
                    int(chunk_counts[whole_mask].sum()), sum(scene.batches[b].triangle_count for b in whole))
+
+    def whole_runs(self, scene: SceneData, moved: DrawRuns | None) -> dict[int, list[tuple[int, int]]]:
+        """The moved visible batches to draw, in draw order, each with its (first index, index count)
+        runs: those of ``moved`` (a tile's cull of them; batches it culled away are left out), or
+        every batch of :attr:`whole` in one run when ``moved`` is None."""
+        if moved is None:
+            return {batch: [self.index_range(scene, batch)] for batch in self.whole}
+        first, count = moved.first.tolist(), moved.count.tolist()
+        return {batch: list(zip(first[start:start + runs], count[start:start + runs], strict=True))
+                for batch, start, runs in moved.batch_slices()}
 
     def index_range(self, scene: SceneData, batch: int) -> tuple[int, int]:
         """(first index, index count) of all of ``batch`` in the scene's index buffer."""
