@@ -438,7 +438,8 @@ class NodeClient:
         load_ms = (time.perf_counter() - started) * 1e3
         log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
                  len(scene.batches), scene.chunks.chunk_count, load_ms)
-        groups = SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist())
+        groups = SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist(),
+                             objects=scene.groups.owners.tolist())
         outbox.put_nowait(SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups,
                                      objects=scene.objects.to_json(),
                                      animations=[a.keyframes_json() for a in scene.animations],

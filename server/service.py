@@ -273,7 +273,8 @@ class RenderService:
             self.bounds = bounds
             if message.groups is not None:
                 self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
-                                          np.asarray(message.groups.counts, dtype=np.float64), bounds)
+                                          np.asarray(message.groups.counts, dtype=np.float64), bounds,
+                                          message.groups.objects)
             if self.scheduler.camera is None:
                 self.scheduler.set_camera(default_camera(bounds, aspect=self.size[0] / self.size[1]), now)
             self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.camera))

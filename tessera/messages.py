@@ -208,16 +208,21 @@ class SceneProgress(Message):
 
 class SceneGroups(BaseModel):
     """World-space primitive groups (seed 003 DPBP: the octree chunks' boxes, merged to a few
-    thousand): ``boxes`` [x0, y0, z0, x1, y1, z1] and each one's triangle ``counts``."""
+    thousand, at the base pose): ``boxes`` [x0, y0, z0, x1, y1, z1], each one's triangle
+    ``counts`` and ``objects``, the index in ``objects`` of scene_ready of the object each belongs
+    to (issue 11: the coordinator moves a group with its object; null: groups stay put)."""
 
     model_config = _FIELDS
     boxes: list[tuple[Number, Number, Number, Number, Number, Number]]
     counts: list[Annotated[StrictInt, Field(ge=0)]]
+    objects: list[Annotated[StrictInt, Field(ge=0)]] | None = None
 
     @model_validator(mode="after")
     def _one_count_per_box(self) -> Self:
         if len(self.boxes) != len(self.counts):
             raise ValueError(f"{len(self.boxes)} boxes but {len(self.counts)} counts")
+        if self.objects is not None and len(self.objects) != len(self.boxes):
+            raise ValueError(f"{len(self.boxes)} boxes but {len(self.objects)} objects")
         return self
 
 

@@ -1,5 +1,6 @@
 """Screen-space footprints of world-space boxes (seed 003 §3, DPBP: primitive groups' 3D boxes
-projected to 2D each frame and clipped to the screen). Pure numpy."""
+projected to 2D each frame and clipped to the screen), and the groups of a scene state (issue 11:
+each group moved with its object before it is projected). Pure numpy."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import numpy as np
 
 from tessera.balancers.base import ProjectedGroups
 from tessera.geometry import Camera, view_projection
+from tessera.scene_graph import ObjectGraph, transform_boxes
+from tessera.scene_state import SceneState
 
 _CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
 
@@ -44,3 +47,21 @@ def project_groups(boxes: np.ndarray, counts: np.ndarray, camera: Camera, size: 
     rects = project_boxes(boxes, camera, size, scene_bounds)
     keep = rects[:, 2] > rects[:, 0]
     return ProjectedGroups(rects[keep], np.asarray(counts, dtype=np.float64).reshape(-1)[keep])
+
+
+def posed_groups(boxes: np.ndarray, counts: np.ndarray, owners: np.ndarray, graph: ObjectGraph,
+                 state: SceneState) -> tuple[np.ndarray, np.ndarray]:
+    """The base-pose world groups ``boxes`` (K, 6) with ``counts`` (K,) of objects ``owners`` (K,)
+    int64 (indices into ``graph``) in ``state``: hidden objects' groups dropped, moved objects'
+    boxes moved by their model matrices (:func:`tessera.scene_graph.transform_boxes`, a box around
+    the moved box). Returns (K', 6) float64 boxes and (K',) float64 counts."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
+    owners = np.asarray(owners, dtype=np.int64).reshape(-1)
+    keep = graph.visibility(state)[owners]
+    boxes, owners = boxes[keep], owners[keep]
+    models = graph.model_matrices(state)
+    moved = ~(models[owners] == np.identity(4)).all(axis=(1, 2))
+    if moved.any():
+        boxes = boxes.copy()
+        boxes[moved] = transform_boxes(boxes[moved].reshape(-1, 2, 3), models[owners[moved]]).reshape(-1, 6)
+    return boxes, np.asarray(counts, dtype=np.float64).reshape(-1)[keep]

@@ -73,7 +73,7 @@ from tessera.frame_stats import FrameStats
 from tessera.geometry import Camera, Rect
 from tessera.messages import DepthRequest, Render, ShareSpec
 from tessera.partition import check_exact_cover
-from tessera.projection import project_groups
+from tessera.projection import posed_groups, project_groups
 from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
 from tessera.scene_state import ObjectPatch, SceneState, StateDelta
 from tessera.scene_timeline import SceneTimeline
@@ -237,8 +237,9 @@ class FrameScheduler:
         self._published_version = 0
         self._settle_left = 0
         self._inputs: dict[Hashable, int] = {}
-        #: Projected primitive groups for a camera (seed 003 DPBP), for balancers that use them.
-        self.groups_for: Callable[[Camera], ProjectedGroups | None] | None = None
+        #: Projected primitive groups for a camera and the frame's scene state (None: the base pose)
+        #: (seed 003 DPBP), for balancers that use them.
+        self.groups_for: Callable[[Camera, SceneState | None], ProjectedGroups | None] | None = None
         self._partitions: list[Partition] = []
         self._last_partition_at: float | None = None
         self._last_timings: tuple[TileTiming, ...] = ()
@@ -336,14 +337,28 @@ class FrameScheduler:
         self.stats.reset_imbalance()
         self._changed(now, supersede=False)
 
-    def set_groups(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray) -> None:
-        """The scene's world-space primitive groups (K, 6) with primitive counts (K,) and its bounds
-        (2, 3), projected per frame for balancers that use them (seed 003 DPBP)."""
+    def set_groups(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray,
+                   owners: np.ndarray | None = None) -> None:
+        """The scene's world-space primitive groups (K, 6) at the base pose with primitive counts (K,),
+        its bounds (2, 3) and each group's object ``owners`` (K,) (indices into the scene's objects;
+        None: the groups never move), projected per frame for balancers that use them (seed 003
+        DPBP): with a frame's state, each group moved with its object, hidden objects' groups
+        dropped, near/far from the state's bounds (:func:`tessera.projection.posed_groups`)."""
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
         counts = np.asarray(counts, dtype=np.float64).reshape(-1)
         bounds = np.asarray(bounds, dtype=np.float64)
+        objects = None if owners is None else np.asarray(owners, dtype=np.int64).reshape(-1)
         size = self.config.size
-        self.groups_for = lambda camera: project_groups(boxes, counts, camera, size, bounds)
+
+        def groups_for(camera: Camera, state: SceneState | None) -> ProjectedGroups:
+            if state is None or objects is None or self.scene is None:
+                return project_groups(boxes, counts, camera, size, bounds)
+            graph = self.scene.graph
+            seen = graph.bounds(state)
+            posed, weights = posed_groups(boxes, counts, objects, graph, state)
+            return project_groups(posed, weights, camera, size, bounds if seen is None else seen)
+
+        self.groups_for = groups_for
 
     def forget_source(self, source: Hashable) -> None:
         """A viewer left: its input numbers are no longer reported."""
@@ -637,7 +652,8 @@ class FrameScheduler:
 
     def _start_frame(self, ready: list[NodeSchedule], now: float, still: bool) -> None:
         assert self.camera is not None
-        partition = self._partition(ready, now, self.camera)
+        state = self.scene.bind(now) if self.scene else None
+        partition = self._partition(ready, now, self.camera, state)
         config = self.config
         if still:
             assert config.still_codec is not None
@@ -650,7 +666,7 @@ class FrameScheduler:
             self._started_version = self._version
         job = FrameJob.create(self.next_frame_id, self.camera, config.size, codec, quality, partition, now,
                               still=still, version=self._version, changed_at=self._changed_at,
-                              inputs=dict(self._inputs), state=self.scene.bind(now) if self.scene else None,
+                              inputs=dict(self._inputs), state=state,
                               depth=self._depth_request(partition))
         self.next_frame_id += 1
         self._next_start_at = now + 1.0 / config.max_fps
@@ -683,9 +699,11 @@ class FrameScheduler:
                 self._actions.append(LoadShare(node_id, ShareSpec(version=plan.version, index=index,
                                                                   weights=plan.weights)))
 
-    def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera) -> Partition:
-        """The balancer's partition for the ready nodes (the static split if it fails); in
-        sort-last one whole-frame tile per share, to its holder."""
+    def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera,
+                   state: SceneState | None = None) -> Partition:
+        """The balancer's partition for the ready nodes (the static split if it fails), with the
+        groups of ``camera`` in the frame's ``state``; in sort-last one whole-frame tile per share,
+        to its holder."""
         if self.shares is not None and self.shares.plan is not None:
             frame = Rect(0, 0, *self.config.size)
             partition = Partition(tuple(Tile(frame, node_id) for node_id in self.shares.plan.holders))
@@ -696,7 +714,7 @@ class FrameScheduler:
         inputs = BalanceInput(
             size=self.config.size, node_ids=tuple(n.node_id for n in ready), previous=previous,
             timings=self._last_timings, weights={n.node_id: n.speed for n in ready}, elapsed_ms=elapsed_ms,
-            groups=self.groups_for(camera) if self.balancer.uses_groups and self.groups_for else None)
+            groups=self.groups_for(camera, state) if self.balancer.uses_groups and self.groups_for else None)
         try:
             partition = self.balancer.partition(inputs)
             check_exact_cover(partition.rects, self.config.size)

@@ -102,6 +102,18 @@ def test_groups_are_chunks_or_merged_runs_of_them():
     assert MAX_GROUPS <= 4000
 
 
+def test_groups_never_merge_two_objects():
+    scene = SceneData.from_batches("two", [batch("a", 3000, 0.0), batch("b", 3000, 5.0)], face_limit=10)
+    chunks = scene.chunks
+    owners = np.array([b.owner for b in scene.batches])
+    assert owners.tolist() == [0, 1] and scene.groups.owners.tolist() == owners[chunks.batch].tolist()
+    merged = chunks.primitive_groups(owners, max_groups=7)       # 7 does not divide the chunk runs evenly
+    assert len(merged.counts) <= 8 and merged.counts.sum() == scene.triangle_count
+    first_of_b = int(np.searchsorted(merged.owners, 1))
+    assert merged.owners.tolist() == [0] * first_of_b + [1] * (len(merged.owners) - first_of_b)
+    assert merged.counts[:first_of_b].sum() == scene.batches[0].triangle_count
+
+
 def test_face_limit_must_be_positive():
     with pytest.raises(ValueError):
         split_batches([batch("a", 10, 0.0)], 0)

@@ -32,13 +32,16 @@ MAX_GROUPS = 4000
 
 @dataclass(frozen=True, eq=False)
 class PrimitiveGroups:
-    """World-space primitive groups for seed 003's DPBP estimate (chunks, or runs of chunks).
+    """World-space primitive groups for seed 003's DPBP estimate (chunks, or runs of chunks of one
+    object), at the base pose.
 
-    ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles.
+    ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles;
+    ``owners`` (K,) int64 the object each group belongs to (issue 11: groups move with it).
     """
 
     boxes: np.ndarray
     counts: np.ndarray
+    owners: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,15 +117,20 @@ class SceneChunks:
         """One run per batch: the whole scene, as drawn without culling."""
         return self.runs(np.zeros(1, np.int64), np.array([self.chunk_count]))
 
-    def primitive_groups(self, max_groups: int = MAX_GROUPS) -> PrimitiveGroups:
+    def primitive_groups(self, batch_owner: np.ndarray | None = None, max_groups: int = MAX_GROUPS) -> PrimitiveGroups:
         """Chunk boxes and triangle counts; above ``max_groups`` chunks, consecutive chunks (octree
-        neighbours) are merged into equal runs so that at most ``max_groups`` groups remain."""
+        neighbours) are merged into equal runs, never across two objects (``batch_owner`` (B,) int64:
+        each batch's object; None: all one object), so that at most ``max_groups`` groups remain
+        plus one per change of object in chunk order."""
+        owner = np.zeros(self.chunk_count, np.int64) if batch_owner is None else np.asarray(batch_owner)[self.batch]
         per_group = -(-self.chunk_count // max_groups)
-        starts = np.arange(0, self.chunk_count, per_group)
+        changes = np.flatnonzero(np.diff(owner)) + 1
+        starts = np.union1d(np.arange(0, self.chunk_count, per_group), changes)
         lo = np.minimum.reduceat(self.boxes[:, 0], starts, axis=0)
         hi = np.maximum.reduceat(self.boxes[:, 1], starts, axis=0)
         counts = np.add.reduceat(self.face_counts, starts)
-        return PrimitiveGroups(np.concatenate([lo, hi], axis=1).astype(np.float64), counts.astype(np.int64))
+        return PrimitiveGroups(np.concatenate([lo, hi], axis=1).astype(np.float64), counts.astype(np.int64),
+                               owner[starts].astype(np.int64))
 
 
 def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> tuple[

@@ -59,7 +59,8 @@ class SceneData:
             graph = ObjectGraph(_measured(objects, split, boxes))
         except SceneStateError as exc:
             raise SceneError(f"{name}: {exc}") from None
-        return cls(name, tuple(split), bounds, triangles, chunks.primitive_groups(), chunks, graph, tuple(animations))
+        groups = chunks.primitive_groups(np.array([b.owner for b in split], np.int64))
+        return cls(name, tuple(split), bounds, triangles, groups, chunks, graph, tuple(animations))
 
     def with_face_limit(self, face_limit: int) -> SceneData:
         """The same scene split with another face limit (itself when the limit is the same)."""
