@@ -34,7 +34,8 @@ What it decides:
   rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
   first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
 * **Stragglers and failed tiles.** A node whose current tile is ``backup_factor`` times later than
-  its expected time for it (its last frame's busy ms per pixel × the tile's pixels; at least
+  its expected time for it (its last frame's busy ms per pixel × the tile's pixels, or, for a node
+  that has not finished a frame yet, the slowest rate any node has shown; at least
   ``backup_floor_s``) is suspect: the tiles it owes are copied to other nodes (MapReduce's backup
   tasks; the first copy back wins, the other is dropped) and it gets no new work until it answers
   again. A tile the node reports it could not render goes to another node; ``max_tile_failures``
@@ -550,14 +551,17 @@ class FrameScheduler:
         sort-last, where no other node holds the share."""
         if self.shares is not None:
             return
+        known = [n.ms_per_px for n in self.nodes.values() if n.ms_per_px is not None]
+        slowest_known = max(known, default=None)
         for node in list(self.nodes.values()):
-            if node.suspect or node.ms_per_px is None:
+            rate = node.ms_per_px if node.ms_per_px is not None else slowest_known
+            if node.suspect or rate is None:
                 continue
             job, tile_id = next(((self.in_flight[f], t) for f, t in node.outstanding if f in self.in_flight),
                                 (None, 0))
             if job is None:
                 continue
-            expected_s = node.ms_per_px * job.tiles[tile_id].rect.area / 1000.0
+            expected_s = rate * job.tiles[tile_id].rect.area / 1000.0
             if now - node.head_since <= max(self.config.backup_floor_s, self.config.backup_factor * expected_s):
                 continue
             others = [n for n in self._ready() if n is not node]

@@ -566,6 +566,25 @@ def test_a_straggler_s_tiles_are_copied_to_the_others_and_it_gets_no_new_work():
     assert {t.node_id for t in s.in_flight[max(s.in_flight)].tiles} == {1, 2, 3}
 
 
+def test_a_node_that_freezes_before_finishing_a_frame_is_backed_up_at_the_slowest_known_rate():
+    s = scheduler(nodes=3, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
+    s.set_camera(camera(0), 0.0)
+    finish(s, 1, 0.01)
+    s.add_node(4, 0.02)
+    s.node_ready(4, 0.02)
+    s.drain()
+    [(frame, tile)] = s.nodes[4].outstanding
+    for node_id in (1, 2, 3):
+        for f, t in list(s.nodes[node_id].outstanding):
+            deliver(s, node_id, f, t, 0.03)
+    assert s.nodes[4].ms_per_px is None, "the newcomer has not finished a frame: its rate is unknown"
+    s.tick(0.2)
+    assert not s.nodes[4].suspect, "within the floor"
+    s.tick(0.4)
+    assert s.nodes[4].suspect, "overdue against the slowest rate the others have shown"
+    assert (frame, tile) in [k for node_id, keys in renders(s.drain()).items() if node_id != 4 for k in keys]
+
+
 def test_the_first_copy_back_wins():
     s = frozen_node_scheduler()
     s.tick(0.4)
