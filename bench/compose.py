@@ -53,6 +53,7 @@ from bench.balance import parse_size, parse_speeds
 from bench.culling import psnr, read_path
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.balancers.hetero import calibration_weights
+from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.data_partition import split_chunks
 from tessera.depth_compositing import (
     DepthLayer,
@@ -66,8 +67,6 @@ from tessera.geometry import Camera, Rect
 from tessera.partition import equal_strip_partition
 
 MODES = ("sort-first", "hybrid", "sort-last")
-#: ``--depth-strip`` default: chosen by the strip sweep on the Pan (docs/depth_compositing.md)
-DEFAULT_STRIP = 32
 GOALS: dict[str, dict[str, tuple[str, float]]] = {
     "hybrid": {"redundancy": ("<=", 1.02), "psnr_min": (">=", 50.0)},
     "sort-last": {"node_triangle_fraction": ("<=", 0.30), "psnr_min": (">=", 50.0)},
@@ -312,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tiles", type=int, default=16, help="tiles of sort-first and hybrid")
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--modes", type=parse_list, default=list(MODES), help="comma-separated, of " + ",".join(MODES))
-    parser.add_argument("--depth-strip", type=int, default=DEFAULT_STRIP, help="hybrid border strip, px")
+    parser.add_argument("--depth-strip", type=int, default=DEFAULT_DEPTH_STRIP,
+                        help="hybrid border strip, px (default: the coordinator's, from this benchmark's sweep)")
     parser.add_argument("--strips", type=lambda text: [int(v) for v in parse_list(text)], default=[],
                         help="more hybrid strip widths to measure, as rows hybrid:PX")
     parser.add_argument("--nodes", type=int, default=4, help="sort-last nodes")

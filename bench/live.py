@@ -17,7 +17,9 @@ and reads the frames as they come off the socket. Figures:
   the last camera;
 * idle: frames received and the CPU cores used by the coordinator and its nodes (``/proc``),
   from 2 s after the last input for ``--idle-s`` seconds;
-* the coordinator's own figures from ``/api/stats`` (imbalance_avg, latency_ms, frames cancelled).
+* the coordinator's own figures from ``/api/stats`` (imbalance_avg, latency_ms, frames cancelled),
+  and its decomposition mode with the CPU it spent merging by depth per frame published while
+  moving (``merge_ms_per_frame``: 0 in sort-first; ``--server-args '--mode hybrid'``).
 
 Everything shares this machine's cores; ``--server-args`` passes flags to ``python -m server``
 (e.g. ``--max-in-flight 1``) to compare settings against the defaults.
@@ -229,12 +231,16 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
     stills = [f for f in frames if f["still"] and f["at"] > run.last_input]
     stills_moving = sum(f["still"] for f in frames if window_start <= f["at"] <= run.last_input)
     moving, before = run.stats_moving, run.stats_before
+    published = moving["coordinator_cpu"]["frames"] - before["coordinator_cpu"]["frames"]
+    merged_ms = moving["coordinator_cpu"].get("merge_ms", 0.0) - before["coordinator_cpu"].get("merge_ms", 0.0)
     result: dict[str, Any] = {
         "nodes": args.nodes, "scene": args.scene, "size": list(args.size), "server_args": args.server_args,
         "balancer_params": moving["balancer_params"],
         "balancer": moving["balancer"], "renderer": moving["nodes"][0]["renderer"],
+        "mode": moving.get("mode", "sort-first"),
+        "merge_ms_per_frame": merged_ms / published if published else math.nan,
         "fps_moving": len(window) / moving_s,
-        "published_fps_moving": (moving["coordinator_cpu"]["frames"] - before["coordinator_cpu"]["frames"]) / moving_s,
+        "published_fps_moving": published / moving_s,
         "frame_interval_ms": interval_ms,
         "latency_p50_ms": float(np.percentile(lat, 50)) if len(lat) else math.nan,
         "latency_p90_ms": float(np.percentile(lat, 90)) if len(lat) else math.nan,
@@ -277,6 +283,8 @@ def report(result: dict[str, Any]) -> str:
         f"p90 {result['latency_p90_ms']:.1f} ms = {result['latency_p90_frames']:.2f} frames "
         f"({result['latency_samples']} inputs answered); "
         f"coordinator input→publish {result['coordinator_latency_ms']:.1f} ms",
+        f"  mode            {result['mode']}: merging by depth {result['merge_ms_per_frame']:.2f} ms of coordinator "
+        "CPU per frame published while moving",
         f"  imbalance_avg   {result['imbalance_avg']:.3f}; frames cancelled {result['frames_cancelled']}; "
         f"still frames shown while moving {result['stills_while_moving']}",
         f"  frames          {result['kb_interactive']:.1f} KB interactive; still {result['still_kb']:.1f} KB, "
