@@ -2,7 +2,8 @@
 scheduler on a virtual clock, every tile rendered for real.
 
 ``python -m bench.balance --scene PATH --path PATH.json --nodes N --size WxH --balancers a,b,…
-[--speeds s1,s2,…] [--in-flight 2] [--pace free|path] [--repeats 3] [--frames F] [--json OUT]``
+[--speeds s1,s2,…] [--in-flight 2] [--pace free|path] [--repeats 3] [--frames F]
+[--time-per-frame S [--start-time T]] [--json OUT]``
 
 Frames are scheduled by the live coordinator's :class:`tessera.scheduler.FrameScheduler`, driven on
 a virtual clock by :func:`bench.virtual_cluster.run_path`: at most ``--in-flight`` frames in flight
@@ -34,6 +35,12 @@ end and reports how much a frame's max/mean moved. Busy time = render + read-bac
 network). Culling is per tile on the CPU by default (the hybrid CPU/GPU switch keeps per-slot
 history, which memoized tile times cannot honour). For figures, run it as its own process: in a
 process that already made a GL context the ``LP_NUM_THREADS`` it sets may not take effect.
+
+An animated scene (issue 11) plays along the path with ``--time-per-frame S``: camera i is drawn in
+the scene's state at ``--start-time`` + i·S seconds (its animations sampled there; memoized with
+the tile), and the primitive groups the balancers get are moved with their objects into that
+state (:func:`tessera.projection.posed_groups`), as the live coordinator does; moved objects are
+culled where they are (:mod:`node.culling.objects`). Without it every frame shows the base pose.
 
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
 ``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms,
@@ -73,12 +80,13 @@ import numpy as np
 from bench.virtual_cluster import Phases, run_path, summarize
 from node.culling.switch import CullMode
 from tessera.balancers import BALANCERS, create_balancer
-from tessera.balancers.base import BalanceInput
+from tessera.balancers.base import BalanceInput, ProjectedGroups
 from tessera.balancers.hetero import calibration_region, calibration_weights
 from tessera.balancers.static import StaticBalancer
 from tessera.codec import Codec, encode
 from tessera.geometry import Camera, Rect
-from tessera.projection import project_groups
+from tessera.projection import posed_groups, project_groups
+from tessera.scene_state import SceneState
 
 DEFAULT_SKIP = 10
 DEFAULT_IN_FLIGHT = 2
@@ -117,9 +125,31 @@ def load_path(path: Path, frames: int | None) -> tuple[float, list[Camera]]:
     return dt_ms, cameras[:frames] if frames else cameras
 
 
+def frame_states(scene: Any, frames: int, time_per_frame: float | None,
+                 start_time: float = 0.0) -> list[SceneState | None]:
+    """Each frame's scene state: ``scene`` (a :class:`node.scene.data.SceneData`) at ``start_time``
+    + i·``time_per_frame`` s for frame i; all None (the base pose) without ``time_per_frame``."""
+    if time_per_frame is None:
+        return [None] * frames
+    return [scene.state_at(start_time + i * time_per_frame) for i in range(frames)]
+
+
+def frame_groups(scene: Any, camera: Camera, size: tuple[int, int], state: SceneState | None) -> ProjectedGroups:
+    """``scene``'s primitive groups projected for ``camera`` in ``state`` (None: the base pose), each
+    moved with its object, with the near/far of the state's bounds, as the coordinator projects
+    them (:meth:`tessera.scheduler.FrameScheduler.set_groups`)."""
+    groups = scene.groups
+    if state is None:
+        return project_groups(groups.boxes, groups.counts, camera, size, scene.bounds)
+    seen = scene.objects.bounds(state)
+    boxes, counts = posed_groups(groups.boxes, groups.counts, groups.owners, scene.objects, state)
+    return project_groups(boxes, counts, camera, size, scene.bounds if seen is None else seen)
+
+
 class TileTimer:
     """``measure(frame, rects)`` for :func:`bench.virtual_cluster.run_path` (frame: the camera's
-    index in the path): renders a frame's tiles ``repeats`` times, interleaved (every tile once,
+    index in the path; drawn in ``states[frame]``, None: the base pose): renders a frame's tiles
+    ``repeats`` times, interleaved (every tile once,
     then again), so that all of a frame's tiles are timed under the same machine conditions; keeps
     each phase's minimum; memoized per (frame, rect). ``cpu_clock``: a phase's time is the calling
     thread's CPU time (the renderer's wall-clock split between render and read-back scaled to it)
@@ -128,18 +158,20 @@ class TileTimer:
 
     def __init__(self, renderer: Any, cameras: Sequence[Camera], size: tuple[int, int], codec: Codec,
                  jpeg_quality: int, repeats: int, cpu_clock: bool = True, tolerance: float = 0.03,
-                 max_repeats: int | None = None) -> None:
+                 max_repeats: int | None = None, states: Sequence[SceneState | None] | None = None) -> None:
         self.renderer, self.cameras, self.size = renderer, cameras, size
+        self.states = list(states) if states is not None else [None] * len(cameras)
         self.codec, self.jpeg_quality, self.repeats, self.cpu_clock = codec, jpeg_quality, repeats, cpu_clock
         self.tolerance, self.max_repeats = tolerance, max(repeats, max_repeats or 3 * repeats)
         self.cache: dict[tuple[int, int, int, int, int], Phases] = {}
         self.renders = 0
         self.hits = 0
 
-    def _once(self, camera: Camera, rect: Rect, encode_pixels: bool) -> tuple[float, float, float]:
-        """One render (+ encode) of ``rect``: render, read-back and encode ms."""
+    def _once(self, camera: Camera, rect: Rect, encode_pixels: bool,
+              state: SceneState | None) -> tuple[float, float, float]:
+        """One render (+ encode) of ``rect`` in ``state``: render, read-back and encode ms."""
         cpu_started = time.thread_time()
-        tile = self.renderer.render_tile(camera, self.size, rect, slot="bench")
+        tile = self.renderer.render_tile(camera, self.size, rect, slot="bench", state=state)
         cpu_ms = (time.thread_time() - cpu_started) * 1e3
         wall_ms = tile.render_ms + tile.readback_ms
         scale = cpu_ms / wall_ms if self.cpu_clock and wall_ms > 0.0 else 1.0
@@ -152,15 +184,16 @@ class TileTimer:
         self.renders += 1
         return tile.render_ms * scale, tile.readback_ms * scale, encode_ms
 
-    def time_rects(self, camera: Camera, rects: Sequence[Rect], encode_pixels: bool = True) -> list[Phases]:
-        """Each rect's minimum render, read-back and encode ms over ``repeats`` interleaved rounds,
+    def time_rects(self, camera: Camera, rects: Sequence[Rect], encode_pixels: bool = True,
+                   state: SceneState | None = None) -> list[Phases]:
+        """Each rect's minimum render, read-back and encode ms (drawn in ``state``) over ``repeats`` interleaved rounds,
         then further rounds of the tiles whose two fastest busy times still differ by more than
         ``tolerance`` (at most ``max_repeats`` renders of a tile)."""
         samples: list[list[tuple[float, float, float]]] = [[] for _ in rects]
         pending = list(range(len(rects)))
         while pending:
             for i in pending:
-                samples[i].append(self._once(camera, rects[i], encode_pixels))
+                samples[i].append(self._once(camera, rects[i], encode_pixels, state))
             pending = [i for i in range(len(rects)) if len(samples[i]) < self.repeats
                        or (len(samples[i]) < self.max_repeats and not self._settled(samples[i]))]
         return [Phases(*(min(s[k] for s in tile) for k in range(3))) for tile in samples]
@@ -176,7 +209,8 @@ class TileTimer:
         keys = [(frame, r.x, r.y, r.w, r.h) for r in rects]
         missing = {key: rect for key, rect in zip(keys, rects, strict=True) if key not in self.cache}
         self.hits += len(keys) - len(missing)
-        self.cache.update(zip(missing, self.time_rects(self.cameras[frame], list(missing.values())), strict=True))
+        timed = self.time_rects(self.cameras[frame], list(missing.values()), state=self.states[frame])
+        self.cache.update(zip(missing, timed, strict=True))
         return [self.cache[key] for key in keys]
 
 
@@ -213,6 +247,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--jpeg-quality", type=int, default=85)
     parser.add_argument("--noise-check", action=argparse.BooleanOptionalAction, default=True,
                         help="re-time the equal split's tiles at the end and report how much they moved")
+    parser.add_argument("--time-per-frame", type=float, metavar="S",
+                        help="play the scene's animation along the path: camera i at --start-time + i*S s")
+    parser.add_argument("--start-time", type=float, default=0.0, metavar="T", help="scene time of camera 0 (s)")
     parser.add_argument("--json", type=Path, help="write the figures here")
     return parser
 
@@ -290,7 +327,8 @@ def noise_check(timer: TileTimer, rects: Sequence[Rect], frames: int) -> dict[st
     changes, relative = [], []
     for frame in range(frames):
         first = np.array([p.busy_ms for p in timer(frame, rects)])
-        second = np.array([p.busy_ms for p in timer.time_rects(timer.cameras[frame], rects)])
+        second = np.array([p.busy_ms for p in timer.time_rects(timer.cameras[frame], rects,
+                                                                state=timer.states[frame])])
         changes.append(abs(first.max() / first.mean() - second.max() / second.mean()))
         relative.extend(np.abs(second - first) / first)
     return {"imbalance_change_mean": float(np.mean(changes)), "imbalance_change_max": float(np.max(changes)),
@@ -327,6 +365,9 @@ def header_lines(args: argparse.Namespace, scene: Any, cameras: Sequence[Camera]
         f"  busy      render + readback + encode ({args.codec.name.lower()}{quality}); send not modelled; "
         f"culling {args.culling}",
         f"  renderer  {renderer_name}",
+        *([] if args.time_per_frame is None else [
+            f"  animation played along the path: camera i at scene time {args.start_time:g} + i × "
+            f"{args.time_per_frame:g} s ({len(scene.objects)} objects); groups moved with their objects"]),
     ]
 
 
@@ -347,15 +388,17 @@ def main(argv: list[str] | None = None) -> int:
     ctx = create_gl_context()
     renderer = TileRenderer(ctx, scene, culling=CullMode(args.culling))
     size = args.size
+    states = frame_states(scene, len(cameras), args.time_per_frame, args.start_time)
     timer = TileTimer(renderer, cameras, size, args.codec, args.jpeg_quality, args.repeats, args.clock == "cpu",
-                      TOLERANCE)
-    timer.time_rects(cameras[0], [Rect(0, 0, *size)])  # warm-up: shader compilation, first touch
+                      TOLERANCE, states=states)
+    timer.time_rects(cameras[0], [Rect(0, 0, *size)], state=states[0])  # warm-up: shader compilation, first touch
     node_ids = list(range(1, args.nodes + 1))
     slowdowns = dict(zip(node_ids, args.speeds or [1.0] * args.nodes, strict=True))
-    calibration_ms = timer.time_rects(cameras[0], [calibration_region(size)], encode_pixels=False)[0].busy_ms
+    calibration_ms = timer.time_rects(cameras[0], [calibration_region(size)], encode_pixels=False,
+                                      state=states[0])[0].busy_ms
     weights = calibration_weights({n: calibration_ms * s for n, s in slowdowns.items()})
     path_t1_ms = single_node_ms(timer, range(args.skip, len(cameras)))
-    groups = [project_groups(scene.groups.boxes, scene.groups.counts, c, size, scene.bounds) for c in cameras]
+    groups = [frame_groups(scene, camera, size, state) for camera, state in zip(cameras, states, strict=True)]
     renderer_name = renderer_string(ctx)
     print("\n".join(header_lines(args, scene, cameras, dt_ms, slowdowns, weights, calibration_ms, path_t1_ms,
                                  renderer_name)), flush=True)
@@ -398,6 +441,7 @@ def main(argv: list[str] | None = None) -> int:
                 "tolerance": TOLERANCE, "lp_num_threads": args.lp_threads,
                 "clock": args.clock, "culling": args.culling, "codec": args.codec.name.lower(),
                 "jpeg_quality": args.jpeg_quality, "renderer": renderer_name, "noise": noise,
+                "time_per_frame": args.time_per_frame, "start_time": args.start_time,
                 "renders": timer.renders, "seconds": round(total_s, 1), "python": platform.python_version(),
                 "argv": sys.argv[1:] if argv is None else list(argv)}
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,8 @@
 (seeds 002 §3.4, 001 §6).
 
 ``python -m bench.culling --scene PATH --path PATH.json --tiles T --size WxH [--json OUT]
-[--face-limit N] [--culling hybrid|cpu|gpu] [--repeats 2] [--frames N]``
+[--face-limit N] [--culling hybrid|cpu|gpu] [--repeats 2] [--frames N] [--time-per-frame S
+[--start-time T]]``
 
 Renders each frame of the path (or ``--frames`` evenly spaced ones) in one GL context with
 :class:`node.gl.renderer.TileRenderer`: once whole without culling (the reference, as
@@ -12,6 +13,11 @@ instead of one multi-draw-indirect per batch (``cpu-ranges``, to compare the two
 Each tile is rendered ``--repeats`` times in a row and its render time (cull + draw + glFinish)
 is the fastest; the hybrid switch counts each repeat as a frame. Tile slots keep their index
 from frame to frame, as under push balancing.
+
+An animated scene (issue 11) plays along the path with ``--time-per-frame S``: path frame i is
+drawn in the scene's state at ``--start-time`` + i·S seconds (its animations sampled there), so
+moved objects are culled where they are (:mod:`node.culling.objects`) in every figure; without it
+every frame shows the base pose.
 
 Figures: ``redundancy`` = triangles submitted over all tiles / triangles submitted for the whole
 frame, both with culling; ``psnr_min`` = worst PSNR of the stitched tiles (culling on) against the
@@ -57,19 +63,23 @@ def psnr(image: np.ndarray, reference: np.ndarray) -> float:
     return IDENTICAL_PSNR if mse == 0.0 else min(IDENTICAL_PSNR, 10.0 * math.log10(255.0 ** 2 / mse))
 
 
-def read_path(path: Path, frames: int | None) -> list[Camera]:
+def read_path(path: Path, frames: int | None) -> tuple[list[int], list[Camera]]:
+    """The path's frame indices used and their cameras (``frames`` evenly spaced ones when given)."""
     data = json.loads(path.read_text())
     cameras = [Camera.from_json(c) for c in data["frames"]]
+    indices = list(range(len(cameras)))
     if frames is not None and frames < len(cameras):
-        cameras = [cameras[i] for i in np.linspace(0, len(cameras) - 1, frames).round().astype(int)]
-    return cameras
+        indices = np.linspace(0, len(cameras) - 1, frames).round().astype(int).tolist()
+    return indices, [cameras[i] for i in indices]
 
 
 def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int], face_limit: int,
-        culling: str, repeats: int) -> dict[str, Any]:
+        culling: str, repeats: int, times: list[float] | None = None) -> dict[str, Any]:
+    """The report for ``cameras``; ``times``: each frame's scene time in s (None: the base pose)."""
     started = time.perf_counter()
     scene = load_scene(scene_spec, face_limit=face_limit)
     load_s = time.perf_counter() - started
+    states = [None] * len(cameras) if times is None else [scene.state_at(t) for t in times]
     ctx = create_gl_context()
     asked, culling = culling, resolve_culling(CullMode(culling), ctx.info["GL_RENDERER"]).value
     renderer = TileRenderer(ctx, scene, culling=CullMode.OFF)
@@ -82,11 +92,11 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
                                                 for m in MODES}
     whole: dict[str, list[float]] = {"off_ms": [], "on_ms": [], "on_tris": []}
     psnrs: dict[str, list[float]] = {m: [] for m in MODES}
-    for camera in cameras:
+    for camera, state in zip(cameras, states, strict=True):
         renderer.culler = cullers["off"]
-        reference = renderer.render_frame(camera, size)
+        reference = renderer.render_frame(camera, size, state)
         renderer.culler = cullers[culling]
-        whole_on = renderer.render_frame(camera, size)
+        whole_on = renderer.render_frame(camera, size, state)
         whole["off_ms"].append(reference.render_ms)
         whole["on_ms"].append(whole_on.render_ms)
         whole["on_tris"].append(whole_on.triangles)
@@ -96,7 +106,7 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
                 renderer.culler = cullers[mode]
             stitched = np.zeros_like(reference.pixels)
             for slot, rect in enumerate(rects):
-                best = min((drawer.render_tile(camera, size, rect, slot) for _ in range(repeats)),
+                best = min((drawer.render_tile(camera, size, rect, slot, state) for _ in range(repeats)),
                            key=lambda tile: tile.render_ms)
                 stitched[rect.y:rect.y1, rect.x:rect.x1] = best.pixels
                 record = samples[mode]
@@ -131,6 +141,7 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
     return {
         "scene": scene_spec, "size": list(size), "tiles": tiles, "frames": frames, "repeats": repeats,
         "face_limit": face_limit, "chunks": chunk_total, "triangles": scene.triangle_count,
+        "scene_times": None if times is None else [round(t, 6) for t in times],
         "load_s": round(load_s, 2), "renderer": renderer_name, "culling": culling, "culling_asked": asked,
         "lp_num_threads": os.environ.get("LP_NUM_THREADS", "unset"),
         "redundancy": round(tile_tris / float(np.sum(whole["on_tris"])), 4),
@@ -151,6 +162,9 @@ def goal_met(report: dict[str, Any], name: str) -> bool:
 
 
 def print_report(report: dict[str, Any]) -> None:
+    times = report["scene_times"]
+    if times is not None:
+        print(f"animation played along the path: scene time {times[0]:g} .. {times[-1]:g} s")
     print(f"{report['scene']}: {report['triangles']} triangles in {report['chunks']} chunks "
           f"(face limit {report['face_limit']}), {report['frames']} frames x {report['tiles']} tiles at "
           f"{report['size'][0]}x{report['size'][1]}, min of {report['repeats']} repeats; {report['renderer']}; "
@@ -182,10 +196,15 @@ def main(argv: list[str] | None = None) -> int:
                              "hybrid on a hardware GPU, cpu on llvmpipe); all modes are measured")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--frames", type=int, help="use this many evenly spaced frames of the path")
+    parser.add_argument("--time-per-frame", type=float, metavar="S",
+                        help="play the scene's animation along the path: frame i at --start-time + i*S s")
+    parser.add_argument("--start-time", type=float, default=0.0, metavar="T", help="scene time of frame 0 (s)")
     parser.add_argument("--json", type=Path, help="write the report here")
     args = parser.parse_args(argv)
-    cameras = read_path(args.path, args.frames)
-    report = run(args.scene, cameras, args.tiles, args.size, args.face_limit, args.culling, max(1, args.repeats))
+    indices, cameras = read_path(args.path, args.frames)
+    times = None if args.time_per_frame is None else [args.start_time + i * args.time_per_frame for i in indices]
+    report = run(args.scene, cameras, args.tiles, args.size, args.face_limit, args.culling, max(1, args.repeats),
+                 times)
     report["path"] = str(args.path)
     print_report(report)
     if args.json is not None:

@@ -13,7 +13,16 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from bench.balance import build_parser, check_args, ideal_speedup, pace_fps, single_node_ms, speedup_figures
+from bench.balance import (
+    build_parser,
+    check_args,
+    frame_groups,
+    frame_states,
+    ideal_speedup,
+    pace_fps,
+    single_node_ms,
+    speedup_figures,
+)
 from bench.paths import make_path
 from bench.virtual_cluster import (
     FrameRecord,
@@ -29,7 +38,7 @@ from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile
 from tessera.balancers.static import StaticBalancer
 from tessera.codec import Codec
-from tessera.geometry import Rect
+from tessera.geometry import Rect, default_camera
 from tessera.scheduler import SchedulerConfig
 from tests.balance_support import cameras
 
@@ -327,6 +336,21 @@ def test_single_node_time_renders_the_whole_screen() -> None:
             return [Phases(10.0 * frame, 1.0, 2.0)]
 
     assert single_node_ms(Timer(), [1, 2, 6]) == pytest.approx(30.0 + 3.0)
+
+
+def test_an_animated_scene_plays_along_the_path_and_its_groups_move() -> None:
+    from node.scene.loading import load_scene
+
+    scene = load_scene("builtin:traffic")
+    assert frame_states(scene, 3, None) == [None, None, None]
+    states = frame_states(scene, 3, 0.5, start_time=2.0)
+    assert [s.time for s in states if s is not None] == [2.0, 2.5, 3.0]
+    camera = default_camera(scene.bounds, aspect=4 / 3)
+    base = frame_groups(scene, camera, (320, 240), None)
+    later = frame_groups(scene, camera, (320, 240), scene.state_at(7.0))
+    assert base.weights.sum() == later.weights.sum() == scene.triangle_count    # every car stays in view
+    assert not np.array_equal(base.boxes, later.boxes)                         # but the cars' load moved
+    assert np.array_equal(frame_groups(scene, camera, (320, 240), scene.state_at(0.0)).boxes, base.boxes)
 
 
 @pytest.mark.parametrize("argv,in_flight", [([], 2), (["--in-flight", "3"], 3), (["--lag", "0"], 1),

@@ -31,3 +31,17 @@ def test_culling_benchmark_reports_its_figures(tmp_path, monkeypatch, capsys) ->
     assert report["cull_speedup"] > 0.0 and set(report["cull_speedup_by_mode"]) >= {"cpu", "gpu", "hybrid"}
     assert report["modes"]["cpu"]["chunks_drawn_per_tile"] < report["chunks"]
     assert "LP_NUM_THREADS 1" in capsys.readouterr().out
+
+
+def test_culling_benchmark_plays_an_animation_along_the_path(tmp_path, capsys) -> None:
+    """``--time-per-frame``: the traffic's cars move between the frames and the tiles still equal the frame."""
+    path = tmp_path / "orbit.json"
+    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:traffic").bounds, frames=8)))
+    out = tmp_path / "culling.json"
+    assert main(["--scene", "builtin:traffic", "--path", str(path), "--tiles", "4", "--size", "160x120",
+                 "--culling", "cpu", "--repeats", "1", "--frames", "2", "--time-per-frame", "2.5",
+                 "--start-time", "1", "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["scene_times"] == [1.0, 18.5]
+    assert report["psnr_min"] >= 50.0 and report["redundancy"] >= 1.0
+    assert "animation played along the path: scene time 1 .. 18.5 s" in capsys.readouterr().out
