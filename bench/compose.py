@@ -329,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.speeds is not None and len(args.speeds) != args.nodes:
         parser.error(f"--speeds needs {args.nodes} values")
     os.environ["LP_NUM_THREADS"] = "0"
-    report = run(args, read_path(args.path, args.frames))
+    report = run(args, read_path(args.path, args.frames)[1])
     print_report(report)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
