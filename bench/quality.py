@@ -104,7 +104,7 @@ def scene_cameras(path_spec: str, scene: SceneData, frames: int) -> list[Camera]
     """``frames`` cameras: evenly spaced ones of a path JSON file, or a :data:`bench.paths.KINDS`
     path made for ``scene``'s bounds (zoom focused on the vertex nearest the default eye)."""
     if path_spec not in KINDS:
-        return read_path(Path(path_spec), frames)
+        return read_path(Path(path_spec), frames)[1]
     positions = np.concatenate([batch.positions for batch in scene.batches]).astype(np.float64)
     path = make_path(path_spec, scene.bounds, max(frames, 2), focus=surface_focus(positions, scene.bounds))
     return [Camera.from_json(camera) for camera in path["frames"]]
