@@ -245,7 +245,7 @@ class DepthRender:
         return None if layer is None or layer.depth is None else DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
 
     def blend_layer(self) -> BlendLayer | None:
-        if self.blend is None or self.layer is None:
+        if self.blend is None or self.layer is None or not self.blend.depth.shape[0]:
             return None
         return BlendLayer(self.layer.rect, self.blend.color, self.blend.alpha, self.blend.depth, 0)
 

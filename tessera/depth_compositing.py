@@ -21,10 +21,11 @@ Conventions every node and the compositor share (IceT's, seed 000 leaves them op
 Blended geometry (glTF ``BLEND``) writes no depth, so merging by depth is exact for opaque and
 alpha-masked geometry only: a blended surface keeps its colour only if the layer that drew it also
 wins on the depth behind it. A node can send its blended fragments apart instead, as a
-:class:`BlendLayer` (what they add, premultiplied, and how much they let through, with the depth
-of the nearest): :func:`composite` lays them over the merged frame where they lie in front of it,
-as GL blends them over the opaque frame (exact where one blended surface covers a pixel, or all
-lie in front of the merged surface; up to a level or two of rounding).
+:class:`BlendLayer`: the depths of the nearest K, and for each m ≤ K what the m nearest add
+(premultiplied, in draw order) and how much they let through. :func:`composite` lays over each
+pixel of the merged frame the m fragments in front of it, as GL blends them over the opaque frame:
+exact up to a level or two of rounding (GL rounds after each fragment), with at most K blended
+fragments of a node in front of its own layer at a pixel.
 
 Codec (IceT's active-pixel encoding): the pixels of a layer in raster order, as alternating runs of
 inactive and active pixels; only active pixels carry depth (float32, bit-exact) and colour (RGB).
@@ -84,11 +85,12 @@ class DepthLayer:
 
 @dataclass(frozen=True, eq=False)
 class BlendLayer:
-    """One node's blended fragments over ``rect``, accumulated in draw order into a cleared buffer
-    as GL's ``SRC_ALPHA, ONE_MINUS_SRC_ALPHA`` (alpha: ``ONE, ONE_MINUS_SRC_ALPHA``) blending gives
-    them: ``color`` (rect.h, rect.w, 3) uint8 premultiplied, ``alpha`` (rect.h, rect.w) uint8 their
-    coverage, ``depth`` (rect.h, rect.w) float32 the nearest one's window depth (:data:`FAR` where
-    none); ``slot`` orders overlapping blend layers (lower first)."""
+    """One node's blended fragments over ``rect``, peeled into K layers: ``depth`` (K, rect.h,
+    rect.w) float32 the m-th nearest fragment's window depth (:data:`FAR` where there are fewer
+    than m), and ``color`` (K, rect.h, rect.w, 3) uint8 and ``alpha`` (K, rect.h, rect.w) uint8:
+    the m nearest accumulated in draw order into a cleared buffer, as GL's ``SRC_ALPHA,
+    ONE_MINUS_SRC_ALPHA`` blending (alpha: ``ONE, ONE_MINUS_SRC_ALPHA``) gives them,
+    premultiplied. ``slot`` orders the blend layers of several nodes (lower first)."""
 
     rect: Rect
     color: np.ndarray
@@ -97,11 +99,11 @@ class BlendLayer:
     slot: int
 
     def __post_init__(self) -> None:
-        shape = (self.rect.h, self.rect.w)
-        if self.color.shape != (*shape, 3) or self.alpha.shape != shape or self.depth.shape != shape or \
+        shape = (self.depth.shape[0] if self.depth.ndim == 3 else -1, self.rect.h, self.rect.w)
+        if self.depth.shape != shape or self.color.shape != (*shape, 3) or self.alpha.shape != shape or \
                 self.color.dtype != np.uint8 or self.alpha.dtype != np.uint8 or self.depth.dtype != np.float32:
-            raise ValueError(f"blend layer {self.rect.as_list()} needs {shape} uint8 colour ×3, uint8 alpha and "
-                             "float32 depth")
+            raise ValueError(f"blend layer {self.rect.as_list()} needs (K, {self.rect.h}, {self.rect.w}) float32 "
+                             "depth and uint8 alpha, and uint8 colour with 3 channels more")
 
 
 def depth_from_integer(values: np.ndarray, bits: int) -> np.ndarray:
@@ -131,9 +133,9 @@ def background_pixel(rgb: Sequence[float]) -> np.ndarray:
 def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
               exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = ()) -> np.ndarray:
     """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
-    (3,) uint8 where none drew, the ``blends`` laid over it in slot order where their nearest
-    fragment is in front of the merged depth (colour + (255 − alpha) / 255 × what is there, rounded),
-    then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
+    (3,) uint8 where none drew, the ``blends`` laid over it in slot order (at each pixel the
+    accumulation of the m fragments in front of the merged depth: its colour + (255 − alpha) / 255
+    × what is there, rounded), then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
     pasted as they are: regions only one node drew (the hybrid's tile cores,
     :func:`tessera.chunk_ownership.exclusive_rect`), which travel without depth and which the
     layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
@@ -168,11 +170,13 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
             raise ValueError(f"blend layer {rect.as_list()} lies outside the {width}x{height} frame")
         window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
-        front = blend.depth < depth[window]
-        under = color[window][front].astype(np.float32)
-        through = (255.0 - blend.alpha[front].astype(np.float32))[:, None] / np.float32(255.0)
-        mixed = blend.color[front].astype(np.float32) + through * under
-        color[window][front] = np.minimum(np.rint(mixed), 255.0).astype(np.uint8)
+        count = (blend.depth < depth[window][None]).sum(axis=0)
+        rows, columns = np.nonzero(count)
+        layer = count[rows, columns] - 1
+        under = color[window][rows, columns].astype(np.float32)
+        through = (255.0 - blend.alpha[layer, rows, columns].astype(np.float32))[:, None] / np.float32(255.0)
+        mixed = blend.color[layer, rows, columns].astype(np.float32) + through * under
+        color[window][rows, columns] = np.minimum(np.rint(mixed), 255.0).astype(np.uint8)
     for rect, region in exclusive:
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height or region.shape != (rect.h, rect.w, 3):
             raise ValueError(f"exclusive region {rect.as_list()} with colour {region.shape} does not fit the "

@@ -6,8 +6,8 @@ A depth tile is the payload of a ``TTIL`` tile message whose header carries the 
 (:data:`tessera.protocol.DEPTH_TILE`). All integers little-endian:
 
 - header: u32 ``version`` (sort-last: the data partition version the layer was drawn from; 0 in
-  the hybrid), u16 piece count P, u8 flags (bit 0: a core follows; bit 1: the last piece is a
-  blend piece), u8 0;
+  the hybrid), u16 piece count P, u8 flags (bit 0: a core follows), u8 B: how many of the pieces,
+  the last ones, are blend pieces;
 - the core, when flagged: u16 x, y, w, h, u32 length. A hybrid tile's core (the part no other
   tile reaches, :func:`tessera.chunk_ownership.exclusive_rect`) is an image in the frame's tile
   codec, exactly as a sort-first tile: it needs no depth;
@@ -18,10 +18,11 @@ A depth tile is the payload of a ``TTIL`` tile message whose header carries the 
   lossless too). Cutting them lets a node report depth bytes apart from colour bytes;
 - the bodies: the core's image, then each piece's depth part and colour part.
 
-A blend piece (sort-last: the node's blended fragments, :class:`tessera.depth_compositing.BlendLayer`)
-is encoded the same way, active where a blended fragment lies (its depth the nearest one's), its
-colour part the premultiplied RGB of the active pixels followed by their alpha. It may overlap
-the other pieces; the coordinator lays it over the merged frame.
+Blend pieces (sort-last: the node's blended fragments, :class:`tessera.depth_compositing.BlendLayer`)
+are its K layers in order, all over one rect, each encoded the same way: active where an m-th
+nearest fragment lies, with its depth, the colour part the premultiplied RGB of the m nearest's
+accumulation followed by its alpha. They may overlap the other pieces; the coordinator lays them
+over the merged frame.
 
 Pieces with no active pixel are not sent; a sort-last node with nothing in view sends no piece.
 The coordinator checks every rect against what it expects of the tile (:func:`read_depth_tile`:
@@ -59,10 +60,11 @@ _HEADER = struct.Struct("<IHBB")
 _CORE = struct.Struct("<HHHHI")
 _PIECE = struct.Struct("<HHHHII")
 _CORE_FLAG = 0x01
-_BLEND_FLAG = 0x02
-#: Most pieces a depth tile may hold: a hybrid tile's ring is at most four rects (a sort-last
-#: layer is one, and its blend piece one more).
+#: Most pieces a depth tile may hold besides its blend pieces: a hybrid tile's ring is at most four
+#: rects (a sort-last layer is one).
 MAX_PIECES = 4
+#: Most blend pieces (peeled layers of blended fragments) a depth tile may hold.
+MAX_BLEND_PIECES = 8
 #: zlib level of the piece parts: level 1 deflates the runs and the colour of active pixels well
 #: at a fraction of level 6's time (docs/depth_compositing.md).
 DEFLATE_LEVEL = 1
@@ -88,7 +90,7 @@ class DepthTileCounts:
 class DecodedDepthTile:
     """A depth tile as the coordinator keeps it: the ``version`` it names, its ``core`` (rect and
     the image bytes, forwarded to viewers as they are; None: no core) and its pieces decoded into
-    ``layers`` (with the slot they merge at) and ``blends`` (at most one blend layer)."""
+    ``layers`` (with the slot they merge at) and ``blends`` (none, or one blend layer)."""
 
     version: int
     core: tuple[Rect, bytes] | None
@@ -110,18 +112,19 @@ def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec,
             core_bytes = encode(core_pixels, codec, quality)
     parts, entries = [core_bytes], []
     depth_px = depth_bytes = color_bytes = 0
-    blend_piece = None
-    if blend is not None and (blend.depth < FAR).any():
-        blend_piece = DepthLayer(blend.rect, blend.color, blend.depth, 0)
-        pieces = [*pieces, blend_piece]
-    for piece in pieces:
+    blend_layers = 0 if blend is None else blend.depth.shape[0]
+    if blend is not None:
+        pieces = [*pieces, *(DepthLayer(blend.rect, blend.color[m], blend.depth[m], 0) for m in range(blend_layers))]
+    for number, piece in enumerate(pieces):
         active = int(np.count_nonzero(piece.depth < FAR))
-        if active == 0:
+        is_blend = number >= len(pieces) - blend_layers
+        if active == 0 and not is_blend:
             continue
         depth_part, color_part = _active_parts(piece)
-        if piece is blend_piece:
+        if is_blend:
             assert blend is not None
-            color_part += blend.alpha[blend.depth < FAR].tobytes()
+            m = number - (len(pieces) - blend_layers)
+            color_part += blend.alpha[m][blend.depth[m] < FAR].tobytes()
         depth_zip, color_zip = zlib.compress(depth_part, DEFLATE_LEVEL), zlib.compress(color_part, DEFLATE_LEVEL)
         rect = piece.rect
         entries.append(_PIECE.pack(rect.x, rect.y, rect.w, rect.h, len(depth_zip), len(color_zip)))
@@ -129,8 +132,7 @@ def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec,
         depth_px += active
         depth_bytes += len(depth_zip)
         color_bytes += len(color_zip)
-    flags = (_CORE_FLAG if core_bytes else 0) | (_BLEND_FLAG if blend_piece is not None else 0)
-    head = [_HEADER.pack(version, len(entries), flags, 0)]
+    head = [_HEADER.pack(version, len(entries), _CORE_FLAG if core_bytes else 0, blend_layers)]
     if core_bytes:
         assert core is not None
         head.append(_CORE.pack(core.x, core.y, core.w, core.h, len(core_bytes)))
@@ -160,13 +162,12 @@ def read_depth_tile(payload: bytes, bound: Rect, core_range: tuple[Rect | None, 
     data = memoryview(payload)
     if len(data) < _HEADER.size:
         raise ProtocolError(f"depth tile of {len(data)} bytes has no header")
-    version, count, flags, _ = _HEADER.unpack_from(data)
-    if flags & ~(_CORE_FLAG | _BLEND_FLAG):
+    version, count, flags, blended = _HEADER.unpack_from(data)
+    if flags & ~_CORE_FLAG:
         raise ProtocolError(f"depth tile flags {flags:#x} unknown")
-    blended = bool(flags & _BLEND_FLAG)
-    if count > MAX_PIECES + blended or (blended and count == 0):
-        raise ProtocolError(f"depth tile of {count} pieces{' and a blend flag' if blended else ''}; at most "
-                            f"{MAX_PIECES} and a blend piece")
+    if blended > min(count, MAX_BLEND_PIECES) or count - blended > MAX_PIECES:
+        raise ProtocolError(f"depth tile of {count} pieces, {blended} of them blend pieces; at most {MAX_PIECES} "
+                            f"and {MAX_BLEND_PIECES}")
     offset = _HEADER.size
     sent_core: tuple[Rect, int] | None = None
     if flags & _CORE_FLAG:
@@ -185,16 +186,17 @@ def read_depth_tile(payload: bytes, bound: Rect, core_range: tuple[Rect | None, 
         entries.append((Rect(x, y, w, h), depth_length, color_length))
         offset += _PIECE.size
     _check_rects([rect for rect, _, _ in entries[:count - blended]], bound, core)
-    if blended and not _inside(entries[-1][0], bound):
-        raise ProtocolError(f"depth tile blend piece {entries[-1][0].as_list()} is empty or outside "
-                            f"{bound.as_list()}")
+    blend_rects = {rect for rect, _, _ in entries[count - blended:]}
+    if len(blend_rects) > 1 or any(not _inside(rect, bound) for rect in blend_rects):
+        raise ProtocolError(f"depth tile blend pieces {sorted(r.as_list() for r in blend_rects)} are not one rect "
+                            f"inside {bound.as_list()}")
     body = offset + (sent_core[1] if sent_core else 0)
     if len(data) != body + sum(d + c for _, d, c in entries):
         raise ProtocolError(f"depth tile of {len(data)} bytes; its tables say "
                             f"{body + sum(d + c for _, d, c in entries)}")
-    layers, blends = [], []
+    layers, peeled = [], []
     for number, (rect, depth_length, color_length) in enumerate(entries):
-        is_blend = blended and number == count - 1
+        is_blend = number >= count - blended
         depth_part = _inflate(data[body:body + depth_length], 8 + 8 * ((rect.area + 1) // 2 + 1) + 4 * rect.area)
         body += depth_length
         color_part = _inflate(data[body:body + color_length], (4 if is_blend else 3) * rect.area)
@@ -218,12 +220,16 @@ def read_depth_tile(payload: bytes, bound: Rect, core_range: tuple[Rect | None, 
                                 f"{int(active.sum())} pixels")
         alpha = np.zeros(depth.shape, np.uint8)
         alpha[active] = np.frombuffer(alpha_part, np.uint8)
-        blends.append(BlendLayer(rect, color, alpha, depth, slot))
+        peeled.append((depth, color, alpha))
     core_entry = None
     if sent_core is not None:
         start = _HEADER.size + _CORE.size + _PIECE.size * count
         core_entry = (sent_core[0], bytes(data[start:start + sent_core[1]]))
-    return DecodedDepthTile(version, core_entry, tuple(layers), tuple(blends))
+    blends: tuple[BlendLayer, ...] = ()
+    if peeled:
+        depths, colors, alphas = (np.stack(parts) for parts in zip(*peeled, strict=True))
+        blends = (BlendLayer(entries[-1][0], colors, alphas, depths, slot),)
+    return DecodedDepthTile(version, core_entry, tuple(layers), blends)
 
 
 def _check_core(core: Rect | None, core_range: tuple[Rect | None, Rect] | None) -> None:

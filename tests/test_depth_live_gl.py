@@ -104,25 +104,33 @@ def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_rend
     renderer.release()
 
 
-def test_blended_fragments_drawn_apart_and_laid_over_equal_blending_in_place(ctx):
-    """One share holding all of the diorama: its blended mesh drawn apart over the opaque layer
-    (premultiplied, with the nearest depth) and laid over the merge gives the frame GL blends in
-    place, up to rounding (a level or two where blending rounds once instead of per fragment)."""
+def test_blended_fragments_peeled_and_laid_over_the_merge_equal_blending_in_place(ctx):
+    """The diorama's scene-wide glass mesh in three shares: each node peels its blended fragments in
+    front of its own layer and accumulates them in draw order, and the compositor lays over each
+    pixel those in front of the merged surface: the frame GL blends in place, up to rounding (a
+    level where blending rounds once instead of after each fragment)."""
     scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
-    renderer = TileRenderer(ctx, keep_share(scene, (1.0,), 0))
+    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index)) for index in range(3)]
+    whole_renderer = TileRenderer(ctx, scene)
     size = (320, 240)
     camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
-    whole = renderer.render_frame(camera, size).pixels
-    plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, None)
-    assert plan is not None and plan.blend_ids is not None and plan.blend_ids.size == 1
-    layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
-    blend = renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth)
-    assert (blend.depth < 1.0).sum() > 50 and blend.triangles > 0
-    depth_layer = DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
-    tile = read_depth_tile(encode_depth_tile(depth_layer, None, Codec.PNG, 90, 1,
-                                             BlendLayer(layer.rect, blend.color, blend.alpha, blend.depth, 0))[0],
-                           Rect(0, 0, *size), None, 0)
-    merged = merge_depth_tiles([tile], size, background_pixel(renderer.background))
+    whole = whole_renderer.render_frame(camera, size).pixels
+    tiles, peeled = [], 0
+    for index, renderer in enumerate(renderers):
+        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, None)
+        assert plan is not None
+        layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
+        blend = None
+        if plan.blend_ids is not None:
+            fragments = renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth)
+            peeled = max(peeled, fragments.depth.shape[0])
+            blend = BlendLayer(layer.rect, fragments.color, fragments.alpha, fragments.depth, 0)
+        payload = encode_depth_tile(DepthLayer(layer.rect, layer.pixels, layer.depth, 0), None, Codec.PNG, 90, 1,
+                                    blend)[0]
+        tiles.append(read_depth_tile(payload, Rect(0, 0, *size), None, index))
+    assert peeled >= 2, "front and back faces of the glass"
+    merged = merge_depth_tiles(tiles, size, background_pixel(whole_renderer.background))
     difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
-    assert difference.max() <= 2 and (difference > 0).sum() > 0, "the blend is there, rounded once"
-    renderer.release()
+    assert difference.max() <= 2 and (difference > 0).sum() > 0, "the glass is there, rounded once"
+    for renderer in (*renderers, whole_renderer):
+        renderer.release()

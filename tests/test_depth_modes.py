@@ -35,14 +35,7 @@ SCENES = {
     "dragon": "large_scan/stanford_dragon_vrip_res2_202k.ply",
     "diorama": "multi_object/sd_macross_city_diorama.glb",
 }
-#: Sort-last lays each node's blended fragments over the merge (premultiplied, with the nearest
-#: one's depth), which is exact up to rounding while one blended surface covers a pixel or all lie
-#: in front of the merged surface; the diorama's glass mesh spans the scene with opaque geometry of
-#: other shares between its front and back faces: 0.1–0.2 % of pixels stay off by more than 8.
-BLEND_XFAIL = pytest.mark.xfail(strict=True, reason="sort-last: blended surfaces with other shares' opaque "
-                                                    "geometry between them")
-MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}",
-                       marks=[BLEND_XFAIL] if (mode, scene) == ("sort-last", "diorama") else [])
+MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}")
           for mode in ("hybrid", "sort-last") for scene in SCENES for nodes in (2, 3, 4)]
 
 
@@ -88,8 +81,9 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
         assert found["mode"] == mode
         assert found["coordinator_cpu"]["merge_ms"] > 0.0
         nodes_stats = found["nodes"]
-        assert all(n["color_px"] >= n["depth_px"] >= 0 and n["color_bytes"] > 0 for n in nodes_stats), nodes_stats
+        assert all(n["color_px"] >= n["depth_px"] >= 0 for n in nodes_stats), nodes_stats
         assert sum(n["depth_px"] for n in nodes_stats) > 0 and sum(n["depth_bytes"] for n in nodes_stats) > 0
+        assert sum(n["color_bytes"] for n in nodes_stats) > 0, "a narrow tile over empty space may send nothing"
         assert sum(n["triangles"] for n in nodes_stats) > 0
 
 

@@ -93,9 +93,10 @@ def test_merged_hybrid_frames_equal_the_compositor_s_result():
     assert np.array_equal(frame, expected)
 
 
-def pack(version=0, pieces=(), core=None, flags=None, body=b"") -> bytes:
-    """A depth tile by hand: ``pieces`` (rect, depth length, colour length), ``core`` (rect, length)."""
-    head = struct.pack("<IHBB", version, len(pieces), (1 if core else 0) if flags is None else flags, 0)
+def pack(version=0, pieces=(), core=None, flags=None, body=b"", blend=0) -> bytes:
+    """A depth tile by hand: ``pieces`` (rect, depth length, colour length), the last ``blend`` of
+    them blend pieces, ``core`` (rect, length)."""
+    head = struct.pack("<IHBB", version, len(pieces), (1 if core else 0) if flags is None else flags, blend)
     if core:
         head += struct.pack("<HHHHI", *core[0].as_list(), core[1])
     for rect, depth_length, color_length in pieces:
@@ -116,8 +117,8 @@ DEPTH_PART, COLOR_PART = good_piece(PIECE)
 
 @pytest.mark.parametrize(("payload", "fragment"), [
     pytest.param(b"\x00" * 7, "no header", id="short"),
-    pytest.param(pack(flags=4), "flags", id="flags"),
-    pytest.param(pack(flags=2), "blend", id="blend-flag-without-pieces"),
+    pytest.param(pack(flags=2), "flags", id="flags"),
+    pytest.param(pack(blend=1), "blend pieces", id="blend-without-pieces"),
     pytest.param(pack(pieces=[(PIECE, 1, 1)] * 5), "at most 4", id="too-many"),
     pytest.param(pack(pieces=[(PIECE, 1, 1)])[:-4], "piece table", id="table-cut"),
     pytest.param(pack(core=(Rect(0, 0, 4, 4), 1))[:-2], "core entry", id="core-cut"),
@@ -152,25 +153,30 @@ def test_a_hybrid_core_must_hold_the_exclusive_part_and_stay_in_its_tile():
     assert read_depth_tile(pack(), Rect(0, 0, 40, 48), (None, tile), 0).core is None, "too narrow for a core"
 
 
-def test_a_blend_piece_round_trips_and_is_laid_over_the_merge_where_it_is_in_front():
-    """Sort-last blended fragments: premultiplied colour and alpha with the nearest one's depth; the
-    compositor lays them over the merged frame (colour + (255 − alpha) / 255 × what is there) only
-    where they lie in front of it."""
+def test_blend_pieces_round_trip_and_lay_the_fragments_in_front_over_the_merge():
+    """Sort-last blended fragments peeled into two layers (depths 0.25 and 0.75): the compositor lays
+    over each pixel the accumulation of the fragments in front of the merged surface (0.5): the
+    first layer's, both where the opaque surface is farther, none where it is nearer."""
     rect = Rect(0, 0, 8, 4)
-    opaque = DepthLayer(rect, np.full((4, 8, 3), 200, np.uint8), np.full((4, 8), 0.5, np.float32), 0)
-    blend_depth = np.full((4, 8), FAR, np.float32)
-    blend_depth[:, :3] = 0.25   # in front
-    blend_depth[:, 3:5] = 0.75  # behind the opaque surface
-    blend = BlendLayer(rect, np.full((4, 8, 3), 40, np.uint8), np.full((4, 8), 128, np.uint8), blend_depth, 0)
+    opaque_depth = np.full((4, 8), 0.5, np.float32)
+    opaque_depth[:, 6:] = 0.1                       # an opaque surface in front of every fragment
+    opaque_depth[:, 4:6] = 0.9                      # one behind both
+    opaque = DepthLayer(rect, np.full((4, 8, 3), 200, np.uint8), opaque_depth, 0)
+    depth = np.stack([np.full((4, 8), 0.25, np.float32), np.full((4, 8), 0.75, np.float32)])
+    depth[1, :, :2] = FAR                           # one fragment only on the left
+    color = np.stack([np.full((4, 8, 3), 40, np.uint8), np.full((4, 8, 3), 70, np.uint8)])
+    alpha = np.stack([np.full((4, 8), 128, np.uint8), np.full((4, 8), 192, np.uint8)])
+    blend = BlendLayer(rect, color, alpha, depth, 0)
     payload, counts = encode_depth_tile(opaque, None, Codec.PNG, 90, version=2, blend=blend)
     tile = read_depth_tile(payload, FRAME, None, slot=1)
-    assert len(tile.layers) == 1 and len(tile.blends) == 1 and counts.depth_px == 32 + 20
+    assert len(tile.layers) == 1 and len(tile.blends) == 1 and counts.depth_px == 32 + 32 + 24
     (back,) = tile.blends
-    assert back.slot == 1 and np.array_equal(back.depth, blend_depth)
-    assert np.array_equal(back.alpha[blend_depth < FAR], np.full(20, 128, np.uint8))
+    assert back.slot == 1 and np.array_equal(back.depth, depth)
+    assert np.array_equal(back.alpha[depth < FAR], alpha[depth < FAR])
     frame = merge_depth_tiles([tile], SIZE, BACKGROUND)
-    assert (frame[0, :3] == 40 + round(127 / 255 * 200)).all(), "blended over the opaque colour"
-    assert (frame[0, 3:8] == 200).all(), "behind the opaque surface, or no fragment: unchanged"
+    assert (frame[0, :4] == 40 + round(127 / 255 * 200)).all(), "the nearer fragment alone"
+    assert (frame[0, 4:6] == 70 + round(63 / 255 * 200)).all(), "both fragments"
+    assert (frame[0, 6:8] == 200).all(), "behind the opaque surface: unchanged"
     assert (frame[10, 10] == BACKGROUND).all()
     with pytest.raises(ProtocolError, match=r"active pixels|alpha values"):
         _cut_alpha(payload)
@@ -178,7 +184,7 @@ def test_a_blend_piece_round_trips_and_is_laid_over_the_merge_where_it_is_in_fro
 
 def _cut_alpha(payload: bytes) -> None:
     """A blend piece whose colour part lacks one alpha value."""
-    version, count, flags, _ = struct.unpack_from("<IHBB", payload)
+    version, count, flags, blend = struct.unpack_from("<IHBB", payload)
     entries = [struct.unpack_from("<HHHHII", payload, 8 + 16 * i) for i in range(count)]
     body = 8 + 16 * count
     parts, offset = [], body
@@ -189,5 +195,5 @@ def _cut_alpha(payload: bytes) -> None:
     colour = zlib.decompress(parts[-1][1])[:-1]
     parts[-1] = (parts[-1][0], zlib.compress(colour))
     rebuilt = pack(version, [(Rect(*entry[:4]), len(d), len(c)) for entry, (d, c) in zip(entries, parts, strict=True)],
-                   flags=flags, body=b"".join(d + c for d, c in parts))
+                   flags=flags, body=b"".join(d + c for d, c in parts), blend=blend)
     read_depth_tile(rebuilt, FRAME, None, 0)

@@ -29,7 +29,9 @@ and near/far — with a given list of chunks instead of the rect's culled ones, 
 read back too, as float32 window depth from the one depth buffer format every node uses (moderngl's
 24-bit depth renderbuffer, cleared to 1.0 = far, ``GL_LESS``). Equal surfaces drawn on different
 nodes therefore carry equal depth bits. Blended chunks may be drawn apart, over such a layer
-(:meth:`TileRenderer.render_blend`, sort-last): premultiplied into a cleared colour buffer, as a
+(:meth:`TileRenderer.render_blend`, sort-last): their fragments in front of the layer are peeled
+by depth (the fragment shader keeps those strictly between two per-pixel depth textures), and for
+each m the m nearest are accumulated in draw order, premultiplied, into a cleared buffer: a
 :class:`tessera.depth_compositing.BlendLayer` the compositor lays over the merged frame.
 
 Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
@@ -94,6 +96,10 @@ uniform vec3 u_light_direction;
 uniform vec4 u_base_color;
 uniform float u_alpha_cutoff;
 uniform sampler2D u_texture;
+uniform bool u_peel;
+uniform sampler2D u_floor;
+uniform sampler2D u_ceil;
+uniform ivec2 u_origin;
 in vec3 v_normal;
 in vec2 v_uv;
 in vec4 v_color;
@@ -102,6 +108,11 @@ vec3 linear_to_srgb(vec3 c) {{
     return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
 }}
 void main() {{
+    if (u_peel) {{
+        ivec2 texel = ivec2(gl_FragCoord.xy) - u_origin;
+        if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
+            discard;
+    }}
     vec4 albedo = u_base_color * v_color * texture(u_texture, v_uv);
     if (albedo.a < u_alpha_cutoff) discard;
     float normal_length = length(v_normal);
@@ -112,6 +123,9 @@ void main() {{
 """
 
 
+#: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
+#: compositor takes all of a pixel's fragments in front of the node's own layer together).
+MAX_BLEND_LAYERS = 4
 #: How :meth:`TileRenderer._use_material` blends blended batches: over the frame (as shown), or
 #: premultiplied into a cleared buffer, alpha accumulated as coverage (:meth:`TileRenderer.render_blend`).
 BLEND_OVER = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA)
@@ -120,9 +134,10 @@ BLEND_ACCUMULATE = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA, moderngl.O
 
 @dataclass(frozen=True, slots=True)
 class BlendedFragments:
-    """Blended chunks drawn over a depth layer (:meth:`TileRenderer.render_blend`): ``color``
-    (h, w, 3) uint8 premultiplied, ``alpha`` (h, w) uint8, ``depth`` (h, w) float32 of the nearest
-    fragment (1.0 where none lies in front of the layer), ``triangles`` submitted, times in ms."""
+    """Blended chunks drawn over a depth layer (:meth:`TileRenderer.render_blend`), K layers:
+    ``depth`` (K, h, w) float32 the m-th nearest fragment's (1.0 where there are fewer), ``color``
+    (K, h, w, 3) uint8 the m nearest accumulated premultiplied in draw order, ``alpha`` (K, h, w)
+    uint8 their coverage; ``triangles`` drawn, times in ms."""
 
     color: np.ndarray
     alpha: np.ndarray
@@ -194,6 +209,8 @@ class TileRenderer:
         self.background = background
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
         self.program["u_texture"].value = 0
+        self.program["u_floor"].value = 1
+        self.program["u_ceil"].value = 2
         vertices, indices = self._pack(scene.batches)
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
@@ -335,11 +352,13 @@ class TileRenderer:
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
                      under: np.ndarray, state: SceneState | None = None) -> BlendedFragments:
-        """Blended chunks ``chunk_ids`` (sorted, unique) over the layer :meth:`render_layer` has just
-        drawn of the same ``rect``, camera, size and ``state``, whose depth ``under`` (rect.h,
-        rect.w) float32 the framebuffer still holds: their colour accumulated in draw order into a
-        cleared buffer (:data:`BLEND_ACCUMULATE`), tested against the layer's depth and not
-        written, then drawn again into the depth buffer alone for the nearest one's depth."""
+        """Blended chunks ``chunk_ids`` (sorted, unique) in front of the layer :meth:`render_layer`
+        has drawn of the same ``rect``, camera, size and ``state``, whose depth is ``under``
+        (rect.h, rect.w) float32. Peeling: pass j keeps the fragments between the (j−1)-th depth
+        and ``under`` and writes the nearest's depth, up to :data:`MAX_BLEND_LAYERS` layers; then
+        for each m the fragments nearer than the (m+1)-th depth (the last m: than ``under``) are
+        accumulated in draw order (:data:`BLEND_ACCUMULATE`) into a cleared buffer, as GL blends
+        them over whatever the compositor finds behind them."""
         started = time.perf_counter()
         pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
@@ -348,31 +367,56 @@ class TileRenderer:
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
         framebuffer.use()
-        framebuffer.depth_mask = False
-        framebuffer.clear(0.0, 0.0, 0.0, 0.0, viewport=gl_box)
-        framebuffer.depth_mask = True
         self.program["u_light_direction"].value = headlight_direction(camera)
+        self.program["u_origin"].value = gl_box[:2]
+        bounds = [self.ctx.texture((rect.w, rect.h), 1, dtype="f4") for _ in range(2)]
+        for texture, unit in zip(bounds, (1, 2), strict=True):
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            texture.use(unit)
+        depths: list[np.ndarray] = []
+        layers: list[np.ndarray] = []
         try:
-            self._blend_func = BLEND_ACCUMULATE
-            self._draw(framebuffer, culled, pose, matrix)
-            self.ctx.finish()
-            color = framebuffer.read(viewport=gl_box, components=4, alignment=1)
+            self.program["u_peel"].value = True
             self._blend_func = None
             framebuffer.color_mask = (False, False, False, False)
-            self._draw(framebuffer, culled, pose, matrix)
-            self.ctx.finish()
+            floor = np.full(under.shape, -1.0, np.float32)
+            for _ in range(MAX_BLEND_LAYERS):
+                bounds[0].write(floor[::-1].tobytes())
+                bounds[1].write(under[::-1].tobytes())
+                framebuffer.clear(depth=1.0, viewport=gl_box)
+                self._draw(framebuffer, culled, pose, matrix)
+                floor = self._read_depth(framebuffer, gl_box, rect)
+                if not (floor < 1.0).any():
+                    break
+                depths.append(floor)
+            framebuffer.color_mask = (True, True, True, True)
+            self._blend_func = BLEND_ACCUMULATE
+            bounds[0].write(np.full(under.shape, -1.0, np.float32).tobytes())
+            for m in range(1, len(depths) + 1):
+                ceiling = np.minimum(depths[m], under) if m < len(depths) else under
+                bounds[1].write(np.ascontiguousarray(ceiling[::-1]).tobytes())
+                framebuffer.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=gl_box)
+                self._draw(framebuffer, culled, pose, matrix)
+                data = framebuffer.read(viewport=gl_box, components=4, alignment=1)
+                layers.append(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 4)[::-1])
         finally:
+            self.program["u_peel"].value = False
             self._blend_func = BLEND_OVER
             framebuffer.color_mask = (True, True, True, True)
-        drawn = time.perf_counter()
-        depth_data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
-        rgba = np.frombuffer(color, np.uint8).reshape(rect.h, rect.w, 4)[::-1]
-        nearest = np.frombuffer(depth_data, np.float32).reshape(rect.h, rect.w)[::-1]
-        depth = np.where(nearest < under, nearest, np.float32(1.0)).astype(np.float32)
-        read = time.perf_counter()
+            for texture in bounds:
+                texture.release()
+        done = time.perf_counter()
+        rgba = np.stack(layers) if layers else np.zeros((0, rect.h, rect.w, 4), np.uint8)
+        depth = np.stack(depths) if depths else np.zeros((0, rect.h, rect.w), np.float32)
         triangles = self.culler.counts(culled, pose.skip if pose.skip.any() else None).triangles
         return BlendedFragments(np.ascontiguousarray(rgba[..., :3]), np.ascontiguousarray(rgba[..., 3]), depth,
-                                triangles, (drawn - started) * 1e3, (read - drawn) * 1e3)
+                                triangles, (done - started) * 1e3, 0.0)
+
+    @staticmethod
+    def _read_depth(framebuffer: moderngl.Framebuffer, gl_box: tuple[int, int, int, int], rect: Rect) -> np.ndarray:
+        """(rect.h, rect.w) float32 window depth of ``gl_box``, row 0 at the top."""
+        data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
+        return np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
 
     def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None) -> RenderedTile:
         """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose)."""
