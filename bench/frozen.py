@@ -39,7 +39,7 @@ from typing import Any
 
 import httpx
 
-from bench.soak import GAP_GOAL_S, NO_KEEPALIVE, REJOIN_TIMEOUT_S, STARTUP_TIMEOUT_S, PersistentViewer, Soak, run_bench
+from bench.soak import GAP_GOAL_S, REJOIN_TIMEOUT_S, PersistentViewer, Soak, run_bench
 from tessera.cli_values import size_parser
 
 POLL_S = 0.05
@@ -102,16 +102,7 @@ def drive(soak: Soak) -> dict[str, Any]:
     """Start everything, freeze the nodes in turn, stop the viewer; what was recorded."""
     args = soak.args
     launched = time.monotonic()
-    soak.start_coordinator()
-    for slot in range(args.nodes):
-        soak.start_node(slot)
-    with httpx.Client(base_url=soak.url, headers=NO_KEEPALIVE) as client:
-        names = {node.label for node in soak.nodes}
-        if not soak.wait_ready(client, names, launched + STARTUP_TIMEOUT_S, calibrated=True):
-            raise RuntimeError(f"{args.nodes} nodes not ready and calibrated within {STARTUP_TIMEOUT_S:.0f} s; "
-                               f"see the logs in {soak.log_dir}")
-        viewer = PersistentViewer(soak.ws_base + "/ws/view", args.camera_hz, args.turn_s)
-        viewer.start(timeout=60)
+    with soak.cluster(launched) as (client, viewer):
         freezes: list[dict[str, Any]] = []
         try:
             if poll_until(lambda: all(n["tiles_rendered"] > 0 for n in soak.stats(client)["nodes"]),

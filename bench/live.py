@@ -31,8 +31,6 @@ import argparse
 import io
 import json
 import math
-import os
-import platform
 import shlex
 import subprocess
 import sys
@@ -48,7 +46,7 @@ import numpy as np
 import websockets.sync.client as ws_client
 from PIL import Image
 
-from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator
+from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator, write_result
 from tessera.cli_values import size_parser
 from tessera.codec import decode
 from tessera.messages import CameraUpdate
@@ -320,11 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     result = measure(args)
     print(report(result))
     if args.json:
-        meta = {"python": platform.python_version(), "cpus": os.cpu_count(),
-                "argv": sys.argv[1:] if argv is None else list(argv)}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({**result, "meta": meta}, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_result(args.json, result, argv)
     return 0
 
 

@@ -3,8 +3,10 @@ port 0, process CPU from ``/proc``, and the camera turned about its target."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import platform
 import re
 import signal
 import subprocess
@@ -126,3 +128,13 @@ def orbit(camera: dict[str, Any], angle: float) -> dict[str, Any]:
     x, z = (eye - target)[0], (eye - target)[2]
     c, s = math.cos(angle), math.sin(angle)
     return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
+
+
+def write_result(path: Path, result: dict[str, Any], argv: Sequence[str] | None) -> None:
+    """A benchmark's figures as JSON at ``path``, with the Python version, CPU count and arguments
+    (``argv``, or the command line's when None) under ``meta``."""
+    meta = {"python": platform.python_version(), "cpus": os.cpu_count(),
+            "argv": sys.argv[1:] if argv is None else list(argv)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({**result, "meta": meta}, indent=2) + "\n")
+    print(f"wrote {path}")

@@ -31,7 +31,6 @@ import itertools
 import json
 import math
 import os
-import platform
 import re
 import signal
 import subprocess
@@ -48,7 +47,7 @@ from typing import Any
 import httpx
 import websockets.sync.client as ws_client
 
-from bench.processes import CLOCK_TICKS, REPO, orbit
+from bench.processes import CLOCK_TICKS, REPO, orbit, write_result
 from server.local_nodes import llvmpipe_threads_per_node
 from tessera.cli_values import size_parser
 from tessera.protocol import unpack_frame
@@ -303,6 +302,22 @@ class Soak:
                                  self.log_dir / "coordinator.log")
         self.url = self.coordinator.wait_for(r"Tessera serving on (http://\S+)", 60).group(1).rstrip("/")
 
+    @contextlib.contextmanager
+    def cluster(self, launched: float) -> Iterator[tuple[httpx.Client, PersistentViewer]]:
+        """Start the coordinator and ``--nodes`` nodes, wait (from ``launched``) until every node is
+        ready and calibrated, and open the persistent viewer: a client of the API and that viewer."""
+        self.start_coordinator()
+        for slot in range(self.args.nodes):
+            self.start_node(slot)
+        with httpx.Client(base_url=self.url, headers=NO_KEEPALIVE) as client:
+            names = {node.label for node in self.nodes}
+            if not self.wait_ready(client, names, launched + STARTUP_TIMEOUT_S, calibrated=True):
+                raise RuntimeError(f"{self.args.nodes} nodes not ready and calibrated within "
+                                   f"{STARTUP_TIMEOUT_S:.0f} s; see the logs in {self.log_dir}")
+            viewer = PersistentViewer(self.ws_base + "/ws/view", self.args.camera_hz, self.args.turn_s)
+            viewer.start(timeout=60)
+            yield client, viewer
+
     def start_node(self, slot: int) -> Child:
         if slot == len(self.generations):
             self.generations.append(0)
@@ -432,16 +447,7 @@ def drive(soak: Soak) -> dict[str, Any]:
     run_s = args.minutes * 60.0
     launched = time.monotonic()
     hard_deadline = launched + STARTUP_TIMEOUT_S + run_s + REJOIN_TIMEOUT_S
-    soak.start_coordinator()
-    for slot in range(args.nodes):
-        soak.start_node(slot)
-    with httpx.Client(base_url=soak.url, headers=NO_KEEPALIVE) as client:
-        names = {node.label for node in soak.nodes}
-        if not soak.wait_ready(client, names, launched + STARTUP_TIMEOUT_S, calibrated=True):
-            raise RuntimeError(f"{args.nodes} nodes not ready and calibrated within {STARTUP_TIMEOUT_S:.0f} s; "
-                               f"see the logs in {soak.log_dir}")
-        viewer = PersistentViewer(soak.ws_base + "/ws/view", args.camera_hz, args.turn_s)
-        viewer.start(timeout=60)
+    with soak.cluster(launched) as (client, viewer):
         churn = ChurnViewers(soak.ws_base + "/ws/view", args.churn_every_s, soak.quiet)
         t0 = time.monotonic()
         end, next_restart, slot = t0 + run_s, t0 + args.restart_every_s, 0
@@ -716,11 +722,7 @@ def run_bench(args: argparse.Namespace, prefix: str, drive: Callable[[Soak], dic
     result = figures(soak, run)
     print(report(result))
     if args.json:
-        meta = {"python": platform.python_version(), "cpus": os.cpu_count(),
-                "argv": sys.argv[1:] if argv is None else list(argv)}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({**result, "meta": meta}, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_result(args.json, result, argv)
     return result
 
 
