@@ -10,8 +10,7 @@ What needs real processes (a real node keeps serving correct frames) is in test_
 from __future__ import annotations
 
 import json
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -25,6 +24,7 @@ from tessera.codec import Codec, encode
 from tessera.geometry import Rect
 from tessera.protocol import NODE_PHASES, PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.conftest import seconds
+from tests.integration_support import wait_until
 
 HELLO = {"type": "hello", "name": "fake", "token": "", "renderer": "none", "version": PROTOCOL_VERSION,
          "capabilities": {"codecs": ["png"], "slowdown": 1.0}}
@@ -34,6 +34,7 @@ TILE_MS = {"render": 2.0, "readback": 0.5, "encode": 1.0, "send": 0.25}
 pytestmark = pytest.mark.timeout(seconds(120))
 
 SETTINGS = Settings(scene="builtin:spheres", size=(64, 48), codec=Codec.PNG)
+WAIT_S = seconds(20)
 
 
 @pytest.fixture
@@ -62,14 +63,6 @@ def closed_with(ws) -> tuple[int, str]:
         message = ws.receive()
         if message["type"] == "websocket.close":
             return message["code"], message.get("reason", "")
-
-
-def wait_until(condition: Callable[[], Any], what: str, timeout: float = seconds(20)) -> Any:
-    deadline = time.monotonic() + timeout
-    while (value := condition()) in (None, False) and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert value not in (None, False), f"timed out waiting for {what}"
-    return value
 
 
 class FakeNode:
@@ -268,7 +261,7 @@ def test_invalid_viewer_input_gets_an_error_message_and_the_socket_stays_open(cl
 def test_documented_endpoints_are_served(client):
     with client.websocket_connect("/ws/node") as ws:
         FakeNode(ws)
-        wait_until(lambda: client.get("/api/stats").json()["nodes"], "the fake node")
+        wait_until(lambda: client.get("/api/stats").json()["nodes"], WAIT_S, "the fake node", interval=0.01)
         assert client.get("/docs").status_code == 200
         paths = client.get("/openapi.json").json()["paths"]
         for path in ("/healthz", "/api/stats", "/api/camera", "/api/frame.png", "/api/balancer", "/metrics"):
@@ -295,18 +288,18 @@ def test_metrics_after_real_frames(client):
     with client.websocket_connect("/ws/node") as ws:
         node = FakeNode(ws)
         node.answer_until(1)
-        wait_until(lambda: published(client, 1), "the first frame")
+        wait_until(lambda: published(client, 1), WAIT_S, "the first frame", interval=0.01)
         for step in range(4):
             frame = client.put("/api/camera", json=camera_at(0.2 * step)).json()["frame"]
             node.answer_until(frame)
-            wait_until(lambda frame=frame: published(client, frame), f"frame {frame}")
+            wait_until(lambda frame=frame: published(client, frame), WAIT_S, f"frame {frame}", interval=0.01)
 
         def every_send_counted() -> dict[str, Any] | None:
             families = metric_families(client.get("/metrics").text)
             sends, _ = histogram(families, "tessera_node_phase_seconds", phase="send")
             return families if sends == node.tiles_sent else None
 
-        families = wait_until(every_send_counted, "every tile_sent to be counted")
+        families = wait_until(every_send_counted, WAIT_S, "every tile_sent to be counted", interval=0.01)
 
     stats = client.get("/api/stats").json()
     frames = stats["coordinator_cpu"]["frames"]
@@ -367,6 +360,7 @@ def test_a_tile_a_node_cannot_render_goes_to_another_node(client):
                                   "message": "out of memory"})
         working.answer_until(frame)
         working.answer_until(frame)
-        wait_until(lambda: published(client, frame), f"frame {frame} without the failing node's tile")
+        wait_until(lambda: published(client, frame), WAIT_S, f"frame {frame} without the failing node's tile",
+                   interval=0.01)
         nodes = client.get("/api/stats").json()["nodes"]
         assert len(nodes) == 2, "one failed tile does not disconnect a node"

@@ -22,7 +22,8 @@ from tessera.geometry import Rect
 from tessera.protocol import TileHeader, pack_tile, state_tag
 from tessera.scene_state import SceneState, StateReplica, state_from_json
 from tests.conftest import seconds
-from tests.test_api import HELLO, next_json, wait_until
+from tests.integration_support import wait_until
+from tests.test_api import HELLO, WAIT_S, next_json
 
 pytestmark = pytest.mark.timeout(seconds(120))
 
@@ -189,4 +190,4 @@ def test_a_node_reporting_a_broken_scene_is_closed_with_the_reason(client):
         while (message := ws.receive())["type"] != "websocket.close":
             pass
         assert message["code"] == 1008 and "unknown object 'bus'" in message["reason"]
-    wait_until(lambda: client.get("/api/stats").json()["nodes"] == [], "the node to leave")
+    wait_until(lambda: client.get("/api/stats").json()["nodes"] == [], WAIT_S, "the node to leave", interval=0.01)

@@ -22,7 +22,8 @@ from tessera.depth_compositing import DepthLayer, background_pixel
 from tessera.depth_tiles import encode_depth_tile
 from tessera.geometry import DEFAULT_BACKGROUND, Rect
 from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
-from tests.test_api import BOUNDS, closed_with, next_json, wait_until
+from tests.integration_support import wait_until
+from tests.test_api import BOUNDS, WAIT_S, closed_with, next_json
 
 SIZE = (64, 48)
 
@@ -113,7 +114,8 @@ def test_sort_last_nodes_get_shares_and_their_depth_tiles_are_merged(sort_last):
         wrong, _ = encode_depth_tile(layer, None, Codec.PNG, 90, version=7)
         payload, _ = encode_depth_tile(layer, None, Codec.PNG, 90, version=1)
         send_depth_tile(ws, render, tile, payload)
-        wait_until(lambda: sort_last.get("/api/stats").json()["frame"] >= render["frame"], "the merged frame")
+        wait_until(lambda: sort_last.get("/api/stats").json()["frame"] >= render["frame"], WAIT_S, "the merged frame",
+                   interval=0.01)
         response = sort_last.get("/api/frame.png", params={"after": render["frame"]})
         image = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
         assert (image[12:28, 10:30] == 200).all()

@@ -40,23 +40,26 @@ def live(coordinator_factory):
         yield coordinator, client
 
 
-def stays(condition, duration: float) -> bool:
-    """True when ``condition`` holds at every look for ``duration`` seconds (polled every 50 ms)."""
-    deadline = time.monotonic() + duration
-    while time.monotonic() < deadline:
-        if not condition():
-            return False
-        time.sleep(0.05)
-    return True
+def frame_published_within(ws_url: str, duration: float) -> int | None:
+    """The id of a frame a viewer connected now is sent within ``duration`` s after the newest one
+    it gets on joining, or None. It blocks on the socket, so a publish ends the wait at once."""
+    with ws_client.connect(ws_url + "/ws/view", max_size=64 << 20) as ws:
+        assert json.loads(ws.recv(timeout=seconds(30)))["type"] == "hello"
+        assert unpack_frame(ws.recv(timeout=seconds(30))).frame_id >= 1, "the newest frame, on joining"
+        try:
+            return unpack_frame(ws.recv(timeout=duration)).frame_id
+        except TimeoutError:
+            return None
 
 
 def test_nothing_renders_while_nothing_changes_and_the_next_camera_renders_again(live):
-    _, client = live
+    coordinator, client = live
     idle = stats(client)
     assert idle["still"] and idle["frames_in_flight"] == 0 and idle["codec"] == "jpeg"
     published = idle["coordinator_cpu"]["frames"]
-    assert stays(lambda: stats(client)["coordinator_cpu"]["frames"] == published, seconds(1.5)), \
-        "frames were rendered although nothing changed"
+    assert frame_published_within(coordinator.ws_url, seconds(1.5)) is None, \
+        "a frame was published although nothing changed"
+    assert stats(client)["coordinator_cpu"]["frames"] == published
     rendered = [n["tiles_rendered"] for n in stats(client)["nodes"]]
     camera = orbit_cameras(client.get("/api/camera").json()["bounds"], 1)[0]
     first = client.put("/api/camera", json=camera).json()["frame"]
