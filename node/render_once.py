@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import moderngl
 
@@ -26,16 +27,21 @@ from tessera.geometry import Camera, CameraError, default_camera
 from tessera.scene_state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
 
 
+def read_json(path: Path, what: str, error: type[Exception]) -> Any:
+    """The JSON in ``path``; raises ``error`` naming ``what`` file, the path and the reason."""
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise error(f"{what} file {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{what} file {path}: unreadable ({exc})") from None
+    except ValueError as exc:
+        raise error(f"{what} file {path}: invalid JSON ({exc})") from None
+
+
 def read_camera(path: Path) -> Camera:
     """Parse a camera JSON file; raises CameraError whose message names the file and the reason."""
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise CameraError(f"camera file {path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CameraError(f"camera file {path}: unreadable ({exc})") from None
-    except ValueError as exc:
-        raise CameraError(f"camera file {path}: invalid JSON ({exc})") from None
+    data = read_json(path, "camera", CameraError)
     try:
         return Camera.from_json(data)
     except CameraError as exc:
@@ -44,14 +50,7 @@ def read_camera(path: Path) -> Camera:
 
 def read_objects(path: Path) -> dict[str, ObjectPatch]:
     """Parse an object state file; raises SceneStateError whose message names the file and the reason."""
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise SceneStateError(f"objects file {path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneStateError(f"objects file {path}: unreadable ({exc})") from None
-    except ValueError as exc:
-        raise SceneStateError(f"objects file {path}: invalid JSON ({exc})") from None
+    data = read_json(path, "objects", SceneStateError)
     if not isinstance(data, dict):
         raise SceneStateError(f"objects file {path}: must be a JSON object of name: state")
     try:

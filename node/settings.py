@@ -4,7 +4,6 @@ environment (every ``--flag`` is also ``TESSERA_<FLAG>``; the command line wins)
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import socket
 from collections.abc import Mapping, Sequence
@@ -13,7 +12,7 @@ from pathlib import Path
 
 from node.culling.switch import CullMode
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from tessera.cli_values import parse_background, size_parser
+from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
 from tessera.messages import MAX_SIDE
 
@@ -48,26 +47,10 @@ class NodeSettings:
     objects: Path | None = None
 
 
-def parse_time(text: str) -> float:
-    """A finite scene time in seconds."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"time must be a finite number of seconds, got {text!r}")
-    return value
-
-
-def parse_slowdown(text: str) -> float:
-    """A finite factor ≥ 1."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 1.0):
-        raise argparse.ArgumentTypeError(f"slowdown must be a number >= 1, got {text!r}")
-    return value
+#: A scene time in seconds.
+parse_time = number_parser(note=" of seconds")
+#: A slowdown factor ≥ 1.
+parse_slowdown = number_parser(1.0)
 
 
 def parse_culling(text: str) -> CullMode:

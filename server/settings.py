@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from server.origins import normalise_origins
 from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
-from tessera.cli_values import parse_background, size_parser
+from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.codec import Codec
 from tessera.scheduler import MODES
 
@@ -42,6 +42,11 @@ DEFAULT_MAX_NODE_MESSAGES_PER_S = 40000.0
 MAX_TILE_BYTES_PER_PIXEL = 12
 
 
+#: Messages per second, 0 for no limit.
+RATE = number_parser(0.0, note=" (0: no limit)")
+POSITIVE = number_parser(0.0, above=True)
+
+
 def auto_node_message_bytes(size: tuple[int, int]) -> int:
     """Largest message a node may send by default: a tile is at most the whole frame, at most
     :data:`MAX_TILE_BYTES_PER_PIXEL` (four raw RGB frames), plus 1 MiB for the tile header and the
@@ -59,17 +64,6 @@ def _byte_count(text: str) -> int:
     value = _count(cleaned[:len(cleaned) - len(unit)]) * _BYTE_UNITS[unit]
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1 byte, got {text!r}")
-    return value
-
-
-def _rate(text: str) -> float:
-    """Messages per second, 0 for no limit."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (0: no limit), got {text!r}")
     return value
 
 
@@ -94,16 +88,6 @@ def _port(text: str) -> int:
     value = _count(text)
     if value > 65535:
         raise argparse.ArgumentTypeError(f"ports are 0…65535, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
 
 
@@ -196,16 +180,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help="codec of the still frame rendered once nothing changed for --still-delay-ms: "
                              "png (default, lossless), raw, jpeg, or none for no still frame")
     parser.add_argument("--still-quality", type=_quality, help="JPEG quality of a jpeg still frame (default 95)")
-    parser.add_argument("--still-delay-ms", type=_positive_float,
+    parser.add_argument("--still-delay-ms", type=POSITIVE,
                         help="quiet time before the still frame, ms (default 200)")
     parser.add_argument("--settle-frames", type=_count,
                         help="at most this many frames more after a change while the balancer's partition "
                              "still moves (default 2)")
     parser.add_argument("--max-in-flight", type=int, help="frames rendering at once (default 2)")
-    parser.add_argument("--max-fps", type=_positive_float, help="frame rate cap (default 60)")
-    parser.add_argument("--tile-timeout-s", type=_positive_float,
+    parser.add_argument("--max-fps", type=POSITIVE, help="frame rate cap (default 60)")
+    parser.add_argument("--tile-timeout-s", type=POSITIVE,
                         help="seconds before a node that owes a tile is dropped (default 20)")
-    parser.add_argument("--frame-wait-s", type=_positive_float, help="longest wait of GET /api/frame.png (default 30)")
+    parser.add_argument("--frame-wait-s", type=POSITIVE, help="longest wait of GET /api/frame.png (default 30)")
     parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
     parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")
     parser.add_argument("--log-level", help="debug, info (default), warning")
@@ -219,10 +203,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-node-message-bytes", type=_byte_count,
                         help="largest message (a tile) a node may send (default: 12 bytes per pixel of --size "
                              "plus 1M, 12.1 MB at 1280x720)")
-    parser.add_argument("--max-viewer-messages-per-s", type=_rate,
+    parser.add_argument("--max-viewer-messages-per-s", type=RATE,
                         help=f"messages per second per viewer socket, a second's worth at once "
                              f"(default {DEFAULT_MAX_VIEWER_MESSAGES_PER_S:.0f}; 0: no limit)")
-    parser.add_argument("--max-node-messages-per-s", type=_rate,
+    parser.add_argument("--max-node-messages-per-s", type=RATE,
                         help=f"messages per second per node socket, a second's worth at once "
                              f"(default {DEFAULT_MAX_NODE_MESSAGES_PER_S:.0f}; 0: no limit)")
     return parser

@@ -1,5 +1,5 @@
-"""Command-line values both processes accept (``--size``, ``--background``): parsers for argparse
-that raise ``ArgumentTypeError`` with a message a user can act on."""
+"""Command-line values both processes accept (``--size``, ``--background``, bounded numbers): parsers
+for argparse that raise ``ArgumentTypeError`` with a message a user can act on."""
 
 from __future__ import annotations
 
@@ -21,6 +21,22 @@ def size_parser(minimum: int, maximum: int) -> Callable[[str], tuple[int, int]]:
         return width, height
 
     return parse_size
+
+
+def number_parser(minimum: float = -math.inf, above: bool = False, note: str = "") -> Callable[[str], float]:
+    """A parser of a finite number ≥ ``minimum`` (> when ``above``); ``note`` ends the error message."""
+    bound = "" if minimum == -math.inf else f" {'>' if above else '>='} {minimum:g}"
+
+    def parse_number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or value < minimum or (above and value == minimum):
+            raise argparse.ArgumentTypeError(f"must be a finite number{bound}{note}, got {text!r}")
+        return value
+
+    return parse_number
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
