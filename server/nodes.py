@@ -60,6 +60,7 @@ class NodeLink:
             "triangles_loaded": self.triangles,
             "share": self.share,
             "tiles": schedule.last_tiles,
+            "readback": schedule.last_readback,
             **{f"{phase}_ms": round(phases.get(phase, 0.0), 3) for phase in NODE_PHASES},
             "busy_ms": round(sum(phases.values()), 3),
             "speed": round(schedule.speed, 4),

@@ -59,7 +59,7 @@ from tessera.messages import (
     ViewerScene,
     Welcome,
 )
-from tessera.protocol import ProtocolError, TileHeader, unpack_tile
+from tessera.protocol import NO_NODE_SLOT, ProtocolError, TileHeader, unpack_tile
 from tessera.scene_graph import ObjectGraph
 from tessera.scene_state import ObjectPatch, SceneStateError
 from tessera.scene_timeline import SceneTimeline
@@ -77,8 +77,6 @@ log = logging.getLogger("tessera.server")
 
 #: Longest wait of the timer task between two looks at the scheduler and calibration (s).
 TIMER_MAX_WAIT_S = 1.0
-#: Unknown rendering node in a viewer frame's tile table.
-NO_SLOT = 0xFFFF
 
 
 def scene_timeline(message: SceneReady, now: float) -> SceneTimeline:
@@ -403,17 +401,18 @@ class RenderService:
         """What viewers get of ``job``: its tiles as received, or a depth frame merged."""
         slots = {n.node_id: n.slot for n in self.scheduler.nodes.values()}
         if job.depth is None:
-            return [(t.rect, job.codec, slots.get(t.rendered_by or 0, NO_SLOT), t.payload or b"") for t in job.tiles]
+            return [(t.rect, job.codec, slots.get(t.rendered_by or 0, NO_NODE_SLOT), t.payload or b"")
+                    for t in job.tiles]
         started = time.thread_time()
         decoded = [t.depth_tile for t in job.tiles if t.depth_tile is not None]
         merged = merge_depth_tiles(decoded, job.size, self.background)
         if job.depth.mode == "hybrid":
-            tiles = [(rect, job.codec, slots.get(job.tiles[index].rendered_by or 0, NO_SLOT), data)
+            tiles = [(rect, job.codec, slots.get(job.tiles[index].rendered_by or 0, NO_NODE_SLOT), data)
                      for rect, index, data in hybrid_frame_tiles([(t.rect, d) for t, d in zip(job.tiles, decoded,
                                                                                                strict=True)],
                                                                  merged, job.codec, job.jpeg_quality)]
         else:
-            tiles = [(Rect(0, 0, *job.size), job.codec, NO_SLOT, encode(merged, job.codec, job.jpeg_quality))]
+            tiles = [(Rect(0, 0, *job.size), job.codec, NO_NODE_SLOT, encode(merged, job.codec, job.jpeg_quality))]
         self.cpu_ms["merge"] += (time.thread_time() - started) * 1000.0
         return tiles
 

@@ -97,6 +97,18 @@ class DecodedDepthTile:
     layers: tuple[DepthLayer, ...]
     blends: tuple[BlendLayer, ...] = ()
 
+    @property
+    def extent(self) -> Rect | None:
+        """The smallest rect of the frame holding all the tile carries (core, pieces, blend
+        layers): where its node drew something; None: nowhere."""
+        rects = [layer.rect for layer in self.layers] + [blend.rect for blend in self.blends]
+        if self.core is not None:
+            rects.append(self.core[0])
+        if not rects:
+            return None
+        x, y = min(r.x for r in rects), min(r.y for r in rects)
+        return Rect(x, y, max(r.x1 for r in rects) - x, max(r.y1 for r in rects) - y)
+
 
 def encode_depth_tile(layer: DepthLayer | None, core: Rect | None, codec: Codec, quality: int,
                       version: int = 0, blend: BlendLayer | None = None) -> tuple[bytes, DepthTileCounts]:

@@ -163,6 +163,16 @@ class FrameJob:
                     sums[key] = previous + value
         return out
 
+    def readback_by_node(self) -> dict[int, list[list[int]]]:
+        """Per node, where it drew in this frame ([x, y, w, h] each): a tile's rect, a depth tile's
+        extent (none when it drew nothing)."""
+        out: dict[int, list[list[int]]] = {}
+        for tile in self.tiles:
+            extent = tile.rect if tile.depth_tile is None else tile.depth_tile.extent
+            if tile.rendered_by is not None and extent is not None:
+                out.setdefault(tile.rendered_by, []).append(extent.as_list())
+        return out
+
     def owed_by(self, node_id: int) -> list[int]:
         """Tiles assigned to ``node_id`` and not back yet (earlier owners of a backed-up tile owe none)."""
         return [t.tile_id for t in self.tiles if t.node_id == node_id and not t.done]

@@ -13,7 +13,8 @@ Binary WebSocket messages start with a magic:
 * ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
   still frame; ``input_seq``: the viewer's newest input sequence number the frame accounts for,
   0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
-  small index reused after a node leaves, u16), then the tiles' encoded images in the same order.
+  small index reused after a node leaves, u16; :data:`NO_NODE_SLOT` for a tile no one node
+  rendered), then the tiles' encoded images in the same order.
 
 All integers little-endian. Text messages (JSON control messages) are catalogued in
 :mod:`tessera.messages`; :data:`PROTOCOL_VERSION` covers both.
@@ -38,6 +39,9 @@ FRAME_MAGIC = b"TFRM"
 #: Per-tile phases a node measures, in pipeline order (milliseconds): the tile header's times,
 #: then ``tile_sent.send_ms``. The stats, the metrics and the viewer's panel use these names.
 NODE_PHASES = ("render", "readback", "encode", "send")
+#: A frame tile entry's ``node`` when no one node rendered the tile: a sort-last frame merged on
+#: the coordinator from every node's layer, or a tile whose node has left since.
+NO_NODE_SLOT = 0xFFFF
 
 _TILE_HEADER = struct.Struct("<4sBBHIIIIIIfffI")
 _FRAME_HEADER = struct.Struct("<4sBBHIIII")

@@ -195,6 +195,10 @@ class NodeSchedule:
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)
+    #: Where the node drew in its last complete frame, [x, y, w, h] each: its tiles (sort-first),
+    #: the extent of each depth tile (a hybrid tile with the strip drawn in, the rect a sort-last
+    #: share projects to; none for a share out of view).
+    last_readback: list[list[int]] = field(default_factory=list)
     last_phases: dict[str, float] = field(default_factory=dict)
     counters: dict[str, Any] = field(default_factory=dict)
     tiles_rendered: int = 0
@@ -806,10 +810,12 @@ class FrameScheduler:
                 phases[phase] += ms
             rects.setdefault(t.node_id, []).append(t.rect.as_list())
         counters = job.counters_by_node()
+        readback = job.readback_by_node()
         for node_id, phases in per_node.items():
             node = self.nodes.get(node_id)
             if node is not None:
                 node.last_phases, node.last_tiles = phases, rects[node_id]
+                node.last_readback = readback.get(node_id, [])
                 node.counters = counters.get(node_id, {})
         if not job.still and job.frame_id >= self._timings_frame_id:
             self._last_timings, self._timings_frame_id = timings, job.frame_id

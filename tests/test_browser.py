@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import urllib.request
 from pathlib import Path
@@ -20,6 +21,7 @@ from PIL import Image
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context
 from tests.conftest import REPO, seconds
 from tests.integration_support import wait_until
+from tests.test_web_mirror import WEB, js_const
 
 pytestmark = pytest.mark.browser
 
@@ -55,6 +57,21 @@ OVERLAY_JS = """() => {
   return {painted: painted / (canvas.width * canvas.height), strokeColours: strokes.size};
 }"""
 
+# Per palette colour ('#rrggbb'), how many strongly painted overlay pixels are nearest to it (and
+# within 64 summed over the channels: outlines are blended a little with the tints under them).
+OVERLAY_COLOUR_COUNTS_JS = """(palette) => {
+  const canvas = document.getElementById("overlay");
+  const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+  const colours = palette.map((colour) => [1, 3, 5].map((i) => parseInt(colour.slice(i, i + 2), 16)));
+  const counts = palette.map(() => 0);
+  for (let i = 0; i < data.length; i += 4) {
+    if (data[i + 3] <= 200) continue;
+    const distances = colours.map((rgb) => rgb.reduce((sum, value, c) => sum + Math.abs(data[i + c] - value), 0));
+    const nearest = distances.indexOf(Math.min(...distances));
+    if (distances[nearest] <= 64) counts[nearest]++;
+  }
+  return counts;
+}"""
 
 # The panel shows the viewer's own input → display latency as a number ("48 ms · 1.3 fr").
 INPUT_LATENCY_SHOWN_JS = """() => /^\\d+ ms/.test(document.getElementById("fig-input-latency").textContent)"""
@@ -181,5 +198,30 @@ def test_viewer_opened_with_the_token_keeps_it_in_a_cookie_not_in_the_address_ba
                                timeout=seconds(60) * 1000, polling=100)
         cookies = {c["name"]: c for c in chromium.cookies()}
         assert cookies["tessera_token"]["httpOnly"] and cookies["tessera_token"]["value"] == "br0wser"
+    finally:
+        page.close()
+
+
+def test_the_overlay_outlines_where_each_node_drew_in_sort_last(chromium, coordinator_factory):
+    """A sort-last frame is merged from every node's layer, so no tile of it has one node: the
+    overlay outlines each node's read-back rect from GET /api/stats instead, in the node's colour."""
+    coordinator = coordinator_factory("--mode", "sort-last", "--local-nodes", "2", "--scene", "builtin:spheres",
+                                      "--size", "320x180")
+
+    def drawing_nodes() -> list[dict]:
+        return [n for n in get_json(coordinator.url, "/api/stats")["nodes"] if n["readback"]]
+
+    wait_until(lambda: len(drawing_nodes()) == 2, seconds(60), "both nodes to draw part of the frame (readback)")
+    palette = re.findall(r'"(#[0-9a-f]{6})"', js_const((WEB / "overlay.js").read_text(), "NODE_COLORS"))
+    drawn = sorted(node["slot"] % len(palette) for node in drawing_nodes())
+    page = chromium.new_page()
+    try:
+        page.goto(coordinator.url + "/")
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
+        page.check("#toggle-overlay")
+        page.wait_for_function(
+            f"([palette, drawn]) => {{ const counts = ({OVERLAY_COLOUR_COUNTS_JS})(palette); "
+            "return counts.every((count, i) => (count > 50) === drawn.includes(i)); }",
+            arg=[palette, drawn], timeout=seconds(30) * 1000, polling=100)
     finally:
         page.close()

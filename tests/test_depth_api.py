@@ -120,8 +120,11 @@ def test_sort_last_nodes_get_shares_and_their_depth_tiles_are_merged(sort_last):
         image = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
         assert (image[12:28, 10:30] == 200).all()
         assert (image[0, 0] == background_pixel(DEFAULT_BACKGROUND)).all(), "the background, painted once"
+        wait_until(lambda: sort_last.get("/api/stats").json()["nodes"][0]["readback"] == [rect.as_list()], WAIT_S,
+                   "the stats to show where the node drew (the rect its share projects to)", interval=0.01)
         stats = sort_last.get("/api/stats").json()
         assert stats["nodes"][0]["share"] == 1 and stats["coordinator_cpu"]["merge_ms"] > 0.0
+        assert stats["nodes"][0]["tiles"] == [[0, 0, *SIZE]]
         sort_last.put("/api/camera", json={"eye": [0, 1, 5], "target": [0, 0, 0]})
         render = next_json(ws, "render")
         send_depth_tile(ws, render, render["tiles"][0], wrong)

@@ -56,6 +56,16 @@ def test_nothing_in_view_sends_no_piece():
     assert encode_depth_tile(empty, None, Codec.PNG, 90, version=1)[0] == payload, "all-far pieces are left out"
 
 
+def test_a_depth_tile_s_extent_holds_its_core_and_pieces_and_is_none_when_nothing_was_drawn():
+    tile, core, read = Rect(16, 0, 32, 48), Rect(20, 0, 24, 44), Rect(12, 0, 40, 48)
+    hybrid, _ = encode_depth_tile(random_layer(read, seed=3, empty_share=0.0), core, Codec.PNG, 90)
+    assert read_depth_tile(hybrid, read, (core, tile), slot=1).extent == read
+    share = Rect(5, 7, 30, 20)
+    layer = random_layer(share, seed=4, empty_share=0.0)
+    assert read_depth_tile(encode_depth_tile(layer, None, Codec.PNG, 90, 1)[0], FRAME, None, 0).extent == share
+    assert read_depth_tile(encode_depth_tile(None, None, Codec.PNG, 90, 1)[0], FRAME, None, 0).extent is None
+
+
 def test_a_hybrid_tile_sends_its_core_as_an_image_and_its_ring_with_depth():
     tile, core = Rect(16, 0, 32, 48), Rect(20, 0, 24, 44)
     layer = random_layer(Rect(12, 0, 40, 48), seed=2, empty_share=0.2)

@@ -178,6 +178,13 @@ def test_timings_are_attributed_to_the_node_that_rendered_each_tile():
     assert timings[2].busy_ms == 32.25
 
 
+def test_readback_by_node_lists_the_tiles_each_node_rendered():
+    job = new_job()
+    for node, tile_id in ((7, 0), (3, 1), (7, 2)):
+        job.accept(node, *result(job, tile_id))
+    assert job.readback_by_node() == {7: [RECTS[0].as_list(), RECTS[2].as_list()], 3: [RECTS[1].as_list()]}
+
+
 def test_render_message_carries_the_camera_size_codec_and_tiles():
     job = new_job(codec=Codec.JPEG)
     message = job.render_message([2, 0])

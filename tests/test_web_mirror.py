@@ -11,7 +11,7 @@ from pathlib import Path
 
 from tessera.codec import Codec
 from tessera.geometry import Rect
-from tessera.protocol import FRAME_MAGIC, FRAME_STILL, NODE_PHASES, PROTOCOL_VERSION, pack_frame
+from tessera.protocol import FRAME_MAGIC, FRAME_STILL, NO_NODE_SLOT, NODE_PHASES, PROTOCOL_VERSION, pack_frame
 
 WEB = Path(__file__).resolve().parents[1] / "web"
 
@@ -36,6 +36,7 @@ def test_protocol_js_declares_the_python_wire_constants():
     assert js_number(source, "FRAME_HEADER_SIZE") == header_size
     assert js_number(source, "FRAME_TILE_SIZE") == tile_entry_size
     assert js_number(source, "FRAME_STILL") == FRAME_STILL
+    assert js_number(source, "NO_NODE_SLOT") == NO_NODE_SLOT
 
 
 def test_protocol_js_codecs_are_tessera_codecs():

@@ -1,6 +1,8 @@
 // Tile overlay: the rectangles of the frame on screen, outlined and tinted per render node.
 // Drawn at the screen's resolution (not the frame's), so lines and labels stay crisp.
 
+import { NO_NODE_SLOT } from "./protocol.js";
+
 /** Node colours by node slot: a frame tile's `node`, a stats node's `slot`. */
 export const NODE_COLORS = [
   "#4cc9f0", "#f72585", "#ffd166", "#06d6a0", "#b388ff", "#ff8c42", "#90be6d", "#ef476f",
@@ -8,6 +10,23 @@ export const NODE_COLORS = [
 
 export function nodeColor(slot) {
   return NODE_COLORS[slot % NODE_COLORS.length];
+}
+
+/**
+ * What the overlay outlines ({x, y, w, h, node} each, frame pixels): the frame's tiles by the node
+ * that rendered each; when no tile has one node (a sort-last frame, merged from every node's
+ * layer), `readback` instead: where each node drew, as the latest `GET /api/stats` reports it
+ * (its nodes' `readback` rects, with their `slot`).
+ */
+export function ownershipTiles(frameTiles, readback) {
+  const owned = frameTiles.filter((tile) => tile.node !== NO_NODE_SLOT);
+  return owned.length || !frameTiles.length ? owned : readback;
+}
+
+/** Each stats node's `readback` rects as overlay tiles ({x, y, w, h, node: its slot}). */
+export function readbackTiles(nodes) {
+  return nodes.flatMap((node) => (Array.isArray(node.readback) ? node.readback : [])
+    .map(([x, y, w, h]) => ({ x, y, w, h, node: node.slot })));
 }
 
 /**
@@ -37,17 +56,22 @@ export function drawOverlay(canvas, width, height, tiles, label = (node) => `nod
   ctx.lineWidth = line;
   ctx.font = "600 12px system-ui, sans-serif";
   ctx.textBaseline = "top";
-  for (const tile of tiles) {
-    const [x, y] = [fit.x + tile.x * fit.scale, fit.y + tile.y * fit.scale];
-    const [w, h] = [tile.w * fit.scale, tile.h * fit.scale];
-    const color = nodeColor(tile.node);
-    ctx.globalAlpha = 0.1;
+  const boxes = tiles.map((tile) => ({
+    x: fit.x + tile.x * fit.scale, y: fit.y + tile.y * fit.scale, w: tile.w * fit.scale, h: tile.h * fit.scale,
+    color: nodeColor(tile.node), node: tile.node,
+  }));
+  // Tints first, outlines and labels over them: rects may overlap (sort-last read-back rects).
+  ctx.globalAlpha = 0.1;
+  for (const { x, y, w, h, color } of boxes) {
     ctx.fillStyle = color;
     ctx.fillRect(x, y, w, h);
-    ctx.globalAlpha = 0.95;
+  }
+  ctx.globalAlpha = 0.95;
+  for (const { x, y, w, h, color, node } of boxes) {
     ctx.strokeStyle = color;
+    ctx.fillStyle = color;
     ctx.strokeRect(x + line / 2, y + line / 2, w - line, h - line);
-    const text = label(tile.node);
+    const text = label(node);
     if (ctx.measureText(text).width + 12 < w && h > 28) ctx.fillText(text, x + 6, y + 6);
   }
   ctx.globalAlpha = 1;

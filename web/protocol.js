@@ -1,7 +1,8 @@
 // Viewer frame format TFRM, mirroring tessera/protocol.py (same constant names and layouts).
 // Header `<4sBBHIIII`: magic, version, flags (bit 0 = FRAME_STILL), tile_count, frame_id, width,
 // height, input_seq (the newest input sequence number of this viewer the frame accounts for, 0 = none).
-// Tile entry `<IIIIBBHI`: x, y, w, h, codec, reserved, node (the rendering node's slot), length.
+// Tile entry `<IIIIBBHI`: x, y, w, h, codec, reserved, node (the rendering node's slot, NO_NODE_SLOT
+// for none), length.
 // Then the tiles' encoded bytes in table order. All integers little-endian.
 
 export const PROTOCOL_VERSION = 2;
@@ -10,6 +11,9 @@ export const FRAME_HEADER_SIZE = 24;
 export const FRAME_TILE_SIZE = 24;
 /** Frame header flag: the lossless still frame shown once motion stopped. */
 export const FRAME_STILL = 0x01;
+/** A tile entry's `node` when no one node rendered the tile (a sort-last frame merged by the
+ * coordinator, or a node that has left since). */
+export const NO_NODE_SLOT = 0xffff;
 
 /** Tile codecs, as tessera.codec.Codec. */
 export const Codec = Object.freeze({ RAW: 0, JPEG: 1, PNG: 2 });

@@ -8,7 +8,7 @@ import { Connection } from "./connection.js";
 import { Controls } from "./controls.js";
 import { LatencyTracker, nextSeq } from "./latency.js";
 import { frameBounds, minDistanceFor } from "./orbit.js";
-import { drawOverlay, fitFrame } from "./overlay.js";
+import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 
@@ -61,9 +61,10 @@ Object.defineProperty(window, "tessera", {
 });
 
 const nodeNames = new Map();
+let nodeReadback = [];
 
 function redrawOverlay() {
-  const tiles = state.overlay ? lastTiles.tiles : [];
+  const tiles = state.overlay ? ownershipTiles(lastTiles.tiles, nodeReadback) : [];
   drawOverlay(overlayCanvas, lastTiles.width, lastTiles.height, tiles, (slot) => nodeNames.get(slot) ?? `node ${slot}`);
 }
 
@@ -203,6 +204,8 @@ function resetView() {
 const panel = new Panel(document, api, (nodes) => {
   nodeNames.clear();
   for (const node of nodes) nodeNames.set(node.slot, node.name ?? `node ${node.id}`);
+  nodeReadback = readbackTiles(nodes);
+  if (state.overlay) redrawOverlay();
 });
 const animation = new AnimationControls(document, api, (message) => {
   $("panel-message").textContent = message;
