@@ -362,12 +362,12 @@ class RenderService:
             if not (header.rect.x1 <= self.size[0] and header.rect.y1 <= self.size[1]):
                 raise ProtocolError(f"tile rect {header.rect.as_list()} lies outside the {self.size[0]}x{self.size[1]} "
                                     "frame")  # before its payload is decoded: no decompression bombs
-            depth_tile = None
+            data, depth_tile = bytes(payload), None
             if header.depth:
-                depth_tile = self._depth_tile(header, payload)
+                depth_tile = self._depth_tile(header, data)
             else:
-                check_payload_size(payload, header.codec, header.rect)
-            self.scheduler.tile_arrived(link.node_id, header, bytes(payload), time.monotonic(), depth_tile)
+                check_payload_size(data, header.codec, header.rect)
+            self.scheduler.tile_arrived(link.node_id, header, data, time.monotonic(), depth_tile)
             link.last_tile = (header.frame_id, header.tile_id)
             self.metrics.tile_arrived(header)
             self._apply()
@@ -375,7 +375,7 @@ class RenderService:
             spent = (time.thread_time() - started) * 1000.0
             self.cpu_ms["receive"] += spent - (self.cpu_ms["publish"] - published_before)
 
-    def _depth_tile(self, header: TileHeader, payload: memoryview) -> DecodedDepthTile | None:
+    def _depth_tile(self, header: TileHeader, payload: bytes) -> DecodedDepthTile | None:
         """A depth tile decoded and checked against what its frame expects of it: pieces inside the
         tile's read-back rect (hybrid) or the frame (sort-last), the core inside the tile and
         holding what no other tile reaches, the share version the frame's; ProtocolError if not.
@@ -389,7 +389,7 @@ class RenderService:
             bound, core = readback_rect(rect, strip, job.size), (exclusive_rect(rect, strip, job.size), rect)
         else:
             bound, core = Rect(0, 0, *job.size), None
-        tile = read_depth_tile(bytes(payload), bound, core, header.tile_id)
+        tile = read_depth_tile(payload, bound, core, header.tile_id)
         if job.depth.mode == "sort-last" and tile.version != job.depth.share:
             raise ProtocolError(f"depth tile drawn from the share of partition {tile.version}, the frame's is "
                                 f"{job.depth.share}")

@@ -43,14 +43,17 @@ class ViewerSlot:
         self.frame = message
         self.ready.set()
 
-    def put_control(self, message: Message) -> None:
-        """Queue ``message``; a camera replaces one not sent yet. A full queue sets ``behind``."""
+    def put_control(self, message: Message, text: str | None = None) -> None:
+        """Queue ``message`` (``text``: its JSON when already encoded); a camera replaces one not
+        sent yet. A full queue sets ``behind``."""
+        if text is None:
+            text = message.to_text()
         if isinstance(message, CameraUpdate):
-            self.camera = message.to_text()
+            self.camera = text
         elif len(self.control) >= MAX_QUEUED_CONTROL:
             self.behind = True
         else:
-            self.control.append(message.to_text())
+            self.control.append(text)
         self.ready.set()
 
     async def next_message(self) -> str | bytes:
@@ -100,9 +103,11 @@ class ViewerHub:
         self.bytes_published += length
 
     def broadcast(self, message: Message, exclude: ViewerSlot | None = None) -> None:
+        """Queue ``message`` for every viewer but ``exclude``, encoded once."""
+        text = message.to_text()
         for slot in self.slots:
             if slot is not exclude:
-                slot.put_control(message)
+                slot.put_control(message, text)
 
     def describe(self) -> list[dict[str, Any]]:
         return [slot.describe() for slot in sorted(self.slots, key=lambda s: s.viewer_id)]

@@ -141,8 +141,9 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
     layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
     to the lower slot whatever order they came in; layers that share a slot (the pieces of one
     node's layer, :func:`split_layer`) must not overlap. Raises ValueError for a layer or region
-    outside the frame or overlapping layers of one slot. O(summed layer pixels): depth by
-    ``minimum``, colour by one masked copy of whole pixels (:func:`_pixels`)."""
+    outside the frame or overlapping layers of one slot. The frame starts as the background, then
+    O(summed layer pixels): depth by ``minimum``, colour by one masked copy of whole pixels
+    (:func:`_pixels`)."""
     width, height = size
     if width <= 0 or height <= 0:
         raise ValueError(f"frame size must be positive, got {width}x{height}")
@@ -154,7 +155,9 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
             raise ValueError(f"layers of slot {layer.slot} overlap: each node's layer needs its own slot")
         same.append(layer.rect)
     depth = np.full((height, width), FAR, np.float32)
-    color = np.zeros((height, width, 3), np.uint8)
+    color = np.empty((height, width, 3), np.uint8)
+    color[0] = np.asarray(background, np.uint8)
+    color[1:] = color[0]   # whole rows: broadcasting the pixel over (h, w) is ~100x slower
     pixels = _pixels(color)
     for layer in ordered:
         rect = layer.rect
@@ -164,7 +167,6 @@ def composite(layers: Iterable[DepthLayer], size: tuple[int, int], background: n
         wins = layer.depth < depth[window]
         np.minimum(depth[window], layer.depth, out=depth[window])
         np.copyto(pixels[window], _pixels(layer.color), where=wins)
-    np.copyto(pixels, _pixels(np.asarray(background, np.uint8).reshape(1, 1, 3)), where=depth >= FAR)
     for blend in sorted(blends, key=lambda item: item.slot):
         rect = blend.rect
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
