@@ -25,7 +25,7 @@ export class AnimationControls {
     this.text = doc.getElementById("scene-time-text");
     this.clock = null;
     this.dragging = false;
-    this.polling = false;
+    this.poller = null;
     this.button.addEventListener("click", () => this.put({ playing: !this.clock?.playing }));
     this.slider.addEventListener("input", () => {
       this.dragging = true;
@@ -51,14 +51,14 @@ export class AnimationControls {
     } catch (error) {
       this.report(`animation unavailable (${error.message})`);
     }
-    if (this.clock && !this.polling) {
-      this.polling = true;
-      setInterval(() => this.load(), POLL_MS);
-    }
+    if (this.clock && this.poller === null) this.poller = setInterval(() => this.load(), POLL_MS);
   }
 
   show(clock) {
-    if (!clock.animations || clock.animations.length === 0) return;
+    if (!clock.animations || clock.animations.length === 0) {
+      this.hide();
+      return;
+    }
     this.clock = clock;
     this.section.hidden = false;
     this.button.textContent = clock.playing ? "pause" : "play";
@@ -69,6 +69,14 @@ export class AnimationControls {
       this.slider.value = String(clock.time);
       this.text.textContent = timeText(clock.time, clock.end);
     }
+  }
+
+  /** No animations (a coordinator restarted with a static scene): no controls, no polling. */
+  hide() {
+    this.clock = null;
+    this.section.hidden = true;
+    clearInterval(this.poller);
+    this.poller = null;
   }
 
   async put(body) {
