@@ -111,6 +111,24 @@ def test_a_moved_object_is_culled_where_it_is_now(renderers, spheres, mode):
         spheres.triangle_count - spheres.objects.objects[spheres.objects.lookup("sphere2")].triangles
 
 
+@pytest.mark.parametrize("mode", [CullMode.CPU, CullMode.GPU])
+def test_a_depth_layer_of_listed_chunks_culls_moved_objects_where_they_are_now(renderers, spheres, mode):
+    """Hybrid and sort-last layers list their chunks by base-pose ownership; a moved object is drawn
+    only where it is now, and the layer's picture is the whole frame's."""
+    renderer = renderers[mode]
+    camera = default_camera(spheres.bounds, aspect=SIZE[0] / SIZE[1])
+    state = moved_state(spheres)
+    sphere0 = spheres.objects.objects[spheres.objects.lookup("sphere0")].triangles
+    none = np.zeros(0, np.int64)
+    assert renderer.render_layer(camera, SIZE, Rect(0, 0, 80, 240), none, state=state).triangles == 0
+    assert renderer.render_layer(camera, SIZE, RECTS[0], none, state=state).triangles == sphere0
+    whole = renderer.render_frame(camera, SIZE, state).pixels
+    every_chunk = np.arange(spheres.chunks.chunk_count)
+    for rect in RECTS:
+        layer = renderer.render_layer(camera, SIZE, rect, every_chunk, state=state)
+        assert np.array_equal(layer.pixels, whole[rect.y:rect.y1, rect.x:rect.x1]), f"{mode.value} layer {rect}"
+
+
 def test_the_base_state_draws_the_static_scene_and_counts_what_it_draws(renderers, spheres):
     renderer = renderers[CullMode.OFF]
     camera = default_camera(spheres.bounds, aspect=SIZE[0] / SIZE[1])

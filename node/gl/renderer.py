@@ -207,6 +207,8 @@ class TileRenderer:
         self.ctx = ctx
         self.scene = scene
         self.background = background
+        # First: it raises CullingUnavailableError before any GL object of the scene exists to leak.
+        self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
         self.program["u_texture"].value = 0
         self.program["u_floor"].value = 1
@@ -221,7 +223,6 @@ class TileRenderer:
         )
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)
-        self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
@@ -305,18 +306,17 @@ class TileRenderer:
                      slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
-        culling keeps, ``slot`` naming it as there, moved objects culled too; of listed chunks, a moved
-        object's are drawn whole; of hidden ones nothing), with its depth read back as well."""
+        culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
+        what the rect's culling keeps where they are now, with its depth read back as well."""
         validate_rect(rect, size)
         started = time.perf_counter()
         pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
-        moved = None
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-            moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         else:
             culled = self.culler.listed(chunk_ids)
+        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
