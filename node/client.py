@@ -38,7 +38,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 
 from node.culling.switch import CullMode
 from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
-from node.gl.depth_layers import live_plan
+from node.gl.depth_layers import live_plan, render_plan
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
@@ -205,11 +205,7 @@ class GLWorker:
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
             return DepthRender(None, None, None, plan_ms)
-        layer = self._renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state)
-        blend = None
-        if plan.blend_ids is not None:
-            assert layer.depth is not None
-            blend = self._renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state)
+        layer, blend = render_plan(self._renderer, camera, size, plan, state)
         return DepthRender(layer, plan.exclusive, blend, plan_ms)
 
     def _release_scene(self) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.gl.depth_layers import live_plan
+from node.gl.depth_layers import live_plan, render_plan
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from node.scene.shares import keep_share
@@ -21,6 +21,7 @@ from tessera.depth_compositing import BlendLayer, DepthLayer, background_pixel
 from tessera.depth_tiles import encode_depth_tile, hybrid_frame_tiles, merge_depth_tiles, read_depth_tile
 from tessera.geometry import Rect, default_camera
 from tessera.messages import DepthRequest
+from tessera.scene_state import ObjectPatch
 from tests.conftest import scene_path
 
 pytestmark = pytest.mark.gl
@@ -132,5 +133,38 @@ def test_blended_fragments_peeled_and_laid_over_the_merge_equal_blending_in_plac
     merged = merge_depth_tiles(tiles, size, background_pixel(whole_renderer.background))
     difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
     assert difference.max() <= 2 and (difference > 0).sum() > 0, "the glass is there, rounded once"
+    for renderer in (*renderers, whole_renderer):
+        renderer.release()
+
+
+def test_a_moved_blended_object_in_sort_last_shares_is_blended_once(ctx):
+    """The diorama moved as a whole (its one object): every batch is drawn where it is now, the
+    glass among them; each share sends its opaque layer and its glass apart, as when nothing moved,
+    so the merge equals the whole render of that state up to the blend's rounding."""
+    scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
+    (name,) = scene.objects.names
+    extent = np.ptp(np.asarray(scene.bounds), axis=0)
+    state = scene.state_at(0.0, {name: ObjectPatch(translation=tuple((0.08 * extent * (1, 0, -1)).tolist()))})
+    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index)) for index in range(3)]
+    whole_renderer = TileRenderer(ctx, scene)
+    size = (320, 240)
+    camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
+    whole = whole_renderer.render_frame(camera, size, state).pixels
+    assert not np.array_equal(whole, whole_renderer.render_frame(camera, size).pixels), "the state moves it"
+    tiles, peeled = [], 0
+    for index, renderer in enumerate(renderers):
+        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, state)
+        assert plan is not None
+        layer, fragments = render_plan(renderer, camera, size, plan, state)
+        peeled = max(peeled, 0 if fragments is None else fragments.depth.shape[0])
+        blend = None if fragments is None else BlendLayer(layer.rect, fragments.color, fragments.alpha,
+                                                          fragments.depth, 0)
+        payload = encode_depth_tile(DepthLayer(layer.rect, layer.pixels, layer.depth, 0), None, Codec.PNG, 90, 1,
+                                    blend)[0]
+        tiles.append(read_depth_tile(payload, Rect(0, 0, *size), None, index))
+    assert peeled >= 2, "the glass's share peels its front and back faces"
+    merged = merge_depth_tiles(tiles, size, background_pixel(whole_renderer.background))
+    difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
+    assert difference.max() <= 2, f"{int((difference > 2).sum())} pixels off by more than 2, up to {difference.max()}"
     for renderer in (*renderers, whole_renderer):
         renderer.release()

@@ -14,9 +14,10 @@ node-side half of :mod:`tessera.depth_compositing`.
 - Live (:func:`live_plan`): what a ``render`` message's depth request asks of a serving node. In
   sort-last the node holds only its share, so its share is all its chunks; its blended chunks are
   drawn apart, over its layer (:meth:`node.gl.renderer.TileRenderer.render_blend`), since their
-  colour depends on what other shares draw behind them; while the frame's scene state moves an
-  object its chunk boxes no longer say where it is, so the whole frame is read back (moved
-  objects are drawn whole, as in every tile of the hybrid).
+  colour depends on what other shares draw behind them (a moved object's blended batches too);
+  while the frame's scene state moves an object its chunk boxes no longer say where it is, so the
+  whole frame is read back (moved objects are culled where they are now, as in every tile of the
+  hybrid). :func:`render_plan` draws a plan.
 
 Chunk ids index the renderer's scene chunks (:class:`node.scene.chunks.SceneChunks`).
 """
@@ -30,7 +31,7 @@ import numpy as np
 
 from node.culling.bvh import cull
 from node.culling.frustum import frustum_planes_from_matrix
-from node.gl.renderer import RenderedTile, TileRenderer
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from tessera.chunk_ownership import assign_chunks, core_rect, readback_rect
 from tessera.data_partition import covering_rect
 from tessera.depth_compositing import DepthLayer
@@ -113,9 +114,23 @@ def live_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], req
     if plan is None:
         return None
     blends = blended_chunks(renderer)[plan.chunk_ids]
-    if not blends.any():
+    batches = renderer.scene.batches
+    if not blends.any() and not any(batches[number].alpha_mode == "BLEND" for number in renderer.pose_of(state).whole):
         return plan
     return LayerPlan(plan.rect, plan.chunk_ids[~blends], blend_ids=plan.chunk_ids[blends])
+
+
+def render_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], plan: LayerPlan,
+                state: SceneState | None) -> tuple[RenderedTile, BlendedFragments | None]:
+    """Draw ``plan`` in scene ``state``: its layer (depth read back) and, when it has blended
+    chunks apart, the blended fragments in front of that layer (moved objects' blended batches
+    with them; None: no blend pass)."""
+    apart = plan.blend_ids is not None
+    layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state, blend_apart=apart)
+    if plan.blend_ids is None:
+        return layer, None
+    assert layer.depth is not None
+    return layer, renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state)
 
 
 def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:

@@ -303,11 +303,13 @@ class TileRenderer:
         return self._pose[1]
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
-                     slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
+                     slot: Hashable | None = None, state: SceneState | None = None,
+                     blend_apart: bool = False) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
         culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
-        what the rect's culling keeps where they are now, with its depth read back as well."""
+        what the rect's culling keeps where they are now (``blend_apart``: their blended batches left
+        to :meth:`render_blend`), with its depth read back as well."""
         validate_rect(rect, size)
         started = time.perf_counter()
         pose = self.pose_of(state)
@@ -317,13 +319,16 @@ class TileRenderer:
         else:
             culled = self.culler.listed(chunk_ids)
         moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
+                            blended_moved=False if blend_apart else None)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
-                started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None) -> RenderedTile:
+                started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
+                blended_moved: bool | None = None) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
-        began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole)."""
+        began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
+        which ``blended_moved`` picks (:meth:`_draw`)."""
         width, height = size
         framebuffer = self._framebuffer_for((width, height))
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
@@ -332,7 +337,7 @@ class TileRenderer:
         framebuffer.use()
         framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self.program["u_light_direction"].value = headlight_direction(camera)
-        self._draw(framebuffer, culled, pose, matrix, moved)
+        self._draw(framebuffer, culled, pose, matrix, moved, blended_moved)
         self.ctx.finish()
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
@@ -358,11 +363,14 @@ class TileRenderer:
         and ``under`` and writes the nearest's depth, up to :data:`MAX_BLEND_LAYERS` layers; then
         for each m the fragments nearer than the (m+1)-th depth (the last m: than ``under``) are
         accumulated in draw order (:data:`BLEND_ACCUMULATE`) into a cleared buffer, as GL blends
-        them over whatever the compositor finds behind them."""
+        them over whatever the compositor finds behind them. Moved objects' blended batches are drawn
+        with them, culled to ``rect`` where they are now (:meth:`render_layer` with ``blend_apart``
+        leaves them out)."""
         started = time.perf_counter()
         pose = self.pose_of(state)
         matrix = view_projection(camera, size, pose.bounds)
         culled = self.culler.listed(chunk_ids)
+        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         framebuffer = self._framebuffer_for(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
@@ -384,7 +392,7 @@ class TileRenderer:
                 bounds[0].write(floor[::-1].tobytes())
                 bounds[1].write(under[::-1].tobytes())
                 framebuffer.clear(depth=1.0, viewport=gl_box)
-                self._draw(framebuffer, culled, pose, matrix)
+                self._draw(framebuffer, culled, pose, matrix, moved, blended_moved=True)
                 floor = self._read_depth(framebuffer, gl_box, rect)
                 if not (floor < 1.0).any():
                     break
@@ -396,7 +404,7 @@ class TileRenderer:
                 ceiling = np.minimum(depths[m], under) if m < len(depths) else under
                 bounds[1].write(np.ascontiguousarray(ceiling[::-1]).tobytes())
                 framebuffer.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=gl_box)
-                self._draw(framebuffer, culled, pose, matrix)
+                self._draw(framebuffer, culled, pose, matrix, moved, blended_moved=True)
                 data = framebuffer.read(viewport=gl_box, components=4, alignment=1)
                 layers.append(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 4)[::-1])
         finally:
@@ -423,11 +431,12 @@ class TileRenderer:
         return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state)
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
-              view_proj: np.ndarray, moved: DrawRuns | None = None) -> None:
+              view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None) -> None:
         """Issue the draw calls batch by batch in batch order (opaque and masked first, blended last),
         each with its object's matrices: one multi-draw-indirect over each culled batch's commands
         (without :attr:`multi_draw` one draw per index run), one draw per run of ``moved`` for a moved
-        batch, or of the whole batch when ``moved`` is None (``first`` −1 below); batches ``pose``
+        batch, or of the whole batch when ``moved`` is None (``first`` −1 below), of those moved batches
+        only the blended (``blended_moved`` True) or the others (False; None: all); batches ``pose``
         hides are left out."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
@@ -438,6 +447,9 @@ class TileRenderer:
             firsts, counts = culled.runs.first.tolist(), culled.runs.count.tolist()
         draws = culled.batches
         whole = pose.whole_runs(self.scene, moved)
+        if blended_moved is not None:
+            whole = {number: runs for number, runs in whole.items()
+                     if (self.scene.batches[number].alpha_mode == "BLEND") == blended_moved}
         if pose.skip.any():
             culled_draws = [draw for draw in culled.batches if not pose.skip[draw[0]]]
             draws = list(heapq.merge(culled_draws, [(number, -1, 0) for number in whole]))
