@@ -36,7 +36,8 @@ async def serve(settings: Settings) -> None:
     # is checked per message (server/routes/guards.py).
     max_message = max(settings.node_message_bytes, settings.max_viewer_message_bytes)
     config = uvicorn.Config(create_app(settings), log_level=settings.log_level, ws_max_size=max_message,
-                            ws_ping_interval=10, ws_ping_timeout=20, access_log=False, lifespan="on")
+                            ws_ping_interval=settings.heartbeat_s, ws_ping_timeout=2 * settings.heartbeat_s,
+                            access_log=False, lifespan="on")
     server = uvicorn.Server(config)
     nodes = LocalNodes()
     task = asyncio.create_task(server.serve(sockets=[sock]))

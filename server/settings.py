@@ -131,6 +131,9 @@ class Settings:
     max_in_flight: int = 2
     max_fps: float = 60.0
     tile_timeout_s: float = 20.0
+    #: WebSocket ping interval to every node and viewer (s); a peer that has not answered a ping
+    #: within twice as long is disconnected (a frozen node that owes no tile, a dead network).
+    heartbeat_s: float = 10.0
     frame_wait_s: float = 30.0
     background: tuple[float, float, float] | None = None
     node_slowdowns: tuple[float, ...] = ()
@@ -189,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-fps", type=POSITIVE, help="frame rate cap (default 60)")
     parser.add_argument("--tile-timeout-s", type=POSITIVE,
                         help="seconds before a node that owes a tile is dropped (default 20)")
+    parser.add_argument("--heartbeat-s", type=POSITIVE,
+                        help="seconds between WebSocket pings to nodes and viewers; a peer that has not answered "
+                             "one within twice as long is disconnected (default 10)")
     parser.add_argument("--frame-wait-s", type=POSITIVE, help="longest wait of GET /api/frame.png (default 30)")
     parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
     parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")

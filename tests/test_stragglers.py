@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+from pathlib import Path
 
 import httpx
 import pytest
@@ -61,3 +62,27 @@ def test_frozen_node_bench_gap_under_a_second_and_rejoin(tmp_path):
     assert result["goals"] == {"gap_frozen_le_1s": True, "every_frozen_node_rejoined": True,
                                "frames_in_order": True, "no_crash": True}, context
     assert freeze["fps_frozen"] > 1.0 and freeze["fps_after"] > 1.0, context
+
+
+def test_a_node_silent_past_the_heartbeat_is_dropped_and_rejoins_by_itself(coordinator_factory):
+    """A frozen node answers no WebSocket ping: the coordinator drops it after ``--heartbeat-s`` plus
+    twice as long (the tile timeout, set far beyond the wait, plays no part), and after SIGCONT the
+    node finds its socket closed and connects again by itself."""
+    coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "160x90", "--local-nodes", "2",
+                                      "--heartbeat-s", "1", "--tile-timeout-s", "600")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: len(ready_nodes(client)) == 2, seconds(120), "2 ready nodes")
+        wait_until(lambda: stats(client)["settled"], seconds(60), "nothing left to render")
+        pid = next(p for p in process_tree(coordinator.proc.process.pid) if p != coordinator.proc.process.pid)
+        arguments = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        name = arguments[arguments.index(b"--name") + 1].decode()
+
+        def listed() -> list[dict]:
+            return [n for n in stats(client)["nodes"] if n["name"] == name]
+
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            wait_until(lambda: not listed(), seconds(30), f"{name}, frozen, to be dropped")
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        wait_until(lambda: [n["state"] for n in listed()] == ["ready"], seconds(60), f"{name} to connect again")
