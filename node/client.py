@@ -38,7 +38,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 
 from node.culling.switch import CullMode
 from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
-from node.gl.depth_layers import live_plan, render_plan
+from node.gl.depth_layers import as_depth_layer, live_plan, render_plan
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
@@ -237,8 +237,7 @@ class DepthRender:
     plan_ms: float
 
     def depth_layer(self) -> DepthLayer | None:
-        layer = self.layer
-        return None if layer is None or layer.depth is None else DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
+        return None if self.layer is None else as_depth_layer(self.layer, 0)
 
     def blend_layer(self) -> BlendLayer | None:
         if self.blend is None or self.layer is None or not self.blend.depth.shape[0]:

@@ -88,11 +88,12 @@ def blended_chunks(renderer: TileRenderer) -> np.ndarray:
 
 
 def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
-                   share: np.ndarray) -> LayerPlan | None:
-    """The layer of a node holding chunks ``share`` (sorted ids): those in view and the rect they
-    project to; None when none is on screen."""
+                   share: np.ndarray | None = None) -> LayerPlan | None:
+    """The layer of a node holding chunks ``share`` (sorted ids; None: every chunk of the renderer's
+    scene, as a serving node holds only its share): those in view and the rect they project to;
+    None when none is on screen."""
     whole = visible_chunks(renderer, camera, size, Rect(0, 0, *size))
-    drawn = whole[np.isin(whole, share, assume_unique=True)]
+    drawn = whole if share is None else whole[np.isin(whole, share, assume_unique=True)]
     rect = covering_rect(chunk_bounds(renderer, drawn, camera, size), size)
     return None if rect is None else LayerPlan(rect, drawn)
 
@@ -110,7 +111,7 @@ def live_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], req
         frame = Rect(0, 0, *size)
         plan: LayerPlan | None = LayerPlan(frame, visible_chunks(renderer, camera, size, frame))
     else:
-        plan = sort_last_plan(renderer, camera, size, np.arange(renderer.scene.chunks.chunk_count))
+        plan = sort_last_plan(renderer, camera, size)
     if plan is None:
         return None
     blends = blended_chunks(renderer)[plan.chunk_ids]
