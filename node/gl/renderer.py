@@ -388,9 +388,9 @@ class TileRenderer:
             self._blend_func = None
             framebuffer.color_mask = (False, False, False, False)
             floor = np.full(under.shape, -1.0, np.float32)
+            bounds[1].write(under[::-1].tobytes())
             for _ in range(MAX_BLEND_LAYERS):
                 bounds[0].write(floor[::-1].tobytes())
-                bounds[1].write(under[::-1].tobytes())
                 framebuffer.clear(depth=1.0, viewport=gl_box)
                 self._draw(framebuffer, culled, pose, matrix, moved, blended_moved=True)
                 floor = self._read_depth(framebuffer, gl_box, rect)
