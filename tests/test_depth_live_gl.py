@@ -105,6 +105,25 @@ def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_rend
     renderer.release()
 
 
+def merge_shares(renderers, camera, size, state, background) -> tuple[np.ndarray, int]:
+    """Sort-last as served: each share's renderer plans and draws its layer and blended fragments
+    (:func:`render_plan`), they go through the wire and are merged; with the most blend layers
+    any share peeled."""
+    tiles, peeled = [], 0
+    for index, renderer in enumerate(renderers):
+        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, state)
+        assert plan is not None
+        layer, fragments = render_plan(renderer, camera, size, plan, state)
+        blend = None
+        if fragments is not None and fragments.depth.shape[0]:
+            peeled = max(peeled, fragments.depth.shape[0])
+            blend = BlendLayer(layer.rect, fragments.color, fragments.alpha, fragments.depth, 0)
+        payload = encode_depth_tile(DepthLayer(layer.rect, layer.pixels, layer.depth, 0), None, Codec.PNG, 90, 1,
+                                    blend)[0]
+        tiles.append(read_depth_tile(payload, Rect(0, 0, *size), None, index))
+    return merge_depth_tiles(tiles, size, background), peeled
+
+
 def test_blended_fragments_peeled_and_laid_over_the_merge_equal_blending_in_place(ctx):
     """The diorama's scene-wide glass mesh in three shares: each node peels its blended fragments in
     front of its own layer and accumulates them in draw order, and the compositor lays over each
@@ -116,21 +135,8 @@ def test_blended_fragments_peeled_and_laid_over_the_merge_equal_blending_in_plac
     size = (320, 240)
     camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
     whole = whole_renderer.render_frame(camera, size).pixels
-    tiles, peeled = [], 0
-    for index, renderer in enumerate(renderers):
-        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, None)
-        assert plan is not None
-        layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
-        blend = None
-        if plan.blend_ids is not None:
-            fragments = renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth)
-            peeled = max(peeled, fragments.depth.shape[0])
-            blend = BlendLayer(layer.rect, fragments.color, fragments.alpha, fragments.depth, 0)
-        payload = encode_depth_tile(DepthLayer(layer.rect, layer.pixels, layer.depth, 0), None, Codec.PNG, 90, 1,
-                                    blend)[0]
-        tiles.append(read_depth_tile(payload, Rect(0, 0, *size), None, index))
+    merged, peeled = merge_shares(renderers, camera, size, None, background_pixel(whole_renderer.background))
     assert peeled >= 2, "front and back faces of the glass"
-    merged = merge_depth_tiles(tiles, size, background_pixel(whole_renderer.background))
     difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
     assert difference.max() <= 2 and (difference > 0).sum() > 0, "the glass is there, rounded once"
     for renderer in (*renderers, whole_renderer):
@@ -151,19 +157,8 @@ def test_a_moved_blended_object_in_sort_last_shares_is_blended_once(ctx):
     camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
     whole = whole_renderer.render_frame(camera, size, state).pixels
     assert not np.array_equal(whole, whole_renderer.render_frame(camera, size).pixels), "the state moves it"
-    tiles, peeled = [], 0
-    for index, renderer in enumerate(renderers):
-        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, state)
-        assert plan is not None
-        layer, fragments = render_plan(renderer, camera, size, plan, state)
-        peeled = max(peeled, 0 if fragments is None else fragments.depth.shape[0])
-        blend = None if fragments is None else BlendLayer(layer.rect, fragments.color, fragments.alpha,
-                                                          fragments.depth, 0)
-        payload = encode_depth_tile(DepthLayer(layer.rect, layer.pixels, layer.depth, 0), None, Codec.PNG, 90, 1,
-                                    blend)[0]
-        tiles.append(read_depth_tile(payload, Rect(0, 0, *size), None, index))
+    merged, peeled = merge_shares(renderers, camera, size, state, background_pixel(whole_renderer.background))
     assert peeled >= 2, "the glass's share peels its front and back faces"
-    merged = merge_depth_tiles(tiles, size, background_pixel(whole_renderer.background))
     difference = np.abs(merged.astype(np.int16) - whole).max(axis=2)
     assert difference.max() <= 2, f"{int((difference > 2).sum())} pixels off by more than 2, up to {difference.max()}"
     for renderer in (*renderers, whole_renderer):
