@@ -45,10 +45,22 @@ def test_adaptive_balancers_beat_static_with_a_slow_node(coordinator_factory, tm
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
         assert sorted(n["slowdown"] for n in stats(client)["nodes"]) == [1.0, 1.0, 3.0]
-        nodes = wait_until(lambda: all(n["calibration_ms"] for n in stats(client)["nodes"])
-                           and stats(client)["nodes"], seconds(60), "every node calibrated (seed 003 §1)")
-        slow = next(n for n in nodes if n["slowdown"] == 3.0)
-        assert slow["speed"] == 1.0 and all(n["speed"] > 1.5 for n in nodes if n is not slow), nodes
+
+        def calibrated_to_the_slowdowns() -> list[dict] | None:
+            """The nodes once every one is calibrated (seed 003 §1) with the slow one at speed 1 and
+            the others above 1.5; a calibration that other processes on the cores disturbed is
+            measured again (one render of each node, best of a few)."""
+            nodes = stats(client)["nodes"]
+            if not all(n["calibration_ms"] for n in nodes):
+                return None
+            slow = next(n for n in nodes if n["slowdown"] == 3.0)
+            if slow["speed"] == 1.0 and all(n["speed"] > 1.5 for n in nodes if n is not slow):
+                return nodes
+            client.post("/api/nodes/calibrate").raise_for_status()
+            return None
+
+        wait_until(calibrated_to_the_slowdowns, seconds(120), "speeds from calibration to follow the slowdowns 1, 1, 3",
+                   interval=2.0)
         camera = client.get("/api/camera").json()["camera"]
         reference = render_once(SCENE, camera, SIZE, tmp_path)
         with camera_moving(coordinator.url, camera):
