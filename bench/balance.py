@@ -5,7 +5,7 @@ scheduler on a virtual clock, every tile rendered for real.
 [--speeds s1,s2,…] [--in-flight 2] [--pace free|path] [--repeats 3] [--frames F]
 [--time-per-frame S [--start-time T]] [--json OUT]``
 
-Frames are scheduled by the live coordinator's :class:`tessera.scheduler.FrameScheduler`, driven on
+Frames are scheduled by the live coordinator's :class:`tessera.scheduling.scheduler.FrameScheduler`, driven on
 a virtual clock by :func:`bench.virtual_cluster.run_path`: at most ``--in-flight`` frames in flight
 (2, as the live coordinator; ``--lag L`` is the old form of ``--in-flight L+1``); a frame starts
 when a node has nothing left to do and takes the newest camera; the balancer gets the timings of
@@ -31,7 +31,7 @@ further rounds for tiles whose two fastest busy times differ by more than 3 % (a
 ``--repeats``); a tile's times are memoized per (frame, rect), so balancers that choose the same
 tile see the same cost. ``--noise-check`` (on by default) re-times the equal split's tiles at the
 end and reports how much a frame's max/mean moved. Busy time = render + read-back + encode
-(``tessera.codec.encode``, JPEG q85 by default, as the nodes do); send time is not modelled (no
+(``tessera.wire.codec.encode``, JPEG q85 by default, as the nodes do); send time is not modelled (no
 network). Culling is per tile on the CPU by default (the hybrid CPU/GPU switch keeps per-slot
 history, which memoized tile times cannot honour). For figures, run it as its own process: in a
 process that already made a GL context the ``LP_NUM_THREADS`` it sets may not take effect.
@@ -39,7 +39,7 @@ process that already made a GL context the ``LP_NUM_THREADS`` it sets may not ta
 An animated scene (issue 11) plays along the path with ``--time-per-frame S``: camera i is drawn in
 the scene's state at ``--start-time`` + i·S seconds (its animations sampled there; memoized with
 the tile), and the primitive groups the balancers get are moved with their objects into that
-state (:func:`tessera.projection.posed_groups`), as the live coordinator does; moved objects are
+state (:func:`tessera.balancers.projection.posed_groups`), as the live coordinator does; moved objects are
 culled where they are (:mod:`node.culling.objects`). Without it every frame shows the base pose.
 
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
@@ -82,11 +82,11 @@ from node.culling.switch import CullMode
 from tessera.balancers import BALANCERS, create_balancer
 from tessera.balancers.base import BalanceInput, ProjectedGroups
 from tessera.balancers.hetero import calibration_region, calibration_weights
+from tessera.balancers.projection import posed_groups, project_groups
 from tessera.balancers.static import StaticBalancer
-from tessera.codec import Codec, encode
 from tessera.geometry import Camera, Rect
-from tessera.projection import posed_groups, project_groups
-from tessera.scene_state import SceneState
+from tessera.scene.state import SceneState
+from tessera.wire.codec import Codec, encode
 
 DEFAULT_SKIP = 10
 DEFAULT_IN_FLIGHT = 2
@@ -137,7 +137,7 @@ def frame_states(scene: Any, frames: int, time_per_frame: float | None,
 def frame_groups(scene: Any, camera: Camera, size: tuple[int, int], state: SceneState | None) -> ProjectedGroups:
     """``scene``'s primitive groups projected for ``camera`` in ``state`` (None: the base pose), each
     moved with its object, with the near/far of the state's bounds, as the coordinator projects
-    them (:meth:`tessera.scheduler.FrameScheduler.set_groups`)."""
+    them (:meth:`tessera.scheduling.scheduler.FrameScheduler.set_groups`)."""
     groups = scene.groups
     if state is None:
         return project_groups(groups.boxes, groups.counts, camera, size, scene.bounds)
@@ -351,7 +351,7 @@ def header_lines(args: argparse.Namespace, scene: Any, cameras: Sequence[Camera]
         "measured times × sᵢ (2 = twice as slow, as node --slowdown)",
         f"  weights   calibration region {calibration_region(args.size).as_list()} {calibration_ms:.2f} ms × sᵢ → "
         + ", ".join(f"{n}: {w:.3f}" for n, w in weights.items()),
-        f"  schedule  tessera.scheduler.FrameScheduler, {args.in_flight} frame(s) in flight"
+        f"  schedule  tessera.scheduling.scheduler.FrameScheduler, {args.in_flight} frame(s) in flight"
         + (" (as the live coordinator)" if args.in_flight == 2 else "")
         + f"; a frame starts when a node is free, with the newest camera, partitioned with the newest complete "
         f"frame's timings; every camera rendered once, {pace}",

@@ -14,8 +14,8 @@ triangles in view. Then every mode:
   chunks it owns and the shared ones touching it into tile + strip
   (:func:`node.gl.depth_layers.hybrid_plan`); colour and depth read back; the tile's core (what no
   other tile reaches) sent as colour alone and the strips with depth, active-pixel encoded
-  (:func:`tessera.depth_compositing.encode_active`); decoded and merged.
-- ``sort-last``: ``--nodes`` shares of the chunks (:func:`tessera.data_partition.split_chunks`,
+  (:func:`tessera.wire.active_pixels.encode_active`); decoded and merged.
+- ``sort-last``: ``--nodes`` shares of the chunks (:func:`tessera.decomposition.data_partition.split_chunks`,
   sized by the calibration weights of ``--speeds``, slowdowns as in ``bench.balance``), each drawn
   over the whole frame and read back over the rect it projects to; encoded, decoded, merged.
 
@@ -53,18 +53,13 @@ from bench.balance import parse_size, parse_speeds
 from bench.culling import psnr, read_path
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.balancers.hetero import calibration_weights
-from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
-from tessera.data_partition import split_chunks
-from tessera.depth_compositing import (
-    DepthLayer,
-    background_pixel,
-    composite,
-    decode_active,
-    encode_active,
-    split_layer,
-)
+from tessera.balancers.partition import equal_strip_partition
+from tessera.compositing.depth_merge import merge_by_depth
+from tessera.compositing.layers import DepthLayer, background_pixel, split_layer
+from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
+from tessera.decomposition.data_partition import split_chunks
 from tessera.geometry import Camera, Rect
-from tessera.partition import equal_strip_partition
+from tessera.wire.active_pixels import decode_active, encode_active
 
 MODES = ("sort-first", "hybrid", "sort-last")
 GOALS: dict[str, dict[str, tuple[str, float]]] = {
@@ -117,7 +112,7 @@ class Payload:
 
 def encode_layer(layer: Any, slot: int, core: Rect | None) -> Payload:
     """A rendered layer as it travels: its ``core`` (None: none) as raw colour, the pieces around it
-    active-pixel encoded with depth (:func:`tessera.depth_compositing.split_layer`)."""
+    active-pixel encoded with depth (:func:`tessera.compositing.layers.split_layer`)."""
     pieces, core_pixels = split_layer(DepthLayer(layer.rect, layer.pixels, layer.depth, slot), core)
     return Payload(slot, [(piece.rect, encode_active(piece.depth, piece.color)) for piece in pieces], core,
                    core_pixels)
@@ -132,7 +127,7 @@ def merge_payloads(payloads: Sequence[Payload], size: tuple[int, int], backgroun
             layers.append(DepthLayer(rect, color, depth, payload.slot))
         if payload.core is not None and payload.core_pixels is not None:
             cores.append((payload.core, payload.core_pixels))
-    return composite(layers, size, background, cores)
+    return merge_by_depth(layers, size, background, cores)
 
 
 class Tally:

@@ -49,8 +49,8 @@ from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import parse_size
+from tessera.balancers.partition import equal_strip_partition
 from tessera.geometry import Camera
-from tessera.partition import equal_strip_partition
 
 GOALS = {"redundancy": ("<=", 1.10), "psnr_min": (">=", 50.0), "cull_speedup": (">=", 5.0)}
 IDENTICAL_PSNR = 100.0

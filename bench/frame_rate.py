@@ -26,7 +26,7 @@ import httpx
 import websockets.sync.client as ws_client
 
 from bench.processes import orbit, start_coordinator
-from tessera.messages import CameraUpdate
+from tessera.wire.messages import CameraUpdate
 
 INPUT_HZ = 60.0
 TURN_S = 8.0

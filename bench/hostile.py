@@ -56,7 +56,7 @@ from bench.processes import orbit
 from bench.soak import Child, proc_figures
 from tessera.cli_values import size_parser
 from tessera.geometry import Rect
-from tessera.protocol import unpack_frame
+from tessera.wire.protocol import unpack_frame
 
 #: Shares of the messages: node before hello, node after hello, viewer, REST.
 SHARES = {"node_first": 0.15, "node_after": 0.30, "viewer": 0.35, "rest": 0.20}

@@ -3,7 +3,7 @@
 so a seed replays a run exactly.
 
 Every case is bad for sure. Where a generated message might by chance be valid, the message
-catalogue (:func:`tessera.messages.parse`) or the camera parser is asked, and a valid one is made
+catalogue (:func:`tessera.wire.messages.parse`) or the camera parser is asked, and a valid one is made
 again; the coordinator's answers are what the driver checks, never these oracles.
 
 * :meth:`HostileCases.node_first` — the first message on ``/ws/node``: anything but a valid hello
@@ -31,12 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from tessera.codec import Codec, encode
 from tessera.geometry import Rect
-from tessera.messages import FROM_NODE, FROM_VIEWER, NodeHello, parse
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile
+from tessera.wire.codec import Codec, encode
+from tessera.wire.messages import FROM_NODE, FROM_VIEWER, NodeHello, parse
+from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile
 
-#: Byte offsets in a packed tile header (tessera.protocol's "<4sBBHIIIIIIfffI").
+#: Byte offsets in a packed tile header (tessera.wire.protocol's "<4sBBHIIIIIIfffI").
 _MAGIC, _VERSION, _CODEC, _FRAME, _TILE, _RECT, _TIMES, _LENGTH = 0, 4, 5, 8, 12, 16, 32, 44
 #: Control messages over the coordinator's 1 MiB limit are this long.
 OVERSIZE_BYTES = (1 << 20) + 4096

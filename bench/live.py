@@ -48,9 +48,9 @@ from PIL import Image
 
 from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator, write_result
 from tessera.cli_values import size_parser
-from tessera.codec import decode
-from tessera.messages import CameraUpdate
-from tessera.protocol import unpack_frame
+from tessera.wire.codec import decode
+from tessera.wire.messages import CameraUpdate
+from tessera.wire.protocol import unpack_frame
 
 IDLE_AFTER_S = 2.0
 

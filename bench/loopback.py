@@ -32,7 +32,7 @@ from PIL import Image
 from websockets.asyncio.client import ClientConnection, connect
 
 from bench.processes import LoggedProcess, cpu_seconds, orbit, start_coordinator
-from tessera.messages import CameraUpdate
+from tessera.wire.messages import CameraUpdate
 
 #: the viewer's longest pause between two cameras (s)
 INPUT_PERIOD_S = 0.005

@@ -10,9 +10,9 @@ cameras made for that scene's bounds). One ``--path`` serves every scene; severa
 scenes in order.
 
 Each camera is rendered as one full frame with :class:`node.gl.renderer.TileRenderer` (one GL context
-for the run), then encoded with :func:`tessera.codec.encode` at each JPEG quality (4:2:0 chroma
+for the run), then encoded with :func:`tessera.wire.codec.encode` at each JPEG quality (4:2:0 chroma
 below q90, 4:4:4 from q90, as the codec does), as PNG and as RAW, and decoded again with
-:func:`tessera.codec.decode`. Figures per scene and codec setting, against the rendered pixels:
+:func:`tessera.wire.codec.decode`. Figures per scene and codec setting, against the rendered pixels:
 
 - ``kb_mean``: mean encoded size per frame, KB (1000 bytes); ``mbit_s_30fps``: that at 30 frames/s.
 - ``psnr_mean_db``, ``psnr_min_db``: mean and worst per-frame PSNR over the RGB channels, dB;
@@ -50,8 +50,8 @@ from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.settings import parse_size
-from tessera.codec import Codec, decode, encode
 from tessera.geometry import Camera
+from tessera.wire.codec import Codec, decode, encode
 
 DEFAULT_QUALITIES = (30, 40, 50, 60, 70, 80, 85, 90, 95)
 DEFAULT_FRAMES = 12

@@ -34,7 +34,7 @@ configuration (2 frames in flight, no frame-rate cap, no still frame, no settle 
 the motion is the map's roll). Figures over the frames after the first 10
 (:func:`bench.virtual_cluster.summarize`): virtual frames/s = 1000 / ``frame_ms_pipelined``,
 ``imbalance_mean``, ``efficiency_pipelined``, tiles per frame. Scheduler CPU: the thread CPU time
-spent inside the :class:`tessera.scheduler.FrameScheduler`'s entry points (:data:`ENTRY_POINTS`;
+spent inside the :class:`tessera.scheduling.scheduler.FrameScheduler`'s entry points (:data:`ENTRY_POINTS`;
 nested calls counted once; balancer and frame bookkeeping included, the simulation's event heap,
 cost model and records not), minus the same wrapper's counted time around a no-op × calls, per
 published frame over the whole run; its ceiling = 1000 / that frames/s.
@@ -68,9 +68,9 @@ from bench.virtual_cluster import Phases, VirtualCluster, summarize
 from server.settings import Settings
 from tessera.balancers import create_balancer
 from tessera.cli_values import size_parser
-from tessera.codec import Codec, encode
 from tessera.geometry import Camera, Rect, default_camera
-from tessera.scheduler import SchedulerConfig
+from tessera.scheduling.scheduler import SchedulerConfig
+from tessera.wire.codec import Codec, encode
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENE = str(REPO.parent / "shared" / "scenes" / "large_scan" / "stanford_lucy_240k.ply")

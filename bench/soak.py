@@ -50,7 +50,7 @@ import websockets.sync.client as ws_client
 from bench.processes import CLOCK_TICKS, REPO, orbit, write_result
 from server.local_nodes import llvmpipe_threads_per_node
 from tessera.cli_values import size_parser
-from tessera.protocol import unpack_frame
+from tessera.wire.protocol import unpack_frame
 
 GROWTH_GOAL_PCT = 10.0
 GAP_GOAL_S = 1.0

@@ -1,12 +1,12 @@
 """Synthetic render nodes, many in one process: they speak the real node protocol
-(:mod:`tessera.messages`, :mod:`tessera.protocol`) over ``/ws/node`` but draw nothing, so a
+(:mod:`tessera.wire.messages`, :mod:`tessera.wire.protocol`) over ``/ws/node`` but draw nothing, so a
 coordinator can be loaded with more nodes than the machine could render for.
 
 ``python -m bench.synthetic_nodes --url ws://HOST:PORT/ws/node --nodes K [--max-seconds 600]``
 
 Each node says hello (calibration capable), answers ``load_scene`` with a ``scene_ready`` for the
 box [-1, 1]³ (no primitive groups), ``calibrate`` with :data:`CALIBRATION_MS`, and every
-``render`` at once, in order: per tile the binary tile (:func:`tessera.protocol.pack_tile`, phase
+``render`` at once, in order: per tile the binary tile (:func:`tessera.wire.protocol.pack_tile`, phase
 times :data:`TILE_PHASES_MS`) carrying a pre-encoded image of exactly the tile's size in the
 requested codec (:func:`tile_payload`: cut from one fixed noisy gradient, encoded once per
 (codec, quality, frame size, w, h) and cached), then its ``tile_sent``. A ``cancel`` drops the
@@ -34,8 +34,8 @@ import numpy as np
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
-from tessera.codec import Codec, encode
-from tessera.messages import (
+from tessera.wire.codec import Codec, encode
+from tessera.wire.messages import (
     TO_NODE,
     Calibrate,
     Calibration,
@@ -49,7 +49,7 @@ from tessera.messages import (
     TileSent,
     parse,
 )
-from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
+from tessera.wire.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 
 log = logging.getLogger("tessera.synthetic")
 

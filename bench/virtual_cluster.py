@@ -1,5 +1,5 @@
 """Render nodes on a virtual clock around the coordinator's own scheduler
-(:class:`tessera.scheduler.FrameScheduler`): the benchmarks and the balancer tests run the same
+(:class:`tessera.scheduling.scheduler.FrameScheduler`): the benchmarks and the balancer tests run the same
 frame scheduling the live service runs, with tile costs from a model instead of GL.
 
 Each virtual node works through the tiles sent to it in order; a tile of speed-1 cost c takes
@@ -26,11 +26,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tessera.balancers.base import Partition, ProjectedGroups, imbalance
-from tessera.codec import Codec
-from tessera.frame_jobs import FrameJob
 from tessera.geometry import Camera, Rect
-from tessera.protocol import TileHeader
-from tessera.scheduler import CancelFrames, FrameScheduler, PublishFrame, RenderTiles, SchedulerConfig, tile_set
+from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.scheduler import (
+    CancelFrames,
+    FrameScheduler,
+    PublishFrame,
+    RenderTiles,
+    SchedulerConfig,
+    tile_set,
+)
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import TileHeader
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,15 +6,15 @@ thread), encoding (an encoder thread) and sending (the event loop's sender task)
 drawn while tile i is compressed and sent. moderngl keeps the GIL inside GL calls, so on CPython the
 overlap is the kernel's transfer of queued bytes and the encoder's GIL-free stretches.
 
-Messages follow the catalogue in :mod:`tessera.messages`. Each ``render`` message brings the
-node's :class:`tessera.scene_state.StateReplica` to its frame's scene state (issue 11), applied in
+Messages follow the catalogue in :mod:`tessera.wire.messages`. Each ``render`` message brings the
+node's :class:`tessera.scene.state.StateReplica` to its frame's scene state (issue 11), applied in
 message order, also for a frame cancelled since; the tiles are drawn in exactly that state and
 their headers say which.
 
 Depth modes (issue 10): a ``render`` with a depth request has each tile drawn as a depth layer
 (:func:`node.gl.depth_layers.live_plan`: a hybrid tile's owned chunks into tile + strip, or the
 node's sort-last share into the rect it projects to) and sent as a depth tile
-(:mod:`tessera.depth_tiles`), its byte counts added to the tile's ``tile_sent`` counters. A
+(:mod:`tessera.wire.depth_tiles`), its byte counts added to the tile's ``tile_sent`` counters. A
 ``load_scene`` with a share keeps only that share (:mod:`node.scene.shares`); of several
 ``load_scene`` messages waiting, only the newest is loaded.
 """
@@ -45,11 +45,12 @@ from node.scene.loading import ProgressCallback, load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.shares import keep_share
 from node.settings import NodeSettings
-from tessera.codec import Codec, encode
-from tessera.depth_compositing import BlendLayer, DepthLayer
-from tessera.depth_tiles import encode_depth_tile
+from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import Camera, Rect
-from tessera.messages import (
+from tessera.scene.state import SceneState, SceneStateError, StateReplica
+from tessera.wire.codec import Codec, encode
+from tessera.wire.depth_tiles import encode_depth_tile
+from tessera.wire.messages import (
     TO_NODE,
     Calibrate,
     Calibration,
@@ -73,8 +74,7 @@ from tessera.messages import (
     Welcome,
     parse,
 )
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile, state_tag
-from tessera.scene_state import SceneState, SceneStateError, StateReplica
+from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError, TileHeader, pack_tile, state_tag
 
 log = logging.getLogger("tessera.node")
 

@@ -22,9 +22,9 @@ from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
 from node.settings import NodeSettings
-from tessera.codec import encode_png
 from tessera.geometry import Camera, CameraError, default_camera
-from tessera.scene_state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
+from tessera.scene.state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
+from tessera.wire.codec import encode_png
 
 
 def read_json(path: Path, what: str, error: type[Exception]) -> Any:

@@ -14,7 +14,7 @@ from node.culling.switch import CullMode
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
-from tessera.messages import MAX_SIDE
+from tessera.wire.messages import MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"

@@ -12,7 +12,7 @@ from collections import deque
 
 from tessera.balancers.hetero import calibration_region
 from tessera.geometry import Camera
-from tessera.messages import Calibrate
+from tessera.wire.messages import Calibrate
 
 CALIBRATION_REPEATS = 3
 CALIBRATION_TIMEOUT_S = 30.0

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tessera.codec import Codec, decode, encode_png
 from tessera.geometry import Camera, Rect
-from tessera.protocol import pack_frame, with_input_seq
+from tessera.wire.codec import Codec, decode, encode_png
+from tessera.wire.protocol import pack_frame, with_input_seq
 
 
 @dataclass
@@ -53,7 +53,7 @@ class PublishedFrame:
         return with_input_seq(self.viewer_message, self.inputs.get(viewer_id, 0))
 
 
-def composite(frame: PublishedFrame) -> np.ndarray:
+def paste_tiles(frame: PublishedFrame) -> np.ndarray:
     """Decode and paste every tile: (height, width, 3) uint8."""
     width, height = frame.size
     image = np.empty((height, width, 3), dtype=np.uint8)
@@ -62,10 +62,10 @@ def composite(frame: PublishedFrame) -> np.ndarray:
     return image
 
 
-def composite_png(frame: PublishedFrame) -> tuple[bytes, float, float]:
-    """PNG of the composite, with the thread CPU milliseconds spent compositing and encoding."""
+def encode_frame_png(frame: PublishedFrame) -> tuple[bytes, float, float]:
+    """PNG of the frame (:func:`paste_tiles`), with the thread CPU milliseconds spent compositing and encoding."""
     started = time.thread_time()
-    image = composite(frame)
+    image = paste_tiles(frame)
     composed = time.thread_time()
     png = encode_png(image)
     return png, (composed - started) * 1000.0, (time.thread_time() - composed) * 1000.0

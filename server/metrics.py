@@ -12,7 +12,7 @@ tests create many apps in one process). It holds
 * the process collector (CPU seconds, resident memory, open file descriptors, start time).
 
 The scheduler in ``tessera/`` stays free of I/O and of this library: :class:`ObservedFrameStats`
-is its :class:`~tessera.frame_stats.FrameStats` with an observer on ``record_publish``.
+is its :class:`~tessera.scheduling.frame_stats.FrameStats` with an observer on ``record_publish``.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.registry import Collector
 
-from tessera.frame_stats import FrameStats
-from tessera.protocol import NODE_PHASES, TileHeader
+from tessera.scheduling.frame_stats import FrameStats
+from tessera.wire.protocol import NODE_PHASES, TileHeader
 
 
 class Describes(Protocol):

@@ -1,8 +1,8 @@
-"""The coordinator's asyncio adapter around :class:`tessera.scheduler.FrameScheduler`: it turns
+"""The coordinator's asyncio adapter around :class:`tessera.scheduling.scheduler.FrameScheduler`: it turns
 socket messages and the clock into scheduler events and carries out the scheduler's actions
 (send render / cancel messages, publish frames to the store and the viewers, close nodes).
 
-Depth modes (issue 10): a depth tile is decoded when it arrives (:func:`tessera.depth_tiles.read_depth_tile`,
+Depth modes (issue 10): a depth tile is decoded when it arrives (:func:`tessera.wire.depth_tiles.read_depth_tile`,
 checked against what the coordinator expects of that tile), and a complete frame is merged by
 depth before it is published (:meth:`RenderService._depth_frame_tiles`), on the coordinator: at
 1080p with 4 nodes the merge costs 10–20 ms of one core, below a node's render time
@@ -33,17 +33,30 @@ from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.nodes import NodeLink
 from server.settings import Settings
 from server.viewers import ViewerHub
-from tessera.animation import Animation, AnimationError
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
 from tessera.balancers.hetero import calibration_weights
-from tessera.chunk_ownership import exclusive_rect, readback_rect
-from tessera.codec import Codec, encode
-from tessera.depth_compositing import background_pixel
-from tessera.depth_tiles import DecodedDepthTile, hybrid_frame_tiles, merge_depth_tiles, read_depth_tile
-from tessera.frame_jobs import FrameJob, check_payload_size
+from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_depth_tiles
+from tessera.compositing.layers import background_pixel
+from tessera.decomposition.chunk_ownership import exclusive_rect, readback_rect
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, default_camera
-from tessera.messages import (
+from tessera.scene.animation import Animation, AnimationError
+from tessera.scene.graph import ObjectGraph
+from tessera.scene.state import ObjectPatch, SceneStateError
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.frame_jobs import FrameJob, check_payload_size
+from tessera.scheduling.scheduler import (
+    CancelFrames,
+    CloseNode,
+    FrameScheduler,
+    LoadShare,
+    PublishFrame,
+    RenderTiles,
+    SchedulerConfig,
+)
+from tessera.wire.codec import Codec, encode
+from tessera.wire.depth_tiles import DecodedDepthTile, read_depth_tile
+from tessera.wire.messages import (
     Calibration,
     Cancel,
     LoadScene,
@@ -59,19 +72,7 @@ from tessera.messages import (
     ViewerScene,
     Welcome,
 )
-from tessera.protocol import NO_NODE_SLOT, ProtocolError, TileHeader, unpack_tile
-from tessera.scene_graph import ObjectGraph
-from tessera.scene_state import ObjectPatch, SceneStateError
-from tessera.scene_timeline import SceneTimeline
-from tessera.scheduler import (
-    CancelFrames,
-    CloseNode,
-    FrameScheduler,
-    LoadShare,
-    PublishFrame,
-    RenderTiles,
-    SchedulerConfig,
-)
+from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader, unpack_tile
 
 log = logging.getLogger("tessera.server")
 
@@ -223,7 +224,7 @@ class RenderService:
         self._start_calibration()
 
     def on_node_message(self, link: NodeLink, message: Message) -> None:
-        """A control message of :data:`tessera.messages.FROM_NODE` from ``link``."""
+        """A control message of :data:`tessera.wire.messages.FROM_NODE` from ``link``."""
         match message:
             case SceneProgress():
                 link.progress, link.scene_message = message.fraction, message.message[:200]

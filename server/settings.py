@@ -10,10 +10,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from server.origins import normalise_origins
-from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.cli_values import number_parser, parse_background, size_parser
-from tessera.codec import Codec
-from tessera.scheduler import MODES
+from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
+from tessera.scheduling.scheduler import MODES
+from tessera.wire.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
 #: The best measured balancer (README "Balancing": bench.balance on Lucy's orbit, fly-through and orbit
@@ -37,7 +37,7 @@ DEFAULT_MAX_NODE_MESSAGES_PER_S = 40000.0
 
 
 #: Bytes per pixel of the largest tile encoding, with room: raw RGB is 3, PNG of noise 3.003, JPEG of noise
-#: at quality 100 4.1, and a colour + depth layer in the active-pixel encoding (tessera/depth_compositing.py)
+#: at quality 100 4.1, and a colour + depth layer in the active-pixel encoding (tessera/wire/active_pixels.py)
 #: 7 when every pixel is active, 7.5 when every other one is.
 MAX_TILE_BYTES_PER_PIXEL = 12
 
@@ -50,7 +50,7 @@ POSITIVE = number_parser(0.0, above=True)
 def auto_node_message_bytes(size: tuple[int, int]) -> int:
     """Largest message a node may send by default: a tile is at most the whole frame, at most
     :data:`MAX_TILE_BYTES_PER_PIXEL` (four raw RGB frames), plus 1 MiB for the tile header and the
-    largest JSON (``tessera.messages.MAX_JSON_BYTES``): 12.1 MB at 1280x720, 806 MB at 8192x8192."""
+    largest JSON (``tessera.wire.messages.MAX_JSON_BYTES``): 12.1 MB at 1280x720, 806 MB at 8192x8192."""
     return MAX_TILE_BYTES_PER_PIXEL * size[0] * size[1] + (1 << 20)
 
 
@@ -146,7 +146,7 @@ class Settings:
     max_node_message_bytes: int | None = None
     max_viewer_messages_per_s: float = DEFAULT_MAX_VIEWER_MESSAGES_PER_S
     max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
-    #: Decomposition mode, one of :data:`tessera.scheduler.MODES`; ``depth_strip``: the hybrid's strip (px).
+    #: Decomposition mode, one of :data:`tessera.scheduling.scheduler.MODES`; ``depth_strip``: the hybrid's strip (px).
     mode: str = "sort-first"
     depth_strip: int = DEFAULT_DEPTH_STRIP
 

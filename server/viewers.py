@@ -13,7 +13,7 @@ import itertools
 from collections import deque
 from typing import Any, Protocol
 
-from tessera.messages import CameraUpdate, Message
+from tessera.wire.messages import CameraUpdate, Message
 
 #: Control messages a viewer may have waiting before it counts as not reading its socket.
 MAX_QUEUED_CONTROL = 256

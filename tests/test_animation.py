@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tessera.animation import AnimationError, parse_animations, sample_animations
-from tessera.gltf import GltfDocument, GltfError, read_document, read_glb
-from tessera.scene_state import ObjectPatch
+from tessera.scene.animation import AnimationError, parse_animations, sample_animations
+from tessera.scene.gltf import GltfDocument, GltfError, read_document, read_glb
+from tessera.scene.state import ObjectPatch
 from tests.conftest import scene_path
 
 S45 = math.sqrt(0.5)

@@ -20,9 +20,9 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from server.app import create_app
 from server.settings import Settings
-from tessera.codec import Codec, encode
 from tessera.geometry import Rect
-from tessera.protocol import NODE_PHASES, PROTOCOL_VERSION, TileHeader, pack_tile
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import NODE_PHASES, PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.conftest import seconds
 from tests.integration_support import wait_until
 

@@ -17,10 +17,10 @@ from PIL import Image
 
 from server.app import create_app
 from server.settings import Settings
-from tessera.codec import Codec, encode
 from tessera.geometry import Rect
-from tessera.protocol import TileHeader, pack_tile, state_tag
-from tessera.scene_state import SceneState, StateReplica, state_from_json
+from tessera.scene.state import SceneState, StateReplica, state_from_json
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import TileHeader, pack_tile, state_tag
 from tests.conftest import seconds
 from tests.integration_support import wait_until
 from tests.test_api import HELLO, WAIT_S, next_json

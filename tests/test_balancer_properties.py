@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from tessera.balancers import BALANCERS, create_balancer
 from tessera.balancers.base import BalanceInput, Partition, TileTiming
+from tessera.balancers.partition import check_exact_cover
 from tessera.balancers.static import minimum_for
-from tessera.partition import check_exact_cover
 
 
 @st.composite

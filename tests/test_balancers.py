@@ -23,12 +23,12 @@ from bench.virtual_cluster import rect_sums, summed_area
 from tessera.balancers import create_balancer
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, Tile, TileTiming
+from tessera.balancers.partition import check_exact_cover
 from tessera.balancers.rotate import RotateBalancer
 from tessera.balancers.static import StaticBalancer
 from tessera.balancers.support.load import LoadField
 from tessera.balancers.support.strips import damping_fraction
 from tessera.geometry import Rect
-from tessera.partition import check_exact_cover
 from tests.balance_support import run_paced
 
 

@@ -37,9 +37,9 @@ from bench.virtual_cluster import (
 from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile
 from tessera.balancers.static import StaticBalancer
-from tessera.codec import Codec
 from tessera.geometry import Rect, default_camera
-from tessera.scheduler import SchedulerConfig
+from tessera.scheduling.scheduler import SchedulerConfig
+from tessera.wire.codec import Codec
 from tests.balance_support import cameras
 
 SIZE = (100, 10)

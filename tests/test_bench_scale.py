@@ -13,8 +13,8 @@ import pytest
 
 from bench.scale import CostModel, EntryPointCpu, grid_rects, main, measure_cost_model, synthetic_cost_model
 from bench.synthetic_nodes import tile_payload
-from tessera.codec import Codec, decode
 from tessera.geometry import Rect
+from tessera.wire.codec import Codec, decode
 from tests.conftest import scene_path
 
 

@@ -10,9 +10,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.chunk_ownership import OFF_SCREEN, SHARED, assign_chunks, core_rect, exclusive_rect, readback_rect
+from tessera.balancers.partition import equal_strip_partition
+from tessera.decomposition.chunk_ownership import (
+    OFF_SCREEN,
+    SHARED,
+    assign_chunks,
+    core_rect,
+    exclusive_rect,
+    readback_rect,
+)
 from tessera.geometry import Rect
-from tessera.partition import equal_strip_partition
 
 SIZE = (200, 100)
 #: two tiles side by side, cut at x = 120

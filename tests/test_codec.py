@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from tessera.codec import Codec, CodecError, decode, encode, encode_png
+from tessera.wire.codec import Codec, CodecError, decode, encode, encode_png
 
 images = st.tuples(st.integers(1, 40), st.integers(1, 40)).flatmap(
     lambda hw: arrays(np.uint8, (hw[0], hw[1], 3)))

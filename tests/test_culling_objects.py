@@ -8,7 +8,7 @@ import numpy as np
 from node.culling.bvh import build_chunk_bvh, cull
 from node.culling.objects import MovedCuller
 from node.scene.chunks import SceneChunks
-from tessera.scene_graph import transform_boxes
+from tessera.scene.graph import transform_boxes
 
 
 def _chunks() -> SceneChunks:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.data_partition import covering_rect, split_chunks
+from tessera.decomposition.data_partition import covering_rect, split_chunks
 from tessera.geometry import Rect
 
 

@@ -17,11 +17,11 @@ from PIL import Image
 
 from server.app import create_app
 from server.settings import Settings
-from tessera.codec import Codec, encode
-from tessera.depth_compositing import DepthLayer, background_pixel
-from tessera.depth_tiles import encode_depth_tile
+from tessera.compositing.layers import DepthLayer, background_pixel
 from tessera.geometry import DEFAULT_BACKGROUND, Rect
-from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
+from tessera.wire.codec import Codec, encode
+from tessera.wire.depth_tiles import encode_depth_tile
+from tessera.wire.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.integration_support import wait_until
 from tests.test_api import BOUNDS, WAIT_S, closed_with, next_json
 

@@ -11,18 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.depth_compositing import (
-    FAR,
-    DepthCodecError,
-    DepthLayer,
-    background_pixel,
-    composite,
-    decode_active,
-    depth_from_integer,
-    encode_active,
-    split_layer,
-)
+from tessera.compositing.depth_merge import merge_by_depth
+from tessera.compositing.layers import FAR, DepthLayer, background_pixel, depth_from_integer, split_layer
 from tessera.geometry import Rect
+from tessera.wire.active_pixels import DepthCodecError, decode_active, encode_active
 
 BACKGROUND = np.array([28, 31, 38], np.uint8)
 
@@ -63,7 +55,7 @@ def reference_composite(layers: list[DepthLayer], size: tuple[int, int], backgro
 def test_nearer_layer_wins_wherever_it_drew():
     near = layer(Rect(0, 0, 4, 2), 0.25, (255, 0, 0), slot=1)
     far = layer(Rect(2, 0, 4, 2), 0.75, (0, 255, 0), slot=0)
-    frame = composite([far, near], (6, 2), BACKGROUND)
+    frame = merge_by_depth([far, near], (6, 2), BACKGROUND)
     assert (frame[:, :4] == (255, 0, 0)).all()
     assert (frame[:, 4:] == (0, 255, 0)).all()
 
@@ -71,7 +63,7 @@ def test_nearer_layer_wins_wherever_it_drew():
 def test_ties_go_to_the_lower_slot_in_any_arrival_order():
     layers = [layer(Rect(0, 0, 3, 3), 0.5, (slot * 40, 0, 0), slot) for slot in (3, 1, 2)]
     for order in itertools.permutations(layers):
-        frame = composite(order, (3, 3), BACKGROUND)
+        frame = merge_by_depth(order, (3, 3), BACKGROUND)
         assert (frame == (40, 0, 0)).all()
 
 
@@ -81,24 +73,24 @@ def test_background_is_painted_once_where_no_layer_drew():
     dot_depth = np.full((4, 4), FAR, np.float32)
     dot_depth[1, 2] = 0.3
     dot = DepthLayer(Rect(0, 0, 4, 4), np.full((4, 4, 3), 9, np.uint8), dot_depth, 1)
-    frame = composite([stray, dot], (4, 4), BACKGROUND)
+    frame = merge_by_depth([stray, dot], (4, 4), BACKGROUND)
     expected = np.broadcast_to(BACKGROUND, (4, 4, 3)).copy()
     expected[1, 2] = 9
     np.testing.assert_array_equal(frame, expected)
 
 
 def test_no_layers_and_empty_strips_give_the_background():
-    assert (composite([], (5, 3), BACKGROUND) == BACKGROUND).all()
+    assert (merge_by_depth([], (5, 3), BACKGROUND) == BACKGROUND).all()
     empty = layer(Rect(1, 1, 3, 2), FAR, (1, 2, 3), slot=0)
     zero_sized = DepthLayer(Rect(2, 2, 0, 0), np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), 1)
-    assert (composite([empty, zero_sized], (5, 3), BACKGROUND) == BACKGROUND).all()
+    assert (merge_by_depth([empty, zero_sized], (5, 3), BACKGROUND) == BACKGROUND).all()
 
 
 def test_depth_zero_is_drawn_and_far_ties_are_not():
     # a fragment on the near plane (depth 0) counts; two far pixels are not a tie between drawn pixels
     high = layer(Rect(0, 0, 2, 1), np.array([[0.0, FAR]]), (7, 7, 7), slot=5)
     low = layer(Rect(0, 0, 2, 1), np.array([[0.5, FAR]]), (8, 8, 8), slot=0)
-    assert composite([high, low], (2, 1), BACKGROUND).tolist() == [[[7, 7, 7], BACKGROUND.tolist()]]
+    assert merge_by_depth([high, low], (2, 1), BACKGROUND).tolist() == [[[7, 7, 7], BACKGROUND.tolist()]]
 
 
 @settings(max_examples=40, deadline=None)
@@ -111,15 +103,16 @@ def test_merge_matches_a_per_pixel_reference(seed, count):
         x0, x1 = sorted(rng.integers(0, size[0] + 1, 2))
         y0, y1 = sorted(rng.integers(0, size[1] + 1, 2))
         layers.append(random_layer(rng, Rect(int(x0), int(y0), int(x1 - x0), int(y1 - y0)), int(slot)))
-    np.testing.assert_array_equal(composite(layers, size, BACKGROUND), reference_composite(layers, size, BACKGROUND))
+    np.testing.assert_array_equal(merge_by_depth(layers, size, BACKGROUND),
+                                  reference_composite(layers, size, BACKGROUND))
 
 
 def test_layer_outside_the_frame_or_slot_reused_is_refused():
     with pytest.raises(ValueError, match="outside"):
-        composite([layer(Rect(2, 2, 3, 1), 0.5, (0, 0, 0), slot=0)], (4, 4), BACKGROUND)
+        merge_by_depth([layer(Rect(2, 2, 3, 1), 0.5, (0, 0, 0), slot=0)], (4, 4), BACKGROUND)
     twins = [layer(Rect(0, 0, 2, 2), 0.5, (0, 0, 0), slot=0), layer(Rect(1, 1, 1, 1), 0.5, (0, 0, 0), slot=0)]
     with pytest.raises(ValueError, match="own slot"):
-        composite(twins, (4, 4), BACKGROUND)
+        merge_by_depth(twins, (4, 4), BACKGROUND)
     with pytest.raises(ValueError, match="slot"):
         layer(Rect(0, 0, 1, 1), 0.5, (0, 0, 0), slot=-1)
 
@@ -229,7 +222,7 @@ def test_layers_and_codec_take_arrays_that_are_not_contiguous():
     item = random_layer(rng, Rect(0, 0, 6, 5), 0)
     flipped = DepthLayer(item.rect, item.color[::-1], item.depth[::-1], 0)
     expected = reference_composite([flipped], (6, 5), BACKGROUND)
-    np.testing.assert_array_equal(composite([flipped], (6, 5), BACKGROUND), expected)
+    np.testing.assert_array_equal(merge_by_depth([flipped], (6, 5), BACKGROUND), expected)
     depth, color = decode_active(encode_active(flipped.depth, flipped.color))
     np.testing.assert_array_equal(depth, flipped.depth)
     live = depth < FAR
@@ -250,15 +243,15 @@ def test_a_split_layer_composes_as_the_whole_and_only_its_strips_carry_depth():
     np.testing.assert_array_equal(core_color, whole.color[1:4, 2:6])
     # the core is exclusive: nothing else reaches it here, so merging the pieces and pasting it is exact
     reference = reference_composite([whole], (12, 9), BACKGROUND)
-    np.testing.assert_array_equal(composite(strips, (12, 9), BACKGROUND, [(core, core_color)]), reference)
+    np.testing.assert_array_equal(merge_by_depth(strips, (12, 9), BACKGROUND, [(core, core_color)]), reference)
     assert split_layer(whole, None) == ([whole], None)
     with pytest.raises(ValueError, match="inside"):
         split_layer(whole, Rect(9, 3, 4, 1))
     # pieces of one slot may not overlap; other slots may
-    np.testing.assert_array_equal(composite([*strips, other], (12, 9), BACKGROUND),
-                                  composite([*strips, other][::-1], (12, 9), BACKGROUND))
+    np.testing.assert_array_equal(merge_by_depth([*strips, other], (12, 9), BACKGROUND),
+                                  merge_by_depth([*strips, other][::-1], (12, 9), BACKGROUND))
     with pytest.raises(ValueError, match="overlap"):
-        composite([*strips, DepthLayer(Rect(0, 0, 4, 3), other.color[:3, :4], other.depth[:3, :4], 4)], (12, 9),
+        merge_by_depth([*strips, DepthLayer(Rect(0, 0, 4, 3), other.color[:3, :4], other.depth[:3, :4], 4)], (12, 9),
                   BACKGROUND)
     with pytest.raises(ValueError, match="exclusive"):
-        composite([], (12, 9), BACKGROUND, [(Rect(10, 0, 4, 1), np.zeros((1, 4, 3), np.uint8))])
+        merge_by_depth([], (12, 9), BACKGROUND, [(Rect(10, 0, 4, 1), np.zeros((1, 4, 3), np.uint8))])

@@ -14,11 +14,12 @@ from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.mesh import MeshBatch
-from tessera.chunk_ownership import SHARED, assign_chunks
-from tessera.data_partition import split_chunks
-from tessera.depth_compositing import FAR, background_pixel, composite, split_layer
+from tessera.balancers.partition import equal_strip_partition
+from tessera.compositing.depth_merge import merge_by_depth
+from tessera.compositing.layers import FAR, background_pixel, split_layer
+from tessera.decomposition.chunk_ownership import SHARED, assign_chunks
+from tessera.decomposition.data_partition import split_chunks
 from tessera.geometry import Camera, Rect, default_camera
-from tessera.partition import equal_strip_partition
 from tests.conftest import scene_path
 
 pytestmark = pytest.mark.gl
@@ -85,7 +86,7 @@ def test_a_chunk_straddling_a_tile_edge_composes_identically_to_the_whole_render
     assert [layer.triangles for layer in layers] == [2 + 288, 2 + 288]
 
     whole = renderer.render_frame(CAMERA, SIZE).pixels
-    merged = composite([as_depth_layer(layer, slot) for slot, layer in enumerate(layers)], SIZE,
+    merged = merge_by_depth([as_depth_layer(layer, slot) for slot, layer in enumerate(layers)], SIZE,
                        background_pixel(renderer.background))
     np.testing.assert_array_equal(merged, whole)
     # neither tile's own part is right alone: each sphere is drawn by its owner only, past the edge
@@ -115,7 +116,7 @@ def test_hybrid_tiles_compose_the_whole_render(bunny, tiles, strip):
         rendered = [bunny.render_layer(camera, SIZE, plan.rect, plan.chunk_ids) for plan in plans]
         whole = bunny.render_frame(camera, SIZE).pixels
         layers = [as_depth_layer(layer, slot) for slot, layer in enumerate(rendered)]
-        np.testing.assert_array_equal(composite(layers, SIZE, background), whole)
+        np.testing.assert_array_equal(merge_by_depth(layers, SIZE, background), whole)
         # the seed's way: depth only in the strips, each tile's core as colour alone
         strips, cores = [], []
         for layer, plan in zip(layers, plans, strict=True):
@@ -123,7 +124,7 @@ def test_hybrid_tiles_compose_the_whole_render(bunny, tiles, strip):
             strips += pieces
             if plan.exclusive is not None and core_color is not None:
                 cores.append((plan.exclusive, core_color))
-        np.testing.assert_array_equal(composite(strips, SIZE, background, cores), whole)
+        np.testing.assert_array_equal(merge_by_depth(strips, SIZE, background, cores), whole)
 
 
 @pytest.mark.parametrize("weights", [[1.0, 1.0], [1.0, 2.0, 1.0], [1.0, 1.0, 1.0, 1.0]])
@@ -137,7 +138,7 @@ def test_sort_last_shares_compose_the_whole_render(bunny, weights):
                   for slot, plan in enumerate(plans) if plan is not None]
         whole = bunny.render_frame(camera, SIZE)
         assert sum(plan.chunk_ids.size for plan in plans if plan is not None) == whole.chunks_drawn
-        np.testing.assert_array_equal(composite(layers, SIZE, background), whole.pixels)
+        np.testing.assert_array_equal(merge_by_depth(layers, SIZE, background), whole.pixels)
 
 
 def test_a_layer_with_no_chunks_is_all_far(bunny):
@@ -145,5 +146,5 @@ def test_a_layer_with_no_chunks_is_all_far(bunny):
     layer = bunny.render_layer(camera, SIZE, Rect(10, 10, 40, 30), np.zeros(0, np.int64))
     assert layer.triangles == 0 and layer.chunks_drawn == 0 and layer.cull_path == "list"
     assert layer.depth is not None and (layer.depth == FAR).all()
-    assert (composite([as_depth_layer(layer, 0)], SIZE, background_pixel(bunny.background))
+    assert (merge_by_depth([as_depth_layer(layer, 0)], SIZE, background_pixel(bunny.background))
             == background_pixel(bunny.background)).all()

@@ -14,14 +14,15 @@ from node.gl.depth_layers import live_plan, render_plan
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from node.scene.shares import keep_share
-from tessera.chunk_ownership import exclusive_rect, readback_rect
-from tessera.codec import Codec, decode
-from tessera.data_partition import split_chunks
-from tessera.depth_compositing import BlendLayer, DepthLayer, background_pixel
-from tessera.depth_tiles import encode_depth_tile, hybrid_frame_tiles, merge_depth_tiles, read_depth_tile
+from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_depth_tiles
+from tessera.compositing.layers import BlendLayer, DepthLayer, background_pixel
+from tessera.decomposition.chunk_ownership import exclusive_rect, readback_rect
+from tessera.decomposition.data_partition import split_chunks
 from tessera.geometry import Rect, default_camera
-from tessera.messages import DepthRequest
-from tessera.scene_state import ObjectPatch
+from tessera.scene.state import ObjectPatch
+from tessera.wire.codec import Codec, decode
+from tessera.wire.depth_tiles import encode_depth_tile, read_depth_tile
+from tessera.wire.messages import DepthRequest
 from tests.conftest import scene_path
 
 pytestmark = pytest.mark.gl

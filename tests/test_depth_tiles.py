@@ -11,16 +11,12 @@ import zlib
 import numpy as np
 import pytest
 
-from tessera.codec import Codec, decode
-from tessera.depth_compositing import FAR, BlendLayer, DepthLayer, background_pixel, composite
-from tessera.depth_tiles import (
-    encode_depth_tile,
-    hybrid_frame_tiles,
-    merge_depth_tiles,
-    read_depth_tile,
-)
+from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_by_depth, merge_depth_tiles
+from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, background_pixel
 from tessera.geometry import Rect
-from tessera.protocol import ProtocolError
+from tessera.wire.codec import Codec, decode
+from tessera.wire.depth_tiles import encode_depth_tile, read_depth_tile
+from tessera.wire.protocol import ProtocolError
 
 SIZE = (64, 48)
 FRAME = Rect(0, 0, *SIZE)
@@ -98,8 +94,9 @@ def test_merged_hybrid_frames_equal_the_compositor_s_result():
     assert (covered == 1).all()
     pieces = [DepthLayer(piece.rect, piece.color, piece.depth, slot) for slot, tile in enumerate(decoded)
               for piece in tile.layers]
-    expected = composite(pieces, SIZE, BACKGROUND, [(core, layer.color[:, core.x - layer.rect.x:core.x1 - layer.rect.x])
-                                                     for core, layer in zip(cores, layers, strict=True)])
+    expected = merge_by_depth(pieces, SIZE, BACKGROUND,
+                              [(core, layer.color[:, core.x - layer.rect.x:core.x1 - layer.rect.x])
+                               for core, layer in zip(cores, layers, strict=True)])
     assert np.array_equal(frame, expected)
 
 

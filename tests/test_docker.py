@@ -36,7 +36,7 @@ from PIL import Image
 
 from bench.processes import orbit
 from server.routes.deps import TOKEN_COOKIE
-from tessera.protocol import unpack_frame
+from tessera.wire.protocol import unpack_frame
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context, unavailable
 from tests.conftest import PYTHON, REPO, SCENES, scene_path, seconds, start_process
 from tests.integration_support import (

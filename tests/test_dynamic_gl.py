@@ -19,7 +19,7 @@ from node.culling.switch import CullMode
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from tessera.geometry import Rect, default_camera
-from tessera.scene_state import ObjectPatch
+from tessera.scene.state import ObjectPatch
 from tests.conftest import PYTHON, REPO, scene_path, seconds
 
 pytestmark = pytest.mark.gl

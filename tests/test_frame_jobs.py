@@ -7,15 +7,15 @@ import asyncio
 import numpy as np
 import pytest
 
-from server.frame_store import FrameStore, PublishedFrame, composite
+from server.frame_store import FrameStore, PublishedFrame, paste_tiles
 from tessera.balancers.base import Partition, Tile
-from tessera.codec import Codec, encode
-from tessera.frame_jobs import FrameJob, check_payload_size
-from tessera.frame_stats import WINDOW_FRAMES, FrameStats
+from tessera.balancers.partition import equal_strip_partition
 from tessera.geometry import Camera, Rect
-from tessera.messages import TO_NODE, parse
-from tessera.partition import equal_strip_partition
-from tessera.protocol import ProtocolError, TileHeader, unpack_frame
+from tessera.scheduling.frame_jobs import FrameJob, check_payload_size
+from tessera.scheduling.frame_stats import WINDOW_FRAMES, FrameStats
+from tessera.wire.codec import Codec, encode
+from tessera.wire.messages import TO_NODE, parse
+from tessera.wire.protocol import ProtocolError, TileHeader, unpack_frame
 
 CAMERA = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0), fovy_deg=40.0)
 SIZE = (64, 32)
@@ -209,7 +209,7 @@ def test_composite_of_lossless_tiles_is_the_original_image(codecs):
     rects = equal_strip_partition(7, (61, 37))
     tiles = [(r, codecs[i % len(codecs)], i, encode(original[r.y:r.y1, r.x:r.x1], codecs[i % len(codecs)]))
              for i, r in enumerate(rects)]
-    np.testing.assert_array_equal(composite(published(1, tiles, (61, 37))), original)
+    np.testing.assert_array_equal(paste_tiles(published(1, tiles, (61, 37))), original)
 
 
 def test_viewer_message_parses_back():

@@ -14,7 +14,7 @@ from server.settings import (
     auto_node_message_bytes,
     load_settings,
 )
-from tessera.limits import TokenBucket
+from tessera.wire.token_bucket import TokenBucket
 
 # ------------------------------------------------------------------------------------- token bucket
 

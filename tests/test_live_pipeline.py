@@ -11,7 +11,7 @@ import httpx
 import pytest
 import websockets.sync.client as ws_client
 
-from tessera.protocol import unpack_frame
+from tessera.wire.protocol import unpack_frame
 from tests.conftest import seconds
 from tests.integration_support import (
     assert_matches_reference,

@@ -1,4 +1,4 @@
-"""The control message catalogue (tessera/messages.py): every message round-trips through its JSON
+"""The control message catalogue (tessera/wire/messages.py): every message round-trips through its JSON
 text, bad input is refused with the field named, and decoding is bounded (size, NaN, nesting)."""
 
 from __future__ import annotations
@@ -7,9 +7,10 @@ import json
 
 import pytest
 
-from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
-from tessera.messages import (
+from tessera.scene.state import ObjectState, SceneState, StateDelta
+from tessera.wire.codec import Codec
+from tessera.wire.messages import (
     FROM_NODE,
     FROM_VIEWER,
     MAX_JSON_BYTES,
@@ -42,8 +43,7 @@ from tessera.messages import (
     Welcome,
     parse,
 )
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError
-from tessera.scene_state import ObjectState, SceneState, StateDelta
+from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
 
 CAMERA = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0), fovy_deg=40.0)
 BOUNDS = ((-1.0, -2.0, -3.0), (1.0, 2.0, 3.0))

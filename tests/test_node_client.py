@@ -20,10 +20,10 @@ from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import NodeSettings, parse_settings
-from tessera.codec import Codec, decode
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
-from tessera.protocol import PROTOCOL_VERSION, unpack_tile
-from tessera.scene_state import ObjectPatch
+from tessera.scene.state import ObjectPatch
+from tessera.wire.codec import Codec, decode
+from tessera.wire.protocol import PROTOCOL_VERSION, unpack_tile
 from tests.conftest import seconds
 
 SIZE = (96, 64)

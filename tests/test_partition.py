@@ -20,8 +20,7 @@ from tessera.balancers.base import (
     busy_by_node,
     imbalance,
 )
-from tessera.geometry import Rect
-from tessera.partition import (
+from tessera.balancers.partition import (
     check_exact_cover,
     clamp_edges,
     equal_strip_partition,
@@ -29,6 +28,7 @@ from tessera.partition import (
     strip_counts,
     strips_to_rects,
 )
+from tessera.geometry import Rect
 
 SCREENS = [(1280, 720), (1920, 1080), (1024, 1024), (720, 1280), (3840, 1080), (800, 600), (16, 16)]
 screen_side = st.integers(16, 1500)

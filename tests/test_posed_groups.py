@@ -9,12 +9,12 @@ from typing import ClassVar
 import numpy as np
 
 from tessera.balancers.base import BalanceInput, Partition, ProjectedGroups
+from tessera.balancers.projection import posed_groups, project_groups
 from tessera.balancers.static import StaticBalancer
-from tessera.projection import posed_groups, project_groups
-from tessera.scene_graph import ObjectGraph, SceneObject
-from tessera.scene_state import ObjectPatch
-from tessera.scene_timeline import SceneTimeline
-from tessera.scheduler import FrameScheduler, SchedulerConfig
+from tessera.scene.graph import ObjectGraph, SceneObject
+from tessera.scene.state import ObjectPatch
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tests.test_scheduler import camera
 from tests.test_scheduler_scene import finish
 

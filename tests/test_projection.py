@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tessera.balancers.projection import project_boxes, project_groups
 from tessera.geometry import Camera, view_projection
-from tessera.projection import project_boxes, project_groups
 
 BOUNDS = np.array([[-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]])
 SIZE = (640, 480)

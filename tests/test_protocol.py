@@ -14,9 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tessera.balancers.base import TileTiming
-from tessera.codec import Codec
 from tessera.geometry import Rect
-from tessera.protocol import (
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import (
     DEPTH_TILE,
     FRAME_MAGIC,
     NODE_PHASES,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tessera.codec import Codec
 from tessera.geometry import Rect
-from tessera.protocol import pack_frame, unpack_frame
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import pack_frame, unpack_frame
 
 # The same hex string is parsed by web/protocol.js in tests/js/protocol.test.mjs.
 GOLDEN = (

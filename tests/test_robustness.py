@@ -12,9 +12,9 @@ import pytest
 import websockets.sync.client as ws_client
 from websockets.exceptions import ConnectionClosed
 
-from tessera.codec import Codec, encode
 from tessera.geometry import Rect
-from tessera.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.conftest import seconds
 from tests.integration_support import fetch_frame, ready_nodes, wait_until
 

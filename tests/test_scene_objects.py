@@ -10,8 +10,8 @@ import trimesh
 from node.scene.builtin import TRAFFIC_HALF, TRAFFIC_LOOP_S
 from node.scene.loading import load_scene
 from node.scene.objects import geometry_owners, gltf_objects, read_gltf
-from tessera.scene_graph import ObjectGraph
-from tessera.scene_state import ObjectPatch, UnknownObjectError
+from tessera.scene.graph import ObjectGraph
+from tessera.scene.state import ObjectPatch, UnknownObjectError
 from tests.conftest import scene_path
 
 TRUCK = "gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf"

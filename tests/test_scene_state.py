@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tessera.scene_graph import ObjectGraph, SceneObject, transform_boxes
-from tessera.scene_state import (
+from tessera.scene.graph import ObjectGraph, SceneObject, transform_boxes
+from tessera.scene.state import (
     ObjectPatch,
     ObjectState,
     SceneState,

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from node.scene.loading import load_scene
-from tessera.animation import Animation, AnimationError, Channel, Sampler
-from tessera.scene_graph import ObjectGraph, SceneObject
-from tessera.scene_state import ObjectPatch, SceneStateError, UnknownObjectError
-from tessera.scene_timeline import SceneTimeline, merged
+from tessera.scene.animation import Animation, AnimationError, Channel, Sampler
+from tessera.scene.graph import ObjectGraph, SceneObject
+from tessera.scene.state import ObjectPatch, SceneStateError, UnknownObjectError
+from tessera.scene.timeline import SceneTimeline, merged
 from tests.conftest import scene_path
 
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

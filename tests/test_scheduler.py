@@ -10,10 +10,8 @@ from hypothesis import strategies as st
 from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
 from tessera.balancers.static import StaticBalancer
-from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
-from tessera.protocol import ProtocolError, TileHeader
-from tessera.scheduler import (
+from tessera.scheduling.scheduler import (
     CancelFrames,
     CloseNode,
     FrameScheduler,
@@ -21,6 +19,8 @@ from tessera.scheduler import (
     RenderTiles,
     SchedulerConfig,
 )
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import ProtocolError, TileHeader
 
 SIZE = (64, 32)
 

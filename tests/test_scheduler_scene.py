@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tessera.animation import Animation, Channel, Sampler
 from tessera.balancers.static import StaticBalancer
-from tessera.codec import Codec
-from tessera.protocol import ProtocolError, TileHeader
-from tessera.scene_graph import ObjectGraph, SceneObject
-from tessera.scene_state import HISTORY, ObjectPatch, SceneState, SceneStateError, StateDelta, UnknownObjectError
-from tessera.scene_timeline import SceneTimeline
-from tessera.scheduler import FrameScheduler, PublishFrame, RenderTiles, SchedulerConfig
+from tessera.scene.animation import Animation, Channel, Sampler
+from tessera.scene.graph import ObjectGraph, SceneObject
+from tessera.scene.state import HISTORY, ObjectPatch, SceneState, SceneStateError, StateDelta, UnknownObjectError
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.scheduler import FrameScheduler, PublishFrame, RenderTiles, SchedulerConfig
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import ProtocolError, TileHeader
 from tests.test_scheduler import camera
 
 SIZE = (64, 32)

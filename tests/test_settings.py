@@ -6,7 +6,7 @@ import pytest
 
 from server.settings import DEFAULT_SCENE, Settings, load_settings
 from tessera.balancers import BALANCERS
-from tessera.codec import Codec
+from tessera.wire.codec import Codec
 
 
 def test_defaults():

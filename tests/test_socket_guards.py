@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 
 from server.app import create_app
-from tessera.codec import Codec
+from tessera.wire.codec import Codec
 from tests.conftest import seconds
 from tests.test_api import HELLO, SETTINGS, FakeNode, closed_with, next_json
 

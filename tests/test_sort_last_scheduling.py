@@ -1,5 +1,5 @@
 """Sort-last on the coordinator without sockets or GL (issue 10): data partitions and their versions
-(:mod:`tessera.share_plan`), and the scheduler in ``sort-last`` mode on a virtual clock: every node
+(:mod:`tessera.decomposition.share_plan`), and the scheduler in ``sort-last`` mode on a virtual clock: every node
 joining or leaving makes a new partition and tells each node its share, frames wait until every
 share of it is loaded, a frame is one whole-frame depth tile per share from its holder, frames in
 flight when the partition changes are dropped, and nothing moves to a node lacking the share."""
@@ -7,12 +7,19 @@ flight when the partition changes are dropped, and nothing moves to a node lacki
 from __future__ import annotations
 
 from tessera.balancers.static import StaticBalancer
-from tessera.codec import Codec
-from tessera.depth_tiles import DecodedDepthTile
+from tessera.decomposition.share_plan import ShareBook
 from tessera.geometry import Camera, Rect
-from tessera.protocol import TileHeader
-from tessera.scheduler import CancelFrames, FrameScheduler, LoadShare, PublishFrame, RenderTiles, SchedulerConfig
-from tessera.share_plan import ShareBook
+from tessera.scheduling.scheduler import (
+    CancelFrames,
+    FrameScheduler,
+    LoadShare,
+    PublishFrame,
+    RenderTiles,
+    SchedulerConfig,
+)
+from tessera.wire.codec import Codec
+from tessera.wire.depth_tiles import DecodedDepthTile
+from tessera.wire.protocol import TileHeader
 
 SIZE = (64, 32)
 FRAME = Rect(0, 0, *SIZE)

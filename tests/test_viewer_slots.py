@@ -7,7 +7,7 @@ import json
 
 from server.viewers import MAX_QUEUED_CONTROL, ViewerHub, ViewerSlot
 from tessera.geometry import Camera
-from tessera.messages import CameraUpdate, ViewerError
+from tessera.wire.messages import CameraUpdate, ViewerError
 
 
 class Frame:

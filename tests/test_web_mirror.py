@@ -1,6 +1,6 @@
 """The viewer's JavaScript mirrors of the shared vocabulary, read as text and compared with the
-Python values they mirror: ``web/protocol.js`` against ``tessera.protocol`` and ``tessera.codec``,
-``PHASES`` in ``web/panel.js`` against ``tessera.protocol.NODE_PHASES``. (The JS tests in tests/js/
+Python values they mirror: ``web/protocol.js`` against ``tessera.wire.protocol`` and ``tessera.wire.codec``,
+``PHASES`` in ``web/panel.js`` against ``tessera.wire.protocol.NODE_PHASES``. (The JS tests in tests/js/
 check the viewer's behaviour with those values; this is where the two sides are tied.)"""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import json
 import re
 from pathlib import Path
 
-from tessera.codec import Codec
 from tessera.geometry import Rect
-from tessera.protocol import FRAME_MAGIC, FRAME_STILL, NO_NODE_SLOT, NODE_PHASES, PROTOCOL_VERSION, pack_frame
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import FRAME_MAGIC, FRAME_STILL, NO_NODE_SLOT, NODE_PHASES, PROTOCOL_VERSION, pack_frame
 
 WEB = Path(__file__).resolve().parents[1] / "web"
 

@@ -1,4 +1,4 @@
-// Viewer frame format TFRM, mirroring tessera/protocol.py (same constant names and layouts).
+// Viewer frame format TFRM, mirroring tessera/wire/protocol.py (same constant names and layouts).
 // Header `<4sBBHIIII`: magic, version, flags (bit 0 = FRAME_STILL), tile_count, frame_id, width,
 // height, input_seq (the newest input sequence number of this viewer the frame accounts for, 0 = none).
 // Tile entry `<IIIIBBHI`: x, y, w, h, codec, reserved, node (the rendering node's slot, NO_NODE_SLOT
@@ -15,7 +15,7 @@ export const FRAME_STILL = 0x01;
  * coordinator, or a node that has left since). */
 export const NO_NODE_SLOT = 0xffff;
 
-/** Tile codecs, as tessera.codec.Codec. */
+/** Tile codecs, as tessera.wire.codec.Codec. */
 export const Codec = Object.freeze({ RAW: 0, JPEG: 1, PNG: 2 });
 const CODECS = new Set(Object.values(Codec));
 

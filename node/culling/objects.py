@@ -8,7 +8,7 @@ point x at y = M x (M its object's model matrix), so p·[M x, 1] = (Mᵀ p)·[x,
 normals), with no re-fitting per frame. Two levels:
 
 - top level: each moved batch's box (the union of its chunk boxes) moved by M
-  (:func:`tessera.scene_graph.transform_boxes`) against the world planes — a batch wholly outside
+  (:func:`tessera.scene.graph.transform_boxes`) against the world planes — a batch wholly outside
   is skipped, one wholly inside is kept whole, without its tree;
 - the rest: the batch's own tree (:func:`node.culling.bvh.build_chunk_bvh` over its chunks, built
   the first time the batch moves, then kept) traversed with the carried planes.
@@ -22,7 +22,7 @@ import numpy as np
 
 from node.culling.bvh import ChunkBVH, build_chunk_bvh, cull
 from node.scene.chunks import DrawRuns, SceneChunks
-from tessera.scene_graph import transform_boxes
+from tessera.scene.graph import transform_boxes
 
 
 class MovedCuller:

@@ -1,14 +1,14 @@
 """What a node draws into a depth layer in the hybrid and sort-last modes, and drawing it: the
-node-side half of :mod:`tessera.depth_compositing`.
+node-side half of :mod:`tessera.compositing.depth_merge`.
 
-- Hybrid (seed 000 §4.4, :mod:`tessera.chunk_ownership`): tile ``index`` of the frame's tiles
+- Hybrid (seed 000 §4.4, :mod:`tessera.decomposition.chunk_ownership`): tile ``index`` of the frame's tiles
   draws into its read-back rect (the tile grown by the depth strip) the chunks it owns and the
   shared ones touching it. The candidates are the chunks the rect's frustum keeps (the CPU tree of
   :mod:`node.culling.bvh`), so a node projects only the chunks near its tile; ownership depends on a
   chunk's own bound alone, so every node assigns each chunk alike without talking to the others.
-  The plan names the tile's core too (:func:`tessera.chunk_ownership.core_rect`), the part
+  The plan names the tile's core too (:func:`tessera.decomposition.chunk_ownership.core_rect`), the part
   that needs no depth: all of a tile that a blended chunk touches, which is then drawn complete.
-- Sort-last (:mod:`tessera.data_partition`): a node draws the chunks of its share that the whole
+- Sort-last (:mod:`tessera.decomposition.data_partition`): a node draws the chunks of its share that the whole
   frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
   read-back); a share with nothing in view has no layer.
 - Live (:func:`live_plan`): what a ``render`` message's depth request asks of a serving node. In
@@ -32,13 +32,13 @@ import numpy as np
 from node.culling.bvh import cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
-from tessera.chunk_ownership import assign_chunks, core_rect, readback_rect
-from tessera.data_partition import covering_rect
-from tessera.depth_compositing import DepthLayer
+from tessera.balancers.projection import project_boxes
+from tessera.compositing.layers import DepthLayer
+from tessera.decomposition.chunk_ownership import assign_chunks, core_rect, readback_rect
+from tessera.decomposition.data_partition import covering_rect
 from tessera.geometry import Camera, Rect, view_projection
-from tessera.messages import DepthRequest
-from tessera.projection import project_boxes
-from tessera.scene_state import SceneState
+from tessera.scene.state import SceneState
+from tessera.wire.messages import DepthRequest
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,7 +63,7 @@ def visible_chunks(renderer: TileRenderer, camera: Camera, size: tuple[int, int]
 
 def chunk_bounds(renderer: TileRenderer, chunk_ids: np.ndarray, camera: Camera, size: tuple[int, int]) -> np.ndarray:
     """(K, 4) float64 projected pixel bounds x0, y0, x1, y1 of chunks ``chunk_ids`` (K,), clipped to
-    the frame (:func:`tessera.projection.project_boxes`)."""
+    the frame (:func:`tessera.balancers.projection.project_boxes`)."""
     scene = renderer.scene
     return project_boxes(scene.chunks.boxes[chunk_ids].reshape(-1, 6), camera, size, scene.bounds)
 

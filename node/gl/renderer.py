@@ -24,7 +24,7 @@ with one ``render_indirect`` (glMultiDrawElementsIndirect) over its slice: see
 Below GL 4.3 (no multi-draw-indirect, no GPU culling) the runs are drawn one call each.
 
 Depth layers (:meth:`TileRenderer.render_layer`, for the hybrid and sort-last modes of
-:mod:`tessera.depth_compositing`): the same draw of a rect — the same full-frame viewport, scissor
+:mod:`tessera.compositing.depth_merge`): the same draw of a rect — the same full-frame viewport, scissor
 and near/far — with a given list of chunks instead of the rect's culled ones, and the rect's depth
 read back too, as float32 window depth from the one depth buffer format every node uses (moderngl's
 24-bit depth renderbuffer, cleared to 1.0 = far, ``GL_LESS``). Equal surfaces drawn on different
@@ -32,7 +32,7 @@ nodes therefore carry equal depth bits. Blended chunks may be drawn apart, over 
 (:meth:`TileRenderer.render_blend`, sort-last): their fragments in front of the layer are peeled
 by depth (the fragment shader keeps those strictly between two per-pixel depth textures), and for
 each m the m nearest are accumulated in draw order, premultiplied, into a cleared buffer: a
-:class:`tessera.depth_compositing.BlendLayer` the compositor lays over the merged frame.
+:class:`tessera.compositing.layers.BlendLayer` the compositor lays over the merged frame.
 
 Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
 batch with its object's model matrix (folded into the view-projection uniform, so an unmoved
@@ -61,7 +61,7 @@ from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
 from node.scene.pose import ScenePose
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
-from tessera.scene_state import SceneState
+from tessera.scene.state import SceneState
 
 GL_SRGB8_ALPHA8 = 0x8C43
 VERTEX_FORMAT = "3f 3f 2f 4f"

@@ -8,7 +8,7 @@ ground — so that equal tiles are badly balanced and load balancing visibly mat
 ``traffic`` is the dynamic one (issue 11): cars of uneven detail drive along four lanes across a
 road at different speeds, wrapping round at the lane ends, and a sign turns above the middle, so
 the screen load moves with them (~90 k triangles). The motion is a glTF-style animation
-(:mod:`tessera.animation`: LINEAR translation and rotation keyframes), so the scene at time t is
+(:mod:`tessera.scene.animation`: LINEAR translation and rotation keyframes), so the scene at time t is
 deterministic and sampled like a file's; it loops seamlessly every :data:`TRAFFIC_LOOP_S` seconds
 (every lane's period divides it). A car's wrap is two keyframes at the same time, the lane's end
 and its start: the sampler jumps there instead of sliding the car back across the road.
@@ -24,9 +24,9 @@ import numpy as np
 
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch, SceneError
-from tessera.animation import Animation, Channel, Sampler
-from tessera.scene_graph import SceneObject
-from tessera.scene_state import ObjectState, matrix_quaternion
+from tessera.scene.animation import Animation, Channel, Sampler
+from tessera.scene.graph import SceneObject
+from tessera.scene.state import ObjectState, matrix_quaternion
 
 #: ``(positions (N, 3), normals (N, 3), faces (F, 3))`` of an object in its local frame.
 Surface = tuple[np.ndarray, np.ndarray, np.ndarray]

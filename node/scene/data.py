@@ -1,7 +1,7 @@
 """A loaded scene (:class:`SceneData`): batches in draw order, split into octree chunks at load
 (seed 002 §3.4, :mod:`node.scene.chunks`), with the bounds and primitive groups a node reports,
-its named objects (:class:`tessera.scene_graph.ObjectGraph`, issue 11: each batch belongs to one)
-and its animations (:mod:`tessera.animation`). No GL here."""
+its named objects (:class:`tessera.scene.graph.ObjectGraph`, issue 11: each batch belongs to one)
+and its animations (:mod:`tessera.scene.animation`). No GL here."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import numpy as np
 from node.scene.chunks import PrimitiveGroups, SceneChunks, split_batches
 from node.scene.mesh import MeshBatch, SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from tessera.animation import Animation, sample_animations
-from tessera.scene_graph import ObjectGraph, SceneObject
-from tessera.scene_state import ObjectPatch, SceneState, SceneStateError
+from tessera.scene.animation import Animation, sample_animations
+from tessera.scene.graph import ObjectGraph, SceneObject
+from tessera.scene.state import ObjectPatch, SceneState, SceneStateError
 
 
 @dataclass(frozen=True, eq=False)

@@ -31,8 +31,8 @@ from node.scene.data import SceneData
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from tessera.animation import Animation
-from tessera.scene_graph import SceneObject
+from tessera.scene.animation import Animation
+from tessera.scene.graph import SceneObject
 
 BUILTIN_PREFIX = "builtin:"
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")

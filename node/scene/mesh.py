@@ -23,7 +23,7 @@ class MeshBatch:
     ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
     float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
     sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
-    ``owner``: the index of the scene object it belongs to (:class:`tessera.scene_graph.ObjectGraph`),
+    ``owner``: the index of the scene object it belongs to (:class:`tessera.scene.graph.ObjectGraph`),
     whose model matrix moves it.
     """
 

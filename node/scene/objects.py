@@ -1,6 +1,6 @@
 """A loaded file's objects (issue 11): the glTF node hierarchy (glTF 2.0 §3.5 nodes: names,
 children, a ``matrix`` or ``translation``/``rotation``/``scale``) matched to the scene graph trimesh
-built from the same file, and the file's animations (:mod:`tessera.animation`). No GL.
+built from the same file, and the file's animations (:mod:`tessera.scene.animation`). No GL.
 
 Objects are named as trimesh names the graph's nodes: the glTF node's name, or its index when it
 has none, made unique the way trimesh does it (``name_1``, …). They come in hierarchy order from
@@ -18,10 +18,10 @@ from urllib.parse import unquote
 import numpy as np
 
 from node.scene.mesh import SceneError
-from tessera.animation import Animation, parse_animations
-from tessera.gltf import GltfDocument, GltfError, read_document
-from tessera.scene_graph import SceneObject
-from tessera.scene_state import ObjectState, SceneStateError
+from tessera.scene.animation import Animation, parse_animations
+from tessera.scene.gltf import GltfDocument, GltfError, read_document
+from tessera.scene.graph import SceneObject
+from tessera.scene.state import ObjectState, SceneStateError
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 

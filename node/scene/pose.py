@@ -18,7 +18,7 @@ import numpy as np
 
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
-from tessera.scene_state import SceneState
+from tessera.scene.state import SceneState
 
 
 @dataclass(frozen=True, eq=False)

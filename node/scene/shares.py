@@ -1,6 +1,6 @@
 """A node's share of the scene in the sort-last mode (issue 10: database decomposition): the
 scene's chunks are split into spatially coherent shares sized by the nodes' calibrated speeds
-(:func:`tessera.data_partition.split_chunks`, seed 003's weights), and a node keeps only its own.
+(:func:`tessera.decomposition.data_partition.split_chunks`, seed 003's weights), and a node keeps only its own.
 No GL here.
 
 Every node loads the whole file, splits it into the same octree chunks (the same file and the same
@@ -23,7 +23,7 @@ import numpy as np
 
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch, SceneError
-from tessera.data_partition import split_chunks
+from tessera.decomposition.data_partition import split_chunks
 
 
 def keep_share(scene: SceneData, weights: Sequence[float], index: int) -> SceneData:

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, StrictBool, StrictFloat
 from server.routes.deps import get_service, require_token
 from server.routes.objects import loaded_scene
 from server.service import RenderService
-from tessera.scene_state import SceneStateError
+from tessera.scene.state import SceneStateError
 
 router = APIRouter(tags=["animation"], dependencies=[Depends(require_token)])
 

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
 from tessera.geometry import Camera, CameraError
-from tessera.messages import CameraUpdate
+from tessera.wire.messages import CameraUpdate
 
 router = APIRouter(tags=["camera"], dependencies=[Depends(require_token)])
 

@@ -7,10 +7,10 @@ import asyncio
 from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import Response
 
-from server.frame_store import PublishedFrame, composite_png
+from server.frame_store import PublishedFrame, encode_frame_png
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
-from tessera.codec import CodecError
+from tessera.wire.codec import CodecError
 
 router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 
@@ -41,7 +41,7 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
         kind = "still frame" if still else "complete frame"
         raise HTTPException(status_code=504, detail=f"no {kind} with id >= {after} in time")
     try:
-        png, decode_ms, encode_ms = await asyncio.to_thread(composite_png, frame)
+        png, decode_ms, encode_ms = await asyncio.to_thread(encode_frame_png, frame)
     except CodecError as exc:  # tiles are decoded on arrival: only a peer's crafted tile gets here
         raise HTTPException(status_code=502, detail=f"frame {frame.frame_id} cannot be composited: {exc}") from None
     return Response(png, media_type="image/png", headers={

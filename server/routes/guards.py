@@ -24,7 +24,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.middleware.base import RequestResponseEndpoint
 
 from server.origins import own_origin
-from tessera.limits import TokenBucket
+from tessera.wire.token_bucket import TokenBucket
 
 log = logging.getLogger("tessera.server")
 

@@ -14,8 +14,8 @@ from server.nodes import NodeLink
 from server.routes import guards
 from server.routes.deps import token_ok
 from server.service import RenderService
-from tessera.messages import FROM_NODE, NodeHello, parse
-from tessera.protocol import ProtocolError
+from tessera.wire.messages import FROM_NODE, NodeHello, parse
+from tessera.wire.protocol import ProtocolError
 
 router = APIRouter()
 log = logging.getLogger("tessera.server")

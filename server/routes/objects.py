@@ -11,8 +11,8 @@ from pydantic import BaseModel, ConfigDict, StrictBool, StrictFloat
 
 from server.routes.deps import get_service, require_token
 from server.service import RenderService
-from tessera.scene_state import ObjectPatch, SceneStateError, UnknownObjectError
-from tessera.scene_timeline import SceneTimeline
+from tessera.scene.state import ObjectPatch, SceneStateError, UnknownObjectError
+from tessera.scene.timeline import SceneTimeline
 
 router = APIRouter(tags=["objects"], dependencies=[Depends(require_token)])
 

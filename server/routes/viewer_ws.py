@@ -16,8 +16,8 @@ from server.routes.balancer import BALANCERS
 from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
 from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
-from tessera.messages import FROM_VIEWER, CameraUpdate, LatencyReport, ViewerError, ViewerHello, parse
-from tessera.protocol import ProtocolError
+from tessera.wire.messages import FROM_VIEWER, CameraUpdate, LatencyReport, ViewerError, ViewerHello, parse
+from tessera.wire.protocol import ProtocolError
 
 router = APIRouter()
 NOT_READING = f"not reading its socket: {MAX_QUEUED_CONTROL} control messages waiting"

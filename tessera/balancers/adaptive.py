@@ -30,10 +30,10 @@ from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
+from tessera.balancers.partition import strip_counts
 from tessera.balancers.static import minimum_for
 from tessera.balancers.support.load import Field, LoadField, LoadSource, MeasuredLoad, speed_of
 from tessera.balancers.support.strips import StripEdges, damping_fraction, edges_of, place
-from tessera.partition import strip_counts
 
 
 class AdaptiveBalancer(Balancer):

@@ -32,11 +32,11 @@ import numpy as np
 
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition
+from tessera.balancers.partition import strip_counts
 from tessera.balancers.static import minimum_for
 from tessera.balancers.support.load import Field
 from tessera.balancers.support.predictor import LoadPredictor
 from tessera.balancers.support.strips import StripEdges, damping_fraction, edges_of, place
-from tessera.partition import strip_counts
 
 
 def follow_camera(predictor: LoadPredictor, inputs: BalanceInput, shares: Sequence[float], tau_ms: float,

@@ -55,7 +55,7 @@ class TileTiming:
 
     @property
     def phase_ms(self) -> tuple[float, float, float, float]:
-        """The times in :data:`tessera.protocol.NODE_PHASES` order."""
+        """The times in :data:`tessera.wire.protocol.NODE_PHASES` order."""
         return (self.render_ms, self.readback_ms, self.encode_ms, self.send_ms)
 
     @property

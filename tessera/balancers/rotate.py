@@ -2,7 +2,7 @@
 
 Tiles are not bound to nodes: the coordinator hands them out in list order to whichever node is
 free first (at a frame start, the fastest first), each node pulling the next tile until the frame
-is done (the pull dispatch of :class:`tessera.scheduler.FrameScheduler`). The list is the
+is done (the pull dispatch of :class:`tessera.scheduling.scheduler.FrameScheduler`). The list is the
 ``adaptive`` partition (§4.2: strips→tiles, damped edges, same effort estimate) of
 ``tiles_per_node`` × N tiles of equal estimated effort, ordered heaviest first by last frame's
 time — a tile's predicted effort is last frame's measured load inside its rect, i.e. last frame's

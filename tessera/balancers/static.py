@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from typing import ClassVar
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
-from tessera.partition import equal_strip_partition
+from tessera.balancers.partition import equal_strip_partition
 
 
 class StaticBalancer(Balancer):

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tessera.balancers.partition import clamp_edges, strips_to_rects
 from tessera.balancers.support.load import Field
 from tessera.geometry import Rect
-from tessera.partition import clamp_edges, strips_to_rects
 
 
 @dataclass(frozen=True)

@@ -1,24 +1,24 @@
 """Depth tiles: how a hybrid tile or a sort-last layer travels from a node to the coordinator,
 and what the coordinator publishes from a frame of them (issue 10; the merge itself is
-:mod:`tessera.depth_compositing`). Pure: bytes and arrays in, bytes and arrays out.
+:mod:`tessera.compositing.depth_merge`). Pure: bytes and arrays in, bytes and arrays out.
 
 A depth tile is the payload of a ``TTIL`` tile message whose header carries the depth flag
-(:data:`tessera.protocol.DEPTH_TILE`). All integers little-endian:
+(:data:`tessera.wire.protocol.DEPTH_TILE`). All integers little-endian:
 
 - header: u32 ``version`` (sort-last: the data partition version the layer was drawn from; 0 in
   the hybrid), u16 piece count P, u8 flags (bit 0: a core follows), u8 B: how many of the pieces,
   the last ones, are blend pieces;
 - the core, when flagged: u16 x, y, w, h, u32 length. A hybrid tile's core (the part no other
-  tile reaches, :func:`tessera.chunk_ownership.exclusive_rect`) is an image in the frame's tile
+  tile reaches, :func:`tessera.decomposition.chunk_ownership.exclusive_rect`) is an image in the frame's tile
   codec, exactly as a sort-first tile: it needs no depth;
 - P pieces: u16 x, y, w, h, u32 depth length, u32 colour length. A piece is a rect of the frame
-  with depth, in the active-pixel encoding (:func:`tessera.depth_compositing.encode_active`) cut
+  with depth, in the active-pixel encoding (:func:`tessera.wire.active_pixels.encode_active`) cut
   in two, each part deflated (zlib level 1): the *depth part* (width, height, runs and float32
   depths: coverage and depth, always lossless) and the *colour part* (RGB of the active pixels,
   lossless too). Cutting them lets a node report depth bytes apart from colour bytes;
 - the bodies: the core's image, then each piece's depth part and colour part.
 
-Blend pieces (sort-last: the node's blended fragments, :class:`tessera.depth_compositing.BlendLayer`)
+Blend pieces (sort-last: the node's blended fragments, :class:`tessera.compositing.layers.BlendLayer`)
 are its K layers in order, all over one rect, each encoded the same way: active where an m-th
 nearest fragment lies, with its depth, the colour part the premultiplied RGB of the m nearest's
 accumulation followed by its alpha. They may overlap the other pieces; the coordinator lays them
@@ -41,20 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tessera.codec import Codec, encode
-from tessera.depth_compositing import (
-    FAR,
-    BlendLayer,
-    DepthCodecError,
-    DepthLayer,
-    composite,
-    decode_active,
-    encode_active,
-    ring_rects,
-    split_layer,
-)
+from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, split_layer
 from tessera.geometry import Rect
-from tessera.protocol import ProtocolError
+from tessera.wire.active_pixels import DepthCodecError, decode_active, encode_active
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import ProtocolError
 
 _HEADER = struct.Struct("<IHBB")
 _CORE = struct.Struct("<HHHHI")
@@ -281,31 +272,4 @@ def _inflate(data: memoryview, limit: int) -> bytes:
         raise ProtocolError(f"depth tile piece does not inflate: {exc}") from None
     if len(out) > limit or not inflater.eof or inflater.unused_data:
         raise ProtocolError(f"depth tile piece inflates to more than {limit} bytes or is cut short")
-    return out
-
-
-def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
-    """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
-    (3,) uint8 where none drew, their blend layers laid over it
-    (:func:`tessera.depth_compositing.composite`). Cores are not pasted: they are published as
-    they came (:func:`hybrid_frame_tiles`)."""
-    return composite([layer for tile in tiles for layer in tile.layers], size, background,
-                     blends=[blend for tile in tiles for blend in tile.blends])
-
-
-def hybrid_frame_tiles(tiles: Sequence[tuple[Rect, DecodedDepthTile]], merged: np.ndarray, codec: Codec,
-                       quality: int) -> list[tuple[Rect, int, bytes]]:
-    """What a hybrid frame shows, as (rect, index of the tile it belongs to, image in ``codec``):
-    per tile (its rect, its depth tile) the core as the node sent it and the rest of its rect (the
-    ring its neighbours' strips reach) cut from the ``merged`` frame and encoded. The rects cover
-    the frame exactly, as the tiles do."""
-    out: list[tuple[Rect, int, bytes]] = []
-    for index, (rect, tile) in enumerate(tiles):
-        regions = [rect]
-        if tile.core is not None:
-            out.append((tile.core[0], index, tile.core[1]))
-            regions = ring_rects(rect, tile.core[0])
-        for region in regions:
-            pixels = np.ascontiguousarray(merged[region.y:region.y1, region.x:region.x1])
-            out.append((region, index, encode(pixels, codec, quality)))
     return out

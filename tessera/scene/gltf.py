@@ -1,6 +1,6 @@
 """The glTF 2.0 container and its accessors, as numpy (glTF 2.0 §3.6 buffers, buffer views and
 accessors, including sparse accessors; §4.4 the GLB container), for the parts trimesh does not
-hand over: the node hierarchy and the animations (:mod:`tessera.animation`).
+hand over: the node hierarchy and the animations (:mod:`tessera.scene.animation`).
 
 Sans-I/O: :func:`read_document` takes the file's bytes and a ``read_uri(uri) -> bytes`` callback
 for external buffers (``data:`` URIs are decoded here); it never opens a file itself.

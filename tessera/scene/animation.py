@@ -2,9 +2,9 @@
 drive a node's translation, rotation or scale, sampled at a scene time (issue 11).
 
 Pure: numpy only, no GL, no I/O. :func:`parse_animations` reads the animations of a
-:class:`tessera.gltf.GltfDocument` (keyframe times and values straight from the accessors);
+:class:`tessera.scene.gltf.GltfDocument` (keyframe times and values straight from the accessors);
 :meth:`Animation.sample` gives, at time t seconds, each animated object's
-:class:`tessera.scene_state.ObjectPatch`.
+:class:`tessera.scene.state.ObjectPatch`.
 
 Interpolation, per sampler, with t_k ≤ t < t_k+1 and u = (t − t_k) / (t_k+1 − t_k):
 
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from tessera.gltf import GltfDocument, GltfError
-from tessera.scene_state import ObjectPatch
+from tessera.scene.gltf import GltfDocument, GltfError
+from tessera.scene.state import ObjectPatch
 
 INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
 #: Property → value components.

@@ -6,7 +6,7 @@ field, when it is wrong) and :func:`parse` decodes text: at most :data:`MAX_JSON
 Infinity, an object whose ``type`` is one the caller accepts. Fields a side does not know are
 ignored, so peers may send more than the catalogue holds (older nodes still send
 ``capabilities.codecs`` and ``scene_ready``'s ``scene``, ``meshes``, ``chunks`` and ``load_ms``).
-Binary tiles and frames, and the protocol version, are in :mod:`tessera.protocol`.
+Binary tiles and frames, and the protocol version, are in :mod:`tessera.wire.protocol`.
 
 node → coordinator
 
@@ -64,10 +64,10 @@ from pydantic import (
     model_validator,
 )
 
-from tessera.codec import Codec
 from tessera.geometry import Camera, Rect
-from tessera.protocol import PROTOCOL_VERSION, ProtocolError
-from tessera.scene_state import SceneState, StateDelta, state_from_json
+from tessera.scene.state import SceneState, StateDelta, state_from_json
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
 
 MAX_JSON_BYTES = 1 << 20
 #: Largest frame side (px) a ``render`` or ``calibrate`` may ask for.
@@ -138,7 +138,7 @@ CameraJson = Annotated[Camera, PlainValidator(_camera), PlainSerializer(Camera.t
 RectJson = Annotated[Rect, PlainValidator(_rect), PlainSerializer(Rect.as_list)]
 CodecName = Annotated[Codec, PlainValidator(_codec), PlainSerializer(lambda codec: codec.name.lower())]
 Counter = Annotated[int | float | str, PlainValidator(_counter)]
-#: A scene state or a delta (:func:`tessera.scene_state.state_from_json`).
+#: A scene state or a delta (:func:`tessera.scene.state.state_from_json`).
 StateJson = Annotated[SceneState | StateDelta, PlainValidator(_state), PlainSerializer(lambda state: state.to_json())]
 CounterName = Annotated[StrictStr, Field(max_length=MAX_COUNTER_TEXT)]
 
@@ -227,7 +227,7 @@ class SceneGroups(BaseModel):
 
 
 class SceneObjectJson(BaseModel):
-    """A named object (:meth:`tessera.scene_graph.ObjectGraph.to_json`): its parent's name (null for
+    """A named object (:meth:`tessera.scene.graph.ObjectGraph.to_json`): its parent's name (null for
     a root; parents come first), base local transform and visibility, its geometry's world box at
     the base pose (null: none) and triangle count."""
 
@@ -243,7 +243,7 @@ class SceneObjectJson(BaseModel):
 
 
 class AnimationChannelJson(BaseModel):
-    """One channel's keyframes (:meth:`tessera.animation.Animation.keyframes_json`)."""
+    """One channel's keyframes (:meth:`tessera.scene.animation.Animation.keyframes_json`)."""
 
     model_config = _FIELDS
     target: Text
@@ -325,7 +325,7 @@ class Welcome(Message):
 
 class ShareSpec(BaseModel):
     """Sort-last (issue 10): keep only share ``index`` of data partition ``version``, the scene's
-    chunks split by :func:`tessera.data_partition.split_chunks` over ``weights``, one per share
+    chunks split by :func:`tessera.decomposition.data_partition.split_chunks` over ``weights``, one per share
     (the nodes' calibrated speeds)."""
 
     model_config = _FIELDS
@@ -365,7 +365,7 @@ class RenderTile(BaseModel):
 
 
 class DepthRequest(BaseModel):
-    """Render the tiles as depth tiles (issue 10, :mod:`tessera.depth_tiles`). ``mode`` "hybrid"
+    """Render the tiles as depth tiles (issue 10, :mod:`tessera.wire.depth_tiles`). ``mode`` "hybrid"
     (seed 000 §4.4): ``tiles`` is the frame's whole partition (tile ids index it; a node needs
     every tile to find which chunks its tile owns) and ``strip`` the border strip in pixels;
     "sort-last": ``share`` is the data partition version the node's share must be of, and its one

@@ -2,7 +2,7 @@
 
 A partition gives each connected node one share of the scene's chunks, sized by its weight (its
 calibrated speed, seed 003 §1, as known when the partition is made). Nodes compute the shares
-themselves from the same file (:mod:`tessera.data_partition`, :mod:`node.scene.shares`), so a
+themselves from the same file (:mod:`tessera.decomposition.data_partition`, :mod:`node.scene.shares`), so a
 partition travels as its version, each node's share index and the weights.
 
 Every node joining or leaving makes a new partition, with the next version; each node is told

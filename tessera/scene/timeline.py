@@ -1,5 +1,5 @@
 """The coordinator's side of a dynamic scene (issue 11): the objects and animations the nodes
-reported, the user's poses, the animation clock, and the :class:`tessera.scene_state.StateLog` of
+reported, the user's poses, the animation clock, and the :class:`tessera.scene.state.StateLog` of
 the states frames were bound to (seed 004: a frame's dynamic data, the same on every node).
 
 Pure: numpy only, no I/O; the clock is read by the caller and passed in as ``now`` (seconds on any
@@ -20,9 +20,9 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from tessera.animation import Animation, sample_animations
-from tessera.scene_graph import ObjectGraph
-from tessera.scene_state import OBJECT_FIELDS, ObjectPatch, SceneState, SceneStateError, StateLog
+from tessera.scene.animation import Animation, sample_animations
+from tessera.scene.graph import ObjectGraph
+from tessera.scene.state import OBJECT_FIELDS, ObjectPatch, SceneState, SceneStateError, StateLog
 
 #: Largest |speed| accepted: faster than this the frames show unrelated instants.
 MAX_SPEED = 1000.0

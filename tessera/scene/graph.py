@@ -1,5 +1,5 @@
 """The scene's named objects and their hierarchy (issue 11: objects; glTF 2.0 §3.5 nodes and
-transforms), and what a :class:`tessera.scene_state.SceneState` makes of them: world matrices,
+transforms), and what a :class:`tessera.scene.state.SceneState` makes of them: world matrices,
 model matrices, visibility and bounds.
 
 Pure: numpy only, no GL, no I/O; render nodes and the coordinator compute the same numbers from
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from tessera.scene_state import (
+from tessera.scene.state import (
     OBJECT_FIELDS,
     ObjectPatch,
     ObjectState,

@@ -5,7 +5,7 @@ scene, :mod:`node.scene.chunks`) is owned by exactly one tile per frame, by wher
 bound falls, and only its owner draws it, also beyond the tile's edge: every tile draws into and
 reads back colour and depth of its tile grown by a fixed-width border strip (the seed's choice over
 the minimal rectangle or a full-height band, which cost O(objects)), and the strips are merged by
-depth (:mod:`tessera.depth_compositing`). A chunk whose bound does not fit inside any tile's strip
+depth (:mod:`tessera.compositing.depth_merge`). A chunk whose bound does not fit inside any tile's strip
 is *shared*: drawn by every tile it touches, as in plain sort-first. Only the strips need depth
 (the seed's Fig. 4.6): a tile's core, :func:`exclusive_rect`, is reached by no other tile and
 travels as colour alone.
@@ -107,7 +107,7 @@ def assign_chunks(bounds: np.ndarray, tiles: Sequence[Rect], strip_px: int, size
                   margin_px: float = DEFAULT_MARGIN_PX, blended: np.ndarray | None = None) -> Ownership:
     """Owners and per-tile draw lists of chunks with projected ``bounds`` (K, 4) float64 pixels x0,
     y0, x1, y1 (origin top-left, clipped to the frame, empty where x1 ≤ x0 or y1 ≤ y0, as
-    :func:`tessera.projection.project_boxes` gives them), for ``tiles`` that cover the ``size``
+    :func:`tessera.balancers.projection.project_boxes` gives them), for ``tiles`` that cover the ``size``
     frame exactly, with border strips ``strip_px`` ≥ 0 wide; ``blended`` (K,) bool marks the
     chunks that blend (None: none). Cost O(K × T) in numpy."""
     if strip_px < 0:

@@ -22,7 +22,7 @@ What it decides:
   no node has begun (no tile arrived, none at the head of a node's queue). Nodes are told to
   drop their queued tiles of dropped frames; the scheduler stops waiting for them.
 * **Late scene state binding** (issue 11; seed 004: a frame's dynamic data). A frame also takes
-  the scene's state when it starts (:class:`tessera.scene_timeline.SceneTimeline`: the animation
+  the scene's state when it starts (:class:`tessera.scene.timeline.SceneTimeline`: the animation
   at the frame's scene time, the user's poses) as one version of the state log. Each render
   message carries that state: a delta on the version last sent to that node (messages reach a
   node in order), the full state when the node has none (it just joined) or that version is no
@@ -43,8 +43,8 @@ What it decides:
 * **Decomposition modes** (issue 10). ``sort-first``: tiles as above. ``hybrid`` (seed 000
   §4.4): the same tiles, the same balancers, but each render message asks for depth tiles and
   lists the frame's whole partition and the border strip, from which every node finds alone
-  which chunks its tile owns (:mod:`tessera.chunk_ownership`); the coordinator merges the strips.
-  ``sort-last``: no balancer; each node holds a share of the scene (:mod:`tessera.share_plan`:
+  which chunks its tile owns (:mod:`tessera.decomposition.chunk_ownership`); the coordinator merges the strips.
+  ``sort-last``: no balancer; each node holds a share of the scene (:mod:`tessera.decomposition.share_plan`:
   a node joining or leaving makes a new partition, frames in flight are dropped, each node is
   told to load its share of it, and frames start again once every share is loaded), and a frame
   is one whole-frame tile per share, each from the node holding it. Its tiles are never backed up
@@ -65,20 +65,20 @@ from typing import Any
 import numpy as np
 
 from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, Tile, TileTiming
+from tessera.balancers.partition import check_exact_cover
+from tessera.balancers.projection import posed_groups, project_groups
 from tessera.balancers.static import StaticBalancer
-from tessera.chunk_ownership import DEFAULT_DEPTH_STRIP
-from tessera.codec import Codec
-from tessera.depth_tiles import DecodedDepthTile
-from tessera.frame_jobs import FrameJob
-from tessera.frame_stats import FrameStats
+from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
+from tessera.decomposition.share_plan import ShareBook
 from tessera.geometry import Camera, Rect
-from tessera.messages import DepthRequest, Render, ShareSpec
-from tessera.partition import check_exact_cover
-from tessera.projection import posed_groups, project_groups
-from tessera.protocol import NODE_PHASES, ProtocolError, TileHeader
-from tessera.scene_state import ObjectPatch, SceneState, StateDelta
-from tessera.scene_timeline import SceneTimeline
-from tessera.share_plan import ShareBook
+from tessera.scene.state import ObjectPatch, SceneState, StateDelta
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.frame_stats import FrameStats
+from tessera.wire.codec import Codec
+from tessera.wire.depth_tiles import DecodedDepthTile
+from tessera.wire.messages import DepthRequest, Render, ShareSpec
+from tessera.wire.protocol import NODE_PHASES, ProtocolError, TileHeader
 
 #: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
 AWAITING_SEND_FRAMES = 8
@@ -348,7 +348,7 @@ class FrameScheduler:
         its bounds (2, 3) and each group's object ``owners`` (K,) (indices into the scene's objects;
         None: the groups never move), projected per frame for balancers that use them (seed 003
         DPBP): with a frame's state, each group moved with its object, hidden objects' groups
-        dropped, near/far from the state's bounds (:func:`tessera.projection.posed_groups`)."""
+        dropped, near/far from the state's bounds (:func:`tessera.balancers.projection.posed_groups`)."""
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
         counts = np.asarray(counts, dtype=np.float64).reshape(-1)
         bounds = np.asarray(bounds, dtype=np.float64)

@@ -8,8 +8,8 @@ import numpy as np
 
 from tessera.balancers.base import ProjectedGroups
 from tessera.geometry import Camera, view_projection
-from tessera.scene_graph import ObjectGraph, transform_boxes
-from tessera.scene_state import SceneState
+from tessera.scene.graph import ObjectGraph, transform_boxes
+from tessera.scene.state import SceneState
 
 _CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
 
@@ -53,7 +53,7 @@ def posed_groups(boxes: np.ndarray, counts: np.ndarray, owners: np.ndarray, grap
                  state: SceneState) -> tuple[np.ndarray, np.ndarray]:
     """The base-pose world groups ``boxes`` (K, 6) with ``counts`` (K,) of objects ``owners`` (K,)
     int64 (indices into ``graph``) in ``state``: hidden objects' groups dropped, moved objects'
-    boxes moved by their model matrices (:func:`tessera.scene_graph.transform_boxes`, a box around
+    boxes moved by their model matrices (:func:`tessera.scene.graph.transform_boxes`, a box around
     the moved box). Returns (K', 6) float64 boxes and (K',) float64 counts."""
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
     owners = np.asarray(owners, dtype=np.int64).reshape(-1)

@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 from PIL import Image
 
 from tessera.balancers.base import Partition, TileTiming
-from tessera.codec import Codec
-from tessera.depth_tiles import DecodedDepthTile
 from tessera.geometry import Camera, Rect
-from tessera.messages import DepthRequest, Render, RenderTile
-from tessera.protocol import ProtocolError, TileHeader, state_tag
-from tessera.scene_state import SceneState, StateDelta
+from tessera.scene.state import SceneState, StateDelta
+from tessera.wire.codec import Codec
+from tessera.wire.depth_tiles import DecodedDepthTile
+from tessera.wire.messages import DepthRequest, Render, RenderTile
+from tessera.wire.protocol import ProtocolError, TileHeader, state_tag
 
 
 @dataclass

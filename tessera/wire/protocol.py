@@ -6,7 +6,7 @@ Binary WebSocket messages start with a magic:
   offset 6 is the low 16 bits of the scene state version the tile was rendered with (issue 11: a
   frame's tiles all show one state; 0 for a static scene, as before). Its codec byte with
   :data:`DEPTH_TILE` set (issue 10: the hybrid and sort-last modes) marks a depth tile, whose
-  payload is a :mod:`tessera.depth_tiles` layer (its core image in the codec of the low bits);
+  payload is a :mod:`tessera.wire.depth_tiles` layer (its core image in the codec of the low bits);
   nodes send one only when a ``render`` message asks for depth, which the coordinator does only
   of nodes whose ``hello`` says they can (``capabilities.depth``): the flag extends version 2
   without changing a byte of what older nodes and viewers exchange.
@@ -17,7 +17,7 @@ Binary WebSocket messages start with a magic:
   rendered), then the tiles' encoded images in the same order.
 
 All integers little-endian. Text messages (JSON control messages) are catalogued in
-:mod:`tessera.messages`; :data:`PROTOCOL_VERSION` covers both.
+:mod:`tessera.wire.messages`; :data:`PROTOCOL_VERSION` covers both.
 
 ``web/protocol.js`` mirrors these constants and layouts; one golden byte string, tested in
 ``tests/test_protocol_golden.py`` and ``tests/js/protocol.test.mjs``, pins both sides.
@@ -30,8 +30,8 @@ import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from tessera.codec import Codec
 from tessera.geometry import Rect
+from tessera.wire.codec import Codec
 
 PROTOCOL_VERSION = 2
 TILE_MAGIC = b"TTIL"
@@ -50,7 +50,7 @@ _INPUT_SEQ_OFFSET = 20
 STATE_TAG_MASK = 0xFFFF
 #: Frame header flag: the lossless still frame shown once motion stopped.
 FRAME_STILL = 0x01
-#: Tile header codec flag: the payload is a depth tile (:mod:`tessera.depth_tiles`).
+#: Tile header codec flag: the payload is a depth tile (:mod:`tessera.wire.depth_tiles`).
 DEPTH_TILE = 0x80
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
 

@@ -1,0 +1,98 @@
+"""The depth merge (seed 000 §4.4's Z-buffer merge of the hybrid's strips; sort-last's whole-image
+merge): depth layers and blended fragments into one frame, and what a frame of depth tiles
+publishes. Conventions: :mod:`tessera.compositing.layers`."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, pixel_view, ring_rects
+from tessera.geometry import Rect
+from tessera.wire.codec import Codec, encode
+from tessera.wire.depth_tiles import DecodedDepthTile
+
+
+def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
+                   exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = ()) -> np.ndarray:
+    """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
+    (3,) uint8 where none drew, the ``blends`` laid over it in slot order (at each pixel the
+    accumulation of the m fragments in front of the merged depth: its colour + (255 − alpha) / 255
+    × what is there, rounded), then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
+    pasted as they are: regions only one node drew (the hybrid's tile cores,
+    :func:`tessera.decomposition.chunk_ownership.exclusive_rect`), which travel without depth and which the
+    layers leave inactive. Layers are merged in slot order with a strict depth test, so a tie goes
+    to the lower slot whatever order they came in; layers that share a slot (the pieces of one
+    node's layer, :func:`split_layer`) must not overlap. Raises ValueError for a layer or region
+    outside the frame or overlapping layers of one slot. The frame starts as the background, then
+    O(summed layer pixels): depth by ``minimum``, colour by one masked copy of whole pixels
+    (:func:`tessera.compositing.layers.pixel_view`)."""
+    width, height = size
+    if width <= 0 or height <= 0:
+        raise ValueError(f"frame size must be positive, got {width}x{height}")
+    ordered = sorted(layers, key=lambda item: item.slot)
+    by_slot: dict[int, list[Rect]] = {}
+    for layer in ordered:
+        same = by_slot.setdefault(layer.slot, [])
+        if any(layer.rect.intersection_area(other) for other in same):
+            raise ValueError(f"layers of slot {layer.slot} overlap: each node's layer needs its own slot")
+        same.append(layer.rect)
+    depth = np.full((height, width), FAR, np.float32)
+    color = np.empty((height, width, 3), np.uint8)
+    color[0] = np.asarray(background, np.uint8)
+    color[1:] = color[0]   # whole rows: broadcasting the pixel over (h, w) is ~100x slower
+    pixels = pixel_view(color)
+    for layer in ordered:
+        rect = layer.rect
+        if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
+            raise ValueError(f"layer {rect.as_list()} lies outside the {width}x{height} frame")
+        window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
+        wins = layer.depth < depth[window]
+        np.minimum(depth[window], layer.depth, out=depth[window])
+        np.copyto(pixels[window], pixel_view(layer.color), where=wins)
+    for blend in sorted(blends, key=lambda item: item.slot):
+        rect = blend.rect
+        if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
+            raise ValueError(f"blend layer {rect.as_list()} lies outside the {width}x{height} frame")
+        window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
+        count = (blend.depth < depth[window][None]).sum(axis=0)
+        rows, columns = np.nonzero(count)
+        layer = count[rows, columns] - 1
+        under = color[window][rows, columns].astype(np.float32)
+        through = (255.0 - blend.alpha[layer, rows, columns].astype(np.float32))[:, None] / np.float32(255.0)
+        mixed = blend.color[layer, rows, columns].astype(np.float32) + through * under
+        color[window][rows, columns] = np.minimum(np.rint(mixed), 255.0).astype(np.uint8)
+    for rect, region in exclusive:
+        if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height or region.shape != (rect.h, rect.w, 3):
+            raise ValueError(f"exclusive region {rect.as_list()} with colour {region.shape} does not fit the "
+                             f"{width}x{height} frame")
+        color[rect.y:rect.y1, rect.x:rect.x1] = region
+    return color
+
+
+def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
+    (3,) uint8 where none drew, their blend layers laid over it
+    (:func:`merge_by_depth`). Cores are not pasted: they are published as
+    they came (:func:`hybrid_frame_tiles`)."""
+    return merge_by_depth([layer for tile in tiles for layer in tile.layers], size, background,
+                     blends=[blend for tile in tiles for blend in tile.blends])
+
+
+def hybrid_frame_tiles(tiles: Sequence[tuple[Rect, DecodedDepthTile]], merged: np.ndarray, codec: Codec,
+                       quality: int) -> list[tuple[Rect, int, bytes]]:
+    """What a hybrid frame shows, as (rect, index of the tile it belongs to, image in ``codec``):
+    per tile (its rect, its depth tile) the core as the node sent it and the rest of its rect (the
+    ring its neighbours' strips reach) cut from the ``merged`` frame and encoded. The rects cover
+    the frame exactly, as the tiles do."""
+    out: list[tuple[Rect, int, bytes]] = []
+    for index, (rect, tile) in enumerate(tiles):
+        regions = [rect]
+        if tile.core is not None:
+            out.append((tile.core[0], index, tile.core[1]))
+            regions = ring_rects(rect, tile.core[0])
+        for region in regions:
+            pixels = np.ascontiguousarray(merged[region.y:region.y1, region.x:region.x1])
+            out.append((region, index, encode(pixels, codec, quality)))
+    return out
