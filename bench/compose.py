@@ -50,7 +50,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from bench.balance import parse_size, parse_speeds
-from bench.culling import psnr, read_path
+from bench.culling import read_path
+from bench.images import psnr, reported_psnr
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.balancers.hetero import calibration_weights
 from tessera.balancers.partition import equal_strip_partition
@@ -145,7 +146,7 @@ class Tally:
     def summary(self, in_view: Sequence[int], fraction: float) -> dict[str, Any]:
         means = {key: round(float(np.mean(values)), 3) for key, values in self.rows.items()}
         return {"redundancy": round(float(np.sum(self.rows["triangles"])) / float(np.sum(in_view)), 4),
-                "psnr_min": round(self.psnr_min, 2), "node_triangle_fraction": round(fraction, 4), **means}
+                "psnr_min": reported_psnr(self.psnr_min), "node_triangle_fraction": round(fraction, 4), **means}
 
 
 def sort_first_frame(renderer: Any, camera: Camera, size: tuple[int, int], rects: Sequence[Rect]) -> tuple[

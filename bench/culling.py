@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.images import psnr, reported_psnr
 from node.culling.switch import CullMode, resolve_culling
 from node.culling.tiles import TileCuller
 from node.gl.context import create_gl_context, renderer_string
@@ -53,14 +54,7 @@ from tessera.balancers.partition import equal_strip_partition
 from tessera.geometry import Camera
 
 GOALS = {"redundancy": ("<=", 1.10), "psnr_min": (">=", 50.0), "cull_speedup": (">=", 5.0)}
-IDENTICAL_PSNR = 100.0
 MODES = ("off", "cpu", "gpu", "hybrid", "cpu-ranges")
-
-
-def psnr(image: np.ndarray, reference: np.ndarray) -> float:
-    """PSNR in dB of two uint8 images of one shape; :data:`IDENTICAL_PSNR` when they are equal."""
-    mse = float(np.mean((image.astype(np.float64) - reference.astype(np.float64)) ** 2))
-    return IDENTICAL_PSNR if mse == 0.0 else min(IDENTICAL_PSNR, 10.0 * math.log10(255.0 ** 2 / mse))
 
 
 def read_path(path: Path, frames: int | None) -> tuple[list[int], list[Camera]]:
@@ -128,8 +122,8 @@ def run(scene_spec: str, cameras: list[Camera], tiles: int, size: tuple[int, int
             "cull_ms_mean": round(float(np.mean(record["cull_ms"])), 4),
             "triangles_per_frame": round(float(np.sum(record["tris"])) / frames),
             "chunks_drawn_per_tile": round(float(np.mean(record["chunks"])), 1),
-            "paths": paths, "psnr_min": round(min(psnrs[mode]), 2),
-            "identical_frames": sum(p == IDENTICAL_PSNR for p in psnrs[mode]),
+            "paths": paths, "psnr_min": reported_psnr(min(psnrs[mode])),
+            "identical_frames": sum(p == math.inf for p in psnrs[mode]),
         }
     for drawer in (renderer, ranges):
         drawer.release()

@@ -51,7 +51,8 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from bench.hostile_cases import Bad, Frames, HostileCases, Request
-from bench.live import composite, render_once
+from bench.images import viewer_frame_image
+from bench.live import render_once
 from bench.processes import orbit
 from bench.soak import Child, proc_figures
 from tessera.cli_values import size_parser
@@ -116,7 +117,7 @@ class References:
 
     def describe(self, frame_id: int, message: bytes) -> str:
         """Which tiles of a frame that equals no reference differ from the closest one, and their nodes."""
-        image = composite(message)
+        image = viewer_frame_image(message)
         closest = min(self.images, key=lambda ref: int(np.abs(image.astype(np.int16) - ref).max()))
         frame = unpack_frame(message)
         tiles = [f"{entry.rect.as_list()} by slot {entry.node}: "
@@ -408,7 +409,7 @@ class Storm:
             stats = (await http.get("/api/stats", headers=self.auth)).json()
         frames_exact, worst, wrong = 0, 0, []
         for frame_id, message in sorted(self.frames.items()):
-            exact, diff = self.references.match(composite(message))
+            exact, diff = self.references.match(viewer_frame_image(message))
             frames_exact += exact
             worst = max(worst, diff)
             if not exact and len(wrong) < 5:

@@ -46,9 +46,9 @@ import numpy as np
 import websockets.sync.client as ws_client
 from PIL import Image
 
+from bench.images import psnr, viewer_frame_image
 from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator, write_result
 from tessera.cli_values import size_parser
-from tessera.wire.codec import decode
 from tessera.wire.messages import CameraUpdate
 from tessera.wire.protocol import unpack_frame
 
@@ -109,17 +109,6 @@ def latencies(frames: list[dict[str, Any]], sent: dict[int, float]) -> list[floa
     return out
 
 
-def composite(message: bytes) -> np.ndarray:
-    """The frame's tiles decoded and pasted: (h, w, 3) uint8."""
-    frame = unpack_frame(message)
-    width, height = frame.size
-    image = np.zeros((height, width, 3), np.uint8)
-    for entry, payload in frame.tiles:
-        r = entry.rect
-        image[r.y:r.y1, r.x:r.x1] = decode(payload, entry.codec, r.w, r.h)
-    return image
-
-
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int]) -> np.ndarray:
     with tempfile.TemporaryDirectory() as tmp:
         camera_file, out = Path(tmp) / "camera.json", Path(tmp) / "reference.png"
@@ -128,11 +117,6 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int]) -> np
                         str(camera_file), "--size", f"{size[0]}x{size[1]}"], cwd=REPO, check=True,
                        capture_output=True, timeout=300)
         return np.asarray(Image.open(io.BytesIO(out.read_bytes())).convert("RGB"))
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(255.0**2 / mse)
 
 
 def wait_ready(client: httpx.Client, nodes: int, timeout: float = 300.0) -> dict[str, Any]:
@@ -258,7 +242,7 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
                   still_pixels_off=math.nan)
     if stills:
         still = stills[0]
-        image = composite(still["message"])
+        image = viewer_frame_image(still["message"])
         reference = render_once(args.scene, viewer.camera, args.size)
         off = np.abs(image.astype(np.int16) - reference.astype(np.int16)).max(axis=2) > 8
         quality = psnr(image, reference)

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import io
 import json
-import math
 import platform
 import sys
 import time
@@ -44,6 +43,7 @@ import numpy as np
 from PIL import Image, JpegImagePlugin
 
 from bench.culling import read_path
+from bench.images import psnr
 from bench.paths import KINDS, make_path, surface_focus
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.renderer import TileRenderer
@@ -72,11 +72,8 @@ def parse_qualities(text: str) -> list[int]:
 def compare(decoded: np.ndarray, reference: np.ndarray) -> tuple[float, float, int]:
     """PSNR in dB (``math.inf`` when equal), fraction of pixels off by more than :data:`OFF_LEVELS`
     in any channel, and the largest error in levels, of two (h, w, 3) uint8 images."""
-    error = np.abs(decoded.astype(np.int16) - reference.astype(np.int16))
-    mse = float(np.mean(np.square(error, dtype=np.float64)))
-    psnr_db = math.inf if mse == 0.0 else 10.0 * math.log10(255.0 ** 2 / mse)
-    pixel_error = error.max(axis=2)
-    return psnr_db, float(np.mean(pixel_error > OFF_LEVELS)), int(pixel_error.max())
+    pixel_error = np.abs(decoded.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
+    return psnr(decoded, reference), float(np.mean(pixel_error > OFF_LEVELS)), int(pixel_error.max())
 
 
 def jpeg_chroma(data: bytes) -> str:

@@ -16,6 +16,7 @@ import httpx
 import numpy as np
 from PIL import Image
 
+from bench.images import psnr
 from bench.processes import orbit
 from tests.conftest import PYTHON, REPO, seconds
 
@@ -39,11 +40,6 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workd
         cwd=REPO, capture_output=True, text=True, timeout=seconds(180))
     assert result.returncode == 0, f"render-once failed:\n{result.stdout}\n{result.stderr}"
     return np.asarray(Image.open(out).convert("RGB"))
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return float("inf") if mse == 0.0 else 10.0 * np.log10(255.0 ** 2 / mse)
 
 
 def assert_matches_reference(frame: np.ndarray, reference: np.ndarray, label: str) -> None:

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from bench.images import psnr
 from tessera.wire.codec import Codec, CodecError, decode, encode, encode_png
 
 images = st.tuples(st.integers(1, 40), st.integers(1, 40)).flatmap(
@@ -18,11 +19,6 @@ def gradient(width: int = 96, height: int = 64) -> np.ndarray:
     """A smooth (height, width, 3) uint8 test image."""
     x, y = np.meshgrid(np.linspace(0.0, 1.0, width), np.linspace(0.0, 1.0, height))
     return (np.stack([x, y, (x + y) / 2.0], axis=2) * 255.0).round().astype(np.uint8)
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return float("inf") if mse == 0.0 else 10.0 * np.log10(255.0**2 / mse)
 
 
 @settings(max_examples=40, deadline=None)

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import subprocess
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from bench.images import psnr
 from node.culling.switch import CullMode, SwitchParams, resolve_culling
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
@@ -44,11 +44,6 @@ def renderers(ctx, bunny):
     yield made
     for renderer in made.values():
         renderer.release()
-
-
-def psnr(image: np.ndarray, reference: np.ndarray) -> float:
-    mse = float(np.mean((image.astype(np.float64) - reference.astype(np.float64)) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(255.0 ** 2 / mse)
 
 
 def random_cameras(bounds: np.ndarray, count: int, seed: int) -> list[Camera]:

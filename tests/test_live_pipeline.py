@@ -11,13 +11,13 @@ import httpx
 import pytest
 import websockets.sync.client as ws_client
 
+from bench.images import psnr
 from tessera.wire.protocol import unpack_frame
 from tests.conftest import seconds
 from tests.integration_support import (
     assert_matches_reference,
     fetch_frame,
     orbit_cameras,
-    psnr,
     ready_nodes,
     render_once,
     stats,
