@@ -78,7 +78,7 @@ def wait_ready(client: httpx.Client, nodes: int, timeout: float = 180.0) -> None
 
 def measure(size: str, nodes: int, seconds: float, scene: str, codec: str) -> dict:
     coordinator, url = start_coordinator(["--local-nodes", str(nodes), "--size", size, "--scene", scene,
-                                          "--codec", codec])
+                                          "--codec", codec], log_level="warning")
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             wait_ready(client, nodes)

@@ -53,8 +53,8 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from bench.hostile_cases import Bad, Frames, HostileCases, Request
 from bench.images import viewer_frame_image
 from bench.live import render_once
-from bench.processes import orbit
-from bench.soak import Child, proc_figures
+from bench.processes import orbit, start_coordinator
+from bench.soak import proc_figures
 from tessera.cli_values import size_parser
 from tessera.geometry import Rect
 from tessera.wire.protocol import unpack_frame
@@ -532,17 +532,16 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = args.log_dir or Path(tmp)
         log_dir.mkdir(parents=True, exist_ok=True)
-        server_args = ["-m", "server", "--port", "0", "--scene", args.scene, "--size", f"{args.size[0]}x{args.size[1]}",
-                       "--codec", "png", "--local-nodes", str(args.nodes)] + (["--token", token] if token else [])
-        coordinator = Child("coordinator", server_args, log_dir / "coordinator.log")
+        server_args = ["--scene", args.scene, "--size", f"{args.size[0]}x{args.size[1]}", "--codec", "png",
+                       "--local-nodes", str(args.nodes)] + (["--token", token] if token else [])
+        coordinator, url = start_coordinator(server_args, log_path=log_dir / "coordinator.log")
         try:
-            url = coordinator.wait_for(r"Tessera serving on (http://\S+)", 60).group(1).rstrip("/")
             headers = {"Authorization": f"Bearer {token}"} if token else {}
             with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
                 deadline = time.monotonic() + 180
                 while sum(n["state"] == "ready" for n in client.get("/api/stats").json()["nodes"]) < args.nodes:
                     if time.monotonic() > deadline or coordinator.process.poll() is not None:
-                        raise RuntimeError("the nodes did not get ready:\n" + "\n".join(coordinator.lines))
+                        raise RuntimeError("the nodes did not get ready:\n" + coordinator.output())
                     time.sleep(0.1)
                 bounds = client.get("/api/camera").json()["bounds"]
             references = References.render(args.scene, bounds, args.size)

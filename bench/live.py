@@ -182,7 +182,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     size = args.size
     server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", f"{size[0]}x{size[1]}",
                    *shlex.split(args.server_args)]
-    coordinator, url = start_coordinator(server_args)
+    coordinator, url = start_coordinator(server_args, log_level="warning")
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             wait_ready(client, args.nodes)

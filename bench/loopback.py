@@ -31,7 +31,7 @@ import httpx
 from PIL import Image
 from websockets.asyncio.client import ClientConnection, connect
 
-from bench.processes import LoggedProcess, cpu_seconds, orbit, start_coordinator
+from bench.processes import PYTHON, LoggedProcess, cpu_seconds, orbit, start_coordinator
 from tessera.wire.messages import CameraUpdate
 
 #: the viewer's longest pause between two cameras (s)
@@ -169,10 +169,10 @@ def run_loopback(nodes: int, size: tuple[int, int], seconds: float, warmup_s: fl
     """One loopback run with ``nodes`` synthetic nodes, within ``timeout_s`` seconds; its figures, the
     synthetic nodes' summaries and the coordinator's log lines."""
     deadline = time.monotonic() + timeout_s
-    coordinator, url = start_coordinator(["--size", f"{size[0]}x{size[1]}"], timeout_s)
+    coordinator, url = start_coordinator(["--size", f"{size[0]}x{size[1]}"], log_level="warning", timeout=timeout_s)
     synthetic: LoggedProcess | None = None
     try:
-        synthetic = LoggedProcess(["-m", "bench.synthetic_nodes", "--url", url.replace("http://", "ws://", 1)
+        synthetic = LoggedProcess([PYTHON, "-m", "bench.synthetic_nodes", "--url", url.replace("http://", "ws://", 1)
                                    + "/ws/node", "--nodes", str(nodes), "--max-seconds", str(timeout_s)])
         try:
             figures = asyncio.run(asyncio.wait_for(
@@ -180,14 +180,14 @@ def run_loopback(nodes: int, size: tuple[int, int], seconds: float, warmup_s: fl
                 max(deadline - time.monotonic(), 1.0)))
         except TimeoutError:
             raise TimeoutError(f"the loopback run with {nodes} nodes ran over its {timeout_s:.0f} s; coordinator "
-                               "output:\n" + "\n".join(coordinator.lines)) from None
+                               "output:\n" + coordinator.output()) from None
     finally:
         if synthetic is not None:
             synthetic.stop()
         coordinator.stop()
     summary = next((json.loads(line) for line in reversed(synthetic.lines) if line.startswith('{"nodes"')), None)
     if summary is None:
-        raise RuntimeError("the synthetic nodes printed no summary:\n" + "\n".join(synthetic.lines))
+        raise RuntimeError("the synthetic nodes printed no summary:\n" + synthetic.output())
     ended = sorted({n["ended"] for n in summary["nodes"]})
     return {"nodes": nodes, **figures, "synthetic_tiles_sent": sum(n["tiles_sent"] for n in summary["nodes"]),
             "synthetic_nodes_ended": ended, "synthetic_log": [line for line in synthetic.lines

@@ -1,5 +1,5 @@
-"""What the live benchmarks share: child processes with kept output, the coordinator started on
-port 0, process CPU from ``/proc``, and the camera turned about its target."""
+"""What the live benchmarks and the tests' fixtures share: child processes with kept output, the
+coordinator started on port 0, process CPU from ``/proc``, and the camera turned about its target."""
 
 from __future__ import annotations
 
@@ -8,82 +8,136 @@ import math
 import os
 import platform
 import re
+import shlex
 import signal
 import subprocess
 import sys
 import threading
+import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+PYTHON = sys.executable
 #: /proc/PID/stat counts CPU time in these per second
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+#: output lines a LoggedProcess keeps
+KEPT_LINES = 2000
+#: lines of its first traceback a LoggedProcess keeps
+TRACEBACK_LINES = 60
+#: how long a process that exited may stay silent before waiting for a line of it gives up, s
+EXITED_SILENCE_S = 0.5
 
 
 class LoggedProcess:
-    """A child process (``python ARGS`` in the repository) whose output lines are kept (the last 500)."""
+    """A child process running ``command`` in the repository (Python unbuffered, ``env`` added to
+    this process's environment), its stdout and stderr read line by line on a thread of its own:
+    the last :data:`KEPT_LINES` lines kept in ``lines``, each line written to ``log_path`` as it
+    comes when one is given, the lines with "Traceback" counted in ``tracebacks`` and the first
+    traceback's first :data:`TRACEBACK_LINES` lines kept in ``first_traceback``.
 
-    def __init__(self, args: Sequence[str]) -> None:
-        self.process = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, text=True,
-                                        env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        self.lines: deque[str] = deque(maxlen=500)
+    ``new_session``: the child gets a session of its own, so a Ctrl-C on the terminal reaches only
+    this process, and the child just what :meth:`stop` sends. ``label`` names it in errors (default:
+    the command line)."""
+
+    def __init__(self, command: Sequence[str], *, label: str = "", env: Mapping[str, str] | None = None,
+                 log_path: Path | None = None, new_session: bool = False, stop_timeout: float = 20.0) -> None:
+        self.label = label or shlex.join(command)
+        self.stop_timeout = stop_timeout
+        self.lines: deque[str] = deque(maxlen=KEPT_LINES)
+        self.tracebacks = 0
+        self.first_traceback: list[str] = []
+        #: whether :meth:`stop` had to SIGKILL it
+        self.killed = False
         self._ended = False
         self._changed = threading.Condition()
-        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._log = log_path.open("w") if log_path is not None else None
+        self.process = subprocess.Popen(list(command), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                        text=True, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+                                        start_new_session=new_session)
+        self._reader = threading.Thread(target=self._read, name=f"output of {self.label}", daemon=True)
         self._reader.start()
 
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
     def _read(self) -> None:
+        """Keep and log each output line, waking waiters on each line and when the output ends."""
         assert self.process.stdout is not None
-        for line in self.process.stdout:
+        for raw in self.process.stdout:
+            line = raw.rstrip("\n")
+            if self._log is not None:
+                self._log.write(raw)
+                self._log.flush()
             with self._changed:
-                self.lines.append(line.rstrip("\n"))
+                self.lines.append(line)
+                self.tracebacks += "Traceback" in line
+                if self.tracebacks == 1 and len(self.first_traceback) < TRACEBACK_LINES:
+                    self.first_traceback.append(line)
                 self._changed.notify_all()
+        if self._log is not None:
+            self._log.close()
         with self._changed:
             self._ended = True
             self._changed.notify_all()
 
-    def wait_for(self, pattern: str, timeout: float) -> re.Match:
-        """The first output line matching ``pattern``; RuntimeError (with the output) after ``timeout`` s
-        or when the output ends without one."""
+    def wait_for_line(self, pattern: str, timeout: float) -> re.Match:
+        """The first kept output line matching ``pattern``, waiting up to ``timeout`` s for one;
+        RuntimeError with the output when none came by then, or the output ended, or the process
+        exited and printed nothing more for :data:`EXITED_SILENCE_S` (children it started may hold
+        its output open)."""
         regex = re.compile(pattern)
-
-        def found() -> re.Match | None:
-            return next((m for m in map(regex.search, self.lines) if m), None)
-
+        deadline = time.monotonic() + max(0.0, timeout)
         with self._changed:
-            self._changed.wait_for(lambda: found() or self._ended or self.process.poll() is not None, timeout)
-            match = found()
+            while (match := next((m for m in map(regex.search, self.lines) if m), None)) is None and not self._ended:
+                left = deadline - time.monotonic()
+                exited = self.process.poll() is not None
+                if left <= 0 or (not self._changed.wait(min(left, EXITED_SILENCE_S)) and exited):
+                    break
         if match is None:
-            raise RuntimeError(f"no line matching {pattern!r} within {timeout:.0f} s:\n" + "\n".join(self.lines))
+            raise RuntimeError(f"{self.label}: no line matching {pattern!r} within {timeout:.0f} s; output:\n"
+                               + self.output())
         return match
 
-    def stop(self, timeout: float = 20.0) -> int:
-        """SIGINT, SIGKILL after ``timeout`` s; the exit code."""
+    def output(self) -> str:
+        """The kept output lines."""
+        with self._changed:
+            return "\n".join(self.lines)
+
+    def stop(self, signum: int = signal.SIGINT, timeout: float | None = None) -> int:
+        """Send ``signum`` (SIGINT: as Ctrl-C) unless it has exited, SIGKILL if it has not exited
+        ``timeout`` s later (default ``stop_timeout``; ``killed`` then says so); the exit code."""
         if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
+            self.process.send_signal(signum)
             try:
-                self.process.wait(timeout=timeout)
+                self.process.wait(timeout=self.stop_timeout if timeout is None else timeout)
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+                self.killed = True
         self._reader.join(timeout=5)
         if self.process.stdout is not None:
             self.process.stdout.close()
         return self.process.returncode
 
 
-def start_coordinator(args: Sequence[str], timeout: float = 60.0) -> tuple[LoggedProcess, str]:
-    """``python -m server --port 0 --log-level warning ARGS`` in the repository (ARGS may override
-    the log level) and its base URL without the trailing slash, once it printed "Tessera serving on
-    URL"; stopped again, RuntimeError with its output, when that takes over ``timeout`` s or it exits."""
-    coordinator = LoggedProcess(["-m", "server", "--port", "0", "--log-level", "warning", *args])
+def start_coordinator(args: Sequence[str], *, port: int = 0, log_level: str | None = None, timeout: float = 60.0,
+                      env: Mapping[str, str] | None = None, log_path: Path | None = None, new_session: bool = False,
+                      stop_timeout: float = 20.0) -> tuple[LoggedProcess, str]:
+    """``python -m server --port PORT [--log-level LEVEL] ARGS`` as a :class:`LoggedProcess` labelled
+    "coordinator" (``env``, ``log_path``, ``new_session``, ``stop_timeout`` are its own), and its base
+    URL without the trailing slash, once it printed "Tessera serving on URL"; stopped again, and
+    RuntimeError with its output, when that takes over ``timeout`` s or it exits first."""
+    level = [] if log_level is None else ["--log-level", log_level]
+    coordinator = LoggedProcess([PYTHON, "-m", "server", "--port", str(port), *level, *args], label="coordinator",
+                                env=env, log_path=log_path, new_session=new_session, stop_timeout=stop_timeout)
     try:
-        url = coordinator.wait_for(r"Tessera serving on (http://\S+)", timeout).group(1).rstrip("/")
+        url = coordinator.wait_for_line(r"Tessera serving on (http://\S+)", timeout).group(1).rstrip("/")
     except BaseException:
         coordinator.stop()
         raise

@@ -31,15 +31,12 @@ import itertools
 import json
 import math
 import os
-import re
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,7 +44,7 @@ from typing import Any
 import httpx
 import websockets.sync.client as ws_client
 
-from bench.processes import CLOCK_TICKS, REPO, orbit, write_result
+from bench.processes import CLOCK_TICKS, PYTHON, LoggedProcess, orbit, start_coordinator, write_result
 from server.local_nodes import llvmpipe_threads_per_node
 from tessera.cli_values import size_parser
 from tessera.wire.protocol import unpack_frame
@@ -61,80 +58,6 @@ STOP_TIMEOUT_S = 20.0
 CHURN_READ_TIMEOUT_S = 10.0
 #: the soak's own HTTP requests close their connection, so that none is open in the coordinator's FD count
 NO_KEEPALIVE = {"Connection": "close"}
-
-
-class Child:
-    """``python ARGS`` in the repository: its output goes line by line to ``log_path``, the last lines
-    are kept and "Traceback" lines counted (with the first traceback kept)."""
-
-    def __init__(self, label: str, args: Sequence[str], log_path: Path, env: dict[str, str] | None = None) -> None:
-        self.label, self.log_path = label, log_path
-        self.started = time.monotonic()
-        self.lines: deque[str] = deque(maxlen=200)
-        self.tracebacks = 0
-        self.first_traceback: list[str] = []
-        self._changed = threading.Condition()
-        self._ended = False
-        self.process = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, text=True,
-                                        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
-        self._reader = threading.Thread(target=self._read, name=f"log-{label}", daemon=True)
-        self._reader.start()
-
-    @property
-    def pid(self) -> int:
-        return self.process.pid
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        since_traceback = -1
-        with self.log_path.open("w") as log:
-            for raw in self.process.stdout:
-                line = raw.rstrip("\n")
-                log.write(raw)
-                log.flush()
-                with self._changed:
-                    self.lines.append(line)
-                    if "Traceback" in line:
-                        self.tracebacks += 1
-                        since_traceback = 0
-                    if 0 <= since_traceback < 40 and self.tracebacks == 1:
-                        self.first_traceback.append(line)
-                        since_traceback += 1
-                    self._changed.notify_all()
-        with self._changed:
-            self._ended = True
-            self._changed.notify_all()
-
-    def wait_for(self, pattern: str, timeout: float) -> re.Match:
-        regex = re.compile(pattern)
-
-        def found() -> re.Match | None:
-            return next((m for m in map(regex.search, self.lines) if m), None)
-
-        with self._changed:
-            self._changed.wait_for(lambda: found() or self._ended, max(0.0, timeout))
-            match = found()
-        if match is None:
-            raise RuntimeError(f"{self.label}: no line matching {pattern!r} within {timeout:.0f} s:\n"
-                               + "\n".join(self.lines))
-        return match
-
-    def stop(self, signum: int = signal.SIGINT, timeout: float = STOP_TIMEOUT_S) -> tuple[int, bool]:
-        """Send ``signum``, SIGKILL after ``timeout`` s; (exit code, whether it had to be killed)."""
-        killed = False
-        if self.process.poll() is None:
-            self.process.send_signal(signum)
-            try:
-                self.process.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-                killed = True
-        self._reader.join(timeout=5)
-        if self.process.stdout is not None:
-            self.process.stdout.close()
-        return self.process.returncode, killed
 
 
 def proc_figures(pid: int) -> dict[str, Any] | None:
@@ -277,11 +200,11 @@ class Soak:
 
     args: argparse.Namespace
     log_dir: Path
-    coordinator: Child | None = None
+    coordinator: LoggedProcess | None = None
     url: str = ""
-    nodes: list[Child] = field(default_factory=list)
+    nodes: list[LoggedProcess] = field(default_factory=list)
     generations: list[int] = field(default_factory=list)
-    retired: list[Child] = field(default_factory=list)
+    retired: list[LoggedProcess] = field(default_factory=list)
     restarts: list[Restart] = field(default_factory=list)
     crashes: list[dict[str, Any]] = field(default_factory=list)
     samples: list[dict[str, Any]] = field(default_factory=list)
@@ -296,11 +219,9 @@ class Soak:
 
     def start_coordinator(self) -> None:
         width, height = self.args.size
-        self.coordinator = Child("coordinator", ["-m", "server", "--host", "127.0.0.1", "--port", "0",
-                                                 "--scene", self.args.scene, "--size", f"{width}x{height}",
-                                                 *self.args.server_args.split()],
-                                 self.log_dir / "coordinator.log")
-        self.url = self.coordinator.wait_for(r"Tessera serving on (http://\S+)", 60).group(1).rstrip("/")
+        self.coordinator, self.url = start_coordinator(
+            ["--host", "127.0.0.1", "--scene", self.args.scene, "--size", f"{width}x{height}",
+             *self.args.server_args.split()], log_path=self.log_dir / "coordinator.log", stop_timeout=STOP_TIMEOUT_S)
 
     @contextlib.contextmanager
     def cluster(self, launched: float) -> Iterator[tuple[httpx.Client, PersistentViewer]]:
@@ -318,16 +239,16 @@ class Soak:
             viewer.start(timeout=60)
             yield client, viewer
 
-    def start_node(self, slot: int) -> Child:
+    def start_node(self, slot: int) -> LoggedProcess:
         if slot == len(self.generations):
             self.generations.append(0)
         self.generations[slot] += 1
         generation = self.generations[slot]
         name = f"soak{slot + 1}-g{generation}"
         threads = str(llvmpipe_threads_per_node(self.args.nodes))
-        child = Child(name, ["-m", "node", "--coordinator", self.ws_base + "/ws/node", "--name", name],
-                      self.log_dir / f"node-{name}.log", env={"LP_NUM_THREADS": os.environ.get("LP_NUM_THREADS",
-                                                                                              threads)})
+        child = LoggedProcess([PYTHON, "-m", "node", "--coordinator", self.ws_base + "/ws/node", "--name", name],
+                              label=name, env={"LP_NUM_THREADS": os.environ.get("LP_NUM_THREADS", threads)},
+                              log_path=self.log_dir / f"node-{name}.log", stop_timeout=STOP_TIMEOUT_S)
         with self.lock:
             if slot < len(self.nodes):
                 self.retired.append(self.nodes[slot])
@@ -359,7 +280,7 @@ class Soak:
             self.restarting = True
             self.restarts.append(record)
         try:
-            record.old_returncode, record.old_killed = old.stop(signal.SIGTERM)
+            record.old_returncode, record.old_killed = old.stop(signal.SIGTERM), old.killed
             record.stopped = time.monotonic()
             self.exits[old.label] = {"returncode": record.old_returncode, "killed": record.old_killed,
                                      "signal": "SIGTERM", "tracebacks": old.tracebacks}
@@ -383,8 +304,7 @@ class Soak:
             if node.process.poll() is not None:
                 self.crashes.append({"process": node.label, "at": now, "returncode": node.process.returncode,
                                      "last_lines": list(node.lines)[-30:]})
-                code, killed = node.stop()
-                self.exits[node.label] = {"returncode": code, "killed": killed, "signal": None,
+                self.exits[node.label] = {"returncode": node.stop(), "killed": node.killed, "signal": None,
                                           "tracebacks": node.tracebacks}
                 self.start_node(slot)
         return True
@@ -407,12 +327,11 @@ class Soak:
         """Stop every process still running: nodes (SIGTERM) first, then the coordinator (SIGINT)."""
         for node in [*self.nodes, *self.retired]:
             if node.label not in self.exits:
-                code, killed = node.stop(signal.SIGTERM)
-                self.exits[node.label] = {"returncode": code, "killed": killed, "signal": "SIGTERM",
-                                          "tracebacks": node.tracebacks}
+                self.exits[node.label] = {"returncode": node.stop(signal.SIGTERM), "killed": node.killed,
+                                          "signal": "SIGTERM", "tracebacks": node.tracebacks}
         if self.coordinator is not None and "coordinator" not in self.exits:
-            code, killed = self.coordinator.stop(signal.SIGINT)
-            self.exits["coordinator"] = {"returncode": code, "killed": killed, "signal": "SIGINT",
+            self.exits["coordinator"] = {"returncode": self.coordinator.stop(signal.SIGINT),
+                                         "killed": self.coordinator.killed, "signal": "SIGINT",
                                          "tracebacks": self.coordinator.tracebacks}
 
 

@@ -21,9 +21,9 @@ from typing import Any
 import httpx
 import pytest
 
-from bench.processes import orbit
+from bench.processes import LoggedProcess, orbit
 from tests.browser_support import chromium_context
-from tests.conftest import PYTHON, Coordinator, RunningProcess, seconds, start_process
+from tests.conftest import PYTHON, Coordinator, seconds, start_coordinator, start_process
 from tests.integration_support import assert_matches_reference, fetch_frame, ready_nodes, render_once, wait_until
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl, pytest.mark.browser]
@@ -48,14 +48,8 @@ def free_port() -> int:
 
 
 def start_server(port: int) -> Coordinator:
-    proc = start_process([PYTHON, "-m", "server", "--host", "127.0.0.1", "--port", str(port), "--scene", SCENE,
-                          "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png"])
-    try:
-        url = proc.wait_for_line(r"Tessera serving on (http://\S+)", seconds(60)).group(1).rstrip("/")
-    except BaseException:
-        proc.stop()
-        raise
-    return Coordinator(proc, url)
+    return start_coordinator("--host", "127.0.0.1", "--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}",
+                             "--codec", "png", port=port)
 
 
 class CameraMover:
@@ -90,9 +84,9 @@ class CameraMover:
 
 
 @pytest.fixture
-def processes() -> Iterator[list[RunningProcess]]:
+def processes() -> Iterator[list[LoggedProcess]]:
     """Processes a test starts; all stopped at teardown (already stopped ones are skipped)."""
-    started: list[RunningProcess] = []
+    started: list[LoggedProcess] = []
     yield started
     for proc in reversed(started):
         proc.stop()
@@ -107,7 +101,7 @@ def both_ready(base_url: str) -> bool:
 
 
 @pytest.mark.parametrize("how", ["SIGINT", "SIGKILL"])
-def test_nodes_and_viewer_reconnect_after_a_coordinator_restart(how: str, processes: list[RunningProcess],
+def test_nodes_and_viewer_reconnect_after_a_coordinator_restart(how: str, processes: list[LoggedProcess],
                                                                 tmp_path: Path) -> None:
     port = free_port()
     coordinator = start_server(port)
