@@ -290,10 +290,8 @@ class TileRenderer:
         rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose = self.pose_of(state)
-        matrix = view_projection(camera, size, pose.bounds)
+        pose, matrix, moved = self._posed(camera, size, rect, state)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved)
 
     def pose_of(self, state: SceneState | None) -> ScenePose:
@@ -301,6 +299,15 @@ class TileRenderer:
         if state is not self._pose[0]:
             self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
         return self._pose[1]
+
+    def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect,
+               state: SceneState | None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
+        """What every draw of ``rect`` in scene ``state`` starts from: the pose, the full-frame (4, 4)
+        view-projection of its bounds, and the runs of its moved objects that ``rect`` keeps."""
+        pose = self.pose_of(state)
+        matrix = view_projection(camera, size, pose.bounds)
+        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
+        return pose, matrix, moved
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None, state: SceneState | None = None,
@@ -312,13 +319,11 @@ class TileRenderer:
         to :meth:`render_blend`), with its depth read back as well."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose = self.pose_of(state)
-        matrix = view_projection(camera, size, pose.bounds)
+        pose, matrix, moved = self._posed(camera, size, rect, state)
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
             culled = self.culler.listed(chunk_ids)
-        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None)
 
@@ -367,10 +372,8 @@ class TileRenderer:
         with them, culled to ``rect`` where they are now (:meth:`render_layer` with ``blend_apart``
         leaves them out)."""
         started = time.perf_counter()
-        pose = self.pose_of(state)
-        matrix = view_projection(camera, size, pose.bounds)
+        pose, matrix, moved = self._posed(camera, size, rect, state)
         culled = self.culler.listed(chunk_ids)
-        moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         framebuffer = self._framebuffer_for(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
