@@ -38,7 +38,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 
 from node.culling.switch import CullMode
 from node.gl.context import GLUnavailableError, create_gl_context, renderer_string
-from node.gl.depth_layers import as_depth_layer, live_plan, render_plan
+from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import ProgressCallback, load_scene
@@ -131,6 +131,7 @@ class GLWorker:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._ctx: moderngl.Context | None = None
         self._renderer: TileRenderer | None = None
+        self._planning: PlanningScene | None = None
         self.scene_spec: str | None = None
         self._share: tuple[int, tuple[float, ...]] | None = None
         self.share_version: int | None = None
@@ -172,6 +173,7 @@ class GLWorker:
             self._renderer = TileRenderer(self._ctx, scene, culling=self.culling)
         else:
             self._renderer = TileRenderer(self._ctx, scene, background, culling=self.culling)
+        self._planning = PlanningScene.of(scene, self._renderer.culler.bvh)
         self.scene_spec, self._share = spec, share_key
         self.share_version = None if share is None else share.version
         return scene
@@ -195,13 +197,13 @@ class GLWorker:
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None) -> DepthRender:
-        if self._renderer is None:
+        if self._renderer is None or self._planning is None:
             raise RuntimeError("no scene loaded")
         if request.mode == "sort-last" and request.share != self.share_version:
             raise RuntimeError(f"share of partition {request.share} asked for; this node holds "
                                f"{self.share_version or 'the whole scene'}")
         started = time.perf_counter()
-        plan = live_plan(self._renderer, camera, size, request, tile_id, state)
+        plan = live_plan(self._planning, self._renderer.pose_of(state), camera, size, request, tile_id)
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
             return DepthRender(None, None, None, plan_ms)
@@ -211,7 +213,7 @@ class GLWorker:
     def _release_scene(self) -> None:
         if self._renderer is not None:
             self._renderer.release()
-        self._renderer, self.scene_spec, self._share, self.share_version = None, None, None, None
+        self._renderer, self._planning, self.scene_spec, self._share, self.share_version = None, None, None, None, None
 
     def _close(self) -> None:
         self._release_scene()

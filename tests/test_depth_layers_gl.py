@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.gl.depth_layers import as_depth_layer, chunk_bounds, hybrid_plan, sort_last_plan
+from node.gl.depth_layers import PlanningScene, as_depth_layer, chunk_bounds, hybrid_plan, sort_last_plan
 from node.gl.renderer import TileRenderer
 from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
@@ -46,6 +46,11 @@ def straddling_scene() -> SceneData:
 CAMERA = Camera(eye=(0.0, 0.0, 4.0), target=(0.0, 0.0, 0.0), fovy_deg=60.0, near=0.5, far=10.0)
 
 
+def planning(renderer: TileRenderer) -> PlanningScene:
+    """The chunks of ``renderer``'s scene as the planners read them."""
+    return PlanningScene.of(renderer.scene, renderer.culler.bvh)
+
+
 @pytest.fixture(scope="module")
 def straddling(ctx):
     renderer = TileRenderer(ctx, straddling_scene())
@@ -72,13 +77,14 @@ def bunny_cameras(scene: SceneData) -> list[Camera]:
 def test_a_chunk_straddling_a_tile_edge_composes_identically_to_the_whole_render(straddling):
     renderer = straddling
     ids = np.arange(renderer.scene.chunks.chunk_count)
-    bounds = chunk_bounds(renderer, ids, CAMERA, SIZE)
+    chunks = planning(renderer)
+    bounds = chunk_bounds(chunks, ids, CAMERA, SIZE)
     wall, near, far = 0, 1, 2
     assert bounds[near, 0] < 80 < bounds[near, 2] and bounds[far, 0] < 80 < bounds[far, 2], "both spheres straddle"
     ownership = assign_chunks(bounds, HALVES, STRIP, SIZE)
     assert ownership.owner.tolist() == [SHARED, 0, 1]
 
-    plans = [hybrid_plan(renderer, CAMERA, SIZE, HALVES, index, STRIP) for index in range(2)]
+    plans = [hybrid_plan(chunks, CAMERA, SIZE, HALVES, index, STRIP) for index in range(2)]
     assert [plan.chunk_ids.tolist() for plan in plans] == [[wall, near], [wall, far]]
     assert [plan.rect for plan in plans] == [Rect(0, 0, 88, 120), Rect(72, 0, 88, 120)]
     assert [plan.exclusive for plan in plans] == [Rect(0, 0, 72, 120), Rect(88, 0, 72, 120)]
@@ -111,8 +117,9 @@ def test_a_layer_is_the_tile_with_depth_far_exactly_where_nothing_was_drawn(bunn
 def test_hybrid_tiles_compose_the_whole_render(bunny, tiles, strip):
     rects = equal_strip_partition(tiles, SIZE)
     background = background_pixel(bunny.background)
+    chunks = planning(bunny)
     for camera in bunny_cameras(bunny.scene):
-        plans = [hybrid_plan(bunny, camera, SIZE, rects, index, strip) for index in range(tiles)]
+        plans = [hybrid_plan(chunks, camera, SIZE, rects, index, strip) for index in range(tiles)]
         rendered = [bunny.render_layer(camera, SIZE, plan.rect, plan.chunk_ids) for plan in plans]
         whole = bunny.render_frame(camera, SIZE).pixels
         layers = [as_depth_layer(layer, slot) for slot, layer in enumerate(rendered)]
@@ -132,8 +139,9 @@ def test_sort_last_shares_compose_the_whole_render(bunny, weights):
     chunks = bunny.scene.chunks
     share_of = split_chunks(chunks.boxes, chunks.face_counts, weights)
     background = background_pixel(bunny.background)
+    held = planning(bunny)
     for camera in bunny_cameras(bunny.scene):
-        plans = [sort_last_plan(bunny, camera, SIZE, np.flatnonzero(share_of == node)) for node in range(len(weights))]
+        plans = [sort_last_plan(held, camera, SIZE, np.flatnonzero(share_of == node)) for node in range(len(weights))]
         layers = [as_depth_layer(bunny.render_layer(camera, SIZE, plan.rect, plan.chunk_ids), slot)
                   for slot, plan in enumerate(plans) if plan is not None]
         whole = bunny.render_frame(camera, SIZE)

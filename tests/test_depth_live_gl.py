@@ -10,14 +10,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.gl.depth_layers import live_plan, render_plan
+from node.gl.depth_layers import PlanningScene, live_plan, render_plan
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from node.scene.shares import keep_share
-from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_depth_tiles
+from tessera.compositing.depth_merge import merge_depth_tiles
 from tessera.compositing.layers import BlendLayer, DepthLayer, background_pixel
 from tessera.decomposition.chunk_ownership import exclusive_rect, readback_rect
 from tessera.decomposition.data_partition import split_chunks
+from tessera.decomposition.hybrid import hybrid_frame_tiles
 from tessera.geometry import Rect, default_camera
 from tessera.scene.state import ObjectPatch
 from tessera.wire.codec import Codec, decode
@@ -52,6 +53,11 @@ def test_each_triangle_lands_in_exactly_one_share(bunny):
         assert share.vertex_count < bunny.vertex_count, "only the vertices its faces use"
 
 
+def planning(renderer: TileRenderer) -> PlanningScene:
+    """The chunks of ``renderer``'s scene as the planners read them."""
+    return PlanningScene.of(renderer.scene, renderer.culler.bvh)
+
+
 def through_the_wire(layer, core, slot, bound, core_range):
     """What the coordinator keeps of a node's layer: encoded as a depth tile, read back."""
     depth_layer = None if layer is None else DepthLayer(layer.rect, layer.pixels, layer.depth, 0)
@@ -68,7 +74,7 @@ def test_sort_last_shares_on_their_own_renderers_merge_into_the_whole_render(ctx
     tiles = []
     for index in range(len(WEIGHTS)):
         renderer = TileRenderer(ctx, keep_share(bunny, WEIGHTS, index))
-        plan = live_plan(renderer, camera, SIZE, request, 0, None)
+        plan = live_plan(planning(renderer), renderer.pose_of(None), camera, SIZE, request, 0)
         assert plan is not None and plan.rect.area < SIZE[0] * SIZE[1], "bounding-box read-back"
         layer = renderer.render_layer(camera, SIZE, plan.rect, plan.chunk_ids)
         tiles.append(through_the_wire(layer, None, index, Rect(0, 0, *SIZE), None))
@@ -83,6 +89,7 @@ def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_rend
     size, strip = (320, 240), 32
     rects = [Rect(0, 0, 176, 139), Rect(176, 0, 144, 139), Rect(0, 139, 320, 101)]
     request = DepthRequest(mode="hybrid", tiles=tuple(rects), strip=strip)
+    chunks = planning(renderer)
     bounds = np.asarray(scene.bounds)
     for turn in (0.0, 2.1, 4.2):
         camera = default_camera(bounds, aspect=size[0] / size[1])
@@ -93,7 +100,7 @@ def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_rend
         whole = renderer.render_frame(camera, size).pixels
         decoded = []
         for index, rect in enumerate(rects):
-            plan = live_plan(renderer, camera, size, request, index, None)
+            plan = live_plan(chunks, renderer.pose_of(None), camera, size, request, index)
             assert plan is not None
             layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids)
             decoded.append(through_the_wire(layer, plan.exclusive, index, readback_rect(rect, strip, size),
@@ -112,7 +119,8 @@ def merge_shares(renderers, camera, size, state, background) -> tuple[np.ndarray
     any share peeled."""
     tiles, peeled = [], 0
     for index, renderer in enumerate(renderers):
-        plan = live_plan(renderer, camera, size, DepthRequest(mode="sort-last", share=1), 0, state)
+        plan = live_plan(planning(renderer), renderer.pose_of(state), camera, size,
+                         DepthRequest(mode="sort-last", share=1), 0)
         assert plan is not None
         layer, fragments = render_plan(renderer, camera, size, plan, state)
         blend = None

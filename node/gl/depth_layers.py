@@ -19,7 +19,10 @@ node-side half of :mod:`tessera.compositing.depth_merge`.
   whole frame is read back (moved objects are culled where they are now, as in every tile of the
   hybrid). :func:`render_plan` draws a plan.
 
-Chunk ids index the renderer's scene chunks (:class:`node.scene.chunks.SceneChunks`).
+The planners read no renderer: they take the scene's chunks as planning sees them
+(:class:`PlanningScene`: boxes, the culler's tree, blended flags) and, live, the frame's pose;
+only :func:`render_plan` draws. Chunk ids index the scene's chunks
+(:class:`node.scene.chunks.SceneChunks`).
 """
 
 from __future__ import annotations
@@ -29,9 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.culling.bvh import cull
+from node.culling.bvh import ChunkBVH, cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
+from node.scene.data import SceneData
+from node.scene.pose import ScenePose
 from tessera.balancers.projection import project_boxes
 from tessera.compositing.layers import DepthLayer
 from tessera.decomposition.chunk_ownership import assign_chunks, core_rect, readback_rect
@@ -54,69 +59,81 @@ class LayerPlan:
     blend_ids: np.ndarray | None = None
 
 
-def visible_chunks(renderer: TileRenderer, camera: Camera, size: tuple[int, int], rect: Rect) -> np.ndarray:
+@dataclass(frozen=True, eq=False)
+class PlanningScene:
+    """What planning reads of a loaded scene's C chunks and B batches: ``boxes`` (C, 2, 3) float64
+    world chunk boxes at the base pose, ``tree`` the culler's chunk tree over them, ``bounds``
+    (2, 3) float64 the scene's box (the near/far planes chunks are culled with), ``blended_batches``
+    (B,) bool the batches that blend (glTF ``BLEND``) and ``blended`` (C,) bool the chunks of those."""
+
+    boxes: np.ndarray
+    tree: ChunkBVH
+    bounds: np.ndarray
+    blended_batches: np.ndarray
+    blended: np.ndarray
+
+    @classmethod
+    def of(cls, scene: SceneData, tree: ChunkBVH) -> PlanningScene:
+        """``scene``'s chunks with ``tree`` (:attr:`node.culling.tiles.TileCuller.bvh`) over them."""
+        blends = np.array([batch.alpha_mode == "BLEND" for batch in scene.batches], dtype=bool)
+        return cls(scene.chunks.boxes, tree, np.asarray(scene.bounds), blends, blends[scene.chunks.batch])
+
+
+def visible_chunks(chunks: PlanningScene, camera: Camera, size: tuple[int, int], rect: Rect) -> np.ndarray:
     """(K,) int64 sorted ids of the chunks whose boxes touch ``rect``'s sub-frustum of the
     ``size`` frame (the culler's padded planes)."""
-    planes = frustum_planes_from_matrix(view_projection(camera, size, renderer.scene.bounds), size, rect)
-    return cull(renderer.culler.bvh, planes).visible_chunks
+    planes = frustum_planes_from_matrix(view_projection(camera, size, chunks.bounds), size, rect)
+    return cull(chunks.tree, planes).visible_chunks
 
 
-def chunk_bounds(renderer: TileRenderer, chunk_ids: np.ndarray, camera: Camera, size: tuple[int, int]) -> np.ndarray:
+def chunk_bounds(chunks: PlanningScene, chunk_ids: np.ndarray, camera: Camera, size: tuple[int, int]) -> np.ndarray:
     """(K, 4) float64 projected pixel bounds x0, y0, x1, y1 of chunks ``chunk_ids`` (K,), clipped to
     the frame (:func:`tessera.balancers.projection.project_boxes`)."""
-    scene = renderer.scene
-    return project_boxes(scene.chunks.boxes[chunk_ids].reshape(-1, 6), camera, size, scene.bounds)
+    return project_boxes(chunks.boxes[chunk_ids].reshape(-1, 6), camera, size, chunks.bounds)
 
 
-def hybrid_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], tiles: Sequence[Rect], index: int,
+def hybrid_plan(chunks: PlanningScene, camera: Camera, size: tuple[int, int], tiles: Sequence[Rect], index: int,
                 strip_px: int) -> LayerPlan:
     """Tile ``index`` of ``tiles`` (an exact cover of the ``size`` frame) in the hybrid mode with a
     ``strip_px`` border strip: its read-back rect, the chunks it draws and its core."""
     rect = readback_rect(tiles[index], strip_px, size)
-    candidates = visible_chunks(renderer, camera, size, rect)
-    ownership = assign_chunks(chunk_bounds(renderer, candidates, camera, size), tiles, strip_px, size,
-                              blended=blended_chunks(renderer)[candidates])
+    candidates = visible_chunks(chunks, camera, size, rect)
+    ownership = assign_chunks(chunk_bounds(chunks, candidates, camera, size), tiles, strip_px, size,
+                              blended=chunks.blended[candidates])
     core = core_rect(tiles[index], strip_px, size, bool(ownership.complete[index]))
     return LayerPlan(rect, candidates[ownership.draws[index]], core)
 
 
-def blended_chunks(renderer: TileRenderer) -> np.ndarray:
-    """(C,) bool: the scene's chunks whose batch blends (glTF ``BLEND``)."""
-    scene = renderer.scene
-    blends = np.array([batch.alpha_mode == "BLEND" for batch in scene.batches], dtype=bool)
-    return blends[scene.chunks.batch]
-
-
-def sort_last_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
+def sort_last_plan(chunks: PlanningScene, camera: Camera, size: tuple[int, int],
                    share: np.ndarray | None = None) -> LayerPlan | None:
-    """The layer of a node holding chunks ``share`` (sorted ids; None: every chunk of the renderer's
-    scene, as a serving node holds only its share): those in view and the rect they project to;
-    None when none is on screen."""
-    whole = visible_chunks(renderer, camera, size, Rect(0, 0, *size))
+    """The layer of a node holding chunks ``share`` (sorted ids; None: every chunk of ``chunks``,
+    as a serving node holds only its share): those in view and the rect they project to; None when
+    none is on screen."""
+    whole = visible_chunks(chunks, camera, size, Rect(0, 0, *size))
     drawn = whole if share is None else whole[np.isin(whole, share, assume_unique=True)]
-    rect = covering_rect(chunk_bounds(renderer, drawn, camera, size), size)
+    rect = covering_rect(chunk_bounds(chunks, drawn, camera, size), size)
     return None if rect is None else LayerPlan(rect, drawn)
 
 
-def live_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-              state: SceneState | None) -> LayerPlan | None:
+def live_plan(chunks: PlanningScene, pose: ScenePose, camera: Camera, size: tuple[int, int], request: DepthRequest,
+              tile_id: int) -> LayerPlan | None:
     """The layer tile ``tile_id`` of a ``render`` message with depth ``request`` asks for, in scene
-    ``state``: a hybrid tile of ``request.tiles``, or (sort-last) the node's whole share; None:
-    nothing of it in view. Raises ValueError for a tile id the request does not list."""
+    ``pose`` (:meth:`node.gl.renderer.TileRenderer.pose_of` its state): a hybrid tile of
+    ``request.tiles``, or (sort-last) the node's whole share; None: nothing of it in view. Raises
+    ValueError for a tile id the request does not list."""
     if request.mode == "hybrid":
         if not 0 <= tile_id < len(request.tiles):
             raise ValueError(f"tile {tile_id} is not one of the frame's {len(request.tiles)} tiles")
-        return hybrid_plan(renderer, camera, size, request.tiles, tile_id, request.strip)
-    if renderer.pose_of(state).whole:
+        return hybrid_plan(chunks, camera, size, request.tiles, tile_id, request.strip)
+    if pose.whole:
         frame = Rect(0, 0, *size)
-        plan: LayerPlan | None = LayerPlan(frame, visible_chunks(renderer, camera, size, frame))
+        plan: LayerPlan | None = LayerPlan(frame, visible_chunks(chunks, camera, size, frame))
     else:
-        plan = sort_last_plan(renderer, camera, size)
+        plan = sort_last_plan(chunks, camera, size)
     if plan is None:
         return None
-    blends = blended_chunks(renderer)[plan.chunk_ids]
-    batches = renderer.scene.batches
-    if not blends.any() and not any(batches[number].alpha_mode == "BLEND" for number in renderer.pose_of(state).whole):
+    blends = chunks.blended[plan.chunk_ids]
+    if not blends.any() and not chunks.blended_batches[list(pose.whole)].any():
         return plan
     return LayerPlan(plan.rect, plan.chunk_ids[~blends], blend_ids=plan.chunk_ids[blends])
 
