@@ -1,15 +1,70 @@
-"""Test-only culling references and read-backs: a tile's planes straight from its camera, the flat
-per-chunk box test the tree traversal must match, merged index ranges, what a GPU culler kept, and
-the tile-sized viewport the renderer does not use (it scissors a frame-sized framebuffer)."""
+"""Test-only culling inputs, references and read-backs: real scan meshes and the split bunny, random
+cameras and tiles, a tile's planes straight from its camera, the flat per-chunk box test the tree
+traversal must match, merged index ranges, what a GPU culler kept, and the tile-sized viewport the
+renderer does not use (it scissors a frame-sized framebuffer)."""
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Sequence
 
-from node.culling.bvh import ChunkBVH, range_members
+import numpy as np
+import trimesh
+
+from node.culling.bvh import ChunkBVH, build_chunk_bvh, range_members
 from node.culling.frustum import DEFAULT_PAD_PX, frustum_planes_from_matrix
 from node.culling.gpu import GpuCuller
+from node.scene.octree import ChunkSplit, octree_split
 from tessera.geometry import Camera, Rect, view_projection
+from tests.conftest import scene_path
+
+
+def scan_mesh(relative: str) -> tuple[np.ndarray, np.ndarray]:
+    """The real scene ``relative`` (under ../shared/scenes) as one mesh: positions (V, 3) float32 and
+    faces (F, 3) uint32."""
+    mesh = trimesh.load(scene_path(relative), force="mesh")
+    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.uint32)
+
+
+def split_bunny() -> tuple[np.ndarray, np.ndarray, ChunkSplit, ChunkBVH, np.ndarray]:
+    """The Stanford bunny split into chunks of at most 1024 faces: positions (V, 3) float32, faces
+    (F, 3) uint32 in chunk order, the split, its chunk BVH, and its bounds (2, 3) float64."""
+    positions, faces = scan_mesh("bunny/bun_zipper.ply")
+    split = octree_split(positions, faces, face_limit=1024)
+    bounds = np.array([positions.min(axis=0), positions.max(axis=0)], dtype=np.float64)
+    return positions, split.reorder(faces), split, build_chunk_bvh(split.bounds), bounds
+
+
+def random_cameras(bounds: np.ndarray, count: int, seed: int, nearest: float = 0.2,
+                   widest_deg: float = 100.0) -> list[Camera]:
+    """``count`` cameras around and inside the box ``bounds`` (2, 3), looking roughly at its centre:
+    eyes ``nearest`` to 3 half-diagonals from it, random up vectors, vertical fields of view from 20°
+    to ``widest_deg``."""
+    rng = np.random.default_rng(seed)
+    center = bounds.mean(axis=0)
+    radius = float(np.linalg.norm(bounds[1] - bounds[0])) / 2.0
+    cameras = []
+    while len(cameras) < count:
+        direction = rng.normal(size=3)
+        eye = center + direction / np.linalg.norm(direction) * radius * rng.uniform(nearest, 3.0)
+        target = center + rng.normal(scale=0.3 * radius, size=3)
+        up = rng.normal(size=3)
+        try:
+            cameras.append(Camera(eye=tuple(eye.tolist()), target=tuple(target.tolist()), up=tuple(up.tolist()),
+                                  fovy_deg=float(rng.uniform(20.0, widest_deg))))
+        except ValueError:
+            continue
+    return cameras
+
+
+def random_tiles(rng: np.random.Generator, count: int, size: tuple[int, int],
+                 fixed: Sequence[Rect] = ()) -> list[Rect]:
+    """``count`` tiles inside a ``size`` frame: a one-pixel tile, the ``fixed`` ones, then random rects."""
+    width, height = size
+    tiles = [Rect(int(rng.integers(0, width)), int(rng.integers(0, height)), 1, 1), *fixed]
+    while len(tiles) < count:
+        x, y = int(rng.integers(0, width - 1)), int(rng.integers(0, height - 1))
+        tiles.append(Rect(x, y, int(rng.integers(1, width - x + 1)), int(rng.integers(1, height - y + 1))))
+    return tiles
 
 
 def tile_frustum_planes(camera: Camera, size: tuple[int, int], rect: Rect, bounds: np.ndarray,

@@ -19,12 +19,17 @@ from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from tessera.geometry import Camera, Rect, default_camera
 from tests.conftest import PYTHON, REPO, scene_path, seconds
+from tests.culling_support import random_cameras, random_tiles
 
 pytestmark = pytest.mark.gl
 
 SIZE = (160, 120)
 FACE_LIMIT = 512
 UNSPLIT = 1 << 40
+#: one tile of a 4×4 grid, checked beside the random tiles
+GRID_TILE = Rect(40, 30, 40, 30)
+#: the random cameras: 0.3 to 3 half-diagonals of the scene's box away, fields of view up to 90°
+NEAREST, WIDEST_DEG = 0.3, 90.0
 
 
 @pytest.fixture(scope="module")
@@ -46,33 +51,6 @@ def renderers(ctx, bunny):
         renderer.release()
 
 
-def random_cameras(bounds: np.ndarray, count: int, seed: int) -> list[Camera]:
-    """Cameras around and inside the model's box, looking roughly at it, with varied field of view."""
-    rng = np.random.default_rng(seed)
-    center = bounds.mean(axis=0)
-    radius = float(np.linalg.norm(bounds[1] - bounds[0])) / 2.0
-    cameras = []
-    while len(cameras) < count:
-        direction = rng.normal(size=3)
-        eye = center + direction / np.linalg.norm(direction) * radius * rng.uniform(0.3, 3.0)
-        target = center + rng.normal(scale=0.3 * radius, size=3)
-        try:
-            cameras.append(Camera(eye=tuple(eye.tolist()), target=tuple(target.tolist()),
-                                  up=tuple(rng.normal(size=3).tolist()), fovy_deg=float(rng.uniform(20.0, 90.0))))
-        except ValueError:
-            continue
-    return cameras
-
-
-def random_tiles(rng: np.random.Generator, count: int) -> list[Rect]:
-    """A one-pixel tile, a 4×4 grid's tile, then random rects inside the frame."""
-    tiles = [Rect(int(rng.integers(0, SIZE[0])), int(rng.integers(0, SIZE[1])), 1, 1), Rect(40, 30, 40, 30)]
-    while len(tiles) < count:
-        x, y = int(rng.integers(0, SIZE[0] - 1)), int(rng.integers(0, SIZE[1] - 1))
-        tiles.append(Rect(x, y, int(rng.integers(1, SIZE[0] - x + 1)), int(rng.integers(1, SIZE[1] - y + 1))))
-    return tiles
-
-
 @pytest.mark.parametrize(("relative", "face_limit"), [("bunny/bun_zipper.ply", FACE_LIMIT),
                                                       ("gltf_small/2CylinderEngine.glb", 64),
                                                       ("gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf", 32)])
@@ -84,7 +62,9 @@ def test_pre_split_leaves_the_image_unchanged(ctx, relative, face_limit):
     chunked = TileRenderer(ctx, split, culling=CullMode.OFF)
     lo, hi = whole.bounds
     close = Camera(eye=tuple((lo + hi) / 2 + (hi - lo) * np.array([0.45, 0.3, 0.5])), target=tuple((lo + hi) / 2))
-    for camera in (default_camera(whole.bounds), close, *random_cameras(whole.bounds, 3, seed=2)):
+    cameras = [default_camera(whole.bounds), close,
+               *random_cameras(whole.bounds, 3, seed=2, nearest=NEAREST, widest_deg=WIDEST_DEG)]
+    for camera in cameras:
         reference = plain.render_frame(camera, SIZE).pixels
         image = chunked.render_frame(camera, SIZE).pixels
         assert psnr(image, reference) >= 50.0
@@ -99,8 +79,8 @@ def test_culling_draws_exactly_the_unculled_pixels_over_random_cameras_and_tiles
     off = renderers[CullMode.OFF]
     chunk_total = bunny.chunks.chunk_count
     culled_tiles = visible_tiles = 0
-    for camera in random_cameras(bunny.bounds, 10, seed=9):
-        for slot, rect in enumerate(random_tiles(rng, 8)):
+    for camera in random_cameras(bunny.bounds, 10, seed=9, nearest=NEAREST, widest_deg=WIDEST_DEG):
+        for slot, rect in enumerate(random_tiles(rng, 8, SIZE, [GRID_TILE])):
             reference = off.render_tile(camera, SIZE, rect, slot)
             assert (reference.cull_path, reference.chunks_drawn, reference.triangles) == \
                 ("off", chunk_total, bunny.triangle_count)
@@ -127,8 +107,8 @@ def test_one_draw_per_run_gives_the_multi_draw_pixels(ctx, bunny, renderers):
     for mode in (CullMode.CPU, CullMode.OFF):
         single = TileRenderer(ctx, bunny, culling=mode)
         single.multi_draw = False
-        for camera in random_cameras(bunny.bounds, 3, seed=4):
-            for rect in random_tiles(rng, 4):
+        for camera in random_cameras(bunny.bounds, 3, seed=4, nearest=NEAREST, widest_deg=WIDEST_DEG):
+            for rect in random_tiles(rng, 4, SIZE, [GRID_TILE]):
                 expected = renderers[mode].render_tile(camera, SIZE, rect)
                 tile = single.render_tile(camera, SIZE, rect)
                 assert np.array_equal(tile.pixels, expected.pixels)

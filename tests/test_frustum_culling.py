@@ -3,62 +3,30 @@ test on a real split scan, exact against a flat per-chunk box test, and hand-mad
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-import trimesh
 
 from node.culling.bvh import build_chunk_bvh, cull, range_members
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.tiles import indirect_commands
-from node.scene.octree import octree_split
 from tessera.geometry import Camera, Rect, view_projection
-from tests.culling_support import classify_boxes, cull_flat, merge_ranges, tile_frustum_planes
+from tests.culling_support import (
+    classify_boxes,
+    cull_flat,
+    merge_ranges,
+    random_cameras,
+    random_tiles,
+    split_bunny,
+    tile_frustum_planes,
+)
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 SIZE = (1280, 720)
 GRID_TILES = [Rect(x * 320, y * 180, 320, 180) for y in range(4) for x in range(4)]
 
 
 @pytest.fixture(scope="module")
 def bunny():
-    path = SCENES / "bunny" / "bun_zipper.ply"
-    if not path.exists():
-        pytest.fail(f"scene not found: the tests read real scenes from {SCENES}")
-    mesh = trimesh.load(path, force="mesh")
-    positions = np.asarray(mesh.vertices, dtype=np.float32)
-    faces = np.asarray(mesh.faces, dtype=np.uint32)
-    split = octree_split(positions, faces, face_limit=1024)
-    bounds = np.array([positions.min(axis=0), positions.max(axis=0)], dtype=np.float64)
-    return positions, split.reorder(faces), split, build_chunk_bvh(split.bounds), bounds
-
-
-def random_cameras(bounds: np.ndarray, count: int, seed: int) -> list[Camera]:
-    """Cameras around and inside the model's box, looking roughly at it, with varied field of view."""
-    rng = np.random.default_rng(seed)
-    center = bounds.mean(axis=0)
-    radius = float(np.linalg.norm(bounds[1] - bounds[0])) / 2.0
-    cameras = []
-    while len(cameras) < count:
-        direction = rng.normal(size=3)
-        eye = center + direction / np.linalg.norm(direction) * radius * rng.uniform(0.2, 3.0)
-        target = center + rng.normal(scale=0.3 * radius, size=3)
-        up = rng.normal(size=3)
-        try:
-            cameras.append(Camera(eye=tuple(eye.tolist()), target=tuple(target.tolist()), up=tuple(up.tolist()),
-                                  fovy_deg=float(rng.uniform(20.0, 100.0))))
-        except ValueError:
-            continue
-    return cameras
-
-
-def random_tiles(rng: np.random.Generator, count: int) -> list[Rect]:
-    tiles = [Rect(int(rng.integers(0, SIZE[0])), int(rng.integers(0, SIZE[1])), 1, 1)]  # one pixel
-    while len(tiles) < count:
-        x, y = int(rng.integers(0, SIZE[0] - 1)), int(rng.integers(0, SIZE[1] - 1))
-        tiles.append(Rect(x, y, int(rng.integers(1, SIZE[0] - x + 1)), int(rng.integers(1, SIZE[1] - y + 1))))
-    return tiles
+    return split_bunny()
 
 
 def triangle_samples_clip(positions: np.ndarray, faces: np.ndarray, view_proj: np.ndarray) -> np.ndarray:
@@ -86,7 +54,7 @@ def test_culling_never_drops_a_chunk_with_a_triangle_in_the_tile(bunny):
     kept_total = seen_total = tested = 0
     for camera in random_cameras(bounds, 12, seed=11):
         samples = triangle_samples_clip(positions, faces, view_projection(camera, SIZE, bounds))
-        for rect in GRID_TILES + random_tiles(rng, 6):
+        for rect in GRID_TILES + random_tiles(rng, 6, SIZE):
             kept = cull(bvh, tile_frustum_planes(camera, SIZE, rect, bounds)).visible_chunks
             seen = chunks_seen_in_tile(samples, chunk_of_face, rect)
             missing = np.setdiff1d(seen, kept)
@@ -100,7 +68,7 @@ def test_hierarchy_finds_exactly_the_boxes_a_flat_test_keeps(bunny):
     _, _, split, bvh, bounds = bunny
     rng = np.random.default_rng(3)
     for camera in random_cameras(bounds, 10, seed=5):
-        for rect in GRID_TILES[::3] + random_tiles(rng, 4):
+        for rect in GRID_TILES[::3] + random_tiles(rng, 4, SIZE):
             planes = tile_frustum_planes(camera, SIZE, rect, bounds)
             result = cull(bvh, planes)
             outside, _ = classify_boxes(split.bounds[:, 0].astype(np.float64), split.bounds[:, 1].astype(np.float64),

@@ -5,18 +5,14 @@ in the renderer is tested in test_culled_rendering.py.)"""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import moderngl
 import numpy as np
 import pytest
-import trimesh
 
 from node.culling.bvh import build_chunk_bvh, cull, range_members
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.gpu import MAX_SUBTREE_LEVELS, GpuBvh, GpuCuller
 from node.culling.tiles import indirect_commands
-from node.scene.octree import octree_split
 from tessera.geometry import Camera, Rect, view_projection
 from tests.culling_support import (
     classify_boxes,
@@ -25,30 +21,23 @@ from tests.culling_support import (
     read_commands,
     read_input_nodes,
     read_visible_chunks,
+    split_bunny,
     tile_frustum_planes,
     tile_viewport,
 )
 
 pytestmark = pytest.mark.gl
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 SIZE = (1280, 720)
 GRID_TILES = [Rect(x * 320, y * 180, 320, 180) for y in range(4) for x in range(4)]
 
 
 @pytest.fixture(scope="module")
 def bunny(ctx):
-    path = SCENES / "bunny" / "bun_zipper.ply"
-    if not path.exists():
-        pytest.fail(f"scene not found: the tests read real scenes from {SCENES}")
-    mesh = trimesh.load(path, force="mesh")
-    positions = np.asarray(mesh.vertices, dtype=np.float32)
-    faces = np.asarray(mesh.faces, dtype=np.uint32)
-    split = octree_split(positions, faces, face_limit=1024)
-    bvh = build_chunk_bvh(split.bounds)
-    bounds = np.array([positions.min(axis=0), positions.max(axis=0)], dtype=np.float64)
+    """:func:`split_bunny` and its BVH on the GPU."""
+    positions, faces, split, bvh, bounds = split_bunny()
     gpu_bvh = GpuBvh(ctx, bvh, split.index_starts, split.index_ends)
-    yield positions, split.reorder(faces), split, bvh, bounds, gpu_bvh
+    yield positions, faces, split, bvh, bounds, gpu_bvh
     gpu_bvh.release()
 
 

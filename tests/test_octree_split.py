@@ -3,15 +3,11 @@ contiguous ranges, tight boxes, octree cells; on a synthetic mesh and on the 990
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-import trimesh
 
 from node.scene.octree import MAX_DEPTH, ChunkSplit, morton_codes, octree_root, octree_split
-
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+from tests.culling_support import scan_mesh
 
 
 def random_mesh(face_total: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -102,12 +98,7 @@ def test_empty_mesh_and_bad_limits():
 
 
 def test_990k_scan_splits_into_chunks_under_the_limit():
-    path = SCENES / "large_scan" / "threedscans_pan_990k.ply"
-    if not path.exists():
-        pytest.fail(f"scene not found: the tests read real scenes from {SCENES}")
-    mesh = trimesh.load(path, force="mesh")
-    positions = np.asarray(mesh.vertices, dtype=np.float32)
-    faces = np.asarray(mesh.faces, dtype=np.uint32)
+    positions, faces = scan_mesh("large_scan/threedscans_pan_990k.ply")
     assert faces.shape[0] > 900_000
     split = octree_split(positions, faces, face_limit=16384)
     check_split(positions, faces, split, 16384)
