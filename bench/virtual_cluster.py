@@ -26,16 +26,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tessera.balancers.base import Partition, ProjectedGroups, imbalance
+from tessera.decomposition.balanced_tiles import tile_set
 from tessera.geometry import Camera, Rect
+from tessera.scheduling.actions import CancelFrames, PublishFrame, RenderTiles
 from tessera.scheduling.frame_jobs import FrameJob
-from tessera.scheduling.scheduler import (
-    CancelFrames,
-    FrameScheduler,
-    PublishFrame,
-    RenderTiles,
-    SchedulerConfig,
-    tile_set,
-)
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import TileHeader
 

@@ -1,5 +1,5 @@
 """A connected render node as the coordinator's adapter sees it: identity, scene state, outbox.
-What it owes and its timings live in the scheduler's :class:`tessera.scheduling.scheduler.NodeSchedule`."""
+What it owes and its timings live in the scheduler's :class:`tessera.scheduling.node_table.NodeSchedule`."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from tessera.scheduling.scheduler import NodeSchedule
+from tessera.scheduling.node_table import NodeSchedule
 from tessera.wire.messages import Message
 from tessera.wire.protocol import NODE_PHASES
 

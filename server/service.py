@@ -2,13 +2,10 @@
 socket messages and the clock into scheduler events and carries out the scheduler's actions
 (send render / cancel messages, publish frames to the store and the viewers, close nodes).
 
-Depth modes (issue 10): a depth tile is decoded when it arrives (:func:`tessera.wire.depth_tiles.read_depth_tile`,
-checked against what the coordinator expects of that tile), and a complete frame is merged by
-depth before it is published (:meth:`RenderService._depth_frame_tiles`), on the coordinator: at
-1080p with 4 nodes the merge costs 10–20 ms of one core, below a node's render time
-(docs/depth_compositing.md). Viewers get colour tiles as in sort-first: a hybrid frame is each
-tile's core as its node sent it plus the rest of the tile cut from the merge; a sort-last frame
-is the merge, one image.
+The decomposition mode (:mod:`tessera.decomposition`) lives in the scheduler: it reads each tile
+(a depth tile is decoded and checked when it arrives) and assembles each complete frame for the
+viewers (a depth frame merged on the coordinator: at 1080p with 4 nodes the merge costs 5–15 ms of
+one core, below a node's render time, docs/depth_compositing.md); this module carries bytes.
 
 What happens when — render on demand, late camera binding, superseded frames, publish order —
 is decided in the scheduler; this module adds what needs I/O: the nodes' connections and scene
@@ -36,30 +33,18 @@ from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
 from tessera.balancers.hetero import calibration_weights
-from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_depth_tiles
-from tessera.compositing.layers import background_pixel
-from tessera.decomposition.chunk_ownership import exclusive_rect, readback_rect
-from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, default_camera
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
 from tessera.scene.animation import Animation, AnimationError
 from tessera.scene.graph import ObjectGraph
 from tessera.scene.state import ObjectPatch, SceneStateError
 from tessera.scene.timeline import SceneTimeline
-from tessera.scheduling.frame_jobs import FrameJob, check_payload_size
-from tessera.scheduling.scheduler import (
-    CancelFrames,
-    CloseNode,
-    FrameScheduler,
-    LoadShare,
-    PublishFrame,
-    RenderTiles,
-    SchedulerConfig,
-)
-from tessera.wire.codec import Codec, encode
-from tessera.wire.depth_tiles import DecodedDepthTile, read_depth_tile
+from tessera.scheduling import actions
+from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.scheduler import FrameScheduler
+from tessera.wire import messages
 from tessera.wire.messages import (
     Calibration,
     Cancel,
-    LoadScene,
     Message,
     NodeHello,
     RenderError,
@@ -72,7 +57,7 @@ from tessera.wire.messages import (
     ViewerScene,
     Welcome,
 )
-from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader, unpack_tile
+from tessera.wire.protocol import ProtocolError, unpack_tile
 
 log = logging.getLogger("tessera.server")
 
@@ -80,7 +65,7 @@ log = logging.getLogger("tessera.server")
 TIMER_MAX_WAIT_S = 1.0
 
 
-def scene_timeline(message: SceneReady, now: float) -> SceneTimeline:
+def timeline_of(message: SceneReady, now: float) -> SceneTimeline:
     """The scene's objects and animations as a node reported them; ProtocolError when they do not
     make a scene."""
     assert message.objects is not None
@@ -92,21 +77,12 @@ def scene_timeline(message: SceneReady, now: float) -> SceneTimeline:
         raise ProtocolError(f"scene_ready: {exc}") from None
 
 
-def scheduler_config(settings: Settings) -> SchedulerConfig:
-    return SchedulerConfig(
-        size=settings.size, codec=settings.codec, interactive_quality=settings.interactive_quality,
-        still_codec=settings.still_codec, still_quality=settings.still_quality, max_in_flight=settings.max_in_flight,
-        max_fps=settings.max_fps, still_delay_s=settings.still_delay_ms / 1000.0,
-        settle_frames=settings.settle_frames, tile_timeout_s=settings.tile_timeout_s, mode=settings.mode,
-        depth_strip=settings.depth_strip)
-
-
 class RenderService:
     def __init__(self, settings: Settings, metrics: CoordinatorMetrics | None = None) -> None:
         self.settings = settings
         self.size = settings.size
         self.metrics = metrics or CoordinatorMetrics()
-        self.scheduler = FrameScheduler(scheduler_config(settings), create_balancer(settings.balancer))
+        self.scheduler = FrameScheduler(settings.scheduler_config(), create_balancer(settings.balancer))
         self.scheduler.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
         self.bounds: np.ndarray | None = None
@@ -116,7 +92,6 @@ class RenderService:
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
         self.cpu_ms = {"receive": 0.0, "publish": 0.0, "merge": 0.0}
-        self.background = background_pixel(settings.background or DEFAULT_BACKGROUND)
         self.calibration = CalibrationQueue()
 
     @property
@@ -163,29 +138,28 @@ class RenderService:
     def _apply(self) -> None:
         """Carry out the scheduler's actions, then let the timer look at the new deadline."""
         for action in self.scheduler.drain():
-            if isinstance(action, RenderTiles):
+            if isinstance(action, actions.RenderTiles):
                 self.nodes[action.node_id].send(action.message)
-            elif isinstance(action, CancelFrames):
+            elif isinstance(action, actions.CancelFrames):
                 self.nodes[action.node_id].send(Cancel(frames=action.frames))
-            elif isinstance(action, LoadShare):
+            elif isinstance(action, actions.LoadScene):
                 self.nodes[action.node_id].send(self._load_scene(action.share))
-            elif isinstance(action, PublishFrame):
+            elif isinstance(action, actions.BalancerFailed):
+                log.error("balancer failed, the static split was used: %s", action.reason)
+            elif isinstance(action, actions.PublishFrame):
                 self._publish(action.job)
-            elif isinstance(action, CloseNode):
+            elif isinstance(action, actions.CloseNode):
                 link = self.nodes.get(action.node_id)
                 if link is not None:
                     log.warning("node %d (%s): %s; disconnecting it", link.node_id, link.name, action.reason)
                     link.close(action.code, action.reason)
                     self._forget_node(link)
-        if self.scheduler.balancer_error is not None:
-            log.error("balancer failed, the static split was used: %s", self.scheduler.balancer_error)
-            self.scheduler.balancer_error = None
         self._wake.set()
 
     # ----------------------------------------------------------------- nodes
     def refusal(self, hello: NodeHello) -> str | None:
         """Why a node that sent ``hello`` cannot serve this coordinator (None: it can)."""
-        if self.settings.mode != "sort-first" and not hello.capabilities.depth:
+        if self.scheduler.mode.needs_depth and not hello.capabilities.depth:
             return (f"this coordinator runs --mode {self.settings.mode}, which needs nodes that render depth tiles "
                     "(capabilities.depth); update the node")
         return None
@@ -198,15 +172,13 @@ class RenderService:
         self.nodes[link.node_id] = link
         link.send(Welcome(node_id=link.node_id))
         self.scheduler.add_node(link.node_id, time.monotonic())
-        if self.scheduler.shares is None:
-            link.send(self._load_scene())
-        self._apply()   # sort-last: every node's share of the new partition
+        self._apply()   # the scene to load (sort-last: every node's share of the new partition)
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link
 
-    def _load_scene(self, share: ShareSpec | None = None) -> LoadScene:
-        return LoadScene(scene=self.settings.scene, background=self.settings.background or DEFAULT_BACKGROUND,
-                         share=share)
+    def _load_scene(self, share: ShareSpec | None = None) -> messages.LoadScene:
+        return messages.LoadScene(scene=self.settings.scene,
+                                  background=self.settings.background or DEFAULT_BACKGROUND, share=share)
 
     def remove_node(self, link: NodeLink) -> None:
         """The node's connection ended: what it owed goes to the others."""
@@ -268,7 +240,7 @@ class RenderService:
         now = time.monotonic()
         if self.bounds is None:
             if message.objects is not None:
-                self.scheduler.set_scene(scene_timeline(message, now), now)
+                self.scheduler.set_scene(timeline_of(message, now), now)
             self.bounds = bounds
             if message.groups is not None:
                 self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
@@ -360,15 +332,7 @@ class RenderService:
         published_before = self.cpu_ms["publish"]
         try:
             header, payload = unpack_tile(message)
-            if not (header.rect.x1 <= self.size[0] and header.rect.y1 <= self.size[1]):
-                raise ProtocolError(f"tile rect {header.rect.as_list()} lies outside the {self.size[0]}x{self.size[1]} "
-                                    "frame")  # before its payload is decoded: no decompression bombs
-            data, depth_tile = bytes(payload), None
-            if header.depth:
-                depth_tile = self._depth_tile(header, data)
-            else:
-                check_payload_size(data, header.codec, header.rect)
-            self.scheduler.tile_arrived(link.node_id, header, data, time.monotonic(), depth_tile)
+            self.scheduler.receive_tile(link.node_id, header, bytes(payload), time.monotonic())
             link.last_tile = (header.frame_id, header.tile_id)
             self.metrics.tile_arrived(header)
             self._apply()
@@ -376,44 +340,12 @@ class RenderService:
             spent = (time.thread_time() - started) * 1000.0
             self.cpu_ms["receive"] += spent - (self.cpu_ms["publish"] - published_before)
 
-    def _depth_tile(self, header: TileHeader, payload: bytes) -> DecodedDepthTile | None:
-        """A depth tile decoded and checked against what its frame expects of it: pieces inside the
-        tile's read-back rect (hybrid) or the frame (sort-last), the core inside the tile and
-        holding what no other tile reaches, the share version the frame's; ProtocolError if not.
-        None for a tile the scheduler ignores (its frame was dropped) or refuses (a tile it was
-        not owed)."""
-        job = self.scheduler.in_flight.get(header.frame_id)
-        if job is None or job.depth is None or not 0 <= header.tile_id < len(job.tiles):
-            return None
-        rect, strip = job.tiles[header.tile_id].rect, job.depth.strip
-        if job.depth.mode == "hybrid":
-            bound, core = readback_rect(rect, strip, job.size), (exclusive_rect(rect, strip, job.size), rect)
-        else:
-            bound, core = Rect(0, 0, *job.size), None
-        tile = read_depth_tile(payload, bound, core, header.tile_id)
-        if job.depth.mode == "sort-last" and tile.version != job.depth.share:
-            raise ProtocolError(f"depth tile drawn from the share of partition {tile.version}, the frame's is "
-                                f"{job.depth.share}")
-        if tile.core is not None:
-            check_payload_size(tile.core[1], header.codec, tile.core[0])
-        return tile
-
-    def _frame_tiles(self, job: FrameJob) -> list[tuple[Rect, Codec, int, bytes]]:
-        """What viewers get of ``job``: its tiles as received, or a depth frame merged."""
-        slots = {n.node_id: n.slot for n in self.scheduler.nodes.values()}
-        if job.depth is None:
-            return [(t.rect, job.codec, slots.get(t.rendered_by or 0, NO_NODE_SLOT), t.payload or b"")
-                    for t in job.tiles]
+    def _frame_tiles(self, job: FrameJob) -> list:
+        """What viewers get of ``job`` (the mode's assembly; a merge's CPU time is accounted)."""
+        if not self.scheduler.mode.merges:
+            return self.scheduler.viewer_tiles(job)
         started = time.thread_time()
-        decoded = [t.depth_tile for t in job.tiles if t.depth_tile is not None]
-        merged = merge_depth_tiles(decoded, job.size, self.background)
-        if job.depth.mode == "hybrid":
-            tiles = [(rect, job.codec, slots.get(job.tiles[index].rendered_by or 0, NO_NODE_SLOT), data)
-                     for rect, index, data in hybrid_frame_tiles([(t.rect, d) for t, d in zip(job.tiles, decoded,
-                                                                                               strict=True)],
-                                                                 merged, job.codec, job.jpeg_quality)]
-        else:
-            tiles = [(Rect(0, 0, *job.size), job.codec, NO_NODE_SLOT, encode(merged, job.codec, job.jpeg_quality))]
+        tiles = self.scheduler.viewer_tiles(job)
         self.cpu_ms["merge"] += (time.thread_time() - started) * 1000.0
         return tiles
 
@@ -440,17 +372,13 @@ class RenderService:
         return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
                 "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
 
-    def partition(self) -> dict[str, Any] | None:
-        """Sort-last: the newest data partition (its version, shares, their holders and weights)
-        and whether a share of it is still loading (frames wait); None in the other modes."""
-        shares = self.scheduler.shares
-        if shares is None:
-            return None
-        plan = shares.plan
-        if plan is None:
-            return {"version": None, "shares": 0, "pending": True, "holders": [], "weights": []}
-        return {"version": plan.version, "shares": len(plan.holders), "pending": not shares.complete,
-                "holders": list(plan.holders), "weights": [round(w, 4) for w in plan.weights]}
+    def next_frame_id(self) -> int:
+        """The id the next frame to start will have."""
+        return self.scheduler.next_frame_id
+
+    def scene_timeline(self) -> SceneTimeline | None:
+        """The scene's objects, animations and poses (None until a node reported them)."""
+        return self.scheduler.scene
 
     def describe(self) -> dict[str, Any]:
         scheduler, stats = self.scheduler, self.scheduler.stats
@@ -460,9 +388,7 @@ class RenderService:
             "fps": round(stats.fps(time.monotonic()), 2),
             "size": list(self.size),
             "balancer": scheduler.balancer.name,
-            "mode": self.settings.mode,
-            "depth_strip": self.settings.depth_strip if self.settings.mode == "hybrid" else None,
-            "partition": self.partition(),
+            **scheduler.mode.describe(),
             "balancer_params": scheduler.balancer.params,
             "imbalance": round(stats.imbalance, 4),
             "imbalance_avg": round(stats.imbalance_avg, 4),

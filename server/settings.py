@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from server.origins import normalise_origins
 from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
-from tessera.scheduling.scheduler import MODES
+from tessera.decomposition.modes import MODES
+from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.wire.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
@@ -114,28 +115,22 @@ def _quality(text: str) -> int:
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(SchedulerConfig):
+    """Every setting of the coordinator: the frame scheduler's (:class:`SchedulerConfig`, its
+    fields and defaults: ``size``, the codecs and qualities, ``still_delay_ms``, ``settle_frames``,
+    ``max_in_flight``, ``max_fps``, ``tile_timeout_s``, ``mode``, ``depth_strip``, ``background``,
+    …; :meth:`scheduler_config` hands them on) and the service's own below."""
+
     host: str = "127.0.0.1"
     port: int = 8000
     scene: str = DEFAULT_SCENE
-    size: tuple[int, int] = (1280, 720)
     balancer: str = DEFAULT_BALANCER
     token: str | None = None
     local_nodes: int = 0
-    codec: Codec = Codec.JPEG
-    interactive_quality: int = 60
-    still_codec: Codec | None = Codec.PNG
-    still_quality: int = 95
-    still_delay_ms: float = 200.0
-    settle_frames: int = 2
-    max_in_flight: int = 2
-    max_fps: float = 60.0
-    tile_timeout_s: float = 20.0
     #: WebSocket ping interval to every node and viewer (s); a peer that has not answered a ping
     #: within twice as long is disconnected (a frozen node that owes no tile, a dead network).
     heartbeat_s: float = 10.0
     frame_wait_s: float = 30.0
-    background: tuple[float, float, float] | None = None
     node_slowdowns: tuple[float, ...] = ()
     log_level: str = "info"
     #: Pages of other origins whose viewers may open the sockets (``*``: any page); same origin always may.
@@ -146,9 +141,6 @@ class Settings:
     max_node_message_bytes: int | None = None
     max_viewer_messages_per_s: float = DEFAULT_MAX_VIEWER_MESSAGES_PER_S
     max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
-    #: Decomposition mode, one of :data:`tessera.scheduling.scheduler.MODES`; ``depth_strip``: the hybrid's strip (px).
-    mode: str = "sort-first"
-    depth_strip: int = DEFAULT_DEPTH_STRIP
 
     @property
     def node_message_bytes(self) -> int:
@@ -157,15 +149,17 @@ class Settings:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    defaults = Settings()
     parser = argparse.ArgumentParser(
         prog="python -m server",
         description="Tessera coordinator: partitions the screen, gathers tiles from render nodes, "
         "serves the viewer. Every flag can also be set as TESSERA_<FLAG> (e.g. TESSERA_SCENE, TESSERA_LOCAL_NODES).",
     )
-    parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
-    parser.add_argument("--port", type=_port, help="port (default 8000; 0 picks a free one)")
+    parser.add_argument("--host", help=f"address to listen on (default {defaults.host})")
+    parser.add_argument("--port", type=_port, help=f"port (default {defaults.port}; 0 picks a free one)")
     parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
-    parser.add_argument("--size", type=parse_size, help="frame size WxH (default 1280x720)")
+    parser.add_argument("--size", type=parse_size,
+                        help=f"frame size WxH (default {defaults.size[0]}x{defaults.size[1]})")
     parser.add_argument("--balancer", help=f"load balancer (default {DEFAULT_BALANCER})")
     parser.add_argument("--mode", choices=MODES,
                         help="sort-first (default: disjoint tiles, every node holds the scene), hybrid (seed 000 "
@@ -178,24 +172,29 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--codec", type=_codec,
                         help="tile codec while the picture changes: jpeg (default), png (lossless) or raw")
     parser.add_argument("--interactive-quality", "--jpeg-quality", dest="interactive_quality", type=_quality,
-                        help="JPEG quality 1…100 of interactive frames (default 60; --jpeg-quality is the old name)")
+                        help=f"JPEG quality 1…100 of interactive frames (default {defaults.interactive_quality}; "
+                             "--jpeg-quality is the old name)")
     parser.add_argument("--still-codec", type=_still_codec,
                         help="codec of the still frame rendered once nothing changed for --still-delay-ms: "
                              "png (default, lossless), raw, jpeg, or none for no still frame")
-    parser.add_argument("--still-quality", type=_quality, help="JPEG quality of a jpeg still frame (default 95)")
+    parser.add_argument("--still-quality", type=_quality,
+                        help=f"JPEG quality of a jpeg still frame (default {defaults.still_quality})")
     parser.add_argument("--still-delay-ms", type=POSITIVE,
-                        help="quiet time before the still frame, ms (default 200)")
+                        help=f"quiet time before the still frame, ms (default {defaults.still_delay_ms:g})")
     parser.add_argument("--settle-frames", type=_count,
                         help="at most this many frames more after a change while the balancer's partition "
-                             "still moves (default 2)")
-    parser.add_argument("--max-in-flight", type=int, help="frames rendering at once (default 2)")
-    parser.add_argument("--max-fps", type=POSITIVE, help="frame rate cap (default 60)")
+                             f"still moves (default {defaults.settle_frames})")
+    parser.add_argument("--max-in-flight", type=int,
+                        help=f"frames rendering at once (default {defaults.max_in_flight})")
+    parser.add_argument("--max-fps", type=POSITIVE, help=f"frame rate cap (default {defaults.max_fps:g})")
     parser.add_argument("--tile-timeout-s", type=POSITIVE,
-                        help="seconds before a node that owes a tile is dropped (default 20)")
+                        help="seconds before a node that owes a tile is dropped "
+                             f"(default {defaults.tile_timeout_s:g})")
     parser.add_argument("--heartbeat-s", type=POSITIVE,
                         help="seconds between WebSocket pings to nodes and viewers; a peer that has not answered "
-                             "one within twice as long is disconnected (default 10)")
-    parser.add_argument("--frame-wait-s", type=POSITIVE, help="longest wait of GET /api/frame.png (default 30)")
+                             f"one within twice as long is disconnected (default {defaults.heartbeat_s:g})")
+    parser.add_argument("--frame-wait-s", type=POSITIVE,
+                        help=f"longest wait of GET /api/frame.png (default {defaults.frame_wait_s:g})")
     parser.add_argument("--background", type=parse_background, help="clear colour '#rrggbb' or 'r,g,b'")
     parser.add_argument("--node-slowdowns", help="with --local-nodes: comma-separated --slowdown per node, e.g. 1,1,3")
     parser.add_argument("--log-level", help="debug, info (default), warning")
@@ -243,9 +242,10 @@ def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | N
             parser.error("--node-slowdowns must be finite numbers >= 1")
     if values.get("still_codec") == NO_STILL:
         values["still_codec"] = None
-    settings = Settings(**values)
-    if settings.max_in_flight < 1:
-        parser.error("--max-in-flight must be >= 1")
+    try:
+        settings = Settings(**values)
+    except ValueError as exc:
+        parser.error(str(exc))
     from tessera.balancers import BALANCERS
 
     if settings.balancer not in BALANCERS:

@@ -11,8 +11,9 @@ import zlib
 import numpy as np
 import pytest
 
-from tessera.compositing.depth_merge import hybrid_frame_tiles, merge_by_depth, merge_depth_tiles
+from tessera.compositing.depth_merge import merge_by_depth, merge_depth_tiles
 from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, background_pixel
+from tessera.decomposition.hybrid import hybrid_frame_tiles
 from tessera.geometry import Rect
 from tessera.wire.codec import Codec, decode
 from tessera.wire.depth_tiles import encode_depth_tile, read_depth_tile

@@ -11,14 +11,8 @@ from tessera.balancers import create_balancer
 from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect
-from tessera.scheduling.scheduler import (
-    CancelFrames,
-    CloseNode,
-    FrameScheduler,
-    PublishFrame,
-    RenderTiles,
-    SchedulerConfig,
-)
+from tessera.scheduling.actions import BalancerFailed, CancelFrames, CloseNode, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError, TileHeader
 
@@ -37,6 +31,7 @@ def scheduler(nodes: int = 2, balancer: Balancer | None = None, **config) -> Fra
     s = FrameScheduler(SchedulerConfig(size=SIZE, **config), balancer or StaticBalancer())
     for node_id in range(1, nodes + 1):
         s.add_node(node_id, 0.0)
+        assert s.drain() == [LoadScene(node_id)], "a node that joins is told to load the whole scene"
         s.node_ready(node_id, 0.0)
     return s
 
@@ -104,7 +99,7 @@ def test_nothing_renders_without_a_camera_or_a_ready_node():
 
 
 def test_a_change_renders_once_then_a_still_frame_then_nothing():
-    s = scheduler(still_delay_s=0.2)
+    s = scheduler(still_delay_ms=200)
     assert s.set_camera(camera(), 0.0) == 1
     actions = s.drain()
     assert renders(actions) == {1: [(1, 0)], 2: [(1, 1)]}
@@ -168,7 +163,7 @@ def test_the_still_frame_is_the_last_frame_even_when_the_partition_moves_again()
             a, b = inputs.node_ids
             return Partition((Tile(Rect(0, 0, self.cut, 32), a), Tile(Rect(self.cut, 0, 64 - self.cut, 32), b)))
 
-    s = scheduler(balancer=MovesLate(), settle_frames=3, still_delay_s=0.1)
+    s = scheduler(balancer=MovesLate(), settle_frames=3, still_delay_ms=100)
     s.set_camera(camera(), 0.0)
     now, published_still = 0.0, []
     for _ in range(20):
@@ -246,7 +241,7 @@ def test_a_newer_camera_drops_a_frame_no_node_has_begun():
 
 
 def test_a_still_frame_is_dropped_as_soon_as_the_camera_moves():
-    s = scheduler(still_delay_s=0.1)
+    s = scheduler(still_delay_ms=100)
     s.set_camera(camera(0), 0.0)
     finish(s, 1, 0.01)
     s.tick(0.2)
@@ -276,7 +271,7 @@ def test_a_tile_of_a_frame_never_dispatched_is_a_protocol_error():
 def test_a_tile_a_node_does_not_owe_is_a_protocol_error_even_when_its_frame_is_gone():
     """Fuzz finding (tests/test_fuzz.py): a tile of a published or dropped frame was ignored whoever
     sent it. Only the node that owed it when its frame was dropped may still send it, once."""
-    s = scheduler(still_delay_s=0.1)
+    s = scheduler(still_delay_ms=100)
     s.set_camera(camera(0), 0.0)
     finish(s, 1, 0.01)
     with pytest.raises(ProtocolError, match="does not owe"):
@@ -355,7 +350,7 @@ def test_never_a_torn_frame_never_backwards_under_random_events(events, balancer
     """Random arrivals, failed tiles, camera changes, ticks (stragglers backed up) and nodes leaving
     and joining."""
     s = scheduler(nodes=3, balancer=create_balancer(balancer_name), max_in_flight=in_flight,
-                  still_delay_s=0.05, settle_frames=2)
+                  still_delay_ms=50, settle_frames=2)
     harness = Harness(s)
     now, next_node = 0.0, 4
     s.set_camera(camera(0), now)
@@ -489,7 +484,7 @@ def test_frames_carry_each_viewers_newest_input_number():
 
 
 def test_latency_is_input_to_publish_of_the_first_frame_showing_it():
-    s = scheduler(still_delay_s=0.1, settle_frames=0)
+    s = scheduler(still_delay_ms=100, settle_frames=0)
     s.set_camera(camera(0), 1.0)
     finish(s, 1, 1.04)
     s.tick(1.2)
@@ -509,7 +504,8 @@ def test_a_failing_balancer_falls_back_to_the_static_split():
     s = scheduler(balancer=Broken())
     s.set_camera(camera(), 0.0)
     assert [t.rect for t in s.in_flight[1].tiles] == [Rect(0, 0, 32, 32), Rect(32, 0, 32, 32)]
-    assert "exactly once" in (s.balancer_error or "")
+    failures = [a.reason for a in s.drain() if isinstance(a, BalancerFailed)]
+    assert len(failures) == 1 and "exactly once" in failures[0]
 
 
 def test_the_next_frame_is_partitioned_with_the_frame_that_just_completed():

@@ -13,7 +13,8 @@ from tessera.scene.animation import Animation, Channel, Sampler
 from tessera.scene.graph import ObjectGraph, SceneObject
 from tessera.scene.state import HISTORY, ObjectPatch, SceneState, SceneStateError, StateDelta, UnknownObjectError
 from tessera.scene.timeline import SceneTimeline
-from tessera.scheduling.scheduler import FrameScheduler, PublishFrame, RenderTiles, SchedulerConfig
+from tessera.scheduling.actions import LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError, TileHeader
 from tests.test_scheduler import camera
@@ -29,6 +30,7 @@ def scene_scheduler(nodes: int = 2, **config) -> FrameScheduler:
     s = FrameScheduler(SchedulerConfig(size=SIZE, **config), StaticBalancer())
     for node_id in range(1, nodes + 1):
         s.add_node(node_id, 0.0)
+        assert s.drain() == [LoadScene(node_id)], "a node that joins is told to load the whole scene"
         s.node_ready(node_id, 0.0)
     graph = ObjectGraph([SceneObject("car"), SceneObject("tree")])
     drive = Sampler(np.array([0.0, 2.0]), np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]]), "LINEAR")
@@ -155,7 +157,7 @@ def test_an_unknown_object_or_bad_value_changes_nothing():
 
 
 def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still_frame():
-    s = scene_scheduler(nodes=1, max_fps=10.0, still_delay_s=0.2)
+    s = scene_scheduler(nodes=1, max_fps=10.0, still_delay_ms=200)
     s.drain()
     finish(s, 1, 0.01)
     s.tick(0.5)
@@ -195,7 +197,7 @@ def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still
 
 
 def test_a_failed_tile_of_a_dropped_frame_also_gets_the_node_the_whole_state():
-    s = scene_scheduler(nodes=1, still_delay_s=0.2)
+    s = scene_scheduler(nodes=1, still_delay_ms=200)
     s.drain()
     finish(s, 1, 0.01)
     s.tick(0.5)

@@ -8,15 +8,10 @@ from __future__ import annotations
 
 from tessera.balancers.static import StaticBalancer
 from tessera.decomposition.share_plan import ShareBook
+from tessera.decomposition.sort_last import SortLast
 from tessera.geometry import Camera, Rect
-from tessera.scheduling.scheduler import (
-    CancelFrames,
-    FrameScheduler,
-    LoadShare,
-    PublishFrame,
-    RenderTiles,
-    SchedulerConfig,
-)
+from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import TileHeader
@@ -50,15 +45,16 @@ def load_shares(s: FrameScheduler, actions, now: float = 0.0) -> list:
     """Every node told to load a share reports it loaded; returns the actions that follow."""
     out = []
     for action in actions:
-        if isinstance(action, LoadShare):
+        if isinstance(action, LoadScene):
             s.node_ready(action.node_id, now, action.share.version)
             out += s.drain()
     return out
 
 
 def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: float):
+    version = s.mode.shares.plan.version if isinstance(s.mode, SortLast) and s.mode.shares.plan else 0
     s.tile_arrived(node_id, TileHeader(frame_id, tile_id, FRAME, Codec.JPEG, 5.0, 1.0, 1.0, depth=True), b"",
-                   now, DecodedDepthTile(s.shares.plan.version if s.shares and s.shares.plan else 0, None, ()))
+                   now, DecodedDepthTile(version, None, ()))
     s.tile_sent(node_id, frame_id, tile_id, 0.5)
     return s.drain()
 
@@ -66,7 +62,7 @@ def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: f
 def test_each_join_makes_a_partition_and_frames_wait_for_every_share():
     s = sort_last(nodes=2)
     actions = s.drain()
-    loads = [a for a in actions if isinstance(a, LoadShare)]
+    loads = [a for a in actions if isinstance(a, LoadScene)]
     assert [(a.node_id, a.share.version, a.share.index) for a in loads] == [(1, 1, 0), (1, 2, 0), (2, 2, 1)]
     assert all(a.share.weights == (1.0, 1.0) for a in loads[1:])
     s.set_camera(CAMERA, 0.0)
@@ -93,13 +89,13 @@ def test_a_node_leaving_drops_the_frames_in_flight_and_repartitions_over_the_oth
     actions = s.drain()
     assert not s.in_flight and s.frames_cancelled >= 1
     assert set(a.node_id for a in actions if isinstance(a, CancelFrames)) == {1, 3}
-    loads = [(a.node_id, a.share.index, len(a.share.weights)) for a in actions if isinstance(a, LoadShare)]
+    loads = [(a.node_id, a.share.index, len(a.share.weights)) for a in actions if isinstance(a, LoadScene)]
     assert loads == [(1, 0, 2), (3, 1, 2)]
     assert not [a for a in actions if isinstance(a, RenderTiles)], "no frame before the new shares are loaded"
     after = load_shares(s, actions, 2.0)
     renders = [a for a in after if isinstance(a, RenderTiles)]
     assert sorted(r.node_id for r in renders) == [1, 3]
-    assert renders[0].message.depth is not None and renders[0].message.depth.share == s.shares.plan.version
+    assert renders[0].message.depth is not None and renders[0].message.depth.share == s.mode.shares.plan.version
 
 
 def test_a_failed_tile_goes_back_to_its_holder_and_stragglers_are_not_backed_up():

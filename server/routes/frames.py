@@ -29,7 +29,7 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
     received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
     ``after`` beyond the next frame to start (no id the API handed out) → 422: no frame is on its way."""
-    upcoming = service.scheduler.next_frame_id
+    upcoming = service.next_frame_id()
     if after > upcoming:
         shown = str(after) if after < 10**20 else f"{str(after)[:20]}…"
         raise HTTPException(status_code=422, detail=f"after={shown} is beyond the next frame, {upcoming}: "

@@ -30,7 +30,7 @@ class ObjectBody(BaseModel):
 
 def loaded_scene(service: RenderService) -> SceneTimeline:
     """The scene's timeline; 409 until a node has reported the scene's objects."""
-    scene = service.scheduler.scene
+    scene = service.scene_timeline()
     if scene is None:
         raise HTTPException(status_code=409, detail="no node has loaded the scene yet")
     return scene

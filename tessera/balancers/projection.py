@@ -65,3 +65,27 @@ def posed_groups(boxes: np.ndarray, counts: np.ndarray, owners: np.ndarray, grap
         boxes = boxes.copy()
         boxes[moved] = transform_boxes(boxes[moved].reshape(-1, 2, 3), models[owners[moved]]).reshape(-1, 6)
     return boxes, np.asarray(counts, dtype=np.float64).reshape(-1)[keep]
+
+
+class GroupProjector:
+    """A scene's world-space primitive groups ``boxes`` (K, 6) at the base pose with primitive
+    ``counts`` (K,), its ``bounds`` (2, 3) and each group's object ``owners`` (K,) (indices into
+    the scene's objects; None: the groups never move), projected for a ``size`` frame: called with
+    a camera, a frame's state and the scene's object graph, each group moved with its object,
+    hidden objects' groups dropped, near/far from the state's bounds (:func:`posed_groups`); the
+    base pose without a state or a graph."""
+
+    def __init__(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray, owners: np.ndarray | None,
+                 size: tuple[int, int]) -> None:
+        self.boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
+        self.counts = np.asarray(counts, dtype=np.float64).reshape(-1)
+        self.bounds = np.asarray(bounds, dtype=np.float64)
+        self.owners = None if owners is None else np.asarray(owners, dtype=np.int64).reshape(-1)
+        self.size = size
+
+    def __call__(self, camera: Camera, state: SceneState | None, graph: ObjectGraph | None) -> ProjectedGroups:
+        if state is None or self.owners is None or graph is None:
+            return project_groups(self.boxes, self.counts, camera, self.size, self.bounds)
+        seen = graph.bounds(state)
+        posed, weights = posed_groups(self.boxes, self.counts, self.owners, graph, state)
+        return project_groups(posed, weights, camera, self.size, self.bounds if seen is None else seen)

@@ -8,9 +8,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, pixel_view, ring_rects
+from tessera.compositing.layers import FAR, BlendLayer, DepthLayer, pixel_view
 from tessera.geometry import Rect
-from tessera.wire.codec import Codec, encode
 from tessera.wire.depth_tiles import DecodedDepthTile
 
 
@@ -75,24 +74,6 @@ def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], 
     """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
     (3,) uint8 where none drew, their blend layers laid over it
     (:func:`merge_by_depth`). Cores are not pasted: they are published as
-    they came (:func:`hybrid_frame_tiles`)."""
+    they came (:func:`tessera.decomposition.hybrid.hybrid_frame_tiles`)."""
     return merge_by_depth([layer for tile in tiles for layer in tile.layers], size, background,
                      blends=[blend for tile in tiles for blend in tile.blends])
-
-
-def hybrid_frame_tiles(tiles: Sequence[tuple[Rect, DecodedDepthTile]], merged: np.ndarray, codec: Codec,
-                       quality: int) -> list[tuple[Rect, int, bytes]]:
-    """What a hybrid frame shows, as (rect, index of the tile it belongs to, image in ``codec``):
-    per tile (its rect, its depth tile) the core as the node sent it and the rest of its rect (the
-    ring its neighbours' strips reach) cut from the ``merged`` frame and encoded. The rects cover
-    the frame exactly, as the tiles do."""
-    out: list[tuple[Rect, int, bytes]] = []
-    for index, (rect, tile) in enumerate(tiles):
-        regions = [rect]
-        if tile.core is not None:
-            out.append((tile.core[0], index, tile.core[1]))
-            regions = ring_rects(rect, tile.core[0])
-        for region in regions:
-            pixels = np.ascontiguousarray(merged[region.y:region.y1, region.x:region.x1])
-            out.append((region, index, encode(pixels, codec, quality)))
-    return out

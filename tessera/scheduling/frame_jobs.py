@@ -20,7 +20,10 @@ from tessera.scene.state import SceneState, StateDelta
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
-from tessera.wire.protocol import ProtocolError, TileHeader, state_tag
+from tessera.wire.protocol import NODE_PHASES, ProtocolError, TileHeader, state_tag
+
+#: A node's part of a complete frame: phases (ms), tiles, read-back rects, counters.
+NodeRollup = tuple[dict[str, float], list[list[int]], list[list[int]], dict[str, float | str]]
 
 
 @dataclass
@@ -172,6 +175,33 @@ class FrameJob:
             if tile.rendered_by is not None and extent is not None:
                 out.setdefault(tile.rendered_by, []).append(extent.as_list())
         return out
+
+    def ms_per_px_by_node(self) -> dict[int, float]:
+        """Each node's busy ms per pixel (render + read-back + encode) in this frame: what a tile
+        of it is expected to take, for spotting stragglers."""
+        busy: dict[int, list[float]] = {}
+        for tile in self.tiles:
+            if tile.header is not None and tile.rendered_by is not None:
+                spent = busy.setdefault(tile.rendered_by, [0.0, 0.0])
+                spent[0] += tile.header.render_ms + tile.header.readback_ms + tile.header.encode_ms
+                spent[1] += tile.rect.area
+        return {node_id: ms / pixels for node_id, (ms, pixels) in busy.items() if pixels > 0}
+
+    def rollup_by_node(self, timings: tuple[TileTiming, ...]) -> dict[int, NodeRollup]:
+        """Per node of a complete frame with its ``timings``: its summed phases (ms, by
+        :data:`tessera.wire.protocol.NODE_PHASES`), its tiles and where it drew ([x, y, w, h]
+        each), its counters (:meth:`counters_by_node`)."""
+        phases: dict[int, dict[str, float]] = {}
+        rects: dict[int, list[list[int]]] = {}
+        for t in timings:
+            sums = phases.setdefault(t.node_id, dict.fromkeys(NODE_PHASES, 0.0))
+            for phase, ms in zip(NODE_PHASES, t.phase_ms, strict=True):
+                sums[phase] += ms
+            rects.setdefault(t.node_id, []).append(t.rect.as_list())
+        counters = self.counters_by_node()
+        readback = self.readback_by_node()
+        return {node_id: (sums, rects[node_id], readback.get(node_id, []), counters.get(node_id, {}))
+                for node_id, sums in phases.items()}
 
     def owed_by(self, node_id: int) -> list[int]:
         """Tiles assigned to ``node_id`` and not back yet (earlier owners of a backed-up tile owe none)."""

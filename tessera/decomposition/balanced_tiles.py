@@ -1,0 +1,73 @@
+"""The balanced screen partition of the sort-first and hybrid modes (seed 000 §4.2–4.3, seed 003):
+the chosen balancer, fed the timings of the newest complete interactive frame, asked for each
+frame's tiles, and the static split when it fails. Pure: the clock comes in as ``now`` (s)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from tessera.balancers.base import BalanceInput, Balancer, Partition, ProjectedGroups, TileTiming
+from tessera.balancers.partition import check_exact_cover
+from tessera.balancers.static import StaticBalancer
+
+
+def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int], int | None]]:
+    """The partition's (rect, node) pairs, order ignored (a pull list re-sorted is the same tiles)."""
+    return frozenset(((t.rect.x, t.rect.y, t.rect.w, t.rect.h), t.node_id) for t in partition.tiles)
+
+
+class BalancedTiles:
+    """``balancer``'s partitions of a ``size`` = (w, h) frame; the last two are kept (to tell
+    whether the edges still move), with the time of the last and the newest timings it was fed.
+    ``error``: why the balancer failed last (the static split was used), until taken."""
+
+    def __init__(self, balancer: Balancer, size: tuple[int, int]) -> None:
+        self.balancer = balancer
+        self.size = size
+        self.recent: list[Partition] = []
+        self.error: str | None = None
+        self._last_at: float | None = None
+        self._timings: tuple[TileTiming, ...] = ()
+        self._timings_frame_id = 0
+
+    def set_balancer(self, balancer: Balancer) -> None:
+        """Partition with ``balancer`` from the next frame (its history starts anew)."""
+        self.balancer = balancer
+        self.recent.clear()
+
+    def partition(self, node_ids: Sequence[int], weights: dict[int, float], now: float,
+                  groups: ProjectedGroups | None) -> Partition:
+        """The balancer's partition over ``node_ids`` (ready, by id) with their speed ``weights`` and
+        the frame's projected ``groups``; the static split if it fails (its reason in ``error``)."""
+        previous = self.recent[-1] if self.recent else None
+        elapsed_ms = 0.0 if self._last_at is None else (now - self._last_at) * 1000.0
+        inputs = BalanceInput(size=self.size, node_ids=tuple(node_ids), previous=previous, timings=self._timings,
+                              weights=weights, elapsed_ms=elapsed_ms, groups=groups)
+        try:
+            partition = self.balancer.partition(inputs)
+            check_exact_cover(partition.rects, self.size)
+            strays = {t.node_id for t in partition.tiles if t.node_id is not None} - set(inputs.node_ids)
+            if strays or (partition.pull and any(t.node_id is not None for t in partition.tiles)):
+                raise ValueError(f"tiles assigned to nodes that are not ready: {sorted(strays)}")
+        except Exception as exc:  # a balancer bug must not stop the frames: fall back to the static split
+            partition = StaticBalancer().partition(inputs)
+            self.error = f"{self.balancer.name}: {exc}"
+        self.remember(partition)
+        self._last_at = now
+        return partition
+
+    def remember(self, partition: Partition) -> None:
+        self.recent = [*self.recent[-1:], partition]
+
+    @property
+    def moving(self) -> bool:
+        """The last two partitions differ (the edges still move), or only one was made."""
+        return len(self.recent) < 2 or tile_set(self.recent[0]) != tile_set(self.recent[1])
+
+    def take_timings(self, frame_id: int, timings: tuple[TileTiming, ...]) -> bool:
+        """Interactive frame ``frame_id``'s tile timings feed the next partition unless newer ones
+        did; True when taken."""
+        if frame_id < self._timings_frame_id:
+            return False
+        self._timings, self._timings_frame_id = timings, frame_id
+        return True

@@ -1,0 +1,178 @@
+"""The nodes as the frame scheduler sees them: what each owes, since when, how fast it is, and
+which are ready and idle (kept in step, asked on every event). Pure bookkeeping."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from tessera.scheduling.frame_jobs import FrameJob
+from tessera.wire.protocol import ProtocolError
+
+#: Slots for node indices in viewer frames (u16 on the wire).
+MAX_NODE_SLOTS = 1 << 16
+#: Tiles of dropped frames a node is remembered to have owed (it may still send the one it was
+#: on, or report the others skipped); the oldest are forgotten first.
+DROPPED_MEMORY = 4096
+
+
+@dataclass
+class NodeSchedule:
+    """One node as the scheduler sees it. ``outstanding``: (frame id, tile id) → dispatch time, in
+    the order the node works through them (its head is the tile it is on, since ``head_since``);
+    ``slot``: the small index viewers see the node by; ``suspect``: overdue, given no work until it
+    answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
+    failed in a row; ``dropped``: (frame id, tile id) it owed when their frame was dropped (the
+    newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
+    owed; ``state_sent``: the scene state version its last render message brought it to (None:
+    none yet, or unsure after a failed tile); the rest is the last complete frame's roll-up."""
+
+    node_id: int
+    slot: int
+    ready: bool = False
+    speed: float = 1.0
+    idle_since: float = 0.0
+    head_since: float = 0.0
+    suspect: bool = False
+    ms_per_px: float | None = None
+    failures: int = 0
+    state_sent: int | None = None
+    outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
+    dropped: dict[tuple[int, int], None] = field(default_factory=dict)
+    last_tiles: list[list[int]] = field(default_factory=list)
+    #: Where the node drew in its last complete frame, [x, y, w, h] each: its tiles (sort-first),
+    #: the extent of each depth tile (a hybrid tile with the strip drawn in, the rect a sort-last
+    #: share projects to; none for a share out of view).
+    last_readback: list[list[int]] = field(default_factory=list)
+    last_phases: dict[str, float] = field(default_factory=dict)
+    counters: dict[str, Any] = field(default_factory=dict)
+    tiles_rendered: int = 0
+
+    @property
+    def schedulable(self) -> bool:
+        """Ready for work: its scene is loaded and it is not overdue."""
+        return self.ready and not self.suspect
+
+    @property
+    def idle(self) -> bool:
+        return self.schedulable and not self.outstanding
+
+
+class NodeTable:
+    """The scheduled nodes by id (``nodes``), with the ready ones (schedulable, by id) and the idle
+    ones (ready and owing nothing) kept in step: call :meth:`touch` after a node's queue or state
+    changed."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[int, NodeSchedule] = {}
+        self.idle: set[int] = set()
+        self._ready: list[NodeSchedule] | None = None
+
+    def add(self, node_id: int, now: float) -> NodeSchedule:
+        """A new node, not ready, with the lowest free slot; ValueError for a known id or too many."""
+        if node_id in self.nodes:
+            raise ValueError(f"node {node_id} is already scheduled")
+        used = {n.slot for n in self.nodes.values()}
+        slot = next(i for i in range(MAX_NODE_SLOTS + 1) if i not in used)
+        if slot >= MAX_NODE_SLOTS:
+            raise ValueError(f"more than {MAX_NODE_SLOTS} nodes at once")
+        node = self.nodes[node_id] = NodeSchedule(node_id, slot, idle_since=now)
+        return node
+
+    def remove(self, node_id: int) -> NodeSchedule | None:
+        """The node, gone from the table and owing nothing (None: unknown)."""
+        node = self.nodes.pop(node_id, None)
+        if node is not None:
+            node.outstanding.clear()
+            self._ready = None
+            self.idle.discard(node_id)
+        return node
+
+    def ready(self) -> list[NodeSchedule]:
+        """Schedulable nodes by id (kept until the node set or a node's state changes)."""
+        if self._ready is None:
+            self._ready = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.schedulable]
+        return self._ready
+
+    def touch(self, node: NodeSchedule, state_changed: bool = False) -> None:
+        """``node``'s queue changed (and, with ``state_changed``, whether it is ready or suspect)."""
+        if state_changed:
+            self._ready = None
+        if node.idle:
+            self.idle.add(node.node_id)
+        else:
+            self.idle.discard(node.node_id)
+
+    def assign(self, node: NodeSchedule, keys: list[tuple[int, int]], now: float) -> None:
+        """``node`` owes the tiles ``keys`` (frame id, tile id) from ``now``."""
+        if not node.outstanding:
+            node.head_since = now
+        for key in keys:
+            node.outstanding[key] = now
+        self.idle.discard(node.node_id)
+
+    def drop(self, node: NodeSchedule, frame_id: int, now: float) -> bool:
+        """Frame ``frame_id`` was dropped: ``node`` no longer owes its tiles (remembered as
+        dropped); True when it owed any."""
+        keys = [k for k in node.outstanding if k[0] == frame_id]
+        for key in keys:
+            del node.outstanding[key]
+            node.dropped[key] = None
+        while len(node.dropped) > DROPPED_MEMORY:
+            del node.dropped[next(iter(node.dropped))]
+        if keys:
+            node.head_since = now
+            self.touch(node)
+        return bool(keys)
+
+    def overdue(self, in_flight: Mapping[int, FrameJob], factor: float, floor_s: float,
+                now: float) -> list[NodeSchedule]:
+        """Nodes not yet suspect whose current tile is ``factor`` times later than expected (their
+        last frame's busy ms per pixel × its pixels, or for a node that has not finished a frame,
+        the slowest rate any node has shown), at least ``floor_s`` late."""
+        slowest_known = max((n.ms_per_px for n in self.nodes.values() if n.ms_per_px is not None), default=None)
+        out = []
+        for node in self.nodes.values():
+            rate = node.ms_per_px if node.ms_per_px is not None else slowest_known
+            if node.suspect or rate is None:
+                continue
+            head = next(((in_flight[f], t) for f, t in node.outstanding if f in in_flight), None)
+            if head is None:
+                continue
+            expected_s = rate * head[0].tiles[head[1]].rect.area / 1000.0
+            if now - node.head_since > max(floor_s, factor * expected_s):
+                out.append(node)
+        return out
+
+    def heads(self, frame_id: int) -> bool:
+        """A tile of frame ``frame_id`` heads a node's queue (the node is on it)."""
+        return any(next(iter(n.outstanding))[0] == frame_id for n in self.nodes.values() if n.outstanding)
+
+    @staticmethod
+    def skipped(node: NodeSchedule, frame_id: int, tile_ids: Iterable[int]) -> None:
+        """``node`` skipped these queued tiles of dropped frame ``frame_id`` (its ``tiles_dropped``);
+        ProtocolError for a tile that was not dropped while it owed it."""
+        for tile_id in tile_ids:
+            if node.dropped.pop((frame_id, tile_id), ...) is not None:
+                raise ProtocolError(f"tiles_dropped names tile {tile_id} of frame {frame_id}, "
+                                    "which was not dropped from this node")
+
+    @staticmethod
+    def check_owed(node: NodeSchedule, key: tuple[int, int], what: str) -> None:
+        """About ``key``, whose frame may be gone: the node must owe it, or have owed it when its
+        frame was dropped (that memory is used up); ProtocolError otherwise."""
+        if key not in node.outstanding and node.dropped.pop(key, ...) is not None:
+            raise ProtocolError(f"{what} {key[1]} of frame {key[0]}, which this node does not owe "
+                                "(never asked of it, or already answered)")
+
+    def answered(self, node: NodeSchedule, key: tuple[int, int], now: float) -> None:
+        """``node`` sent back (or gave up) tile ``key``: it is no longer owed, and a suspect node that
+        answers is trusted again."""
+        if node.outstanding.pop(key, None) is not None:
+            if node.outstanding:
+                node.head_since = now
+            else:
+                node.idle_since = now
+        was_suspect, node.suspect = node.suspect, False
+        self.touch(node, state_changed=was_suspect)
