@@ -20,6 +20,14 @@ from bench.images import psnr
 from bench.processes import orbit
 from tests.conftest import PYTHON, REPO, seconds
 
+#: Real scenes the integration tests render, by short name: paths under ../shared/scenes.
+SCENE_FILES = {
+    "bunny": "bunny/bun_zipper.ply",
+    "dragon": "large_scan/stanford_dragon_vrip_res2_202k.ply",
+    "engine": "gltf_small/2CylinderEngine.glb",
+    "diorama": "multi_object/sd_macross_city_diorama.glb",
+}
+
 
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
                 scene_time: float | None = None, objects: dict[str, Any] | None = None) -> np.ndarray:
@@ -69,6 +77,23 @@ def stats(client: httpx.Client) -> dict[str, Any]:
 
 def ready_nodes(client: httpx.Client) -> list[dict[str, Any]]:
     return [n for n in stats(client)["nodes"] if n["state"] == "ready"]
+
+
+def wait_ready_nodes(client: httpx.Client, count: int, timeout_s: float = 120.0) -> None:
+    """Wait until ``count`` nodes are ready in ``/api/stats`` (a scaled ``timeout_s`` at most)."""
+    wait_until(lambda: len(ready_nodes(client)) == count, seconds(timeout_s), f"{count} ready nodes")
+
+
+def wait_rendering(client: httpx.Client, nodes: int) -> None:
+    """Wait until ``nodes`` nodes are ready and the coordinator published a first frame."""
+    wait_ready_nodes(client, nodes)
+    wait_until(lambda: stats(client)["frame"] > 0, seconds(60), "a first frame")
+
+
+def scene_bounds(client: httpx.Client) -> list[list[float]]:
+    """The scene's bounds from ``GET /api/camera`` once the coordinator has them: [[x, y, z] lowest,
+    [x, y, z] highest]."""
+    return wait_until(lambda: client.get("/api/camera").json()["bounds"], seconds(60), "scene bounds")
 
 
 def fetch_frame(client: httpx.Client, after: int) -> tuple[int, np.ndarray]:

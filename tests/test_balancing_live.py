@@ -13,9 +13,9 @@ from tests.integration_support import (
     assert_matches_reference,
     camera_moving,
     fetch_frame,
-    ready_nodes,
     render_once,
     stats,
+    wait_ready_nodes,
     wait_until,
 )
 
@@ -43,7 +43,7 @@ def test_adaptive_balancers_beat_static_with_a_slow_node(coordinator_factory, tm
     coordinator = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
                                       "--local-nodes", "3", "--node-slowdowns", "1,1,3")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+        wait_ready_nodes(client, 3)
         assert sorted(n["slowdown"] for n in stats(client)["nodes"]) == [1.0, 1.0, 3.0]
 
         def calibrated_to_the_slowdowns() -> list[dict] | None:

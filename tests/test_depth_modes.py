@@ -15,28 +15,25 @@ from collections.abc import Iterator
 import httpx
 import pytest
 
-from tests.conftest import PYTHON, scene_path, seconds, start_process
+from tests.conftest import scene_path, seconds
 from tests.integration_support import (
+    SCENE_FILES,
     assert_matches_reference,
     camera_moving,
     fetch_frame,
     orbit_cameras,
-    ready_nodes,
     render_once,
+    scene_bounds,
     stats,
+    wait_ready_nodes,
     wait_until,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
 SIZE = (320, 240)
-SCENES = {
-    "bunny": "bunny/bun_zipper.ply",
-    "dragon": "large_scan/stanford_dragon_vrip_res2_202k.ply",
-    "diorama": "multi_object/sd_macross_city_diorama.glb",
-}
 MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}")
-          for mode in ("hybrid", "sort-last") for scene in SCENES for nodes in (2, 3, 4)]
+          for mode in ("hybrid", "sort-last") for scene in ("bunny", "dragon", "diorama") for nodes in (2, 3, 4)]
 
 
 @contextlib.contextmanager
@@ -46,7 +43,7 @@ def serving(coordinator_factory, mode: str, scene: str, nodes: int, *extra: str)
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
                                       "--mode", mode, *extra)
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == nodes, seconds(180), f"{nodes} ready nodes")
+        wait_ready_nodes(client, nodes, timeout_s=180)
         if mode == "sort-last":
             wait_until(lambda: shares_settled(client, nodes), seconds(180), f"{nodes} shares of one partition")
         wait_until(lambda: stats(client)["frame"] > 0, seconds(60), "a first frame")
@@ -62,13 +59,9 @@ def shares_settled(client: httpx.Client, nodes: int) -> bool:
             and all(state == "ready" and share == partition["version"] for state, share in held))
 
 
-def scene_bounds(client: httpx.Client) -> list[list[float]]:
-    return wait_until(lambda: client.get("/api/camera").json()["bounds"], seconds(60), "scene bounds")
-
-
 @pytest.mark.parametrize(("mode", "scene_key", "nodes"), MATRIX)
 def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode, scene_key, nodes):
-    scene = str(scene_path(SCENES[scene_key]))
+    scene = str(scene_path(SCENE_FILES[scene_key]))
     with serving(coordinator_factory, mode, scene, nodes, "--local-nodes", str(nodes)) as client:
         for index, camera in enumerate(orbit_cameras(scene_bounds(client), 2)):
             frame_after = client.put("/api/camera", json=camera).raise_for_status().json()["frame"]
@@ -87,38 +80,33 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
         assert sum(n["triangles"] for n in nodes_stats) > 0
 
 
-def test_a_node_killed_mid_stream_in_sort_last_loses_no_frame(coordinator_factory, tmp_path):
+def test_a_node_killed_mid_stream_in_sort_last_loses_no_frame(coordinator_factory, node_factory, tmp_path):
     """Three nodes of their own (so that one can be killed) while the camera turns: the killed
     node's share is loaded again by the two left (a new partition), and the frames asked for
     after the kill come, whole and equal to the reference."""
-    scene = str(scene_path(SCENES["bunny"]))
+    scene = str(scene_path(SCENE_FILES["bunny"]))
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
                                       "--mode", "sort-last")
-    nodes = [start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
-                            "--name", f"share-{i}"]) for i in range(3)]
-    try:
-        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-            wait_until(lambda: shares_settled(client, 3), seconds(180), "3 shares of one partition")
-            before = stats(client)["partition"]
-            cameras = orbit_cameras(scene_bounds(client), 3)
-            with camera_moving(coordinator.url, cameras[0]):
-                wait_until(lambda: stats(client)["frames_in_flight"] > 0, seconds(30), "frames in flight")
-                nodes[1].process.send_signal(signal.SIGKILL)
-                nodes[1].process.wait()
-                after_kill = client.put("/api/camera", json=cameras[1]).raise_for_status().json()["frame"]
-                frame_id, frame = fetch_frame(client, after_kill)
-            assert frame_id >= after_kill and frame.std() > 2.0, "a whole frame after the kill"
-            wait_until(lambda: shares_settled(client, 2), seconds(60), "2 shares of one partition")
-            partition = stats(client)["partition"]
-            assert partition["version"] > before["version"] and len(partition["holders"]) == 2
-            last = client.put("/api/camera", json=cameras[2]).raise_for_status().json()["frame"]
-            _, frame = fetch_frame(client, last)
-            assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "after the kill")
-            loaded = [n["triangles_loaded"] for n in stats(client)["nodes"]]
-            assert sum(loaded) == 69451 and max(loaded) < 69451, loaded
-    finally:
-        for node in nodes:
-            node.stop()
+    nodes = [node_factory(coordinator, f"share-{i}") for i in range(3)]
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_until(lambda: shares_settled(client, 3), seconds(180), "3 shares of one partition")
+        before = stats(client)["partition"]
+        cameras = orbit_cameras(scene_bounds(client), 3)
+        with camera_moving(coordinator.url, cameras[0]):
+            wait_until(lambda: stats(client)["frames_in_flight"] > 0, seconds(30), "frames in flight")
+            nodes[1].process.send_signal(signal.SIGKILL)
+            nodes[1].process.wait()
+            after_kill = client.put("/api/camera", json=cameras[1]).raise_for_status().json()["frame"]
+            frame_id, frame = fetch_frame(client, after_kill)
+        assert frame_id >= after_kill and frame.std() > 2.0, "a whole frame after the kill"
+        wait_until(lambda: shares_settled(client, 2), seconds(60), "2 shares of one partition")
+        partition = stats(client)["partition"]
+        assert partition["version"] > before["version"] and len(partition["holders"]) == 2
+        last = client.put("/api/camera", json=cameras[2]).raise_for_status().json()["frame"]
+        _, frame = fetch_frame(client, last)
+        assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "after the kill")
+        loaded = [n["triangles_loaded"] for n in stats(client)["nodes"]]
+        assert sum(loaded) == 69451 and max(loaded) < 69451, loaded
 
 
 @pytest.mark.parametrize("mode", ["hybrid", "sort-last"])

@@ -15,13 +15,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.conftest import PYTHON, scene_path, seconds, start_process
+from tests.conftest import scene_path, seconds
 from tests.integration_support import (
     assert_matches_reference,
     orbit_cameras,
-    ready_nodes,
     render_once,
+    scene_bounds,
     stats,
+    wait_ready_nodes,
+    wait_rendering,
     wait_until,
 )
 
@@ -70,19 +72,14 @@ def assert_one_state(version: int, tiles: list[str], label: str) -> None:
     assert tiles and set(tiles) == {str(version % 65536)}, f"{label}: tiles of several states {tiles}, frame {version}"
 
 
-def scene_ready(client: httpx.Client, nodes: int) -> list[list[float]]:
-    wait_until(lambda: len(ready_nodes(client)) == nodes, seconds(120), f"{nodes} ready nodes")
-    wait_until(lambda: stats(client)["frame"] > 0, seconds(60), "a first frame")
-    return client.get("/api/camera").raise_for_status().json()["bounds"]
-
-
 @pytest.mark.parametrize("nodes, cases", CASES, ids=[f"{n}-nodes" for n, _ in CASES])
 def test_paused_frames_with_moved_objects_equal_render_once(coordinator_factory, tmp_path, nodes, cases):
     scene = str(scene_path(TRUCK))
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
                                       "--local-nodes", str(nodes))
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        cameras = orbit_cameras(scene_ready(client, nodes), len(cases))
+        wait_rendering(client, nodes)
+        cameras = orbit_cameras(scene_bounds(client), len(cases))
         put = 0
         for (balancer, time, poses), camera in zip(cases, cameras, strict=True):
             label = f"{nodes} nodes, {balancer}, t={time}, {poses} poses"
@@ -112,7 +109,8 @@ def test_no_frame_mixes_two_states_while_the_animation_plays(coordinator_factory
     coordinator = coordinator_factory("--scene", "builtin:traffic", "--size", f"{SIZE[0]}x{SIZE[1]}",
                                       "--codec", "png", "--local-nodes", "3", "--balancer", "rotate")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        camera = orbit_cameras(scene_ready(client, 3), 1)[0]
+        wait_rendering(client, 3)
+        camera = orbit_cameras(scene_bounds(client), 1)[0]
         client.put("/api/camera", json=camera).raise_for_status()
         start = client.put("/api/animation", json={"playing": True, "speed": 3.0}).raise_for_status().json()["frame"]
         seen: list[tuple[int, int, float, np.ndarray]] = []
@@ -139,33 +137,28 @@ def test_no_frame_mixes_two_states_while_the_animation_plays(coordinator_factory
         assert_matches_reference(pixels, reference, f"paused frame {frame_id}")
 
 
-def test_a_node_joining_mid_animation_catches_up(coordinator_factory, tmp_path):
+def test_a_node_joining_mid_animation_catches_up(coordinator_factory, node_factory, tmp_path):
     scene = str(scene_path(TRUCK))
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png")
-    nodes = [start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
-                            "--name", "first"])]
-    try:
-        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-            camera = orbit_cameras(scene_ready(client, 1), 1)[0]
-            client.put("/api/camera", json=camera).raise_for_status()
-            client.put("/api/objects/0", json={"translation": [0.3, 0.0, -0.2]}).raise_for_status()
-            client.put("/api/animation", json={"playing": True}).raise_for_status()
-            wait_until(lambda: stats(client)["scene_state"]["version"] > 5, seconds(60), "the animation to play")
-            nodes.append(start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
-                                        "--name", "joiner"]))
-            wait_until(lambda: len(ready_nodes(client)) == 2, seconds(120), "the second node to be ready")
-            wait_until(lambda: all(n["tiles_rendered"] > 0 for n in stats(client)["nodes"]), seconds(60),
-                       "both nodes to render tiles")
-            frame = stats(client)["frame"] + 1
-            frame_id, _, version, _, tiles = frame_with_state(client, frame)
-            assert_one_state(version, tiles, f"frame {frame_id} with the joiner")
-            paused = client.put("/api/animation", json={"playing": False}).raise_for_status().json()["frame"]
-            frame_id, pixels, version, scene_time, tiles = frame_with_state(client, paused)
-            assert_one_state(version, tiles, "the paused frame")
-            assert {n["name"] for n in stats(client)["nodes"] if n["tiles"]} == {"first", "joiner"}
-            reference = render_once(scene, camera, SIZE, tmp_path, scene_time=scene_time,
-                                    objects={"0": {"translation": [0.3, 0.0, -0.2]}})
-            assert_matches_reference(pixels, reference, f"paused at t={scene_time} with a node that joined")
-    finally:
-        for node in nodes:
-            node.stop()
+    node_factory(coordinator, "first")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_rendering(client, 1)
+        camera = orbit_cameras(scene_bounds(client), 1)[0]
+        client.put("/api/camera", json=camera).raise_for_status()
+        client.put("/api/objects/0", json={"translation": [0.3, 0.0, -0.2]}).raise_for_status()
+        client.put("/api/animation", json={"playing": True}).raise_for_status()
+        wait_until(lambda: stats(client)["scene_state"]["version"] > 5, seconds(60), "the animation to play")
+        node_factory(coordinator, "joiner")
+        wait_ready_nodes(client, 2)
+        wait_until(lambda: all(n["tiles_rendered"] > 0 for n in stats(client)["nodes"]), seconds(60),
+                   "both nodes to render tiles")
+        frame = stats(client)["frame"] + 1
+        frame_id, _, version, _, tiles = frame_with_state(client, frame)
+        assert_one_state(version, tiles, f"frame {frame_id} with the joiner")
+        paused = client.put("/api/animation", json={"playing": False}).raise_for_status().json()["frame"]
+        frame_id, pixels, version, scene_time, tiles = frame_with_state(client, paused)
+        assert_one_state(version, tiles, "the paused frame")
+        assert {n["name"] for n in stats(client)["nodes"] if n["tiles"]} == {"first", "joiner"}
+        reference = render_once(scene, camera, SIZE, tmp_path, scene_time=scene_time,
+                                objects={"0": {"translation": [0.3, 0.0, -0.2]}})
+        assert_matches_reference(pixels, reference, f"paused at t={scene_time} with a node that joined")

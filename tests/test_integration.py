@@ -10,44 +10,36 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.conftest import PYTHON, scene_path, seconds, start_process
+from tests.conftest import scene_path, seconds
 from tests.integration_support import (
+    SCENE_FILES,
     assert_matches_reference,
     fetch_frame,
     orbit_cameras,
     ready_nodes,
     render_once,
+    scene_bounds,
     stats,
+    wait_ready_nodes,
+    wait_rendering,
     wait_until,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
 SIZE = (320, 240)
-SCENES = {
-    "bunny": "bunny/bun_zipper.ply",
-    "dragon": "large_scan/stanford_dragon_vrip_res2_202k.ply",
-    "engine": "gltf_small/2CylinderEngine.glb",
-}
-
-
-def start_nodes(coordinator, count: int, *extra: str):
-    return [start_process([PYTHON, "-m", "node", "--coordinator", f"{coordinator.ws_url}/ws/node",
-                           "--name", f"test-{i}", *extra]) for i in range(count)]
 
 
 @pytest.mark.parametrize("scene_key, nodes", [
     ("bunny", 1), ("bunny", 2), ("bunny", 3), ("bunny", 4), ("dragon", 3), ("engine", 2), ("engine", 4),
 ])
 def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, scene_key, nodes):
-    scene = str(scene_path(SCENES[scene_key]))
+    scene = str(scene_path(SCENE_FILES[scene_key]))
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
                                       "--local-nodes", str(nodes))
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == nodes, seconds(120), f"{nodes} ready nodes")
-        wait_until(lambda: stats(client)["frame"] > 0, seconds(60), "a first frame")
-        scene_bounds = _scene_bounds(client)
-        for index, camera in enumerate(orbit_cameras(scene_bounds, 3)):
+        wait_rendering(client, nodes)
+        for index, camera in enumerate(orbit_cameras(scene_bounds(client), 3)):
             frame_after = client.put("/api/camera", json=camera).raise_for_status().json()["frame"]
             frame_id, frame = fetch_frame(client, frame_after)
             assert frame_id >= frame_after
@@ -59,57 +51,45 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, scen
         assert len({tuple(t) for t in tiles}) >= nodes
 
 
-def _scene_bounds(client: httpx.Client) -> list[list[float]]:
-    return wait_until(lambda: client.get("/api/camera").json()["bounds"], seconds(60), "scene bounds")
-
-
-def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, tmp_path):
-    scene = str(scene_path(SCENES["bunny"]))
+def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, node_factory, tmp_path):
+    scene = str(scene_path(SCENE_FILES["bunny"]))
     coordinator = coordinator_factory("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png")
-    nodes = start_nodes(coordinator, 3)
-    try:
-        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-            wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
-            cameras = orbit_cameras(_scene_bounds(client), 3)
-            before = client.put("/api/camera", json=cameras[0]).json()["frame"]
-            fetch_frame(client, before)
-            nodes[1].process.send_signal(signal.SIGKILL)
-            nodes[1].process.wait()
-            after_kill = client.put("/api/camera", json=cameras[1]).json()["frame"]
-            _, frame = fetch_frame(client, after_kill)
-            assert_matches_reference(frame, render_once(scene, cameras[1], SIZE, tmp_path), "after kill")
-            wait_until(lambda: len(stats(client)["nodes"]) == 2, seconds(30), "the dead node to leave")
-            again = client.put("/api/camera", json=cameras[2]).json()["frame"]
-            _, frame = fetch_frame(client, again)
-            assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "2 nodes")
-            owners = stats(client)["nodes"]
-            assert all(n["tiles"] for n in owners), "every surviving node renders part of the screen"
-    finally:
-        for node in nodes:
-            node.stop()
+    nodes = [node_factory(coordinator, f"test-{i}") for i in range(3)]
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_ready_nodes(client, 3)
+        cameras = orbit_cameras(scene_bounds(client), 3)
+        before = client.put("/api/camera", json=cameras[0]).json()["frame"]
+        fetch_frame(client, before)
+        nodes[1].process.send_signal(signal.SIGKILL)
+        nodes[1].process.wait()
+        after_kill = client.put("/api/camera", json=cameras[1]).json()["frame"]
+        _, frame = fetch_frame(client, after_kill)
+        assert_matches_reference(frame, render_once(scene, cameras[1], SIZE, tmp_path), "after kill")
+        wait_until(lambda: len(stats(client)["nodes"]) == 2, seconds(30), "the dead node to leave")
+        again = client.put("/api/camera", json=cameras[2]).json()["frame"]
+        _, frame = fetch_frame(client, again)
+        assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "2 nodes")
+        owners = stats(client)["nodes"]
+        assert all(n["tiles"] for n in owners), "every surviving node renders part of the screen"
 
 
-def test_node_joining_repartitions(coordinator_factory):
+def test_node_joining_repartitions(coordinator_factory, node_factory):
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "256x192", "--codec", "png")
-    nodes = start_nodes(coordinator, 1)
-    try:
-        with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-            wait_until(lambda: len(ready_nodes(client)) == 1, seconds(60), "one ready node")
-            wait_until(lambda: stats(client)["nodes"][0]["tiles"] == [[0, 0, 256, 192]], seconds(30),
-                       "the single node owning the whole screen")
-            nodes += start_nodes(coordinator, 1)
-            wait_until(lambda: len(ready_nodes(client)) == 2, seconds(60), "two ready nodes")
-            wait_until(lambda: all(len(n["tiles"]) == 1 and n["tiles"][0][2] < 256 for n in ready_nodes(client)),
-                       seconds(30), "the screen split between both nodes")
-    finally:
-        for node in nodes:
-            node.stop()
+    node_factory(coordinator, "test-0")
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_ready_nodes(client, 1, timeout_s=60)
+        wait_until(lambda: stats(client)["nodes"][0]["tiles"] == [[0, 0, 256, 192]], seconds(30),
+                   "the single node owning the whole screen")
+        node_factory(coordinator, "test-1")
+        wait_ready_nodes(client, 2, timeout_s=60)
+        wait_until(lambda: all(len(n["tiles"]) == 1 and n["tiles"][0][2] < 256 for n in ready_nodes(client)),
+                   seconds(30), "the screen split between both nodes")
 
 
 def test_local_nodes_leave_no_orphans_on_ctrl_c(coordinator_factory):
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "128x96", "--local-nodes", "2")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 2, seconds(60), "two local nodes")
+        wait_ready_nodes(client, 2, timeout_s=60)
     children = _node_processes_of(coordinator.url)
     assert len(children) == 2, f"expected 2 node processes, found {children}"
     assert coordinator.proc.stop() == 0
@@ -143,11 +123,11 @@ def _alive(pid: int) -> bool:
 def test_frames_keep_one_camera_while_it_moves(coordinator_factory, tmp_path):
     """Cameras change faster than frames complete: every published frame still matches exactly one
     camera, up to the still frame the coordinator ends with."""
-    scene = str(scene_path(SCENES["bunny"]))
+    scene = str(scene_path(SCENE_FILES["bunny"]))
     coordinator = coordinator_factory("--scene", scene, "--size", "160x120", "--codec", "png", "--local-nodes", "3")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
-        cameras = orbit_cameras(_scene_bounds(client), 3)
+        wait_ready_nodes(client, 3)
+        cameras = orbit_cameras(scene_bounds(client), 3)
         first = client.put("/api/camera", json=cameras[0]).json()["frame"]
         for camera in cameras[1:] * 3:
             client.put("/api/camera", json=camera).raise_for_status()
