@@ -9,16 +9,14 @@ import json
 import pytest
 
 from bench.compose import main
-from bench.paths import make_path
-from node.scene.loading import load_scene
+from tests.bench_support import orbit_path
 
 pytestmark = pytest.mark.gl
 
 
 def test_compose_benchmark_reports_its_figures(tmp_path, monkeypatch, capsys) -> None:
     monkeypatch.setenv("LP_NUM_THREADS", "0")
-    path = tmp_path / "orbit.json"
-    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:spheres").bounds, frames=8)))
+    path = orbit_path(tmp_path, "builtin:spheres")
     out = tmp_path / "compose.json"
     assert main(["--scene", "builtin:spheres", "--path", str(path), "--tiles", "4", "--size", "160x120",
                  "--modes", "sort-first,hybrid,sort-last", "--strips", "0,8", "--nodes", "4", "--face-limit", "64",

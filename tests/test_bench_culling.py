@@ -7,8 +7,7 @@ import json
 import pytest
 
 from bench.culling import main
-from bench.paths import make_path
-from node.scene.loading import load_scene
+from tests.bench_support import orbit_path
 
 pytestmark = pytest.mark.gl
 
@@ -18,8 +17,7 @@ def test_culling_benchmark_reports_its_figures(tmp_path, monkeypatch, capsys) ->
     frame, they submit no fewer triangles than the whole culled frame, and culling on the CPU draws
     fewer chunks than there are; the report names the llvmpipe thread count it ran with."""
     monkeypatch.setenv("LP_NUM_THREADS", "1")
-    path = tmp_path / "orbit.json"
-    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:spheres").bounds, frames=8)))
+    path = orbit_path(tmp_path, "builtin:spheres")
     out = tmp_path / "culling.json"
     assert main(["--scene", "builtin:spheres", "--path", str(path), "--tiles", "4", "--size", "160x120",
                  "--face-limit", "64", "--culling", "cpu", "--repeats", "1", "--frames", "2",
@@ -35,8 +33,7 @@ def test_culling_benchmark_reports_its_figures(tmp_path, monkeypatch, capsys) ->
 
 def test_culling_benchmark_plays_an_animation_along_the_path(tmp_path, capsys) -> None:
     """``--time-per-frame``: the traffic's cars move between the frames and the tiles still equal the frame."""
-    path = tmp_path / "orbit.json"
-    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:traffic").bounds, frames=8)))
+    path = orbit_path(tmp_path, "builtin:traffic")
     out = tmp_path / "culling.json"
     assert main(["--scene", "builtin:traffic", "--path", str(path), "--tiles", "4", "--size", "160x120",
                  "--culling", "cpu", "--repeats", "1", "--frames", "2", "--time-per-frame", "2.5",

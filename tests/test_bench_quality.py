@@ -7,9 +7,8 @@ import math
 
 import pytest
 
-from bench.paths import make_path
 from bench.quality import main
-from node.scene.loading import load_scene
+from tests.bench_support import orbit_path
 
 pytestmark = pytest.mark.gl
 
@@ -18,8 +17,7 @@ def test_quality_benchmark_reports_bytes_against_psnr(tmp_path, capsys) -> None:
     """Two frames of an orbit of the spheres at three JPEG qualities: PSNR and bytes grow with
     quality, 4:4:4 chroma starts at q90, PNG and RAW decode to the rendered pixels, every size and
     time is positive and finite, and the 35/40 dB marks are the smallest qualities reaching them."""
-    path = tmp_path / "orbit.json"
-    path.write_text(json.dumps(make_path("orbit", load_scene("builtin:spheres").bounds, frames=8)))
+    path = orbit_path(tmp_path, "builtin:spheres")
     out = tmp_path / "quality.json"
     argv = ["--scene", "builtin:spheres", "--path", str(path), "--size", "160x120", "--frames", "2",
             "--qualities", "20,60,95", "--json", str(out)]
