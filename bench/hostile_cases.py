@@ -121,6 +121,11 @@ class HostileCases:
             return kind, json.dumps({"type": "scene_progress", "message": "x" * OVERSIZE_BYTES})
         return kind, "\u00ff\u2603\U0001f600" * rng.randint(1, 50)
 
+    def junk(self, prefix: str) -> Bad:
+        """:meth:`junk_text` as a bad message labelled ``PREFIX.KIND``."""
+        kind, text = self.junk_text()
+        return Bad(f"{prefix}.{kind}", text)
+
     def _mutated(self, template: dict[str, Any]) -> dict[str, Any]:
         """``template`` with one field given a wrong value, removed, or nested wrongly."""
         rng = self.rng
@@ -146,8 +151,7 @@ class HostileCases:
         while True:
             roll = rng.random()
             if roll < 0.3:
-                kind, text = self.junk_text()
-                return Bad(f"node.first.{kind}", text)
+                return self.junk("node.first")
             if roll < 0.4:
                 return Bad("node.first.binary", self._some_tile(frame=1) if rng.random() < 0.5
                            else rng.randbytes(rng.randint(0, 64)))
@@ -174,8 +178,7 @@ class HostileCases:
         while True:
             roll = rng.random()
             if roll < 0.15:
-                kind, text = self.junk_text()
-                return Bad(f"node.text.{kind}", text)
+                return self.junk("node.text")
             if roll < 0.5:
                 return self._bad_tile(frames)
             templates = self._node_templates(max(frames.last, 1))
