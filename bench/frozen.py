@@ -34,13 +34,11 @@ import signal
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import httpx
 
-from bench.soak import GAP_GOAL_S, REJOIN_TIMEOUT_S, PersistentViewer, Soak, run_bench
-from tessera.cli_values import size_parser
+from bench.soak import GAP_GOAL_S, REJOIN_TIMEOUT_S, PersistentViewer, Soak, run_bench, run_parser
 
 POLL_S = 0.05
 FIRST_TILES_TIMEOUT_S = 60.0
@@ -198,19 +196,11 @@ def report(result: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m bench.frozen", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--nodes", type=int, default=3)
+    parser = run_parser("python -m bench.frozen", __doc__.split("\n\n")[0], nodes=3)
     parser.add_argument("--freeze-s", type=float, default=5.0, help="seconds each node stays stopped (default 5)")
     parser.add_argument("--freezes", type=int, default=3, help="freezes, the nodes in turn (default 3)")
     parser.add_argument("--between-s", type=float, default=5.0,
                         help="seconds before the first freeze and after each SIGCONT (default 5)")
-    parser.add_argument("--scene", default="builtin:cluster")
-    parser.add_argument("--size", type=size_parser(16, 8192), default=(640, 360))
-    parser.add_argument("--camera-hz", type=float, default=30.0, help="camera messages per second (default 30)")
-    parser.add_argument("--turn-s", type=float, default=20.0, help="seconds per turn of the camera (default 20)")
-    parser.add_argument("--server-args", default="", help="extra flags for python -m server")
-    parser.add_argument("--log-dir", type=Path, help="process logs go here (default: a new temporary folder)")
-    parser.add_argument("--json", type=Path, help="write the figures here")
     return parser
 
 

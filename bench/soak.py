@@ -597,23 +597,31 @@ def gap_lines(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m bench.soak", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--minutes", type=float, required=True, help="length of the run after start-up")
-    parser.add_argument("--nodes", type=int, default=4)
+def run_parser(prog: str, description: str, nodes: int) -> argparse.ArgumentParser:
+    """A command line parser with the options every run on a :class:`Soak` reads (``--nodes``, whose
+    default is ``nodes``, the scene and size, the persistent viewer's camera, extra server flags, where
+    the logs and the figures go); each benchmark adds its own."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser.add_argument("--nodes", type=int, default=nodes)
     parser.add_argument("--scene", default="builtin:cluster")
     parser.add_argument("--size", type=size_parser(16, 8192), default=(640, 360))
+    parser.add_argument("--camera-hz", type=float, default=30.0, help="camera messages per second (default 30)")
+    parser.add_argument("--turn-s", type=float, default=20.0, help="seconds per turn of the camera (default 20)")
+    parser.add_argument("--server-args", default="", help="extra flags for python -m server")
+    parser.add_argument("--log-dir", type=Path, help="process logs go here (default: a new temporary folder)")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    return parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = run_parser("python -m bench.soak", __doc__.split("\n\n")[0], nodes=4)
+    parser.add_argument("--minutes", type=float, required=True, help="length of the run after start-up")
     parser.add_argument("--restart-every-s", type=float, default=60.0, help="0: no restarts (default 60)")
     parser.add_argument("--sample-every-s", type=float, default=5.0)
     parser.add_argument("--warmup-s", type=float,
                         help="growth counts from the first steady sample after this (default: 10 %% of the run, "
                              "at least 30 s, at most half the run)")
-    parser.add_argument("--camera-hz", type=float, default=30.0, help="camera messages per second (default 30)")
-    parser.add_argument("--turn-s", type=float, default=20.0, help="seconds per turn of the camera (default 20)")
     parser.add_argument("--churn-every-s", type=float, default=1.0, help="a viewer comes and goes this often")
-    parser.add_argument("--server-args", default="", help="extra flags for python -m server")
-    parser.add_argument("--log-dir", type=Path, help="process logs go here (default: a new temporary folder)")
-    parser.add_argument("--json", type=Path, help="write the figures here")
     return parser
 
 
