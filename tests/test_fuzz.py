@@ -17,7 +17,7 @@ import pytest
 
 from bench.hostile import References, report, run_storm, shortfalls
 from tests.conftest import seconds
-from tests.integration_support import ready_nodes, wait_until
+from tests.integration_support import wait_ready_nodes
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl, pytest.mark.timeout(seconds(300))]
 
@@ -31,7 +31,7 @@ def test_ten_thousand_hostile_messages_leave_the_coordinator_serving_exact_frame
                                       "--local-nodes", str(NODES), "--token", TOKEN)
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30),
                       headers={"Authorization": f"Bearer {TOKEN}"}) as client:
-        wait_until(lambda: len(ready_nodes(client)) == NODES, seconds(90), "the real nodes")
+        wait_ready_nodes(client, NODES, timeout_s=90)
         bounds = client.get("/api/camera").json()["bounds"]
     references = References.render(SCENE, bounds, SIZE)
 

@@ -18,9 +18,9 @@ from tests.integration_support import (
     assert_matches_reference,
     fetch_frame,
     orbit_cameras,
-    ready_nodes,
     render_once,
     stats,
+    wait_ready_nodes,
     wait_until,
 )
 
@@ -35,7 +35,7 @@ def live(coordinator_factory):
     """A coordinator with 2 local nodes and the default codecs, settled after its first frames."""
     coordinator = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--local-nodes", "2")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 2, seconds(120), "2 ready nodes")
+        wait_ready_nodes(client, 2)
         wait_until(lambda: stats(client)["settled"], seconds(60), "the first frames and the still frame")
         yield coordinator, client
 

@@ -16,7 +16,7 @@ from tessera.geometry import Rect
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import PROTOCOL_VERSION, TileHeader, pack_tile
 from tests.conftest import seconds
-from tests.integration_support import fetch_frame, ready_nodes, wait_until
+from tests.integration_support import fetch_frame, wait_ready_nodes, wait_until
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
@@ -46,7 +46,7 @@ def serving(coordinator_factory):
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "160x120", "--codec", "png",
                                       "--local-nodes", "1")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 1, seconds(60), "the real node")
+        wait_ready_nodes(client, 1, timeout_s=60)
         yield coordinator, client
 
 

@@ -17,7 +17,7 @@ import pytest
 from bench import frozen as frozen_bench
 from bench.processes import process_tree
 from tests.conftest import seconds
-from tests.integration_support import camera_moving, ready_nodes, stats, wait_until
+from tests.integration_support import camera_moving, stats, wait_ready_nodes, wait_until
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.gl]
 def test_a_frozen_node_is_worked_around_and_rejoins(coordinator_factory):
     coordinator = coordinator_factory("--scene", "builtin:cluster", "--size", "320x180", "--local-nodes", "3")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+        wait_ready_nodes(client, 3)
         camera = client.get("/api/camera").json()["camera"]
         nodes = [pid for pid in process_tree(coordinator.proc.process.pid) if pid != coordinator.proc.process.pid]
         assert len(nodes) == 3, nodes
@@ -71,7 +71,7 @@ def test_a_node_silent_past_the_heartbeat_is_dropped_and_rejoins_by_itself(coord
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "160x90", "--local-nodes", "2",
                                       "--heartbeat-s", "1", "--tile-timeout-s", "600")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
-        wait_until(lambda: len(ready_nodes(client)) == 2, seconds(120), "2 ready nodes")
+        wait_ready_nodes(client, 2)
         wait_until(lambda: stats(client)["settled"], seconds(60), "nothing left to render")
         pid = next(p for p in process_tree(coordinator.proc.process.pid) if p != coordinator.proc.process.pid)
         arguments = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
