@@ -1,0 +1,167 @@
+"""The node's protocol core (node/protocol.py) without sockets or GL: coordinator text in, actions
+out — the welcome and cancels at once, jobs in order, superseded scene loads skipped, scene states
+applied in message order, malformed messages refused with their reason."""
+
+from __future__ import annotations
+
+import json
+
+from node.protocol import CANCELLED_MEMORY, Draw, Load, Measure, NodeAction, NodeProtocol, Send
+from node.scene.mesh import SceneError as SceneLoadError
+from tessera.scene.state import ObjectState, SceneState
+from tessera.wire.messages import NodeHello, RenderError, SceneError, TilesDropped
+from tessera.wire.protocol import PROTOCOL_VERSION
+
+CAMERA = {"eye": [0.0, 1.0, 4.0], "target": [0.0, 0.0, 0.0]}
+FULL = SceneState(3, 0.5, {"car": ObjectState((1.0, 2.0, 3.0))})
+
+
+def render(frame: int, tiles: int = 2, state: dict | None = None) -> str:
+    message = {"type": "render", "frame": frame, "camera": CAMERA, "size": [64, 32], "codec": "png",
+               "tiles": [{"tile": i, "rect": [i * 32, 0, 32, 32]} for i in range(tiles)]}
+    if state is not None:
+        message["state"] = state
+    return json.dumps(message)
+
+
+def load(scene: str) -> str:
+    return json.dumps({"type": "load_scene", "scene": scene})
+
+
+def connected(*texts: str) -> NodeProtocol:
+    protocol = NodeProtocol("n1", "t0k", slowdown=2.0)
+    protocol.connect("llvmpipe")
+    for text in texts:
+        protocol.receive_text(text)
+    return protocol
+
+
+def drain(protocol: NodeProtocol) -> list[NodeAction]:
+    """Every action the protocol hands out now, each taken as done at once."""
+    actions = []
+    while (action := protocol.next_action()) is not None:
+        actions.append(action)
+    return actions
+
+
+def drawn(actions: list[NodeAction]) -> list[tuple[int, int]]:
+    return [(a.render.frame, a.tile.tile) for a in actions if isinstance(a, Draw)]
+
+
+def sent(actions: list[NodeAction]) -> list:
+    return [a.message for a in actions if isinstance(a, Send)]
+
+
+def test_connect_says_hello_and_the_welcome_takes_effect_at_once():
+    protocol = NodeProtocol("n1", "t0k", slowdown=2.0)
+    hello = protocol.connect("llvmpipe")
+    assert isinstance(hello, NodeHello) and (hello.name, hello.token, hello.renderer) == ("n1", "t0k", "llvmpipe")
+    assert hello.version == PROTOCOL_VERSION
+    assert (hello.capabilities.slowdown, hello.capabilities.calibrate, hello.capabilities.depth) == (2.0, True, True)
+    assert not protocol.welcomed and protocol.node_id is None
+    protocol.receive_text(json.dumps({"type": "welcome", "node_id": 7}))
+    assert protocol.welcomed and protocol.node_id == 7
+    assert protocol.next_action() is None, "the welcome is no job"
+    protocol.connect("llvmpipe")
+    assert not protocol.welcomed, "each connection waits for its own welcome"
+
+
+def test_jobs_come_in_message_order_one_tile_at_a_time():
+    calibrate = json.dumps({"type": "calibrate", "camera": CAMERA, "size": [64, 32], "rect": [16, 8, 32, 16]})
+    protocol = connected(load("builtin:spheres"), render(1), calibrate)
+    first = protocol.next_action()
+    assert isinstance(first, Load) and first.request.scene == "builtin:spheres"
+    assert drawn([protocol.next_action(), protocol.next_action()]) == [(1, 0), (1, 1)]
+    measure = protocol.next_action()
+    assert isinstance(measure, Measure) and measure.request.repeats == 3
+    assert protocol.next_action() is None
+
+
+def test_of_several_waiting_loads_only_the_newest_is_loaded():
+    protocol = connected(load("a.ply"), render(1, tiles=1), load("b.ply"), load("c.ply"))
+    actions = drain(protocol)
+    assert [a.request.scene for a in actions if isinstance(a, Load)] == ["c.ply"]
+    assert drawn(actions) == [(1, 0)], "the render between them is still done, in its turn"
+    protocol.receive_text(load("a.ply"))
+    assert [a.request.scene for a in drain(protocol) if isinstance(a, Load)] == ["a.ply"], "a later load is new"
+
+
+def test_tiles_of_a_cancelled_frame_are_dropped_and_reported_once_the_frame_is_through():
+    protocol = connected(render(4, tiles=5), json.dumps({"type": "cancel", "frames": [9]}))
+    assert drawn([protocol.next_action()]) == [(4, 0)]
+    protocol.receive_text(json.dumps({"type": "cancel", "frames": [4]}))
+    assert sent(drain(protocol)) == [TilesDropped(frame=4, tiles=(1, 2, 3, 4))], "the tiles not begun, in order"
+    assert protocol.tiles_dropped == 4
+    protocol.receive_text(render(4, tiles=2))
+    assert sent(drain(protocol)) == [TilesDropped(frame=4, tiles=(0, 1))], "a cancel is remembered"
+    assert protocol.tiles_dropped == 6
+
+
+def test_the_cancel_memory_outlives_a_connection_and_keeps_the_newest_frames():
+    protocol = connected(json.dumps({"type": "cancel", "frames": list(range(CANCELLED_MEMORY + 1))}))
+    protocol.connect("llvmpipe")
+    protocol.receive_text(render(0, tiles=1))
+    protocol.receive_text(render(CANCELLED_MEMORY, tiles=1))
+    actions = drain(protocol)
+    assert drawn(actions) == [(0, 0)], "the oldest cancel was forgotten"
+    assert sent(actions) == [TilesDropped(frame=CANCELLED_MEMORY, tiles=(0,))]
+
+
+def test_a_cancelled_frames_state_is_still_applied_in_message_order():
+    later = SceneState(4, 0.75, {"car": ObjectState(visible=False)})
+    protocol = connected(json.dumps({"type": "cancel", "frames": [5]}), render(5, tiles=1, state=FULL.to_json()),
+                         render(6, tiles=1, state=later.delta_from(FULL).to_json()))
+    actions = drain(protocol)
+    assert sent(actions) == [TilesDropped(frame=5, tiles=(0,))]
+    (draw,) = [a for a in actions if isinstance(a, Draw)]
+    assert draw.render.frame == 6 and draw.state is not None
+    assert draw.state.version == 4 and draw.state.same_as(later)
+
+
+def test_a_state_that_does_not_apply_fails_every_tile_of_its_frame():
+    delta = {"base": 9, "version": 10, "time": 0.0, "objects": {}}
+    protocol = connected(render(7, tiles=2, state=delta))
+    errors = sent(drain(protocol))
+    assert [(e.frame, e.tile) for e in errors] == [(7, 0), (7, 1)]
+    assert all(isinstance(e, RenderError) and e.message.startswith("scene state: ") for e in errors)
+    assert "before any full state" in errors[0].message
+    protocol = connected(render(1, tiles=1, state=FULL.to_json()))
+    protocol.connect("llvmpipe")
+    protocol.receive_text(render(2, tiles=1, state=FULL.patched({}).delta_from(FULL).to_json()))
+    assert "before any full state" in sent(drain(protocol))[0].message, "a new connection starts without a state"
+
+
+def test_malformed_messages_are_refused_in_their_turn_with_the_reason():
+    bad_render = json.dumps({"type": "render", "frame": 3, "camera": CAMERA, "size": [64, 32], "codec": "webp",
+                             "tiles": [{"tile": 0, "rect": [0, 0, 32, 32]}, {"tile": 1}, "x", {"tile": True}]})
+    bad_calibrate = json.dumps({"type": "calibrate", "camera": CAMERA, "size": [64, 32], "rect": [0, 0, 8, 8],
+                                "repeats": 0})
+    bad_load = json.dumps({"type": "load_scene", "scene": "x.ply", "background": [2, 0, 0]})
+    protocol = connected(render(1, tiles=1), bad_render, bad_calibrate, bad_load)
+    assert drawn([protocol.next_action()]) == [(1, 0)], "the malformed ones wait their turn"
+    refusals = sent(drain(protocol))
+    assert [(type(r), getattr(r, "frame", None), getattr(r, "tile", None)) for r in refusals] == [
+        (RenderError, 3, 0), (RenderError, 3, 1), (RenderError, 0, 0), (SceneError, None, None)]
+    assert "codec" in refusals[0].message and refusals[0].message == refusals[1].message
+    assert refusals[2].message.startswith("calibration failed: ") and "repeats" in refusals[2].message
+    assert refusals[3].scene == "x.ply" and "background" in refusals[3].message
+
+
+def test_a_refusal_answers_only_what_can_be_read_and_other_input_is_ignored():
+    unreadable = json.dumps({"type": "render", "frame": "three", "tiles": [{"tile": 0}]})
+    protocol = connected(unreadable, "not json", json.dumps({"type": "viewer_hello"}), json.dumps([1, 2]),
+                         json.dumps({"type": "load_scene"}))
+    (refusal,) = sent(drain(protocol))
+    assert isinstance(refusal, SceneError) and refusal.scene == "None" and "scene" in refusal.message
+
+
+def test_work_results_become_the_messages_to_send():
+    protocol = connected()
+    failed = protocol.scene_failed("x.ply", SceneLoadError("no such\n  file"))
+    assert failed == SceneError(scene="x.ply", message="no such file")
+    assert protocol.scene_failed("y.ply", RuntimeError()).message == "RuntimeError"
+    assert protocol.tile_failed(3, 1, ValueError("tile [0, 0, 9, 9]\noutside")) == RenderError(
+        frame=3, tile=1, message="tile [0, 0, 9, 9] outside")
+    assert protocol.encoding_failed(3, 1, OSError("disk")).message == "encoding failed: disk"
+    assert protocol.calibration_failed(RuntimeError("no scene\nloaded")) == RenderError(
+        frame=0, tile=0, message="calibration failed: no scene loaded")
