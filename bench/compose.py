@@ -204,7 +204,7 @@ def depth_frame(renderer: Any, camera: Camera, size: tuple[int, int], planners: 
 def run(args: argparse.Namespace, cameras: list[Camera]) -> dict[str, Any]:
     from node.culling.switch import CullMode
     from node.gl.context import create_gl_context, renderer_string
-    from node.gl.depth_layers import hybrid_plan, sort_last_plan
+    from node.gl.depth_layers import PlanningScene, hybrid_plan, sort_last_plan
     from node.gl.renderer import TileRenderer
     from node.scene.loading import load_scene
 
@@ -213,6 +213,7 @@ def run(args: argparse.Namespace, cameras: list[Camera]) -> dict[str, Any]:
     load_s = time.perf_counter() - started
     ctx = create_gl_context()
     renderer = TileRenderer(ctx, scene, culling=CullMode.CPU)
+    planning = PlanningScene.of(scene, renderer.culler.bvh)
     size, rects = args.size, equal_strip_partition(args.tiles, args.size)
     slowdowns = args.speeds or [1.0] * args.nodes
     weights = calibration_weights(dict(enumerate(slowdowns)))
@@ -235,13 +236,13 @@ def run(args: argparse.Namespace, cameras: list[Camera]) -> dict[str, Any]:
             frame, figures = sort_first_frame(renderer, camera, size, rects)
             tallies["sort-first"].add(frame, reference, **figures)
         for name, strip in strips.items():
-            planners = [lambda index=index, camera=camera, strip=strip: hybrid_plan(renderer, camera, size, rects,
+            planners = [lambda index=index, camera=camera, strip=strip: hybrid_plan(planning, camera, size, rects,
                                                                                   index, strip)
                         for index in range(len(rects))]
             frame, figures = depth_frame(renderer, camera, size, planners, [1.0] * len(rects))
             tallies[name].add(frame, reference, **figures)
         if "sort-last" in names:
-            planners = [lambda share=share, camera=camera: sort_last_plan(renderer, camera, size, share)
+            planners = [lambda share=share, camera=camera: sort_last_plan(planning, camera, size, share)
                         for share in shares]
             frame, figures = depth_frame(renderer, camera, size, planners, slowdowns)
             tallies["sort-last"].add(frame, reference, **figures)
