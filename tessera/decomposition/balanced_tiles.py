@@ -17,14 +17,15 @@ def tile_set(partition: Partition) -> frozenset[tuple[tuple[int, int, int, int],
 
 
 class BalancedTiles:
-    """``balancer``'s partitions of a ``size`` = (w, h) frame; the last two are kept (to tell
-    whether the edges still move), with the time of the last and the newest timings it was fed.
+    """``balancer``'s partitions of a ``size`` = (w, h) frame: the last one (``last``), whether it
+    moved the edges (``moving``), when it was made and the newest timings the balancer was fed.
     ``error``: why the balancer failed last (the static split was used), until taken."""
 
     def __init__(self, balancer: Balancer, size: tuple[int, int]) -> None:
         self.balancer = balancer
         self.size = size
-        self.recent: list[Partition] = []
+        self.last: Partition | None = None
+        self.moving = True
         self.error: str | None = None
         self._last_at: float | None = None
         self._timings: tuple[TileTiming, ...] = ()
@@ -33,15 +34,14 @@ class BalancedTiles:
     def set_balancer(self, balancer: Balancer) -> None:
         """Partition with ``balancer`` from the next frame (its history starts anew)."""
         self.balancer = balancer
-        self.recent.clear()
+        self.last, self.moving = None, True
 
     def partition(self, node_ids: Sequence[int], weights: dict[int, float], now: float,
                   groups: ProjectedGroups | None) -> Partition:
         """The balancer's partition over ``node_ids`` (ready, by id) with their speed ``weights`` and
         the frame's projected ``groups``; the static split if it fails (its reason in ``error``)."""
-        previous = self.recent[-1] if self.recent else None
         elapsed_ms = 0.0 if self._last_at is None else (now - self._last_at) * 1000.0
-        inputs = BalanceInput(size=self.size, node_ids=tuple(node_ids), previous=previous, timings=self._timings,
+        inputs = BalanceInput(size=self.size, node_ids=tuple(node_ids), previous=self.last, timings=self._timings,
                               weights=weights, elapsed_ms=elapsed_ms, groups=groups)
         try:
             partition = self.balancer.partition(inputs)
@@ -57,12 +57,10 @@ class BalancedTiles:
         return partition
 
     def remember(self, partition: Partition) -> None:
-        self.recent = [*self.recent[-1:], partition]
-
-    @property
-    def moving(self) -> bool:
-        """The last two partitions differ (the edges still move), or only one was made."""
-        return len(self.recent) < 2 or tile_set(self.recent[0]) != tile_set(self.recent[1])
+        """``partition`` was used; ``moving``: it differs from the one before (the edges still
+        move), or it is the first (compared here once, not each time the scheduler asks)."""
+        previous, self.last = self.last, partition
+        self.moving = previous is None or (partition is not previous and tile_set(partition) != tile_set(previous))
 
     def take_timings(self, frame_id: int, timings: tuple[TileTiming, ...]) -> bool:
         """Interactive frame ``frame_id``'s tile timings feed the next partition unless newer ones

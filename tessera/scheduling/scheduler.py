@@ -12,7 +12,7 @@ What it decides:
   (camera, scene state, balancer, node set; a playing animation changes the state all the time),
   while the balancer settles (at most
   ``settle_frames`` more frames after a change, and only while the partition still moves), or
-  when the still frame is owed: once nothing changed for ``still_delay_s``, one frame in the
+  when the still frame is owed: once nothing changed for ``still_delay_ms``, one frame in the
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality). Otherwise nothing
   renders.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
