@@ -106,6 +106,12 @@ class FrameStore:
                 waiting.append((wanted, future))
         self._waiters = waiting
 
+    def newest(self, still: bool = False) -> PublishedFrame | None:
+        """The newest kept frame; with ``still``, only when it is a still frame (the newest state's
+        still, not an older one)."""
+        latest = self.latest
+        return latest if latest is not None and (latest.still or not still) else None
+
     def first_at_or_after(self, frame_id: int, still: bool = False) -> PublishedFrame | None:
         """The first kept frame with id ≥ ``frame_id`` (and, with ``still``, a still frame)."""
         for frame in self._frames.values():

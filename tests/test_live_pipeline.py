@@ -95,6 +95,21 @@ def test_the_still_frame_equals_render_once_with_the_default_codec(live, tmp_pat
     assert 25.0 < psnr(moving_image, reference) < 60.0, "the interactive frame is JPEG: close, not exact"
 
 
+def test_a_frame_request_without_after_gets_the_newest_frame_the_still_at_rest(live):
+    """A bare GET /api/frame.png is a picture of what is on screen now, not the oldest frame kept."""
+    _, client = live
+    camera = orbit_cameras(client.get("/api/camera").json()["bounds"], 3)[2]
+    first = client.put("/api/camera", json=camera).json()["frame"]
+    still = client.get("/api/frame.png", params={"after": first, "still": "true"}, timeout=seconds(120))
+    assert still.headers["x-frame-still"] == "1" and int(still.headers["x-frame-id"]) > first
+    bare = client.get("/api/frame.png", timeout=seconds(120))
+    assert bare.status_code == 200 and bare.headers["x-frame-still"] == "1"
+    assert bare.headers["x-frame-id"] == still.headers["x-frame-id"] == str(stats(client)["frame"])
+    assert bare.content == still.content
+    newest_still = client.get("/api/frame.png", params={"still": "true"}, timeout=seconds(120))
+    assert newest_still.headers["x-frame-id"] == still.headers["x-frame-id"]
+
+
 def test_each_viewer_gets_back_the_input_number_its_frames_answer(live):
     coordinator, client = live
     camera = client.get("/api/camera").json()["camera"]

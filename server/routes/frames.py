@@ -18,11 +18,13 @@ router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 @router.get("/api/frame.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}, 422: {"description": "a bad or unreachable ``after``"},
                        504: {"description": "no such frame in time"}})
-async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(None, gt=0, le=300),
+async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None = Query(None, gt=0, le=300),
                     still: bool = Query(False), service: RenderService = Depends(get_service)) -> Response:
-    """Waits up to ``timeout`` seconds (default ``--frame-wait-s``); a frame is rendered for the
-    request when none is kept or on its way (frames render on demand). With ``still=true``, the first
-    *still* frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
+    """The first complete frame with id ≥ ``after``; without ``after``, the newest frame (at rest:
+    the still frame), or with ``still=true`` the newest state's still frame. Waits up to ``timeout``
+    seconds (default ``--frame-wait-s``); a frame is rendered for the request when none is kept or
+    on its way (frames render on demand). With ``still=true`` and ``after``, the first *still*
+    frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
     Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0; for a scene with objects, ``X-State-Version``
     and ``X-Scene-Time`` (s, ``repr`` of the float: exact) of the frame's scene state, and
     ``X-Tile-States``, the state tag each tile's node reported (tile order). The image is lossless PNG of the tiles as
@@ -30,6 +32,9 @@ async def frame_png(after: int = Query(0, ge=0), timeout: float | None = Query(N
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
     ``after`` beyond the next frame to start (no id the API handed out) → 422: no frame is on its way."""
     upcoming = service.next_frame_id()
+    if after is None:
+        newest = service.store.newest(still)
+        after = newest.frame_id if newest is not None else max(service.store.last_id + 1, 0)
     if after > upcoming:
         shown = str(after) if after < 10**20 else f"{str(after)[:20]}…"
         raise HTTPException(status_code=422, detail=f"after={shown} is beyond the next frame, {upcoming}: "
