@@ -81,9 +81,20 @@ EXAMPLES: list[Message] = [
     SceneReady(triangles=600, bounds=BOUNDS, share=3),
     NodeHello(name="n2", version=PROTOCOL_VERSION, capabilities=Capabilities(calibrate=True, depth=True)),
 ]
+DIGEST = "0123456789abcdef" * 4
+#: Sessions (issue 19): several scenes per node, scene files fetched by digest.
+SESSIONS: list[Message] = [
+    LoadScene(scene="/scenes/bunny.ply", sha256=DIGEST, url="/api/scenes/bunny/file"),
+    LoadScene(scene="x.ply", sha256=DIGEST, url="https://coordinator.example/api/scenes/x/file",
+              share=ShareSpec(version=2, index=0, weights=(1.0,))),
+    Render(frame=8, camera=CAMERA, size=(64, 64), codec=Codec.PNG, tiles=(RenderTile(tile=0, rect=Rect(0, 0, 8, 8)),),
+           scene="builtin:cluster"),
+    Calibrate(camera=CAMERA, size=(64, 64), rect=Rect(0, 0, 8, 8), scene="builtin:spheres"),
+    SceneReady(scene="builtin:cluster", triangles=10, bounds=BOUNDS),
+]
 
 
-@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+@pytest.mark.parametrize("message", [*EXAMPLES, *SESSIONS], ids=lambda m: type(m).__name__)
 def test_every_message_round_trips_through_its_text(message):
     text = message.to_text()
     data = json.loads(text)
@@ -114,6 +125,42 @@ def test_depth_fields_are_left_out_where_there_are_none():
     assert "share" not in EXAMPLES[2].to_json()
     hybrid = EXAMPLES[-5].to_json()["depth"]
     assert hybrid == {"mode": "hybrid", "tiles": [[0, 0, 320, 480], [320, 0, 320, 480]], "strip": 32, "share": 0}
+
+
+def test_session_fields_are_left_out_where_there_are_none():
+    """Messages without a scene, digest or url are byte for byte what they were before sessions."""
+    for message in EXAMPLES:
+        assert not {"sha256", "url"} & set(message.to_json())
+        if isinstance(message, Render | Calibrate | SceneReady):
+            assert "scene" not in message.to_json()
+    assert SESSIONS[0].to_json() == {"type": "load_scene", "scene": "/scenes/bunny.ply", "background": None,
+                                     "sha256": DIGEST, "url": "/api/scenes/bunny/file"}
+    assert SESSIONS[2].to_json()["scene"] == "builtin:cluster" and SESSIONS[3].to_json()["scene"] == "builtin:spheres"
+
+
+@pytest.mark.parametrize(("fields", "fragment"), [
+    ({"sha256": "0" * 63}, "load_scene.sha256"),
+    ({"sha256": "A" * 64}, "load_scene.sha256"),
+    ({"sha256": "0" * 65}, "load_scene.sha256"),
+    ({"sha256": DIGEST, "url": "x" * 2049}, "load_scene.url"),
+    ({"sha256": DIGEST, "url": ""}, "load_scene.url"),
+    ({"sha256": DIGEST, "url": "ftp://host/x.ply"}, "load_scene: url must be an http(s) URL"),
+    ({"url": "/api/scenes/x/file"}, "load_scene: a url needs the sha256"),
+    ({"sha256": DIGEST, "url": 3}, "load_scene.url"),
+])
+def test_a_scene_digest_and_url_are_checked(fields, fragment):
+    with pytest.raises(InvalidMessage) as caught:
+        parse(json.dumps({"type": "load_scene", "scene": "x.ply", **fields}), [LoadScene])
+    assert str(caught.value).startswith(fragment), str(caught.value)
+
+
+def test_old_messages_name_no_scene():
+    """A coordinator or node from before sessions: no scene named, none echoed."""
+    render = parse(EXAMPLES[10].to_text(), [Render])
+    assert render.scene is None and parse(EXAMPLES[11].to_text(), [Calibrate]).scene is None
+    assert parse(EXAMPLES[2].to_text(), [SceneReady]).scene is None
+    load = parse(EXAMPLES[9].to_text(), [LoadScene])
+    assert (load.sha256, load.url) == (None, None)
 
 
 def test_camera_update_leaves_out_a_missing_seq():

@@ -5,16 +5,19 @@ gives the JSON object, :meth:`Message.from_json` validates one (:class:`InvalidM
 field, when it is wrong) and :func:`parse` decodes text: at most :data:`MAX_JSON_BYTES`, no NaN or
 Infinity, an object whose ``type`` is one the caller accepts. Fields a side does not know are
 ignored, so peers may send more than the catalogue holds (older nodes still send
-``capabilities.codecs`` and ``scene_ready``'s ``scene``, ``meshes``, ``chunks`` and ``load_ms``).
+``capabilities.codecs`` and ``scene_ready``'s ``meshes``, ``chunks`` and ``load_ms``). Optional
+fields are left out of the JSON where they are None, so messages without them are what they were
+before the fields existed.
 Binary tiles and frames, and the protocol version, are in :mod:`tessera.wire.protocol`.
 
 node → coordinator
 
 * ``hello`` :class:`NodeHello` — the first message: name, token, GL renderer, protocol version,
   capabilities (slowdown, calibrate, depth)
-* ``scene_progress`` :class:`SceneProgress`, ``scene_ready`` :class:`SceneReady` (triangles,
-  bounds, world-space primitive groups, the named objects and the animations' keyframes; in
-  sort-last, the data partition version of the share loaded), ``scene_error`` :class:`SceneError`
+* ``scene_progress`` :class:`SceneProgress`, ``scene_ready`` :class:`SceneReady` (the scene spec
+  loaded, triangles, bounds, world-space primitive groups, the named objects and the animations'
+  keyframes; in sort-last, the data partition version of the share loaded), ``scene_error``
+  :class:`SceneError`
 * ``tile_sent`` :class:`TileSent` — after each binary tile: its send time and the node's per-tile
   counters (triangles, chunks_drawn, chunks_culled, cull_ms, cull_path)
 * ``render_error`` :class:`RenderError` — a tile the node could not render (frame 0, tile 0: a
@@ -26,11 +29,14 @@ node → coordinator
 coordinator → node
 
 * ``welcome`` :class:`Welcome` (node id), ``load_scene`` :class:`LoadScene` (in sort-last, with the
-  node's ``share`` of the scene: :class:`ShareSpec`; sent again when the data is re-partitioned)
-* ``render`` :class:`Render` — tiles are rendered in list order, each sent as soon as done, in
-  the message's scene ``state`` (a full state, or a delta on the one the node was sent last); with
-  ``depth`` (:class:`DepthRequest`, issue 10) as depth tiles of the hybrid or sort-last mode
-* ``calibrate`` :class:`Calibrate` (seed 003 §1), in order with renders
+  node's ``share`` of the scene: :class:`ShareSpec`; sent again when the data is re-partitioned;
+  with ``sha256`` and ``url``, where a node that cannot open the scene file fetches it). A node
+  holds several scenes at once (issue 19: sessions)
+* ``render`` :class:`Render` — tiles of the ``scene`` named (None: the scene loaded last) are
+  rendered in list order, each sent as soon as done, in the message's scene ``state`` (a full
+  state, or a delta on the one the node was sent last); with ``depth`` (:class:`DepthRequest`,
+  issue 10) as depth tiles of the hybrid or sort-last mode
+* ``calibrate`` :class:`Calibrate` (seed 003 §1), of a ``scene`` likewise, in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
 
 coordinator → viewer: ``hello`` :class:`ViewerHello`, ``camera`` :class:`CameraUpdate` (another
@@ -80,6 +86,8 @@ MAX_COUNTER_TEXT = 40
 MAX_REASON = 300
 #: Most tiles a hybrid ``render`` may list, and most shares a sort-last partition may have.
 MAX_DEPTH_TILES = 4096
+#: Longest ``load_scene.url``.
+MAX_URL = 2048
 
 
 class InvalidMessage(ProtocolError):
@@ -141,6 +149,9 @@ Counter = Annotated[int | float | str, PlainValidator(_counter)]
 #: A scene state or a delta (:func:`tessera.scene.state.state_from_json`).
 StateJson = Annotated[SceneState | StateDelta, PlainValidator(_state), PlainSerializer(lambda state: state.to_json())]
 CounterName = Annotated[StrictStr, Field(max_length=MAX_COUNTER_TEXT)]
+#: A SHA-256 digest: 64 lowercase hex digits.
+Sha256 = Annotated[StrictStr, Field(pattern=r"^[0-9a-f]{64}$")]
+Url = Annotated[StrictStr, Field(min_length=1, max_length=MAX_URL)]
 
 _FIELDS = ConfigDict(frozen=True, extra="ignore", allow_inf_nan=False)
 
@@ -153,6 +164,13 @@ class Message(BaseModel):
 
     def to_json(self) -> dict[str, Any]:
         return {"type": self.kind, **self.model_dump(mode="json")}
+
+    def _without_none(self, data: dict[str, Any], *keys: str) -> dict[str, Any]:
+        """``data`` (the JSON of :meth:`to_json`) without those of ``keys`` whose field is None."""
+        for key in keys:
+            if getattr(self, key) is None:
+                del data[key]
+        return data
 
     def to_text(self) -> str:
         return json.dumps(self.to_json(), separators=(",", ":"), allow_nan=False)
@@ -261,9 +279,11 @@ class AnimationJson(BaseModel):
 
 class SceneReady(Message):
     """The scene is loaded: what the coordinator needs of it (the node logs the rest itself). A
-    node that lists no ``objects`` renders every frame at the base pose."""
+    node that lists no ``objects`` renders every frame at the base pose. ``scene``: the spec of the
+    ``load_scene`` answered (None: an older node, which holds one scene)."""
 
     kind = "scene_ready"
+    scene: Text | None = None
     triangles: Annotated[StrictInt, Field(ge=0)]
     bounds: Bounds
     groups: SceneGroups | None = None
@@ -274,11 +294,8 @@ class SceneReady(Message):
     share: Annotated[StrictInt, Field(ge=1)] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Without ``share`` when the node holds the whole scene."""
-        data = super().to_json()
-        if self.share is None:
-            del data["share"]
-        return data
+        """Without ``share`` when the node holds the whole scene, without ``scene`` when None."""
+        return self._without_none(super().to_json(), "scene", "share")
 
 
 class SceneError(Message):
@@ -343,19 +360,31 @@ class ShareSpec(BaseModel):
 
 class LoadScene(Message):
     """``scene``: ``builtin:NAME`` or a path; ``background``: clear colour, RGB in 0…1; ``share``:
-    sort-last, the part of the scene to keep (None: all of it)."""
+    sort-last, the part of the scene to keep (None: all of it). ``sha256`` (64 lowercase hex
+    digits) and ``url``: where a node that cannot open the ``scene`` file itself fetches it, an
+    absolute http(s) URL or a path on the coordinator ("/api/scenes/NAME/file"); a ``url`` needs
+    its ``sha256``, which the fetched bytes must have."""
 
     kind = "load_scene"
     scene: Text
     background: tuple[Unit, Unit, Unit] | None = None
     share: ShareSpec | None = None
+    sha256: Sha256 | None = None
+    url: Url | None = None
+
+    @model_validator(mode="after")
+    def _url_with_digest(self) -> Self:
+        if self.url is not None:
+            if not self.url.startswith(("http://", "https://", "/")):
+                raise ValueError("url must be an http(s) URL or a path on the coordinator starting with /")
+            if self.sha256 is None:
+                raise ValueError("a url needs the sha256 of the file")
+        return self
 
     def to_json(self) -> dict[str, Any]:
-        """Without ``share`` when there is none (the sort-first and hybrid modes)."""
-        data = super().to_json()
-        if self.share is None:
-            del data["share"]
-        return data
+        """Without ``share`` when there is none (the sort-first and hybrid modes), without
+        ``sha256`` and ``url`` when None."""
+        return self._without_none(super().to_json(), "share", "sha256", "url")
 
 
 class RenderTile(BaseModel):
@@ -385,6 +414,8 @@ class DepthRequest(BaseModel):
 
 
 class Render(Message):
+    """Tiles of frame ``frame`` of the scene spec ``scene`` (None: the scene the node loaded last)."""
+
     kind = "render"
     frame: Int
     camera: CameraJson
@@ -394,23 +425,27 @@ class Render(Message):
     tiles: tuple[RenderTile, ...]
     state: StateJson | None = None
     depth: DepthRequest | None = None
+    scene: Text | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first."""
-        data = super().to_json()
-        for key in ("state", "depth"):
-            if getattr(self, key) is None:
-                del data[key]
-        return data
+        ``depth`` in sort-first, without ``scene`` when None."""
+        return self._without_none(super().to_json(), "state", "depth", "scene")
 
 
 class Calibrate(Message):
+    """Time ``rect`` of scene spec ``scene`` (None: the scene the node loaded last)."""
+
     kind = "calibrate"
     camera: CameraJson
     size: Size
     rect: RectJson
     repeats: Annotated[StrictInt, Field(ge=1, le=MAX_CALIBRATION_REPEATS)] = 3
+    scene: Text | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """Without ``scene`` when None."""
+        return self._without_none(super().to_json(), "scene")
 
 
 class Cancel(Message):
