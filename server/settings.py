@@ -8,6 +8,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from server.origins import normalise_origins
 from tessera.cli_values import number_parser, parse_background, size_parser
@@ -92,6 +93,20 @@ def _port(text: str) -> int:
     return value
 
 
+def _folder(text: str) -> Path:
+    path = Path(text).expanduser()
+    if not path.is_dir():
+        raise argparse.ArgumentTypeError(f"must be an existing folder, got {text!r}")
+    return path
+
+
+def _megabytes(text: str) -> int:
+    value = _count(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def _codec(text: str) -> Codec:
     try:
         return Codec.parse(text)
@@ -141,6 +156,11 @@ class Settings(SchedulerConfig):
     max_node_message_bytes: int | None = None
     max_viewer_messages_per_s: float = DEFAULT_MAX_VIEWER_MESSAGES_PER_S
     max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
+    #: The scene library, read only: its files are listed as ``library/PATH`` (server/scene_library.py).
+    scenes_dir: Path | None = None
+    #: Where uploads (``DIR/scenes``) live; None: uploads are refused.
+    data_dir: Path | None = None
+    max_upload_mb: int = 512
 
     @property
     def node_message_bytes(self) -> int:
@@ -214,6 +234,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-node-messages-per-s", type=RATE,
                         help=f"messages per second per node socket, a second's worth at once "
                              f"(default {DEFAULT_MAX_NODE_MESSAGES_PER_S:.0f}; 0: no limit)")
+    parser.add_argument("--scenes-dir", type=_folder,
+                        help="folder of scene files (glTF/GLB/OBJ/PLY/STL, sub-folders too) that sessions may "
+                             "show as library/PATH; read only (default: none, only built-in scenes and uploads)")
+    parser.add_argument("--data-dir", type=_folder,
+                        help="folder for uploaded scenes (DIR/scenes) and what outlives a restart "
+                             "(default: none, uploads are refused)")
+    parser.add_argument("--max-upload-mb", type=_megabytes,
+                        help=f"largest scene upload, MiB (default {defaults.max_upload_mb})")
     return parser
 
 
