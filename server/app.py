@@ -21,12 +21,15 @@ from server.routes import (
     node_ws,
     nodes,
     objects,
+    scenes,
     stats,
     viewer_ws,
     web,
 )
 from server.routes.guards import refuse_cross_site_writes
+from server.routes.scenes import UploadChecks
 from server.routes.web import WEB_DIR
+from server.scene_library import SceneLibrary
 from server.service import RenderService
 from server.settings import Settings
 
@@ -49,8 +52,10 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.metrics = metrics
     app.state.settings = settings
     app.state.origins = OriginPolicy(settings.allowed_origins)
+    app.state.scenes = SceneLibrary(settings.scenes_dir, settings.data_dir, settings.max_upload_mb << 20)
+    app.state.upload_checks = UploadChecks()
     app.middleware("http")(refuse_cross_site_writes)
-    for module in (health, stats, camera, objects, animation, frames, balancer, nodes, node_ws, viewer_ws, web):
+    for module in (health, stats, camera, objects, animation, frames, balancer, scenes, nodes, node_ws, viewer_ws, web):
         app.include_router(module.router)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

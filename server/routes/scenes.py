@@ -1,0 +1,137 @@
+"""The scene library (issue 19): ``GET /api/scenes``, ``GET /api/scenes/{name}/file`` (the bytes, for
+nodes on hosts without the folders) and ``POST /api/scenes`` (an upload, multipart field ``file``).
+Names and storage: :mod:`server.scene_library`."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.responses import FileResponse
+
+from server.multipart_file import FileField, MultipartRefused
+from server.routes.deps import require_token
+from server.scene_library import (
+    BadSceneName,
+    NotAScene,
+    PendingUpload,
+    SceneExists,
+    SceneLibrary,
+    SceneRefused,
+    UnknownScene,
+    UnsupportedFormat,
+    UploadsUnavailable,
+    UploadTooLarge,
+)
+
+router = APIRouter(tags=["scenes"], dependencies=[Depends(require_token)])
+
+STATUS: dict[type[SceneRefused], int] = {
+    UnknownScene: 404, BadSceneName: 422, UnsupportedFormat: 415, SceneExists: 409, UploadTooLarge: 413,
+    NotAScene: 422, UploadsUnavailable: 503,
+}
+#: Room for the multipart framing around the file (boundaries, part headers, other small fields).
+MULTIPART_OVERHEAD = 64 << 10
+#: Longest check of an upload. Loading the 990k-triangle scan (an 18.8 MB PLY) as a node does took
+#: 3.5 s on the 2-core CI machine, so a PLY at the default 512 MB limit takes about 100 s.
+CHECK_TIMEOUT_S = 300.0
+#: The OpenAPI description of the upload's body (read from the stream, not declared as a parameter).
+UPLOAD_BODY = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
+    "type": "object", "required": ["file"], "properties": {"file": {"type": "string", "format": "binary"}}}}}}}
+
+
+class UploadChecks:
+    """Loads uploads to check them, one at a time (CPU heavy), each for at most
+    :data:`CHECK_TIMEOUT_S`. A thread cannot be stopped: a check that outlives its request keeps
+    its turn until it ends, so slow files cannot pile up threads."""
+
+    def __init__(self) -> None:
+        self._turn = asyncio.Lock()
+
+    async def triangles(self, upload: PendingUpload) -> int:
+        """The upload's triangles; raises :class:`NotAScene`."""
+        await self._turn.acquire()
+        check = asyncio.ensure_future(asyncio.to_thread(upload.check))
+        check.add_done_callback(self._checked)
+        done, _ = await asyncio.wait({check}, timeout=CHECK_TIMEOUT_S)
+        if not done:
+            raise NotAScene(f"{upload.name!r} took over {CHECK_TIMEOUT_S:g} s to load")
+        return check.result()
+
+    def _checked(self, check: asyncio.Future[int]) -> None:
+        self._turn.release()
+        if not check.cancelled():
+            check.exception()  # retrieved: a check that outlived its request has no one to tell
+
+
+def get_library(request: Request) -> SceneLibrary:
+    return request.app.state.scenes
+
+
+def refused(exc: SceneRefused) -> HTTPException:
+    return HTTPException(status_code=STATUS[type(exc)], detail=str(exc))
+
+
+@router.get("/api/scenes")
+async def list_scenes(library: SceneLibrary = Depends(get_library)) -> list[dict[str, Any]]:
+    """Every scene a session may show: ``name`` (``builtin:NAME``, ``library/PATH``, ``upload/FILE``),
+    ``format`` (``builtin`` or the file suffix) and ``bytes``."""
+    return [entry.to_json() for entry in await asyncio.to_thread(library.entries)]
+
+
+@router.get("/api/scenes/{name:path}/file")
+async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) -> FileResponse:
+    """The scene file's bytes, header ``X-Sha256`` its content hash; 404 for an unknown name or a
+    built-in scene."""
+    try:
+        entry = library.find(name)
+    except UnknownScene as exc:
+        raise refused(exc) from None
+    if entry.path is None:
+        raise HTTPException(status_code=404, detail=f"{name!r} is built in: it has no file")
+    sha256 = await asyncio.to_thread(library.content_hash, entry)
+    return FileResponse(entry.path, media_type="application/octet-stream", filename=entry.path.name,
+                        headers={"X-Sha256": sha256})
+
+
+@router.post("/api/scenes", status_code=201, openapi_extra=UPLOAD_BODY)
+async def upload_scene(request: Request, library: SceneLibrary = Depends(get_library)) -> dict[str, Any]:
+    """Store the file of multipart field ``file`` as ``upload/FILENAME`` once it loads as a scene:
+    ``name``, ``sha256``, ``bytes``, ``triangles``. A name taken 409, too large 413, an unsupported
+    suffix 415, a bad name or a file that does not load 422 (with the loader's reason), uploads off
+    503."""
+    limit = library.max_upload_bytes + MULTIPART_OVERHEAD
+    declared = request.headers.get("content-length", "")
+    upload = None
+    received_all = False
+    try:
+        if declared.isdigit() and int(declared) > limit:
+            raise library.too_large()
+        form = FileField(request.headers.get("content-type", ""), "file")
+        received = 0
+        async for chunk in request.stream():
+            received += len(chunk)
+            if received > limit:
+                raise library.too_large()
+            data = form.feed(chunk)
+            if upload is None and form.filename is not None:  # refused as soon as the name is known
+                upload = library.begin_upload(form.filename)
+            for piece in data:  # the file's bytes come after its name
+                assert upload is not None
+                upload.write(piece)
+        received_all = True
+        form.finish()
+        assert upload is not None, "finish() refuses a body without the file"
+        await asyncio.to_thread(upload.finish)
+        triangles = await request.app.state.upload_checks.triangles(upload)
+        entry = await asyncio.to_thread(upload.commit)
+        return {"name": entry.name, "sha256": upload.digest.hexdigest(), "bytes": entry.bytes, "triangles": triangles}
+    except (SceneRefused, MultipartRefused) as exc:
+        status = 422 if isinstance(exc, MultipartRefused) else STATUS[type(exc)]
+        # Refused before the body was all read: closing the connection stops the rest coming.
+        headers = None if received_all else {"Connection": "close"}
+        raise HTTPException(status_code=status, detail=str(exc), headers=headers) from None
+    finally:
+        if upload is not None:
+            upload.close()
