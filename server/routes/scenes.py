@@ -34,7 +34,8 @@ STATUS: dict[type[SceneRefused], int] = {
 #: Room for the multipart framing around the file (boundaries, part headers, other small fields).
 MULTIPART_OVERHEAD = 64 << 10
 #: Longest check of an upload. Loading the 990k-triangle scan (an 18.8 MB PLY) as a node does took
-#: 3.5 s on the 2-core CI machine, so a PLY at the default 512 MB limit takes about 100 s.
+#: 1.0–1.5 s on the 2-core CI machine (3.5 s while other jobs shared it), so a PLY at the default
+#: 512 MB limit takes 30–100 s.
 CHECK_TIMEOUT_S = 300.0
 #: The OpenAPI description of the upload's body (read from the stream, not declared as a parameter).
 UPLOAD_BODY = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
