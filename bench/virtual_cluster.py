@@ -114,7 +114,7 @@ class VirtualCluster:
         self._tick_at: float | None = None
         self._nodes_at: Callable[[int], Sequence[int]] | None = None
         if groups_at is not None:
-            self.scheduler.groups_for = lambda camera, state: groups_at(self._newest)
+            self.scheduler.default.groups_for = lambda camera, state: groups_at(self._newest)
         for node_id in self.slowdowns:
             self._join(node_id)
 

@@ -83,7 +83,7 @@ class RenderService:
         self.size = settings.size
         self.metrics = metrics or CoordinatorMetrics()
         self.scheduler = FrameScheduler(settings.scheduler_config(), create_balancer(settings.balancer))
-        self.scheduler.stats = ObservedFrameStats(self.metrics)
+        self.scheduler.default.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
         self.bounds: np.ndarray | None = None
         self.store = FrameStore()
@@ -96,15 +96,15 @@ class RenderService:
 
     @property
     def camera(self) -> Camera | None:
-        return self.scheduler.camera
+        return self.scheduler.default.camera
 
     @property
     def balancer(self) -> Balancer:
-        return self.scheduler.balancer
+        return self.scheduler.default.mode.tiles.balancer
 
     @property
     def stats(self):
-        return self.scheduler.stats
+        return self.scheduler.default.stats
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -159,7 +159,7 @@ class RenderService:
     # ----------------------------------------------------------------- nodes
     def refusal(self, hello: NodeHello) -> str | None:
         """Why a node that sent ``hello`` cannot serve this coordinator (None: it can)."""
-        if self.scheduler.mode.needs_depth and not hello.capabilities.depth:
+        if self.scheduler.default.mode.needs_depth and not hello.capabilities.depth:
             return (f"this coordinator runs --mode {self.settings.mode}, which needs nodes that render depth tiles "
                     "(capabilities.depth); update the node")
         return None
@@ -246,9 +246,9 @@ class RenderService:
                 self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
                                           np.asarray(message.groups.counts, dtype=np.float64), bounds,
                                           message.groups.objects)
-            if self.scheduler.camera is None:
+            if self.scheduler.default.camera is None:
                 self.scheduler.set_camera(default_camera(bounds, aspect=self.size[0] / self.size[1]), now)
-            self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.camera))
+            self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.default.camera))
         log.info("node %d (%s) ready: %d triangles%s", link.node_id, link.name, link.triangles,
                  "" if message.share is None else f", its share of partition {message.share}")
         self.scheduler.node_ready(link.node_id, now, message.share)
@@ -267,11 +267,11 @@ class RenderService:
         return ids
 
     def _start_calibration(self) -> None:
-        if self.scheduler.camera is None:
+        if self.scheduler.default.camera is None:
             return
         node_id = self.calibration.next_to_start(time.monotonic())
         if node_id is not None and node_id in self.nodes:
-            self.nodes[node_id].send(calibrate_message(self.scheduler.camera, self.size))
+            self.nodes[node_id].send(calibrate_message(self.scheduler.default.camera, self.size))
 
     def _on_calibration(self, link: NodeLink, ms: float) -> None:
         if not self.calibration.finished(link.node_id):
@@ -317,12 +317,12 @@ class RenderService:
 
     def request_frame(self) -> None:
         """Someone waits for a newer frame: render one if nothing is on its way (render on demand)."""
-        if self.scheduler.settled:
+        if self.scheduler.default.settled:
             self.scheduler.invalidate(time.monotonic())
             self._apply()
 
     def viewer_left(self, viewer_id: int) -> None:
-        self.scheduler.forget_source(viewer_id)
+        self.scheduler.default.forget_source(viewer_id)
 
     # ----------------------------------------------------------------- tiles and frames
     def on_tile_message(self, link: NodeLink, message: bytes) -> None:
@@ -342,7 +342,7 @@ class RenderService:
 
     def _frame_tiles(self, job: FrameJob) -> list:
         """What viewers get of ``job`` (the mode's assembly; a merge's CPU time is accounted)."""
-        if not self.scheduler.mode.merges:
+        if not self.scheduler.default.mode.merges:
             return self.scheduler.viewer_tiles(job)
         started = time.thread_time()
         tiles = self.scheduler.viewer_tiles(job)
@@ -366,7 +366,7 @@ class RenderService:
     def scene_state(self) -> dict[str, Any] | None:
         """The newest state version a frame was bound to, the scene time now (s), whether the
         animation plays; None until a node reported the scene's objects."""
-        scene = self.scheduler.scene
+        scene = self.scheduler.default.scene
         if scene is None:
             return None
         return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
@@ -378,25 +378,25 @@ class RenderService:
 
     def scene_timeline(self) -> SceneTimeline | None:
         """The scene's objects, animations and poses (None until a node reported them)."""
-        return self.scheduler.scene
+        return self.scheduler.default.scene
 
     def describe(self) -> dict[str, Any]:
-        scheduler, stats = self.scheduler, self.scheduler.stats
+        scheduler, stats = self.scheduler, self.scheduler.default.stats
         latest = self.store.latest
         return {
             "frame": max(self.store.last_id, 0),
             "fps": round(stats.fps(time.monotonic()), 2),
             "size": list(self.size),
-            "balancer": scheduler.balancer.name,
-            **scheduler.mode.describe(),
-            "balancer_params": scheduler.balancer.params,
+            "balancer": scheduler.default.mode.tiles.balancer.name,
+            **scheduler.default.mode.describe(),
+            "balancer_params": scheduler.default.mode.tiles.balancer.params,
             "imbalance": round(stats.imbalance, 4),
             "imbalance_avg": round(stats.imbalance_avg, 4),
             "latency_ms": round(stats.latency_ms, 2),
             "frames_in_flight": len(scheduler.in_flight),
             "frames_cancelled": scheduler.frames_cancelled,
             "still": bool(latest and latest.still),
-            "settled": scheduler.settled,
+            "settled": scheduler.default.settled,
             "scene": self.settings.scene,
             "scene_state": self.scene_state(),
             "codec": self.settings.codec.name.lower(),

@@ -89,6 +89,6 @@ def test_the_balancer_gets_the_groups_of_the_frames_state():
     assert after.boxes[:, 0].min() > before.boxes[:, 0].min()      # the car's load moved right
     # Groups without owners stay at the base pose.
     s.set_groups(BOXES, COUNTS, scene_bounds)
-    assert s.groups_for is not None
-    still = s.groups_for(camera(), state)
+    assert s.default.groups_for is not None
+    still = s.default.groups_for(camera(), state)
     assert still is not None and np.array_equal(still.boxes, expected.boxes)

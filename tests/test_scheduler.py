@@ -114,7 +114,7 @@ def test_a_change_renders_once_then_a_still_frame_then_nothing():
     still = s.in_flight[2]
     assert still.still and still.codec is Codec.PNG and still.camera == first.camera
     assert published(finish(s, 2, 0.3)) == [2]
-    assert s.settled and s.next_deadline(0.3) is None
+    assert s.default.settled and s.next_deadline(0.3) is None
     for now in (0.5, 1.0, 10.0):
         s.tick(now)
         assert s.drain() == [] and not s.in_flight, "nothing changed: nothing renders"
@@ -125,7 +125,7 @@ def test_no_still_frame_when_still_codec_is_none():
     s.set_camera(camera(), 0.0)
     finish(s, 1, 0.01)
     s.tick(5.0)
-    assert s.drain() == [] and s.settled
+    assert s.drain() == [] and s.default.settled
 
 
 def test_settling_frames_are_bounded_and_only_while_the_partition_moves():
@@ -173,7 +173,7 @@ def test_the_still_frame_is_the_last_frame_even_when_the_partition_moves_again()
             job = s.in_flight[min(s.in_flight)]
             published_still += [a.job.still for a in finish(s, job.frame_id, now) if isinstance(a, PublishFrame)]
     assert published_still[-1] is True and published_still.count(True) == 1, published_still
-    assert s.settled and not s.in_flight
+    assert s.default.settled and not s.in_flight
 
 
 def test_balancer_change_node_join_and_scene_change_render_again():
@@ -477,7 +477,7 @@ def test_frames_carry_each_viewers_newest_input_number():
     s.set_camera(camera(2), 0.002, source=1, seq=6)
     finish(s, 1, 0.01)
     assert s.in_flight[2].inputs == {1: 6, 2: 40}
-    s.forget_source(2)
+    s.default.forget_source(2)
     finish(s, 2, 0.02)
     s.set_camera(camera(3), 0.03, source=1, seq=7)
     assert s.in_flight[3].inputs == {1: 7}
@@ -489,8 +489,8 @@ def test_latency_is_input_to_publish_of_the_first_frame_showing_it():
     finish(s, 1, 1.04)
     s.tick(1.2)
     finish(s, max(s.in_flight), 1.3)
-    assert s.stats.frames_published == 2
-    assert s.stats.latency_ms == pytest.approx(40.0), "the still frame adds no latency sample"
+    assert s.default.stats.frames_published == 2
+    assert s.default.stats.latency_ms == pytest.approx(40.0), "the still frame adds no latency sample"
 
 
 def test_a_failing_balancer_falls_back_to_the_static_split():

@@ -109,7 +109,7 @@ def test_a_version_the_log_no_longer_keeps_is_sent_whole():
     s = scene_scheduler(nodes=1)
     s.drain()
     finish(s, 1, 0.1)
-    scene = s.scene
+    scene = s.default.scene
     assert scene is not None
     for step in range(HISTORY + 1):
         scene.set_objects({"tree": ObjectPatch(translation=(step + 1.0, 0.0, 0.0))})
@@ -153,7 +153,8 @@ def test_an_unknown_object_or_bad_value_changes_nothing():
         s.set_objects({"bus": ObjectPatch(visible=False)}, 1.0)
     with pytest.raises(SceneStateError):
         s.set_animation(1.0, speed=float("nan"))
-    assert s.next_frame_id == before and s.drain() == [] and s.scene is not None and s.scene.overrides == {}
+    scene = s.default.scene
+    assert s.next_frame_id == before and s.drain() == [] and scene is not None and scene.overrides == {}
 
 
 def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still_frame():
@@ -164,7 +165,7 @@ def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still
     (still,) = frames(s.drain())
     assert s.in_flight[still].still, "the still frame of the paused scene"
     assert published(finish(s, still, 0.55))[0].still
-    assert s.settled and s.next_deadline(0.6) is None
+    assert s.default.settled and s.next_deadline(0.6) is None
     first = s.set_animation(1.0, playing=True)
     times = []
     now = 1.0
@@ -181,7 +182,7 @@ def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still
         now = max(deadline, now + 0.01)
     assert first == 3 and len(times) == 6, times
     assert times == sorted(times) and times[0] == 0.0 and times[-1] == pytest.approx(0.5, abs=0.02)
-    assert not s.settled
+    assert not s.default.settled
     s.set_animation(now, playing=False)
     s.tick(now)
     (paused,) = frames(s.drain())
@@ -193,7 +194,7 @@ def test_a_playing_animation_keeps_frames_coming_and_a_pause_ends_with_the_still
     still = s.in_flight[still_id]
     assert still.still and still.codec is Codec.PNG and still.state is paused_state, "the same state, lossless"
     finish(s, still_id, now + 0.6)
-    assert s.settled and s.next_deadline(now + 1.0) is None
+    assert s.default.settled and s.next_deadline(now + 1.0) is None
 
 
 def test_a_failed_tile_of_a_dropped_frame_also_gets_the_node_the_whole_state():

@@ -52,7 +52,8 @@ def load_shares(s: FrameScheduler, actions, now: float = 0.0) -> list:
 
 
 def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: float):
-    version = s.mode.shares.plan.version if isinstance(s.mode, SortLast) and s.mode.shares.plan else 0
+    mode = s.default.mode
+    version = mode.shares.plan.version if isinstance(mode, SortLast) and mode.shares.plan else 0
     s.tile_arrived(node_id, TileHeader(frame_id, tile_id, FRAME, Codec.JPEG, 5.0, 1.0, 1.0, depth=True), b"",
                    now, DecodedDepthTile(version, None, ()))
     s.tile_sent(node_id, frame_id, tile_id, 0.5)
@@ -95,7 +96,7 @@ def test_a_node_leaving_drops_the_frames_in_flight_and_repartitions_over_the_oth
     after = load_shares(s, actions, 2.0)
     renders = [a for a in after if isinstance(a, RenderTiles)]
     assert sorted(r.node_id for r in renders) == [1, 3]
-    assert renders[0].message.depth is not None and renders[0].message.depth.share == s.mode.shares.plan.version
+    assert renders[0].message.depth is not None and renders[0].message.depth.share == s.default.mode.shares.plan.version
 
 
 def test_a_failed_tile_goes_back_to_its_holder_and_stragglers_are_not_backed_up():

@@ -83,6 +83,10 @@ class GroupProjector:
         self.owners = None if owners is None else np.asarray(owners, dtype=np.int64).reshape(-1)
         self.size = size
 
+    def for_size(self, size: tuple[int, int]) -> GroupProjector:
+        """The same groups projected for a ``size`` frame."""
+        return GroupProjector(self.boxes, self.counts, self.bounds, self.owners, size)
+
     def __call__(self, camera: Camera, state: SceneState | None, graph: ObjectGraph | None) -> ProjectedGroups:
         if state is None or self.owners is None or graph is None:
             return project_groups(self.boxes, self.counts, camera, self.size, self.bounds)

@@ -45,6 +45,11 @@ class DecompositionMode(ABC):
         self.tiles = BalancedTiles(balancer, size)
         self.background = background
 
+    def resize(self, size: tuple[int, int]) -> None:
+        """Frames from now on are ``size`` (w, h) px; the partition history starts anew."""
+        self.size = self.tiles.size = size
+        self.tiles.set_balancer(self.tiles.balancer)
+
     # ----------------------------------------------------------------- partition
     def partition(self, node_ids: Sequence[int], weights: dict[int, float], now: float,
                   groups: Callable[[], ProjectedGroups | None]) -> Partition:

@@ -44,11 +44,12 @@ class CloseNode:
 
 @dataclass(frozen=True, slots=True)
 class LoadScene:
-    """Tell node ``node_id`` to load the scene, or only ``share`` of it (sort-last; it drops what
-    it held)."""
+    """Tell node ``node_id`` to load scene ``scene`` (None: the coordinator's own), or only
+    ``share`` of it (sort-last; it drops the share of that scene it held)."""
 
     node_id: int
     share: ShareSpec | None = None
+    scene: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

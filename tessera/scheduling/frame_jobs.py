@@ -22,6 +22,9 @@ from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
 from tessera.wire.protocol import NODE_PHASES, ProtocolError, TileHeader, state_tag
 
+#: The session every coordinator has, made at start-up from its ``--scene`` and ``--size``.
+DEFAULT_SESSION = "default"
+
 #: A node's part of a complete frame: phases (ms), tiles, read-back rects, counters.
 NodeRollup = tuple[dict[str, float], list[list[int]], list[list[int]], dict[str, float | str]]
 
@@ -77,6 +80,8 @@ class FrameJob:
     inputs: dict[object, int] = field(default_factory=dict)
     state: SceneState | None = None
     depth: DepthRequest | None = None
+    session: str = DEFAULT_SESSION
+    scene: str | None = None
     tiles_done: int = 0
     sends_done: int = 0
 
@@ -84,11 +89,12 @@ class FrameJob:
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
                partition: Partition, started_at: float, *, still: bool = False, version: int = 0,
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
-               state: SceneState | None = None, depth: DepthRequest | None = None) -> FrameJob:
+               state: SceneState | None = None, depth: DepthRequest | None = None,
+               session: str = DEFAULT_SESSION, scene: str | None = None) -> FrameJob:
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
-                  inputs=dict(inputs or {}), state=state, depth=depth)
+                  inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -108,7 +114,7 @@ class FrameJob:
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
                       tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state,
-                      depth=self.depth)
+                      depth=self.depth, scene=self.scene)
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes,
                depth_tile: DecodedDepthTile | None = None) -> TileJob | None:

@@ -46,6 +46,12 @@ What it decides:
   of a complete frame; whether tiles may move between nodes (backups, failed tiles); and, when
   the node set changes, what each node must load (sort-last: a new data partition, frames in
   flight dropped, no frame until every share is loaded).
+* **Sessions** (issue 19). Every frame belongs to a session (:class:`SessionFrames`: its own
+  size, mode and balancer, camera, scene state and frames); the nodes are shared. Frame ids are
+  unique across sessions, so a node's queue may hold tiles of several. A frame of a session
+  starts only when a node that holds its scene has nothing left to do; when several sessions owe
+  a frame, the one that has had least node time goes first (:class:`FairShare`). The methods
+  that act on one session take its id and default to :data:`DEFAULT_SESSION`.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
   frame completes, so the next frame is partitioned with them; send times, which each node
@@ -54,19 +60,17 @@ What it decides:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Iterable, Mapping
+from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from tessera.balancers.base import Balancer, Partition, ProjectedGroups
-from tessera.balancers.projection import GroupProjector
-from tessera.compositing.layers import background_pixel
+from tessera.balancers.base import Balancer
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
-from tessera.decomposition.mode import DecompositionMode, ViewerTile
-from tessera.decomposition.modes import MODES, create_mode
-from tessera.geometry import DEFAULT_BACKGROUND, Camera
-from tessera.scene.state import ObjectPatch, SceneState, StateDelta
+from tessera.decomposition.mode import ViewerTile
+from tessera.decomposition.modes import MODES
+from tessera.geometry import Camera
+from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import (
     Action,
@@ -77,10 +81,11 @@ from tessera.scheduling.actions import (
     PublishFrame,
     RenderTiles,
 )
-from tessera.scheduling.frame_jobs import FrameJob
-from tessera.scheduling.frame_stats import FrameStats
+from tessera.scheduling.fair_share import FairShare
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
-from tessera.scheduling.render_demand import STILL, RenderDemand
+from tessera.scheduling.render_demand import STILL
+from tessera.scheduling.session_frames import SessionFrames
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader
@@ -142,37 +147,30 @@ class SchedulerConfig:
 
 class FrameScheduler:
     """Frames in flight for one coordinator; see the module docstring. Every event takes ``now``
-    (seconds on any monotonic clock) and may queue actions; :meth:`drain` returns them in order."""
+    (seconds on any monotonic clock) and may queue actions; :meth:`drain` returns them in order.
+    ``config``, ``balancer`` and ``scene`` (the spec nodes load; None: whatever the adapter's own
+    scene is) make the default session; sessions share ``config``'s timeouts."""
 
-    def __init__(self, config: SchedulerConfig, balancer: Balancer) -> None:
+    def __init__(self, config: SchedulerConfig, balancer: Balancer, scene: str | None = None) -> None:
         self.config = config
-        self.mode: DecompositionMode = create_mode(config.mode, config.size, balancer,
-                                                   background_pixel(config.background or DEFAULT_BACKGROUND),
-                                                   config.depth_strip)
-        self.camera: Camera | None = None
-        #: The scene's objects, animations and state log (None: frames show the base pose).
-        self.scene: SceneTimeline | None = None
+        self.sessions: dict[str, SessionFrames] = {}
+        self.fair = FairShare()
         self.in_flight: dict[int, FrameJob] = {}
-        self.stats = FrameStats()
         self.next_frame_id = 1
         self.last_published_id = 0
         self.frames_cancelled = 0
         self.table = NodeTable()
         self.nodes = self.table.nodes
         self._actions: list[Action] = []
-        self.demand = RenderDemand(config.settle_frames, config.still_delay_s, config.still_codec is not None)
-        self._inputs: dict[Hashable, int] = {}
-        #: Projected primitive groups for a camera and the frame's scene state (None: the base pose)
-        #: (seed 003 DPBP), for balancers that use them.
-        self.groups_for: Callable[[Camera, SceneState | None], ProjectedGroups | None] | None = None
-        self._awaiting_send: dict[int, FrameJob] = {}
-        self._next_start_at = 0.0
         self._next_straggler_check = 0.0
         self.backups = 0
+        self.add_session(DEFAULT_SESSION, config, balancer, scene, 0.0)
 
+    # ----------------------------------------------------------------- the default session
     @property
-    def balancer(self) -> Balancer:
-        return self.mode.tiles.balancer
+    def default(self) -> SessionFrames:
+        """The default session (the routes without a session id act on it)."""
+        return self.sessions[DEFAULT_SESSION]
 
     # ----------------------------------------------------------------- output
     def drain(self) -> list[Action]:
@@ -183,12 +181,7 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
-        times = []
-        startable = len(self.in_flight) < self.config.max_in_flight and self.table.idle
-        owed = self._owed(now, ignore_quiet=True) if startable else None
-        if owed is not None:
-            quiet_until = self.demand.quiet_until if owed == STILL else now
-            times.append(max(self._next_start_at, quiet_until))
+        times = [at for s in self.sessions.values() if (at := s.start_due(now, self.table.idle)) is not None]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
         return min(times) if times else None
@@ -198,85 +191,103 @@ class FrameScheduler:
         re-dispatched later only make it early, so a tick comes early, never late)."""
         return min(job.started_at for job in self.in_flight.values())
 
-    @property
-    def settled(self) -> bool:
-        """True when nothing is owed: the newest state was rendered, the still frame too."""
-        return not self.in_flight and self._owed(float("inf")) is None
+    # ----------------------------------------------------------------- sessions
+    def add_session(self, session_id: str, config: SchedulerConfig, balancer: Balancer, scene_key: str | None,
+                    now: float, weight: float = 1.0) -> SessionFrames:
+        """A new session of ``config``'s size, mode and codecs, whose nodes load ``scene_key``
+        (None: the coordinator's scene); every node connected is told to load it."""
+        if session_id in self.sessions:
+            raise ValueError(f"session {session_id!r} exists already")
+        session = self.sessions[session_id] = SessionFrames(session_id, config, balancer, scene_key)
+        self.fair.add(session_id, weight)
+        if self.nodes:
+            self._repartition(session, now, force=True)
+        return session
+
+    def remove_session(self, session_id: str, now: float) -> None:
+        """The session is closed: its frames are dropped (nodes skip their tiles)."""
+        session = self.sessions.pop(session_id, None)
+        if session is None:
+            return
+        for job in list(session.frames.values()):
+            self._cancel(job, now)
+        self.fair.remove(session_id)
+        self._advance(now)
+
+    def resize(self, size: tuple[int, int], now: float, session_id: str = DEFAULT_SESSION) -> int:
+        """The session's frames are ``size`` (w, h) from now on; returns the first frame id of that size."""
+        session = self.sessions[session_id]
+        for job in list(session.frames.values()):
+            self._cancel(job, now)
+        session.resize(size)
+        return self._changed(session, now, supersede=True)
 
     # ----------------------------------------------------------------- state events
-    def set_camera(self, camera: Camera, now: float, source: Hashable | None = None,
-                   seq: int | None = None) -> int:
+    def set_camera(self, camera: Camera, now: float, source: Hashable | None = None, seq: int | None = None,
+                   session_id: str = DEFAULT_SESSION) -> int:
         """Make ``camera`` the newest (``seq``: the input sequence number of viewer ``source``);
         returns the id of the first frame that can show it."""
-        self.camera = camera
+        session = self.sessions[session_id]
+        session.camera = camera
         if source is not None and seq is not None:
-            self._inputs[source] = seq
-        first = self.next_frame_id
-        self._changed(now, supersede=True)
-        return first
+            session.inputs[source] = seq
+        return self._changed(session, now, supersede=True)
 
-    def invalidate(self, now: float) -> int:
+    def invalidate(self, now: float, session_id: str = DEFAULT_SESSION) -> int:
         """The scene state changed (objects, animation, background): render it; returns the first
         frame id that can show it."""
-        first = self.next_frame_id
-        self._changed(now, supersede=True)
-        return first
+        return self._changed(self.sessions[session_id], now, supersede=True)
 
-    def set_scene(self, scene: SceneTimeline, now: float) -> None:
+    def set_scene(self, scene: SceneTimeline, now: float, session_id: str = DEFAULT_SESSION) -> None:
         """Frames from now on show ``scene``'s state."""
-        self.scene = scene
-        self._changed(now, supersede=True)
+        self.sessions[session_id].scene = scene
+        self._changed(self.sessions[session_id], now, supersede=True)
 
-    def set_objects(self, patches: Mapping[str, ObjectPatch], now: float) -> int:
+    def set_objects(self, patches: Mapping[str, ObjectPatch], now: float, session_id: str = DEFAULT_SESSION) -> int:
         """Pose objects (:meth:`SceneTimeline.set_objects`); returns the first frame id that shows
         it. UnknownObjectError (and nothing changes) for a name that is not an object."""
-        self._scene().set_objects(patches)
-        return self.invalidate(now)
+        self.sessions[session_id].timeline().set_objects(patches)
+        return self.invalidate(now, session_id)
 
     def set_animation(self, now: float, playing: bool | None = None, time: float | None = None,
-                      speed: float | None = None) -> int:
+                      speed: float | None = None, session_id: str = DEFAULT_SESSION) -> int:
         """Play, pause, jump, change speed (:meth:`SceneTimeline.set_animation`); returns the first
         frame id that shows it. SceneStateError (and nothing changes) for a bad value."""
-        self._scene().set_animation(now, playing, time, speed)
-        return self.invalidate(now)
+        self.sessions[session_id].timeline().set_animation(now, playing, time, speed)
+        return self.invalidate(now, session_id)
 
-    def _scene(self) -> SceneTimeline:
-        if self.scene is None:
-            raise RuntimeError("no scene yet: no node has loaded it")
-        return self.scene
-
-    def set_balancer(self, balancer: Balancer, now: float) -> None:
+    def set_balancer(self, balancer: Balancer, now: float, session_id: str = DEFAULT_SESSION) -> None:
         """Partition with ``balancer`` from the next frame."""
-        self.mode.tiles.set_balancer(balancer)
-        self.stats.reset_imbalance()
-        self._changed(now, supersede=False)
+        session = self.sessions[session_id]
+        session.mode.tiles.set_balancer(balancer)
+        session.stats.reset_imbalance()
+        self._changed(session, now, supersede=False)
 
     def set_groups(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray,
-                   owners: np.ndarray | None = None) -> None:
-        """The scene's primitive groups, projected per frame for balancers that use them (seed 003
-        DPBP), as :class:`tessera.balancers.projection.GroupProjector` says."""
-        project = GroupProjector(boxes, counts, bounds, owners, self.config.size)
-        self.groups_for = lambda camera, state: project(camera, state, None if self.scene is None else self.scene.graph)
-
-    def forget_source(self, source: Hashable) -> None:
-        """A viewer left: its input numbers are no longer reported."""
-        self._inputs.pop(source, None)
+                   owners: np.ndarray | None = None, session_id: str = DEFAULT_SESSION) -> None:
+        """The scene's primitive groups (:meth:`SessionFrames.set_groups`)."""
+        self.sessions[session_id].set_groups(boxes, counts, bounds, owners)
 
     # ----------------------------------------------------------------- node events
     def add_node(self, node_id: int, now: float) -> NodeSchedule:
-        """A node connected (not ready until its scene is loaded)."""
+        """A node connected (ready for a session once it has loaded that session's scene)."""
         node = self.table.add(node_id, now)
-        if not self._repartition(now):
-            self._actions.append(LoadScene(node_id))
+        for session in self.sessions.values():
+            self._repartition(session, now, joined=node_id)
         return node
 
-    def node_ready(self, node_id: int, now: float, share: int | None = None) -> None:
-        """The node loaded the scene (sort-last: its share of partition ``share``)."""
-        node = self.nodes[node_id]
-        node.ready, node.idle_since = True, now
-        self.table.touch(node, state_changed=True)
-        self.mode.share_loaded(node_id, share)
-        self._changed(now, supersede=False)
+    def node_ready(self, node_id: int, now: float, share: int | None = None,
+                   session_id: str = DEFAULT_SESSION) -> None:
+        """The node loaded the session's scene (sort-last: its share of partition ``share``)."""
+        node, session = self.nodes[node_id], self.sessions.get(session_id)
+        if session is None:
+            return
+        if not node.ready:
+            node.ready, node.idle_since = True, now
+            self.table.touch(node, state_changed=True)
+        session.ready.add(node_id)
+        session.mode.share_loaded(node_id, share)
+        self._changed(session, now, supersede=False)
 
     def set_speed(self, node_id: int, speed: float) -> None:
         """Calibrated relative speed (seed 003 §1; slowest = 1), the balancers' node weight."""
@@ -288,33 +299,36 @@ class FrameScheduler:
         node = self.table.remove(node_id)
         if node is None:
             return
-        if self._repartition(now):
-            self._changed(now, supersede=False)
-            return
-        ready = self.table.ready()
-        for job in list(self.in_flight.values()):
-            owed = job.owed_by(node_id)
-            if not owed:
+        for session in list(self.sessions.values()):
+            held = node_id in session.ready
+            session.ready.discard(node_id)
+            session.state_sent.pop(node_id, None)
+            if self._repartition(session, now):
+                self._changed(session, now, supersede=False)
                 continue
-            if not ready:
-                self._cancel(job, now)
-                continue
-            self._redispatch(job, owed, ready, now)
-        if node.ready:
-            self._changed(now, supersede=False)
-        else:
-            self._advance(now)
+            ready = self._ready_for(session)
+            for job in list(session.frames.values()):
+                owed = job.owed_by(node_id)
+                if owed and not ready:
+                    self._cancel(job, now)
+                elif owed:
+                    self._redispatch(job, owed, ready, now)
+            if held:
+                self._changed(session, now, supersede=False)
+        self._advance(now)
 
     # ----------------------------------------------------------------- tile events
     def receive_tile(self, node_id: int, header: TileHeader, payload: bytes, now: float) -> FrameJob | None:
-        """A node's tile message as it came: its rect inside the frame (before its payload is
-        decoded: no decompression bombs), its bytes checked and decoded as the mode says, then
-        :meth:`tile_arrived`. ProtocolError when it is not a tile the node owes, or not readable."""
-        width, height = self.config.size
+        """A node's tile message as it came: its rect inside its frame (before its payload is
+        decoded: no decompression bombs), its bytes checked and decoded as the frame's mode says,
+        then :meth:`tile_arrived`. ProtocolError when it is not a tile the node owes, or not readable."""
+        job = self.in_flight.get(header.frame_id)
+        session = self.sessions[job.session] if job is not None else self.default
+        width, height = job.size if job is not None else (max(s.size[0] for s in self.sessions.values()),
+                                                          max(s.size[1] for s in self.sessions.values()))
         if not (header.rect.x1 <= width and header.rect.y1 <= height):
             raise ProtocolError(f"tile rect {header.rect.as_list()} lies outside the {width}x{height} frame")
-        depth_tile = self.mode.read_tile(self.in_flight.get(header.frame_id), header, payload)
-        return self.tile_arrived(node_id, header, payload, now, depth_tile)
+        return self.tile_arrived(node_id, header, payload, now, session.mode.read_tile(job, header, payload))
 
     def tile_arrived(self, node_id: int, header: TileHeader, payload: bytes, now: float,
                      depth_tile: DecodedDepthTile | None = None) -> FrameJob | None:
@@ -346,7 +360,10 @@ class FrameScheduler:
     def tile_sent(self, node_id: int, frame_id: int, tile_id: int, send_ms: float,
                   counters: dict[str, float | str] | None = None) -> None:
         """A node's ``tile_sent``: how long the tile took to send, and its per-tile counters."""
-        job = self.in_flight.get(frame_id) or self._awaiting_send.get(frame_id)
+        job = self.in_flight.get(frame_id)
+        if job is None:
+            job = next((s.awaiting_send[frame_id] for s in self.sessions.values() if frame_id in s.awaiting_send),
+                       None)
         if job is not None:
             job.record_send(node_id, tile_id, max(float(send_ms), 0.0), counters)
             self._take_timings(job)
@@ -360,7 +377,8 @@ class FrameScheduler:
         if node is None:
             return
         self.table.check_owed(node, key, "render_error for tile")
-        node.state_sent = None   # the failure may be a state it could not apply: send it whole
+        for session in self.sessions.values():   # the failure may be a state it could not apply: send it whole
+            session.state_sent.pop(node_id, None)
         if key not in node.outstanding:
             return
         self.table.answered(node, key, now)
@@ -371,7 +389,8 @@ class FrameScheduler:
             return
         job = self.in_flight.get(frame_id)
         if job is not None and not job.tiles[tile_id].done and job.tiles[tile_id].node_id == node_id:
-            others = [n for n in self.table.ready() if n is not node and self.mode.tiles_move] or [node]
+            session = self.sessions[job.session]
+            others = [n for n in self._ready_for(session) if n is not node and session.mode.tiles_move] or [node]
             self._redispatch(job, [tile_id], others, now)
         self._advance(now)
 
@@ -396,25 +415,36 @@ class FrameScheduler:
                     self.remove_node(node.node_id, now)
         self._advance(now)
 
+    def viewer_tiles(self, job: FrameJob) -> list[ViewerTile]:
+        """What viewers get of complete frame ``job`` (its session's mode assembles it: tiles as
+        sent, or a depth frame merged), each piece with the slot of the node that drew it."""
+        slots = {n.node_id: n.slot for n in self.nodes.values()}
+        return self.sessions[job.session].mode.viewer_tiles(job, lambda node_id: slots.get(node_id or 0,
+                                                                                              NO_NODE_SLOT))
+
     # ----------------------------------------------------------------- internals
+    def _ready_for(self, session: SessionFrames) -> list[NodeSchedule]:
+        """Schedulable nodes that hold the session's scene, by id."""
+        return [n for n in self.table.ready() if n.node_id in session.ready]
+
     def _back_up_stragglers(self, now: float) -> None:
-        """Copy the tiles of overdue nodes to the others (see the module docstring); not where tiles
-        cannot move (sort-last: no other node holds the share)."""
-        if not self.mode.tiles_move:
-            return
+        """Copy the tiles of overdue nodes to others that hold their scene (see the module
+        docstring); not where tiles cannot move (sort-last: no other node holds the share)."""
         for node in self.table.overdue(self.in_flight, self.config.backup_factor, self.config.backup_floor_s, now):
-            others = [n for n in self.table.ready() if n is not node]
-            if not others:
+            owed = [(self.in_flight[f], t) for f, t in node.outstanding if f in self.in_flight]
+            movable = [(job, t) for job, t in owed if self.sessions[job.session].mode.tiles_move]
+            if not movable or not any(n is not node for job, _ in movable for n in self._ready_for(
+                    self.sessions[job.session])):
                 continue
             node.suspect = True
             self.table.touch(node, state_changed=True)
             self.backups += 1
-            for frame_id, tile_id in list(node.outstanding):
-                owed = self.in_flight.get(frame_id)
-                if owed is None or owed.tiles[tile_id].done or owed.tiles[tile_id].node_id != node.node_id:
+            for job, tile_id in movable:
+                others = [n for n in self._ready_for(self.sessions[job.session]) if n is not node]
+                if not others or job.tiles[tile_id].done or job.tiles[tile_id].node_id != node.node_id:
                     continue
-                owed.tiles[tile_id].earlier.add(node.node_id)
-                self._redispatch(owed, [tile_id], others, now, pull=False)
+                job.tiles[tile_id].earlier.add(node.node_id)
+                self._redispatch(job, [tile_id], others, now, pull=False)
 
     def _redispatch(self, job: FrameJob, tile_ids: list[int], candidates: list[NodeSchedule], now: float,
                     pull: bool | None = None) -> None:
@@ -428,13 +458,17 @@ class FrameScheduler:
         for tile_id in tile_ids:
             self._push(job, min(candidates, key=lambda n: (len(n.outstanding), n.node_id)), [tile_id], now)
 
-    def _changed(self, now: float, supersede: bool) -> None:
-        self.demand.changed(now)
+    def _changed(self, session: SessionFrames, now: float, supersede: bool) -> int:
+        """Something of ``session`` changed that needs a new frame; returns the first frame id
+        that can show it."""
+        first = self.next_frame_id
+        session.demand.changed(now)
         if supersede:
-            for job in list(self.in_flight.values()):
+            for job in list(session.frames.values()):
                 if job.still or not self._begun(job):
                     self._cancel(job, now)
         self._advance(now)
+        return first
 
     def _begun(self, job: FrameJob) -> bool:
         """True once a node works on ``job``: a tile arrived, a pulled tile went out, or one of its
@@ -446,53 +480,39 @@ class FrameScheduler:
         """Drop ``job``: nodes that owe tiles of it are told to skip those still queued (the next
         tile a node owes counts as begun now: lenient, the node may still finish the dropped one)."""
         del self.in_flight[job.frame_id]
+        session = self.sessions.get(job.session)
+        if session is not None:
+            session.frames.pop(job.frame_id, None)
+            session.frames_cancelled += 1
+            self.fair.finished(job.session, session.charges.pop(job.frame_id, 0.0), None, now)
         self.frames_cancelled += 1
         for node in self.nodes.values():
             if self.table.drop(node, job.frame_id, now):
                 self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))
 
-    def _owed(self, now: float, ignore_quiet: bool = False) -> str | None:
-        """"interactive", "still" or None: the kind of frame the state asks for at ``now``."""
-        if self.camera is None:
-            return None
-        return self.demand.owed(now, self.scene is not None and self.scene.animating, self.mode.tiles.moving,
-                                bool(self.in_flight), ignore_quiet)
-
     def _advance(self, now: float) -> None:
-        """Hand out pulled tiles, then start every frame that is owed and allowed."""
+        """Hand out pulled tiles, then start every frame that is owed and allowed, the session
+        that has had least node time first."""
         self._pump_pull(now)
-        while True:
-            ready = self.table.ready()
-            if not ready or len(self.in_flight) >= self.config.max_in_flight or now < self._next_start_at:
+        while self.table.idle:
+            wanting = [s.id for s in self.sessions.values() if s.may_start(now, self.table.idle)]
+            if not wanting:
                 return
-            if not self.mode.can_start:
-                return
-            if not self.table.idle:
-                return
-            kind = self._owed(now)
-            if kind is None:
-                return
-            self._start_frame(ready, now, still=kind == STILL)
+            busy = [s.id for s in self.sessions.values() if s.frames]
+            session = self.sessions[self.fair.order(wanting, busy)[0]]
+            kind = session.owed(now)
+            assert kind is not None
+            self._start_frame(session, now, still=kind == STILL)
             self._pump_pull(now)
 
-    def _start_frame(self, ready: list[NodeSchedule], now: float, still: bool) -> None:
-        assert self.camera is not None
-        state = self.scene.bind(now) if self.scene else None
-        partition = self._partition(ready, now, self.camera, state)
-        config = self.config
-        if still:
-            assert config.still_codec is not None
-            codec, quality = config.still_codec, config.still_quality
-        else:
-            codec, quality = config.codec, config.interactive_quality
-        self.demand.started(still)
-        job = FrameJob.create(self.next_frame_id, self.camera, config.size, codec, quality, partition, now,
-                              still=still, version=self.demand.version, changed_at=self.demand.changed_at,
-                              inputs=dict(self._inputs), state=state,
-                              depth=self.mode.depth_request(partition))
+    def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
+        ready = self._ready_for(session)
+        job, error = session.start_frame(self.next_frame_id, ready, now, still)
+        if error is not None:
+            self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
-        self._next_start_at = now + 1.0 / config.max_fps
         self.in_flight[job.frame_id] = job
+        session.charges[job.frame_id] = self.fair.started(session.id)
         if not job.pull:
             by_node: dict[int, list[int]] = {}
             for tile in job.tiles:
@@ -501,69 +521,59 @@ class FrameScheduler:
             for node_id, tile_ids in by_node.items():
                 self._push(job, self.nodes[node_id], tile_ids, now)
 
-    def _repartition(self, now: float) -> bool:
-        """The node set changed: True when the mode makes a new data partition of it (sort-last),
-        frames in flight are then dropped (their shares are about to go) and every node is told
-        what to load."""
-        loads = self.mode.nodes_changed({n.node_id: n.speed for n in self.nodes.values()})
+    def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
+                     force: bool = False) -> bool:
+        """The node set changed (``joined``: a node that just connected; ``force``: the session is
+        new). True when the session's mode makes a new data partition of it (sort-last): its frames
+        in flight are dropped and every node is told its share. Otherwise the joined node (every
+        node, with ``force``) is told to load the session's scene."""
+        loads = session.mode.nodes_changed({n.node_id: n.speed for n in self.nodes.values()})
         if loads is None:
+            targets = list(self.nodes) if force else [] if joined is None else [joined]
+            self._actions.extend(LoadScene(node_id, None, session.scene_key) for node_id in targets)
             return False
-        for job in list(self.in_flight.values()):
+        for job in list(session.frames.values()):
             self._cancel(job, now)
-        self._actions.extend(LoadScene(node_id, share) for node_id, share in loads.items())
+        self._actions.extend(LoadScene(node_id, share, session.scene_key) for node_id, share in loads.items())
         return True
-
-    def _partition(self, ready: list[NodeSchedule], now: float, camera: Camera,
-                   state: SceneState | None = None) -> Partition:
-        """The mode's partition for the ready nodes, with the groups of ``camera`` in the frame's
-        ``state``."""
-        groups_for = self.groups_for
-        partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
-                                        lambda: groups_for(camera, state) if groups_for else None)
-        error, self.mode.tiles.error = self.mode.tiles.error, None
-        if error is not None:
-            self._actions.append(BalancerFailed(error))
-        return partition
 
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
         for tile_id in tile_ids:
             job.tiles[tile_id].node_id = node.node_id
         self.table.assign(node, [(job.frame_id, tile_id) for tile_id in tile_ids], now)
-        self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, self._state_for(node, job))))
-
-    def _state_for(self, node: NodeSchedule, job: FrameJob) -> SceneState | StateDelta | None:
-        """What brings ``node`` to ``job``'s state: a delta on the version it was sent last while the
-        log keeps that one, else the whole state."""
-        state = job.state
-        if state is None or self.scene is None:
-            return None
-        base = None if node.state_sent is None else self.scene.log.get(node.state_sent)
-        node.state_sent = state.version
-        return state if base is None else state.delta_from(base)
+        state = self.sessions[job.session].state_for(node.node_id, job)
+        self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, state)))
 
     def _pump_pull(self, now: float) -> None:
         """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
-        first; when several are idle at once the fastest gets the heaviest, then the first freed."""
+        first; when several are idle at once the fastest gets the heaviest, then the first freed.
+        A node pulls only tiles of sessions whose scene it holds."""
         if not self.table.idle or not any(job.pull_queue for job in self.in_flight.values()):
             return
         idle = sorted((self.nodes[i] for i in self.table.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
         for job in self.in_flight.values():
-            while job.pull_queue and idle:
-                self._push(job, idle.pop(0), [job.pull_queue.popleft()], now)
+            holders = self.sessions[job.session].ready
+            while job.pull_queue and (node := next((n for n in idle if n.node_id in holders), None)):
+                idle.remove(node)
+                self._push(job, node, [job.pull_queue.popleft()], now)
 
     def _complete(self, job: FrameJob, now: float) -> None:
+        session = self.sessions[job.session]
         del self.in_flight[job.frame_id]
-        for older in [j for j in self.in_flight.values() if j.frame_id < job.frame_id]:
+        del session.frames[job.frame_id]
+        for older in [j for j in session.frames.values() if j.frame_id < job.frame_id]:
             self._cancel(older, now)
         self.last_published_id = job.frame_id
-        first_answer = self.demand.published(job.version)
-        self.stats.record_publish(now, now - job.changed_at if first_answer and not job.still else None)
+        first_answer = session.demand.published(job.version)
+        session.stats.record_publish(now, now - job.changed_at if first_answer and not job.still else None)
         self._actions.append(PublishFrame(job))
-        self._awaiting_send[job.frame_id] = job
-        for old in [k for k in self._awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
-            del self._awaiting_send[old]
+        session.awaiting_send[job.frame_id] = job
+        for old in [k for k in session.awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
+            del session.awaiting_send[old]
+        timings = job.timings()
+        self.fair.finished(session.id, session.charges.pop(job.frame_id, 0.0), sum(t.busy_ms for t in timings), now)
         if not job.still:
-            self.mode.take_timings(job.frame_id, job.timings())
+            session.mode.take_timings(job.frame_id, timings)
         for node_id, rate in job.ms_per_px_by_node().items():
             if node_id in self.nodes:
                 self.nodes[node_id].ms_per_px = rate
@@ -572,7 +582,8 @@ class FrameScheduler:
     def _take_timings(self, job: FrameJob) -> None:
         """Roll a complete frame's phases up per node once every tile's send time is in; an
         interactive frame's timings also go to the balancer and the imbalance figures."""
-        if not job.complete or not job.timings_complete or self._awaiting_send.pop(job.frame_id, None) is None:
+        session = self.sessions.get(job.session)
+        if session is None or not job.timings_complete or session.awaiting_send.pop(job.frame_id, None) is None:
             return
         timings = job.timings()
         rollup = job.rollup_by_node(timings)
@@ -580,11 +591,5 @@ class FrameScheduler:
             node = self.nodes.get(node_id)
             if node is not None:
                 node.last_phases, node.last_tiles, node.last_readback, node.counters = phases, rects, readback, counters
-        if not job.still and self.mode.take_timings(job.frame_id, timings):
-            self.stats.record_balance({n: sum(r[0].values()) for n, r in rollup.items()})
-
-    def viewer_tiles(self, job: FrameJob) -> list[ViewerTile]:
-        """What viewers get of complete frame ``job`` (the mode's assembly: tiles as sent, or a
-        depth frame merged), each piece with the slot of the node that drew it."""
-        slots = {n.node_id: n.slot for n in self.nodes.values()}
-        return self.mode.viewer_tiles(job, lambda node_id: slots.get(node_id or 0, NO_NODE_SLOT))
+        if not job.still and session.mode.take_timings(job.frame_id, timings):
+            session.stats.record_balance({n: sum(r[0].values()) for n, r in rollup.items()})

@@ -1,0 +1,81 @@
+"""Fair shares of node time among sessions (issue 19): start-time fair queuing on measured cost,
+the virtual-time form of Deficit Round Robin (Shreedhar & Varghese 1995; Linux ``sch_drr``).
+
+Each session's *served* time is the node time (busy ms: render + read-back + encode, summed over
+the nodes) its frames took. When nodes free up and several sessions owe a frame, the least served
+starts first. A frame is charged when it starts, at the session's last measured frame cost (so a
+session with a frame in flight is not picked again for free), and the charge is corrected to the
+measured cost when the frame completes (or refunded when it is dropped). A session that had no
+work is lifted to the least served of the busy ones when it wants again: an idle session is owed
+nothing, and one that joins cannot starve the others. Weights scale the charge (a session of
+weight 2 gets twice the node time). Pure: no clock.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+
+#: The charge of a session's first frame, before any was measured (ms of node time).
+FIRST_FRAME_MS = 10.0
+#: How many of each session's recent frames its node share is figured over.
+SHARE_WINDOW_FRAMES = 60
+
+
+class FairShare:
+    """Served node time per session id; see the module docstring."""
+
+    def __init__(self) -> None:
+        self.served: dict[str, float] = {}
+        self.weights: dict[str, float] = {}
+        self._cost: dict[str, float] = {}
+        self._busy: dict[str, deque[tuple[float, float]]] = {}
+
+    def add(self, session: str, weight: float = 1.0) -> None:
+        """A new session, starting at the least served of the others (owed nothing)."""
+        if not weight > 0.0:
+            raise ValueError(f"a session's weight must be > 0, got {weight}")
+        self.served[session] = min(self.served.values(), default=0.0)
+        self.weights[session] = weight
+        self._cost[session] = FIRST_FRAME_MS
+        self._busy[session] = deque(maxlen=SHARE_WINDOW_FRAMES)
+
+    def remove(self, session: str) -> None:
+        for book in (self.served, self.weights, self._cost, self._busy):
+            book.pop(session, None)
+
+    def order(self, wanting: Iterable[str], busy: Iterable[str]) -> list[str]:
+        """The sessions of ``wanting`` (they owe a frame) least served first; a wanting session that
+        is not ``busy`` (no frame in flight) is first lifted to the least served busy one."""
+        wanting, busy = list(wanting), set(busy)
+        floor = min((self.served[s] for s in busy if s in self.served), default=None)
+        if floor is not None:
+            for session in wanting:
+                if session not in busy and self.served[session] < floor:
+                    self.served[session] = floor
+        return sorted(wanting, key=lambda s: (self.served[s], s))
+
+    def started(self, session: str) -> float:
+        """A frame of ``session`` started: charged at its last measured cost; returns the charge."""
+        charge = self._cost[session] / self.weights[session]
+        self.served[session] += charge
+        return charge
+
+    def finished(self, session: str, charge: float, busy_ms: float | None, now: float) -> None:
+        """A frame charged ``charge`` ended at ``now`` (s) having cost ``busy_ms`` of node time
+        (None: dropped, refunded)."""
+        if session not in self.served:
+            return
+        self.served[session] -= charge
+        if busy_ms is not None:
+            self.served[session] += busy_ms / self.weights[session]
+            self._cost[session] = max(busy_ms, 0.1)
+            self._busy[session].append((now, busy_ms))
+
+    def node_share(self, session: str, now: float, window_s: float = 5.0) -> float:
+        """The session's fraction of the node time all sessions' frames took over the last
+        ``window_s`` seconds (0 when none took any)."""
+        since = now - window_s
+        spent = {s: sum(ms for at, ms in frames if at >= since) for s, frames in self._busy.items()}
+        total = sum(spent.values())
+        return spent.get(session, 0.0) / total if total > 0.0 else 0.0

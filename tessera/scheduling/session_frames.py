@@ -1,0 +1,158 @@
+"""One session's picture on the shared cluster (issue 19): its own frame size, decomposition mode
+and balancer, camera, scene state, render-on-demand versions, viewers' input numbers, frames in
+flight and figures. The frame scheduler (:mod:`tessera.scheduling.scheduler`) holds one per
+session and shares the nodes among them. Pure: the clock comes in as ``now`` (s)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Hashable, Sequence
+
+import numpy as np
+
+from tessera.balancers.base import Balancer, ProjectedGroups
+from tessera.balancers.projection import GroupProjector
+from tessera.compositing.layers import background_pixel
+from tessera.decomposition.mode import DecompositionMode
+from tessera.decomposition.modes import create_mode
+from tessera.geometry import DEFAULT_BACKGROUND, Camera
+from tessera.scene.state import SceneState, StateDelta
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.frame_stats import FrameStats
+from tessera.scheduling.node_table import NodeSchedule
+from tessera.scheduling.render_demand import STILL, RenderDemand
+from tessera.wire.codec import Codec
+
+
+class SessionFrames:
+    """Session ``session_id``: ``scene_key`` is the scene its nodes load (None: the coordinator's
+    own); ``ready`` the nodes that hold it; ``state_sent`` the scene-state version each node was
+    last brought to for this session; ``frames`` its frames in flight by id; ``charges`` what each
+    was charged of node time (:class:`tessera.scheduling.fair_share.FairShare`)."""
+
+    def __init__(self, session_id: str, config, balancer: Balancer, scene_key: str | None = None) -> None:
+        self.id = session_id
+        self.config = config
+        self.scene_key = scene_key
+        self.mode: DecompositionMode = create_mode(config.mode, config.size, balancer,
+                                                   background_pixel(config.background or DEFAULT_BACKGROUND),
+                                                   config.depth_strip)
+        self.camera: Camera | None = None
+        #: The scene's objects, animations and state log (None: frames show the base pose).
+        self.scene: SceneTimeline | None = None
+        self.demand = RenderDemand(config.settle_frames, config.still_delay_s, config.still_codec is not None)
+        self.inputs: dict[Hashable, int] = {}
+        #: Projected primitive groups for a camera and the frame's scene state (None: the base pose)
+        #: (seed 003 DPBP), for balancers that use them.
+        self.groups_for: Callable[[Camera, SceneState | None], ProjectedGroups | None] | None = None
+        self._projector: GroupProjector | None = None
+        self.stats = FrameStats()
+        self.frames: dict[int, FrameJob] = {}
+        self.charges: dict[int, float] = {}
+        self.awaiting_send: dict[int, FrameJob] = {}
+        self.next_start_at = 0.0
+        self.ready: set[int] = set()
+        self.state_sent: dict[int, int] = {}
+        self.frames_cancelled = 0
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.config.size
+
+    def owed(self, now: float, ignore_quiet: bool = False) -> str | None:
+        """"interactive", "still" or None: the kind of frame the session's state asks for at ``now``."""
+        if self.camera is None:
+            return None
+        return self.demand.owed(now, self.scene is not None and self.scene.animating, self.mode.tiles.moving,
+                                bool(self.frames), ignore_quiet)
+
+    def may_start(self, now: float, idle: set[int]) -> bool:
+        """A frame is owed, another may be in flight, and a node holding the scene is ``idle``."""
+        return (len(self.frames) < self.config.max_in_flight and now >= self.next_start_at and self.mode.can_start
+                and not self.ready.isdisjoint(idle) and self.owed(now) is not None)
+
+    def start_due(self, now: float, idle: set[int]) -> float | None:
+        """When a frame owed could start (the frame-rate cap, the still frame's quiet time) while a
+        node holding the scene is ``idle``; None: none is owed, or none may start."""
+        if len(self.frames) >= self.config.max_in_flight or self.ready.isdisjoint(idle):
+            return None
+        owed = self.owed(now, ignore_quiet=True)
+        if owed is None:
+            return None
+        return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
+
+    def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
+                    still: bool) -> tuple[FrameJob, str | None]:
+        """Frame ``frame_id`` (a still or interactive one) of the newest camera and scene state,
+        partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
+        balancer failed, if it did (the static split was used)."""
+        assert self.camera is not None
+        camera, state = self.camera, self.scene.bind(now) if self.scene else None
+        groups_for = self.groups_for
+        partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
+                                        lambda: groups_for(camera, state) if groups_for else None)
+        error, self.mode.tiles.error = self.mode.tiles.error, None
+        codec, quality = self.codec(still)
+        self.demand.started(still)
+        job = FrameJob.create(frame_id, camera, self.size, codec, quality, partition, now, still=still,
+                              version=self.demand.version, changed_at=self.demand.changed_at,
+                              inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
+                              session=self.id, scene=self.scene_key)
+        self.next_start_at = now + 1.0 / self.config.max_fps
+        self.frames[frame_id] = job
+        return job, error
+
+    @property
+    def settled(self) -> bool:
+        """Nothing is owed: the newest state was rendered, the still frame too."""
+        return not self.frames and self.owed(float("inf")) is None
+
+    def codec(self, still: bool) -> tuple[Codec, int]:
+        """The codec and JPEG quality of a still or an interactive frame."""
+        config = self.config
+        if still:
+            assert config.still_codec is not None
+            return config.still_codec, config.still_quality
+        return config.codec, config.interactive_quality
+
+    def forget_source(self, source: Hashable) -> None:
+        """A viewer left: its input numbers are no longer reported."""
+        self.inputs.pop(source, None)
+
+    def timeline(self) -> SceneTimeline:
+        """The scene's timeline; RuntimeError before a node reported the scene's objects."""
+        if self.scene is None:
+            raise RuntimeError("no scene yet: no node has loaded it")
+        return self.scene
+
+    def set_groups(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray,
+                   owners: np.ndarray | None = None) -> None:
+        """The scene's primitive groups (K, 6), their primitive counts (K,), its bounds (2, 3) and
+        each group's object ``owners`` (K,), projected per frame in the session's state and size
+        for balancers that use them (seed 003 DPBP; :class:`GroupProjector`)."""
+        self._project(GroupProjector(boxes, counts, bounds, owners, self.size))
+
+    def _project(self, projector: GroupProjector) -> None:
+        self._projector = projector
+        self.groups_for = lambda camera, state: projector(camera, state,
+                                                          None if self.scene is None else self.scene.graph)
+
+    def resize(self, size: tuple[int, int]) -> None:
+        """Frames from now on are ``size`` (w, h) px: the mode and the groups follow; the
+        partition history starts anew (the caller drops the frames in flight)."""
+        self.config = dataclasses.replace(self.config, size=size)
+        self.mode.resize(size)
+        if self._projector is not None:
+            self._project(self._projector.for_size(size))
+
+    def state_for(self, node_id: int, job: FrameJob) -> SceneState | StateDelta | None:
+        """What brings node ``node_id`` to ``job``'s state for this session: a delta on the version
+        it was sent last while the log keeps that one, else the whole state."""
+        state = job.state
+        if state is None or self.scene is None:
+            return None
+        sent = self.state_sent.get(node_id)
+        base = None if sent is None else self.scene.log.get(sent)
+        self.state_sent[node_id] = state.version
+        return state if base is None else state.delta_from(base)
