@@ -21,7 +21,7 @@ from node.scene.builtin import BUILTIN_SCENES
 from server.app import create_app
 from server.settings import Settings
 from tests.conftest import scene_path, seconds
-from tests.test_scene_library import TRIANGLE_PLY, triangle_gltf
+from tests.scene_files_support import TRIANGLE_PLY, triangle_gltf
 
 pytestmark = pytest.mark.timeout(seconds(120))
 BUNNY = "bunny/bun_zipper.ply"

@@ -91,7 +91,10 @@ async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) ->
         raise refused(exc) from None
     if entry.path is None:
         raise HTTPException(status_code=404, detail=f"{name!r} is built in: it has no file")
-    sha256 = await asyncio.to_thread(library.content_hash, entry)
+    try:
+        sha256 = await asyncio.to_thread(library.content_hash, entry)
+    except FileNotFoundError:
+        raise HTTPException(status_code=404, detail=f"{name!r} is gone") from None
     return FileResponse(entry.path, media_type="application/octet-stream", filename=entry.path.name,
                         headers={"X-Sha256": sha256})
 
