@@ -3,12 +3,16 @@ the virtual-time form of Deficit Round Robin (Shreedhar & Varghese 1995; Linux `
 
 Each session's *served* time is the node time (busy ms: render + read-back + encode, summed over
 the nodes) its frames took. When nodes free up and several sessions owe a frame, the least served
-starts first. A frame is charged when it starts, at the session's last measured frame cost (so a
+starts first; and a session more than one frame ahead of the least served backlogged one (owing a
+frame or with frames in flight) waits, as a flow whose deficit is spent waits for the next round
+in DRR: otherwise sessions that each keep their frames in flight would get equal frame rates,
+not equal node time. A frame is charged when it starts, at the session's last measured frame cost (so a
 session with a frame in flight is not picked again for free), and the charge is corrected to the
 measured cost when the frame completes (or refunded when it is dropped). A session that had no
-work is lifted to the least served of the busy ones when it wants again: an idle session is owed
-nothing, and one that joins cannot starve the others. Weights scale the charge (a session of
-weight 2 gets twice the node time). Pure: no clock.
+work for :data:`IDLE_S` (no frame owed, none in flight) is lifted to the least served of the
+active ones when it wants again: an idle session is owed nothing, and one that joins cannot
+starve the others. Weights scale the charge (a session of weight 2 gets twice the node time).
+Pure: the clock comes in as ``now`` (s).
 """
 
 from __future__ import annotations
@@ -18,6 +22,9 @@ from collections.abc import Iterable
 
 #: The charge of a session's first frame, before any was measured (ms of node time).
 FIRST_FRAME_MS = 10.0
+#: A session without work for this long (s) is idle: it is owed nothing when it comes back (the
+#: gap between a frame and the viewer's next camera is not idleness).
+IDLE_S = 0.5
 #: How many of each session's recent frames its node share is figured over.
 SHARE_WINDOW_FRAMES = 60
 
@@ -30,6 +37,7 @@ class FairShare:
         self.weights: dict[str, float] = {}
         self._cost: dict[str, float] = {}
         self._busy: dict[str, deque[tuple[float, float]]] = {}
+        self._active_at: dict[str, float] = {}
 
     def add(self, session: str, weight: float = 1.0) -> None:
         """A new session, starting at the least served of the others (owed nothing)."""
@@ -41,19 +49,32 @@ class FairShare:
         self._busy[session] = deque(maxlen=SHARE_WINDOW_FRAMES)
 
     def remove(self, session: str) -> None:
-        for book in (self.served, self.weights, self._cost, self._busy):
+        for book in (self.served, self.weights, self._cost, self._busy, self._active_at):
             book.pop(session, None)
 
-    def order(self, wanting: Iterable[str], busy: Iterable[str]) -> list[str]:
-        """The sessions of ``wanting`` (they owe a frame) least served first; a wanting session that
-        is not ``busy`` (no frame in flight) is first lifted to the least served busy one."""
+    def order(self, wanting: Iterable[str], busy: Iterable[str], now: float) -> list[str]:
+        """The sessions of ``wanting`` (they owe a frame) that may start one, least served first:
+        none more than the costliest backlogged session's frame ahead of the least served
+        backlogged one (``busy`` ones have frames in flight). A wanting session idle for
+        :data:`IDLE_S` before ``now`` is first lifted to the least served of those active within it."""
         wanting, busy = list(wanting), set(busy)
-        floor = min((self.served[s] for s in busy if s in self.served), default=None)
-        if floor is not None:
-            for session in wanting:
-                if session not in busy and self.served[session] < floor:
-                    self.served[session] = floor
-        return sorted(wanting, key=lambda s: (self.served[s], s))
+        active = [s for s in self.served if now - self._active_at.get(s, -IDLE_S - 1.0) <= IDLE_S]
+        floor = min((self.served[s] for s in active), default=None)
+        for session in wanting:
+            if floor is not None and session not in active and self.served[session] < floor:
+                self.served[session] = floor
+        for session in (*wanting, *busy):
+            self._active_at[session] = now
+        backlogged = {*wanting, *busy}
+        return sorted((s for s in wanting if self.in_turn(s, backlogged)), key=lambda s: (self.served[s], s))
+
+    def in_turn(self, session: str, backlogged: Iterable[str]) -> bool:
+        """``session`` is at most the costliest ``backlogged`` session's frame ahead of the least
+        served of them (see the module docstring)."""
+        known = [s for s in backlogged if s in self.served]
+        least = min((self.served[s] for s in known), default=0.0)
+        ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
+        return self.served[session] <= least + ahead
 
     def started(self, session: str) -> float:
         """A frame of ``session`` started: charged at its last measured cost; returns the charge."""

@@ -181,7 +181,9 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
-        times = [at for s in self.sessions.values() if (at := s.start_due(now, self.table.idle)) is not None]
+        backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
+        times = [at for s in self.sessions.values()
+                 if (at := s.start_due(now, self.table.idle)) is not None and self.fair.in_turn(s.id, backlogged)]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
         return min(times) if times else None
@@ -498,8 +500,10 @@ class FrameScheduler:
             wanting = [s.id for s in self.sessions.values() if s.may_start(now, self.table.idle)]
             if not wanting:
                 return
-            busy = [s.id for s in self.sessions.values() if s.frames]
-            session = self.sessions[self.fair.order(wanting, busy)[0]]
+            order = self.fair.order(wanting, [s.id for s in self.sessions.values() if s.frames], now)
+            if not order:
+                return   # the sessions that may start are ahead: the least served goes next
+            session = self.sessions[order[0]]
             kind = session.owed(now)
             assert kind is not None
             self._start_frame(session, now, still=kind == STILL)

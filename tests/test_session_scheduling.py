@@ -1,0 +1,201 @@
+"""Several sessions over the shared nodes (issue 19): each session's frames have its own size,
+scene and camera, a node draws only sessions whose scene it holds, and node time is shared
+fairly among sessions with work (on a virtual clock: nodes answer after a modelled cost)."""
+
+from __future__ import annotations
+
+import heapq
+from collections import deque
+
+import pytest
+
+from tessera.balancers.static import StaticBalancer
+from tessera.geometry import Camera
+from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.wire.codec import Codec
+from tessera.wire.protocol import TileHeader
+
+CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
+
+
+def camera(i: int = 0) -> Camera:
+    return Camera(eye=(0.0, 0.0, 5.0 + i), target=(0.0, 0.0, 0.0))
+
+
+def cluster(nodes: int, sessions: dict[str, tuple[int, int]]) -> FrameScheduler:
+    """``nodes`` nodes holding the default scene and every session of ``sessions`` (id → size)."""
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    for session_id, size in sessions.items():
+        s.add_session(session_id, SchedulerConfig(size=size, max_fps=1e6, settle_frames=0, still_codec=None),
+                      StaticBalancer(), f"builtin:{session_id}", 0.0)
+    for node_id in range(1, nodes + 1):
+        s.add_node(node_id, 0.0)
+        for session_id in s.sessions:
+            s.node_ready(node_id, 0.0, session_id=session_id)
+    s.drain()
+    return s
+
+
+def answer(s: FrameScheduler, action: RenderTiles, now: float) -> list:
+    for tile in action.message.tiles:
+        header = TileHeader(action.message.frame, tile.tile, tile.rect, Codec.JPEG, 1.0, 0.0, 0.0)
+        s.tile_arrived(action.node_id, header, b"", now)
+        s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
+    return s.drain()
+
+
+def test_a_new_session_has_every_node_load_its_scene_and_a_node_joining_loads_every_scene():
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_node(1, 0.0)
+    assert s.drain() == [LoadScene(1, None, "builtin:spheres")]
+    s.add_session("b", CONFIG, StaticBalancer(), "builtin:cluster", 0.0)
+    assert s.drain() == [LoadScene(1, None, "builtin:cluster")]
+    s.add_node(2, 0.0)
+    assert s.drain() == [LoadScene(2, None, "builtin:spheres"), LoadScene(2, None, "builtin:cluster")]
+    with pytest.raises(ValueError, match="exists already"):
+        s.add_session("b", CONFIG, StaticBalancer(), None, 0.0)
+
+
+def test_each_sessions_frames_have_its_size_scene_and_camera_and_only_nodes_holding_its_scene():
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("b", SchedulerConfig(size=(40, 30), max_fps=1e6, settle_frames=0, still_codec=None),
+                  StaticBalancer(), "builtin:cluster", 0.0)
+    for node_id in (1, 2):
+        s.add_node(node_id, 0.0)
+        s.node_ready(node_id, 0.0)
+    s.node_ready(2, 0.0, session_id="b")
+    s.drain()
+    s.set_camera(camera(2), 0.0, session_id="b")
+    s.set_camera(camera(1), 0.0)
+    renders, published, now = [a for a in s.drain() if isinstance(a, RenderTiles)], [], 0.0
+    while renders:
+        now += 0.01
+        actions = answer(s, renders.pop(0), now)
+        renders += [a for a in actions if isinstance(a, RenderTiles)]
+        published += [a.job for a in actions if isinstance(a, PublishFrame)]
+        for action in (a for a in actions if isinstance(a, RenderTiles)):
+            b = action.message.scene == "builtin:cluster"
+            assert (action.message.size, action.message.camera) == (((40, 30), camera(2)) if b else
+                                                                    ((64, 32), camera(1)))
+            assert action.node_id == 2 or not b, "only node 2 holds b's scene"
+    assert sorted((job.session, job.size, job.scene) for job in published) == [
+        ("b", (40, 30), "builtin:cluster"), (DEFAULT_SESSION, (64, 32), "builtin:spheres")]
+
+
+def test_a_change_in_one_session_never_drops_the_frames_of_another_and_closing_a_session_drops_its_own():
+    s = cluster(4, {"b": (64, 32)})
+    s.set_camera(camera(1), 0.0)
+    renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    answer(s, renders[0], 0.01)             # one node free: b's frame starts, queued behind the default's
+    s.set_camera(camera(2), 0.01, session_id="b")
+    frame_of = {job.session: job.frame_id for job in s.in_flight.values()}
+    assert set(frame_of) == {DEFAULT_SESSION, "b"}
+    s.set_camera(camera(3), 0.02)           # the default session moves again
+    assert frame_of["b"] in s.in_flight
+    s.drain()
+    s.remove_session("b", 0.03)
+    actions = s.drain()
+    assert frame_of["b"] not in s.in_flight and "b" not in s.sessions
+    assert {a.frames for a in actions if isinstance(a, CancelFrames)} == {(frame_of["b"],)}
+
+
+def test_resizing_a_session_drops_its_frames_and_renders_the_new_size():
+    s = cluster(2, {})
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    first = s.resize((32, 16), 0.1)
+    renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    assert renders and all(a.message.size == (32, 16) and a.message.frame >= first for a in renders)
+    assert all(job.size == (32, 16) for job in s.in_flight.values())
+
+
+def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
+                wants: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
+    """Every session moves its camera whenever a frame of it is published (or, for sessions in
+    ``wants``, at that many frames per second); a node works through its queue in order, a tile
+    costing its session's ``cost_ms`` × its share of the frame's pixels. Returns per session its
+    node busy ms, frames published and frames asked for."""
+    queue: dict[int, deque[tuple[RenderTiles, int]]] = {n: deque() for n in s.nodes}
+    busy_until = dict.fromkeys(s.nodes, 0.0)
+    events: list[tuple[float, int, str, object]] = []
+    counter = 0
+    figures = {sid: {"busy_ms": 0.0, "published": 0, "asked": 0} for sid in s.sessions}
+
+    def push(at: float, kind: str, what: object) -> None:
+        nonlocal counter
+        counter += 1
+        heapq.heappush(events, (at, counter, kind, what))
+
+    def carry_out(actions: list, now: float) -> None:
+        for action in actions:
+            if isinstance(action, RenderTiles):
+                for tile in action.message.tiles:
+                    queue[action.node_id].append((action, tile.tile))
+                start(action.node_id, now)
+            elif isinstance(action, PublishFrame):
+                figures[action.job.session]["published"] += 1
+                if wants is None or action.job.session not in wants:
+                    ask(action.job.session, now)
+
+    def ask(session_id: str, now: float) -> None:
+        figures[session_id]["asked"] += 1
+        s.set_camera(camera(int(figures[session_id]["asked"]) % 7), now, session_id=session_id)
+        carry_out(s.drain(), now)
+
+    def start(node_id: int, now: float) -> None:
+        if busy_until[node_id] > now or not queue[node_id]:
+            return
+        action, tile_id = queue[node_id].popleft()
+        job = s.in_flight.get(action.message.frame)
+        session_id = job.session if job else DEFAULT_SESSION
+        rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
+        size = action.message.size
+        ms = cost_ms[session_id] * rect.area / (size[0] * size[1]) if job else 0.0
+        figures[session_id]["busy_ms"] += ms
+        busy_until[node_id] = now + ms / 1000.0
+        push(busy_until[node_id], "done", (node_id, action, tile_id, ms))
+
+    for session_id in s.sessions:
+        if wants is None or session_id not in wants:
+            ask(session_id, 0.0)
+        else:
+            for k in range(int(seconds * wants[session_id])):
+                push(k / wants[session_id], "ask", session_id)
+    while events and events[0][0] < seconds:
+        now, _, kind, what = heapq.heappop(events)
+        if kind == "ask":
+            ask(what, now)
+            continue
+        node_id, action, tile_id, ms = what
+        rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
+        s.tile_arrived(node_id, TileHeader(action.message.frame, tile_id, rect, Codec.JPEG, ms, 0.0, 0.0), b"", now)
+        s.tile_sent(node_id, action.message.frame, tile_id, 0.0)
+        carry_out(s.drain(), now)
+        start(node_id, now)
+    return figures
+
+
+def jain(values: list[float]) -> float:
+    return sum(values) ** 2 / (len(values) * sum(v * v for v in values))
+
+
+def test_four_sessions_that_each_fill_the_cluster_get_equal_node_time():
+    s = cluster(3, {"b": (64, 32), "c": (64, 32), "d": (64, 32)})
+    costs = {DEFAULT_SESSION: 30.0, "b": 30.0, "c": 90.0, "d": 60.0}   # unequal frames, equal shares
+    figures = run_virtual(s, costs, seconds=20.0)
+    busy = [f["busy_ms"] for f in figures.values()]
+    assert jain(busy) >= 0.95, figures
+    assert figures["b"]["published"] > 2 * figures["c"]["published"], "cheap frames: more of them in the same time"
+    assert sum(busy) / (3 * 20.0 * 1000.0) >= 0.85, "the nodes stay busy while work waits"
+
+
+def test_a_light_session_gets_every_frame_it_asks_for_while_heavy_ones_share_the_rest():
+    s = cluster(3, {"b": (64, 32), "light": (64, 32)})
+    costs = {DEFAULT_SESSION: 60.0, "b": 60.0, "light": 15.0}
+    figures = run_virtual(s, costs, seconds=20.0, wants={"light": 10.0})
+    light = figures["light"]
+    assert light["published"] >= light["asked"] - 1, figures
+    heavy = [figures[DEFAULT_SESSION]["busy_ms"], figures["b"]["busy_ms"]]
+    assert jain(heavy) >= 0.95 and min(heavy) > 4 * light["busy_ms"], figures
