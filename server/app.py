@@ -22,6 +22,7 @@ from server.routes import (
     nodes,
     objects,
     scenes,
+    sessions,
     stats,
     viewer_ws,
     web,
@@ -36,7 +37,8 @@ from server.settings import Settings
 
 def create_app(settings: Settings) -> FastAPI:
     metrics = CoordinatorMetrics()
-    service = RenderService(settings, metrics)
+    library = SceneLibrary(settings.scenes_dir, settings.data_dir, settings.max_upload_mb << 20)
+    service = RenderService(settings, metrics, library)
     metrics.watch(service)
 
     @asynccontextmanager
@@ -52,10 +54,14 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.metrics = metrics
     app.state.settings = settings
     app.state.origins = OriginPolicy(settings.allowed_origins)
-    app.state.scenes = SceneLibrary(settings.scenes_dir, settings.data_dir, settings.max_upload_mb << 20)
+    app.state.scenes = library
     app.state.upload_checks = UploadChecks()
     app.middleware("http")(refuse_cross_site_writes)
-    for module in (health, stats, camera, objects, animation, frames, balancer, scenes, nodes, node_ws, viewer_ws, web):
+    for module in (health, scenes, nodes, node_ws, viewer_ws, web, sessions):
         app.include_router(module.router)
+    app.include_router(stats.metrics_router)
+    for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other
+        for module in (stats, camera, objects, animation, frames, balancer):
+            app.include_router(module.router, prefix=prefix)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

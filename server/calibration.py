@@ -18,8 +18,10 @@ CALIBRATION_REPEATS = 3
 CALIBRATION_TIMEOUT_S = 30.0
 
 
-def calibrate_message(camera: Camera, size: tuple[int, int]) -> Calibrate:
-    return Calibrate(camera=camera, size=size, rect=calibration_region(size), repeats=CALIBRATION_REPEATS)
+def calibrate_message(camera: Camera, size: tuple[int, int], scene: str | None = None) -> Calibrate:
+    """Calibrate on ``scene`` (the default session's: every node loads it) at ``size``."""
+    return Calibrate(camera=camera, size=size, rect=calibration_region(size), repeats=CALIBRATION_REPEATS,
+                     scene=scene)
 
 
 class CalibrationQueue:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import time
@@ -28,18 +29,19 @@ from server.calibration import CalibrationQueue, calibrate_message
 from server.frame_store import FrameStore, PublishedFrame
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.nodes import NodeLink
+from server.scene_library import SceneLibrary
+from server.sessions import Session, new_key
 from server.settings import Settings
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
-from tessera.balancers.base import Balancer
 from tessera.balancers.hetero import calibration_weights
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
 from tessera.scene.animation import Animation, AnimationError
 from tessera.scene.graph import ObjectGraph
-from tessera.scene.state import ObjectPatch, SceneStateError
+from tessera.scene.state import SceneStateError
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling import actions
-from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.scheduler import FrameScheduler
 from tessera.wire import messages
 from tessera.wire.messages import (
@@ -61,6 +63,10 @@ from tessera.wire.protocol import ProtocolError, unpack_tile
 
 log = logging.getLogger("tessera.server")
 
+class SessionsFull(RuntimeError):
+    """``--max-sessions`` sessions are open."""
+
+
 #: Longest wait of the timer task between two looks at the scheduler and calibration (s).
 TIMER_MAX_WAIT_S = 1.0
 
@@ -78,16 +84,24 @@ def timeline_of(message: SceneReady, now: float) -> SceneTimeline:
 
 
 class RenderService:
-    def __init__(self, settings: Settings, metrics: CoordinatorMetrics | None = None) -> None:
+    """The coordinator's I/O: the nodes' links, calibration, the sessions (:class:`Session`: each
+    with its frame store and viewers) and the scheduler they share. ``library`` resolves the scene
+    names sessions are made from."""
+
+    def __init__(self, settings: Settings, metrics: CoordinatorMetrics | None = None,
+                 library: SceneLibrary | None = None) -> None:
         self.settings = settings
         self.size = settings.size
         self.metrics = metrics or CoordinatorMetrics()
-        self.scheduler = FrameScheduler(settings.scheduler_config(), create_balancer(settings.balancer))
+        self.library = library
+        self.scheduler = FrameScheduler(settings.scheduler_config(), create_balancer(settings.balancer),
+                                        settings.scene)
         self.scheduler.default.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
-        self.bounds: np.ndarray | None = None
-        self.store = FrameStore()
-        self.viewers = ViewerHub()
+        self.default = Session(self, DEFAULT_SESSION, settings.scene)
+        self.sessions: dict[str, Session] = {DEFAULT_SESSION: self.default}
+        self._watch_keys: dict[str, str] = {self.default.watch_key: DEFAULT_SESSION}
+        self._fetch: dict[str, tuple[str, str]] = {}
         self._next_node_id = 1
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
@@ -95,16 +109,65 @@ class RenderService:
         self.calibration = CalibrationQueue()
 
     @property
+    def store(self) -> FrameStore:
+        return self.default.store
+
+    @property
+    def viewers(self) -> ViewerHub:
+        return self.default.viewers
+
+    @property
+    def bounds(self) -> np.ndarray | None:
+        return self.default.bounds
+
+    @property
     def camera(self) -> Camera | None:
-        return self.scheduler.default.camera
+        return self.default.camera
 
-    @property
-    def balancer(self) -> Balancer:
-        return self.scheduler.default.mode.tiles.balancer
+    # ----------------------------------------------------------------- sessions
+    def find_session(self, key: str, watch: bool = False) -> Session | None:
+        """The session ``key`` drives (its id), or with ``watch`` the one it watches (its watch key)."""
+        session_id = self._watch_keys.get(key) if watch else key
+        return self.sessions.get(session_id) if session_id is not None else None
 
-    @property
-    def stats(self):
-        return self.scheduler.default.stats
+    def create_session(self, scene: str, size: tuple[int, int] | None = None, camera: Camera | None = None,
+                       spec: str | None = None, fetch: tuple[str, str] | None = None) -> Session:
+        """A session showing library scene ``scene`` (``spec``: what nodes load, default the name;
+        ``fetch``: the file's URL on this coordinator and its sha256, for nodes without it) at
+        ``size`` (default ``--size``); SessionsFull when ``--max-sessions`` are open."""
+        if len(self.sessions) >= self.settings.max_sessions:
+            raise SessionsFull(f"{len(self.sessions)} sessions are open, the most this coordinator serves "
+                               "(--max-sessions); close one or try later")
+        session = Session(self, new_key(), spec or scene, scene)
+        if fetch is not None:
+            self._fetch[session.scene] = fetch
+        config = dataclasses.replace(self.settings.scheduler_config(), size=size or self.settings.size)
+        self.sessions[session.id] = session
+        self._watch_keys[session.watch_key] = session.id
+        self.scheduler.add_session(session.id, config, create_balancer(self.settings.balancer), session.scene,
+                                   time.monotonic())
+        if camera is not None:
+            self.scheduler.set_camera(camera, time.monotonic(), session_id=session.id)
+        self.apply()
+        log.info("session %s… opened: %s at %dx%d", session.id[:6], scene, *config.size)
+        return session
+
+    def close_session(self, session: Session, reason: str = "session closed") -> None:
+        """Close ``session`` (not the default one): its frames are dropped, its viewers told."""
+        if session is self.default or self.sessions.pop(session.id, None) is None:
+            return
+        self._watch_keys.pop(session.watch_key, None)
+        self.scheduler.remove_session(session.id, time.monotonic())
+        for slot in list(session.viewers.slots):
+            slot.close(4404, reason)
+        self.apply()
+        log.info("session %s… closed: %s", session.id[:6], reason)
+
+    def _collect_idle_sessions(self, now: float) -> None:
+        """Close sessions no viewer and no API call used for ``--session-idle-timeout-s``."""
+        limit = self.settings.session_idle_timeout_s
+        for session in [s for s in self.sessions.values() if s is not self.default and s.idle_for(now) > limit]:
+            self.close_session(session, f"idle for over {limit:g} s")
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -130,12 +193,13 @@ class RenderService:
             now = time.monotonic()
             if deadline is not None and now >= deadline:
                 self.scheduler.tick(now)
-                self._apply()
+                self.apply()
             if now >= calibration_at + TIMER_MAX_WAIT_S:
                 calibration_at = now
                 self._start_calibration()
+                self._collect_idle_sessions(now)
 
-    def _apply(self) -> None:
+    def apply(self) -> None:
         """Carry out the scheduler's actions, then let the timer look at the new deadline."""
         for action in self.scheduler.drain():
             if isinstance(action, actions.RenderTiles):
@@ -143,7 +207,7 @@ class RenderService:
             elif isinstance(action, actions.CancelFrames):
                 self.nodes[action.node_id].send(Cancel(frames=action.frames))
             elif isinstance(action, actions.LoadScene):
-                self.nodes[action.node_id].send(self._load_scene(action.share))
+                self.nodes[action.node_id].send(self._load_scene(action.scene, action.share))
             elif isinstance(action, actions.BalancerFailed):
                 log.error("balancer failed, the static split was used: %s", action.reason)
             elif isinstance(action, actions.PublishFrame):
@@ -172,13 +236,16 @@ class RenderService:
         self.nodes[link.node_id] = link
         link.send(Welcome(node_id=link.node_id))
         self.scheduler.add_node(link.node_id, time.monotonic())
-        self._apply()   # the scene to load (sort-last: every node's share of the new partition)
+        self.apply()   # the scene to load (sort-last: every node's share of the new partition)
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link
 
-    def _load_scene(self, share: ShareSpec | None = None) -> messages.LoadScene:
-        return messages.LoadScene(scene=self.settings.scene,
-                                  background=self.settings.background or DEFAULT_BACKGROUND, share=share)
+    def _load_scene(self, scene: str | None, share: ShareSpec | None) -> messages.LoadScene:
+        """Load ``scene`` (None: ``--scene``), with where to fetch it for a session's library file."""
+        spec = scene or self.settings.scene
+        url, sha256 = self._fetch.get(spec, (None, None))
+        return messages.LoadScene(scene=spec, background=self.settings.background or DEFAULT_BACKGROUND, share=share,
+                                  url=url, sha256=sha256)
 
     def remove_node(self, link: NodeLink) -> None:
         """The node's connection ended: what it owed goes to the others."""
@@ -188,7 +255,7 @@ class RenderService:
                  len(self.scheduler.nodes[link.node_id].outstanding))
         self._forget_node(link)
         self.scheduler.remove_node(link.node_id, time.monotonic())
-        self._apply()
+        self.apply()
 
     def _forget_node(self, link: NodeLink) -> None:
         self.nodes.pop(link.node_id, None)
@@ -205,6 +272,9 @@ class RenderService:
             case SceneError():
                 link.state, link.scene_message = "error", message.message[:500]
                 log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
+                for session in self._showing(message.scene):
+                    if session.state != "ready":
+                        session.state, session.error = "error", link.scene_message
             case TileSent():
                 if link.last_tile != (message.frame, message.tile):
                     raise ProtocolError(f"tile_sent for tile {message.tile} of frame {message.frame}, which is not "
@@ -231,31 +301,45 @@ class RenderService:
             self._start_calibration()
             return
         self.scheduler.tile_failed(link.node_id, frame_id, tile_id, time.monotonic())
-        self._apply()
+        self.apply()
+
+    def _showing(self, scene: str | None) -> list[Session]:
+        """The sessions whose nodes load ``scene`` (None: a node that does not say, the default's)."""
+        spec = scene or self.settings.scene
+        return [s for s in self.sessions.values() if s.scene == spec]
 
     def _on_scene_ready(self, link: NodeLink, message: SceneReady) -> None:
         bounds = np.asarray(message.bounds, dtype=np.float64)
         link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
-        if self.bounds is None:
-            if message.objects is not None:
-                self.scheduler.set_scene(timeline_of(message, now), now)
-            self.bounds = bounds
-            if message.groups is not None:
-                self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
-                                          np.asarray(message.groups.counts, dtype=np.float64), bounds,
-                                          message.groups.objects)
-            if self.scheduler.default.camera is None:
-                self.scheduler.set_camera(default_camera(bounds, aspect=self.size[0] / self.size[1]), now)
-            self.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=self.scheduler.default.camera))
-        log.info("node %d (%s) ready: %d triangles%s", link.node_id, link.name, link.triangles,
+        for session in self._showing(message.scene):
+            if session.bounds is None:
+                self._adopt_scene(session, message, bounds, now)
+            self.scheduler.node_ready(link.node_id, now, message.share, session.id)
+        log.info("node %d (%s) ready: %s, %d triangles%s", link.node_id, link.name,
+                 message.scene or self.settings.scene, link.triangles,
                  "" if message.share is None else f", its share of partition {message.share}")
-        self.scheduler.node_ready(link.node_id, now, message.share)
-        self._apply()
+        self.apply()
         if link.can_calibrate:
             self.calibration.request(link.node_id)
             self._start_calibration()
+
+    def _adopt_scene(self, session: Session, message: SceneReady, bounds: np.ndarray, now: float) -> None:
+        """The first node that loaded ``session``'s scene reported it: its objects, groups and bounds,
+        and a camera that frames it if the session has none."""
+        if message.objects is not None:
+            self.scheduler.set_scene(timeline_of(message, now), now, session.id)
+        session.bounds, session.state, session.error = bounds, "ready", None
+        if message.groups is not None:
+            self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
+                                      np.asarray(message.groups.counts, dtype=np.float64), bounds,
+                                      message.groups.objects, session.id)
+        if session.camera is None:
+            width, height = session.size
+            self.scheduler.set_camera(default_camera(bounds, aspect=width / height), now, session_id=session.id)
+        assert session.camera is not None
+        session.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=session.camera))
 
     # ----------------------------------------------------------------- calibration (seed 003 §1)
     def calibrate_all(self) -> list[int]:
@@ -271,7 +355,8 @@ class RenderService:
             return
         node_id = self.calibration.next_to_start(time.monotonic())
         if node_id is not None and node_id in self.nodes:
-            self.nodes[node_id].send(calibrate_message(self.scheduler.default.camera, self.size))
+            self.nodes[node_id].send(calibrate_message(self.scheduler.default.camera, self.size,
+                                                       self.settings.scene))
 
     def _on_calibration(self, link: NodeLink, ms: float) -> None:
         if not self.calibration.finished(link.node_id):
@@ -285,45 +370,6 @@ class RenderService:
                  {k: round(v, 3) for k, v in speeds.items()})
         self._start_calibration()
 
-    # ----------------------------------------------------------------- camera, scene, balancer
-    def set_camera(self, camera: Camera, viewer_id: int | None = None, seq: int | None = None) -> int:
-        """Make ``camera`` the newest (``seq``: viewer ``viewer_id``'s input number); returns the
-        id of the first frame that can show it."""
-        frame = self.scheduler.set_camera(camera, time.monotonic(), viewer_id, seq)
-        self._apply()
-        return frame
-
-    def set_balancer(self, name: str, params: dict[str, Any]) -> Balancer:
-        balancer = create_balancer(name, params)
-        self.scheduler.set_balancer(balancer, time.monotonic())
-        log.info("balancer set to %s %s", name, balancer.params)
-        self._apply()
-        return balancer
-
-    def set_objects(self, patches: dict[str, ObjectPatch]) -> int:
-        """Pose objects; returns the first frame id that shows it. UnknownObjectError, and nothing
-        changes, for a name that is not an object."""
-        frame = self.scheduler.set_objects(patches, time.monotonic())
-        self._apply()
-        return frame
-
-    def set_animation(self, playing: bool | None = None, time_s: float | None = None,
-                      speed: float | None = None) -> int:
-        """Play, pause, jump to ``time_s``, change speed; returns the first frame id that shows it.
-        SceneStateError, and nothing changes, for a bad value."""
-        frame = self.scheduler.set_animation(time.monotonic(), playing, time_s, speed)
-        self._apply()
-        return frame
-
-    def request_frame(self) -> None:
-        """Someone waits for a newer frame: render one if nothing is on its way (render on demand)."""
-        if self.scheduler.default.settled:
-            self.scheduler.invalidate(time.monotonic())
-            self._apply()
-
-    def viewer_left(self, viewer_id: int) -> None:
-        self.scheduler.default.forget_source(viewer_id)
-
     # ----------------------------------------------------------------- tiles and frames
     def on_tile_message(self, link: NodeLink, message: bytes) -> None:
         """A binary tile from ``link``: parse, check, hand to the scheduler; CPU time is accounted
@@ -335,14 +381,14 @@ class RenderService:
             self.scheduler.receive_tile(link.node_id, header, bytes(payload), time.monotonic())
             link.last_tile = (header.frame_id, header.tile_id)
             self.metrics.tile_arrived(header)
-            self._apply()
+            self.apply()
         finally:
             spent = (time.thread_time() - started) * 1000.0
             self.cpu_ms["receive"] += spent - (self.cpu_ms["publish"] - published_before)
 
     def _frame_tiles(self, job: FrameJob) -> list:
         """What viewers get of ``job`` (the mode's assembly; a merge's CPU time is accounted)."""
-        if not self.scheduler.default.mode.merges:
+        if not self.scheduler.sessions[job.session].mode.merges:
             return self.scheduler.viewer_tiles(job)
         started = time.thread_time()
         tiles = self.scheduler.viewer_tiles(job)
@@ -350,6 +396,9 @@ class RenderService:
         return tiles
 
     def _publish(self, job: FrameJob) -> None:
+        session = self.sessions.get(job.session)
+        if session is None:
+            return
         started = time.thread_time()
         state = job.state
         frame = PublishedFrame(job.frame_id, job.camera, job.size, self._frame_tiles(job), time.monotonic(),
@@ -357,61 +406,49 @@ class RenderService:
                                state_version=None if state is None else state.version,
                                scene_time=None if state is None else state.time,
                                tile_states=tuple(t.header.state if t.header else 0 for t in job.tiles))
-        self.store.add(frame)
-        if self.viewers.slots:
-            self.viewers.publish_frame(frame)
+        session.store.add(frame)
+        if session.viewers.slots:
+            session.viewers.publish_frame(frame)
         self.cpu_ms["publish"] += (time.thread_time() - started) * 1000.0
 
     # ----------------------------------------------------------------- reporting
-    def scene_state(self) -> dict[str, Any] | None:
-        """The newest state version a frame was bound to, the scene time now (s), whether the
-        animation plays; None until a node reported the scene's objects."""
-        scene = self.scheduler.default.scene
-        if scene is None:
-            return None
-        return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
-                "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
-
-    def next_frame_id(self) -> int:
-        """The id the next frame to start will have."""
-        return self.scheduler.next_frame_id
-
-    def scene_timeline(self) -> SceneTimeline | None:
-        """The scene's objects, animations and poses (None until a node reported them)."""
-        return self.scheduler.default.scene
-
-    def describe(self) -> dict[str, Any]:
-        scheduler, stats = self.scheduler, self.scheduler.default.stats
-        latest = self.store.latest
+    def describe(self, session: Session | None = None) -> dict[str, Any]:
+        """``/api/stats``: ``session``'s figures (default: the default session's) with the nodes', the
+        coordinator's and every session's summary."""
+        session = session or self.default
+        scheduler, frames = self.scheduler, session.frames
+        stats, latest, now = frames.stats, session.store.latest, time.monotonic()
         return {
-            "frame": max(self.store.last_id, 0),
-            "fps": round(stats.fps(time.monotonic()), 2),
-            "size": list(self.size),
-            "balancer": scheduler.default.mode.tiles.balancer.name,
-            **scheduler.default.mode.describe(),
-            "balancer_params": scheduler.default.mode.tiles.balancer.params,
+            "frame": max(session.store.last_id, 0),
+            "fps": round(stats.fps(now), 2),
+            "size": list(session.size),
+            "balancer": session.balancer.name,
+            **frames.mode.describe(),
+            "balancer_params": session.balancer.params,
             "imbalance": round(stats.imbalance, 4),
             "imbalance_avg": round(stats.imbalance_avg, 4),
             "latency_ms": round(stats.latency_ms, 2),
-            "frames_in_flight": len(scheduler.in_flight),
-            "frames_cancelled": scheduler.frames_cancelled,
+            "frames_in_flight": len(frames.frames),
+            "frames_cancelled": frames.frames_cancelled,
             "still": bool(latest and latest.still),
-            "settled": scheduler.default.settled,
-            "scene": self.settings.scene,
-            "scene_state": self.scene_state(),
+            "settled": frames.settled,
+            "scene": session.name,
+            "scene_state": session.scene_state(),
+            "session": session.id if session is not self.default else DEFAULT_SESSION,
             "codec": self.settings.codec.name.lower(),
             "interactive_quality": self.settings.interactive_quality,
             "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec else "none",
-            "viewers": len(self.viewers.slots),
-            "viewer_stats": self.viewers.describe(),
+            "viewers": len(session.viewers.slots),
+            "viewer_stats": session.viewers.describe(),
             "coordinator_cpu": {
                 "frames": stats.frames_published,
                 "receive_ms": round(self.cpu_ms["receive"], 3),
                 "publish_ms": round(self.cpu_ms["publish"], 3),
                 "merge_ms": round(self.cpu_ms["merge"], 3),
                 "process_ms": round(time.process_time() * 1000.0, 3),
-                "viewer_bytes": self.viewers.bytes_published,
+                "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
             },
+            "sessions": [s.summary(now) for s in self.sessions.values()],
             "nodes": [link.describe(scheduler.nodes[link.node_id])
                       for link in sorted(self.nodes.values(), key=lambda n: n.node_id)],
         }

@@ -161,6 +161,12 @@ class Settings(SchedulerConfig):
     #: Where uploads (``DIR/scenes``) live; None: uploads are refused.
     data_dir: Path | None = None
     max_upload_mb: int = 512
+    #: Sessions open at once, the default one included; more are refused with 503.
+    max_sessions: int = 16
+    #: A session (not the default one) with no viewer and no API call for this long is closed (s).
+    session_idle_timeout_s: float = 300.0
+    #: The largest frame a session may have (a bigger request is scaled down to fit, aspect kept).
+    max_size: tuple[int, int] = (3840, 2160)
 
     @property
     def node_message_bytes(self) -> int:
@@ -242,6 +248,13 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: none, uploads are refused)")
     parser.add_argument("--max-upload-mb", type=_megabytes,
                         help=f"largest scene upload, MiB (default {defaults.max_upload_mb})")
+    parser.add_argument("--max-sessions", type=_count,
+                        help=f"sessions open at once, the default one included (default {defaults.max_sessions})")
+    parser.add_argument("--session-idle-timeout-s", type=POSITIVE,
+                        help="close a session that no viewer and no API call used for this long, s "
+                             f"(default {defaults.session_idle_timeout_s:g}; never the default session)")
+    parser.add_argument("--max-size", type=parse_size,
+                        help=f"largest frame of a session, WxH (default {defaults.max_size[0]}x{defaults.max_size[1]})")
     return parser
 
 

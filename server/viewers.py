@@ -36,6 +36,8 @@ class ViewerSlot:
         self.frames_dropped = 0
         self.frames_sent = 0
         self.latency: dict[str, float] = {}
+        #: Set by :meth:`close`: the close code and reason the sender closes the socket with.
+        self.closing: tuple[int, str] | None = None
 
     def put_frame(self, message: bytes) -> None:
         if self.frame is not None:
@@ -56,10 +58,17 @@ class ViewerSlot:
             self.control.append(text)
         self.ready.set()
 
-    async def next_message(self) -> str | bytes:
+    def close(self, code: int, reason: str) -> None:
+        """The viewer is to be disconnected with ``code`` and ``reason`` (its session was closed)."""
+        self.closing = (code, reason)
+        self.ready.set()
+
+    async def next_message(self) -> str | bytes | None:
         """The next control message if any, else the newest camera, else the newest frame (waits
-        for one)."""
+        for one); None once :meth:`close` was called."""
         while True:
+            if self.closing is not None:
+                return None
             if self.control:
                 return self.control.popleft()
             if self.camera is not None:

@@ -9,9 +9,9 @@ from typing import Any
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import BaseModel, ConfigDict, StrictBool, StrictFloat
 
-from server.routes.deps import get_service, require_token
+from server.routes.deps import get_session, require_token
 from server.routes.objects import loaded_scene
-from server.service import RenderService
+from server.sessions import Session
 from tessera.scene.state import SceneStateError
 
 router = APIRouter(tags=["animation"], dependencies=[Depends(require_token)])
@@ -27,21 +27,21 @@ class AnimationBody(BaseModel):
     speed: StrictFloat | None = None
 
 
-@router.get("/api/animation")
-async def get_animation(service: RenderService = Depends(get_service)) -> dict[str, Any]:
+@router.get("/animation")
+async def get_animation(session: Session = Depends(get_session)) -> dict[str, Any]:
     """``playing``, ``time`` (s, now), ``speed``, the span it loops over (``start``, ``end``) and the
     scene's ``animations`` (name, start, end, the objects each moves; empty: nothing to play)."""
-    return loaded_scene(service).animation_json(time.monotonic())
+    return loaded_scene(session).animation_json(time.monotonic())
 
 
-@router.put("/api/animation")
-async def put_animation(body: AnimationBody, service: RenderService = Depends(get_service)) -> dict[str, int]:
+@router.put("/animation")
+async def put_animation(body: AnimationBody, session: Session = Depends(get_session)) -> dict[str, int]:
     """Play, pause, jump or change speed: ``frame`` is the first frame id that shows it. A bad value
     is 422, a scene without animations 409; either way nothing changes."""
-    if not loaded_scene(service).animations:
+    if not loaded_scene(session).animations:
         raise HTTPException(status_code=409, detail="the scene has no animations")
     try:
-        frame = service.set_animation(body.playing, body.time, body.speed)
+        frame = session.set_animation(body.playing, body.time, body.speed)
     except SceneStateError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
     return {"frame": frame}

@@ -7,8 +7,8 @@ from typing import Any
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import BaseModel, ConfigDict
 
-from server.routes.deps import get_service, require_token
-from server.service import RenderService
+from server.routes.deps import get_session, require_token
+from server.sessions import Session
 from tessera.balancers import BALANCERS
 
 router = APIRouter(tags=["balancer"], dependencies=[Depends(require_token)])
@@ -20,25 +20,25 @@ class BalancerBody(BaseModel):
     params: dict[str, Any] = {}
 
 
-def describe(service: RenderService) -> dict[str, Any]:
+def describe(session: Session) -> dict[str, Any]:
     return {
-        "name": service.balancer.name,
-        "params": service.balancer.params,
+        "name": session.balancer.name,
+        "params": session.balancer.params,
         "available": sorted(BALANCERS),
         "defaults": {name: dict(cls.defaults) for name, cls in sorted(BALANCERS.items())},
     }
 
 
-@router.get("/api/balancer")
-async def get_balancer(service: RenderService = Depends(get_service)) -> dict[str, Any]:
-    return describe(service)
+@router.get("/balancer")
+async def get_balancer(session: Session = Depends(get_session)) -> dict[str, Any]:
+    return describe(session)
 
 
-@router.put("/api/balancer")
-async def put_balancer(body: BalancerBody, service: RenderService = Depends(get_service)) -> dict[str, Any]:
+@router.put("/balancer")
+async def put_balancer(body: BalancerBody, session: Session = Depends(get_session)) -> dict[str, Any]:
     """Switch technique and/or parameters from the next frame; unknown names or params → 422."""
     try:
-        service.set_balancer(body.name, body.params)
+        session.set_balancer(body.name, body.params)
     except ValueError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
-    return describe(service)
+    return describe(session)

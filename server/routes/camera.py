@@ -5,8 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import BaseModel, ConfigDict
 
-from server.routes.deps import get_service, require_token
-from server.service import RenderService
+from server.routes.deps import get_session, require_token
+from server.sessions import Session
 from tessera.geometry import Camera, CameraError
 from tessera.wire.messages import CameraUpdate
 
@@ -23,20 +23,20 @@ class CameraBody(BaseModel):
     far: float | None = None
 
 
-@router.get("/api/camera")
-async def get_camera(service: RenderService = Depends(get_service)) -> dict:
+@router.get("/camera")
+async def get_camera(session: Session = Depends(get_session)) -> dict:
     """The newest camera, the last published frame id and the scene's bounds (null until a node loaded it)."""
-    return {"camera": service.camera.to_json() if service.camera else None, "frame": service.store.last_id,
-            "bounds": service.bounds.tolist() if service.bounds is not None else None}
+    return {"camera": session.camera.to_json() if session.camera else None, "frame": session.store.last_id,
+            "bounds": session.bounds.tolist() if session.bounds is not None else None}
 
 
-@router.put("/api/camera")
-async def put_camera(body: CameraBody, service: RenderService = Depends(get_service)) -> dict:
+@router.put("/camera")
+async def put_camera(body: CameraBody, session: Session = Depends(get_session)) -> dict:
     """Set the camera; ``frame`` is the first frame id rendered with it. NaN or degenerate → 422."""
     try:
         camera = Camera.from_json(body.model_dump(exclude_none=True))
     except CameraError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
-    frame = service.set_camera(camera)
-    service.viewers.broadcast(CameraUpdate(camera=camera))
+    frame = session.set_camera(camera)
+    session.viewers.broadcast(CameraUpdate(camera=camera))
     return {"frame": frame}

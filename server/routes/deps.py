@@ -11,10 +11,23 @@ import hmac
 from fastapi import HTTPException, Request, WebSocket
 
 from server.service import RenderService
+from server.sessions import Session
 
 
 def get_service(request: Request) -> RenderService:
     return request.app.state.service
+
+
+def get_session(request: Request) -> Session:
+    """The session a route acts on: ``/api/sessions/{session_id}/…``'s, else the default one; 404
+    for an unknown id. Using a session keeps it from being closed as idle."""
+    service: RenderService = request.app.state.service
+    session_id = request.path_params.get("session_id")
+    session = service.default if session_id is None else service.find_session(session_id)
+    if session is None:
+        raise HTTPException(status_code=404, detail="no such session")
+    session.touch()
+    return session
 
 
 TOKEN_COOKIE = "tessera_token"

@@ -8,18 +8,18 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import Response
 
 from server.frame_store import PublishedFrame, encode_frame_png
-from server.routes.deps import get_service, require_token
-from server.service import RenderService
+from server.routes.deps import get_session, require_token
+from server.sessions import Session
 from tessera.wire.codec import CodecError
 
 router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
 
 
-@router.get("/api/frame.png", response_class=Response,
+@router.get("/frame.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}, 422: {"description": "a bad or unreachable ``after``"},
                        504: {"description": "no such frame in time"}})
 async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None = Query(None, gt=0, le=300),
-                    still: bool = Query(False), service: RenderService = Depends(get_service)) -> Response:
+                    still: bool = Query(False), session: Session = Depends(get_session)) -> Response:
     """The first complete frame with id ≥ ``after``; without ``after``, the newest frame (at rest:
     the still frame), or with ``still=true`` the newest state's still frame. Waits up to ``timeout``
     seconds (default ``--frame-wait-s``); a frame is rendered for the request when none is kept or
@@ -31,17 +31,17 @@ async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None
     received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
     ``after`` beyond the next frame to start (no id the API handed out) → 422: no frame is on its way."""
-    upcoming = service.next_frame_id()
+    upcoming = session.next_frame_id()
     if after is None:
-        newest = service.store.newest(still)
-        after = newest.frame_id if newest is not None else max(service.store.last_id + 1, 0)
+        newest = session.store.newest(still)
+        after = newest.frame_id if newest is not None else max(session.store.last_id + 1, 0)
     if after > upcoming:
         shown = str(after) if after < 10**20 else f"{str(after)[:20]}…"
         raise HTTPException(status_code=422, detail=f"after={shown} is beyond the next frame, {upcoming}: "
                                                     "no such frame is on its way")
-    if service.store.first_at_or_after(after, still) is None:
-        service.request_frame()
-    frame = await service.store.wait_for(after, timeout or service.settings.frame_wait_s, still)
+    if session.store.first_at_or_after(after, still) is None:
+        session.request_frame()
+    frame = await session.store.wait_for(after, timeout or session.service.settings.frame_wait_s, still)
     if frame is None:
         kind = "still frame" if still else "complete frame"
         raise HTTPException(status_code=504, detail=f"no {kind} with id >= {after} in time")

@@ -9,8 +9,8 @@ from typing import Any
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import BaseModel, ConfigDict, StrictBool, StrictFloat
 
-from server.routes.deps import get_service, require_token
-from server.service import RenderService
+from server.routes.deps import get_session, require_token
+from server.sessions import Session
 from tessera.scene.state import ObjectPatch, SceneStateError, UnknownObjectError
 from tessera.scene.timeline import SceneTimeline
 
@@ -28,28 +28,28 @@ class ObjectBody(BaseModel):
     visible: StrictBool | None = None
 
 
-def loaded_scene(service: RenderService) -> SceneTimeline:
+def loaded_scene(session: Session) -> SceneTimeline:
     """The scene's timeline; 409 until a node has reported the scene's objects."""
-    scene = service.scene_timeline()
+    scene = session.scene_timeline()
     if scene is None:
         raise HTTPException(status_code=409, detail="no node has loaded the scene yet")
     return scene
 
 
-@router.get("/api/objects")
-async def get_objects(service: RenderService = Depends(get_service)) -> list[dict[str, Any]]:
+@router.get("/objects")
+async def get_objects(session: Session = Depends(get_session)) -> list[dict[str, Any]]:
     """Every object (glTF node; one per PLY/OBJ/STL file or built-in batch), parents first: ``name``,
     ``parent``, its local ``translation``, ``rotation``, ``scale`` and ``visible`` now (animation and
     poses applied), ``bounds`` (its geometry's world box where it is now, null without geometry) and
     ``triangles``."""
-    return loaded_scene(service).objects_json(time.monotonic())
+    return loaded_scene(session).objects_json(time.monotonic())
 
 
-@router.put("/api/objects/{name:path}")
-async def put_object(name: str, body: ObjectBody, service: RenderService = Depends(get_service)) -> dict[str, int]:
+@router.put("/objects/{name:path}")
+async def put_object(name: str, body: ObjectBody, session: Session = Depends(get_session)) -> dict[str, int]:
     """Pose object ``name``: ``frame`` is the first frame id that shows it. An unknown name is 404,
     a bad value 422; either way nothing changes."""
-    scene = loaded_scene(service)
+    scene = loaded_scene(session)
     try:
         scene.graph.lookup(name)
         patch = ObjectPatch.from_json(body.model_dump(exclude_none=True), name)
@@ -57,4 +57,4 @@ async def put_object(name: str, body: ObjectBody, service: RenderService = Depen
         raise HTTPException(status_code=404, detail=str(exc)) from None
     except SceneStateError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
-    return {"frame": service.set_objects({name: patch})}
+    return {"frame": session.set_objects({name: patch})}

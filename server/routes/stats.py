@@ -1,23 +1,26 @@
-"""Live statistics: ``GET /api/stats`` (JSON) and ``GET /metrics`` (Prometheus, by ``prometheus_client``)."""
+"""Live statistics: ``GET /api/stats`` (JSON; ``/api/sessions/{id}/stats`` for a session's figures)
+and ``GET /metrics`` (Prometheus, by ``prometheus_client``)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import PlainTextResponse
 
-from server.routes.deps import get_service, require_token
-from server.service import RenderService
+from server.routes.deps import get_session, require_token
+from server.sessions import Session
 
 router = APIRouter(tags=["stats"])
+metrics_router = APIRouter(tags=["stats"])
 
 
-@router.get("/api/stats", dependencies=[Depends(require_token)])
-async def get_stats(service: RenderService = Depends(get_service)) -> dict:
-    """Frame id, fps, size, balancer, imbalance (last and 60-frame mean), latency and every node's work."""
-    return service.describe()
+@router.get("/stats", dependencies=[Depends(require_token)])
+async def get_stats(session: Session = Depends(get_session)) -> dict:
+    """The session's frame id, fps, size, balancer, imbalance (last and 60-frame mean), latency;
+    every node's work; every session's summary (``sessions``)."""
+    return session.service.describe(session)
 
 
-@router.get("/metrics", response_class=PlainTextResponse)
+@metrics_router.get("/metrics", response_class=PlainTextResponse)
 async def metrics(request: Request) -> Response:
     """Prometheus metrics (text format, or OpenMetrics when asked): histograms of frame interval,
     input → publish latency and per-tile node phases, the ``/api/stats`` figures as gauges and

@@ -2,7 +2,11 @@
 it sends camera JSON back (with its input sequence number) and reports the input → display
 latency it measured. Invalid input gets an ``error`` message, never a crash. Pages of other origins,
 viewers over ``--max-viewers`` and sockets over their message size or rate are refused
-(``server/routes/guards.py``)."""
+(``server/routes/guards.py``).
+
+``?session=ID`` joins session ``ID`` (none: the default session); ``?session=KEY&watch=1`` watches
+the session whose watch key is ``KEY``: frames come, camera messages are refused with the reason.
+An unknown session closes the socket with 4404, as does closing the session."""
 
 from __future__ import annotations
 
@@ -24,9 +28,19 @@ NOT_READING = f"not reading its socket: {MAX_QUEUED_CONTROL} control messages wa
 log = logging.getLogger("tessera.server")
 
 
+#: Close code for a session that does not exist (any more).
+CLOSE_NO_SESSION = 4404
+#: What a watcher's camera message is told.
+WATCHERS_DO_NOT_STEER = "this viewer watches the session (a watch link): it cannot steer the camera"
+
+
 async def _send(ws: WebSocket, slot: ViewerSlot) -> None:
     while True:
         message = await slot.next_message()
+        if message is None:
+            assert slot.closing is not None
+            await guards.close(ws, *slot.closing)
+            return
         if isinstance(message, str):
             await ws.send_text(message)
         else:
@@ -43,18 +57,26 @@ async def viewer_socket(ws: WebSocket) -> None:
     if not token_ok(settings.token, presented_token(ws)):
         await ws.close(4401, "wrong token")
         return
-    if full := guards.viewers_full(len(service.viewers.slots), settings.max_viewers):
+    watching = ws.query_params.get("watch") in ("1", "true")
+    key = ws.query_params.get("session")
+    session = service.default if key is None and not watching else service.find_session(key or "", watching)
+    if session is None:
+        await guards.close(ws, CLOSE_NO_SESSION, "no such session (closed, or a wrong link)")
+        return
+    viewers = sum(len(s.viewers.slots) for s in service.sessions.values())
+    if full := guards.viewers_full(viewers, settings.max_viewers):
         log.warning("viewer from %s refused: %s", guards.peer(ws), full)
         await guards.close(ws, 1008, full)
         return
     limits = guards.limits_for(ws, "viewer")
-    slot = service.viewers.join()
+    slot = session.viewers.join()
+    session.touch()
     slot.put_control(ViewerHello(
-        size=service.size, viewer=slot.viewer_id, camera=service.camera,
-        bounds=service.bounds.tolist() if service.bounds is not None else None,
-        balancer=service.balancer.name, balancers=tuple(sorted(BALANCERS)), frame=service.store.last_id))
-    if service.store.latest is not None:
-        slot.put_frame(service.store.latest.message_for(slot.viewer_id))
+        size=session.size, viewer=slot.viewer_id, camera=session.camera,
+        bounds=session.bounds.tolist() if session.bounds is not None else None,
+        balancer=session.balancer.name, balancers=tuple(sorted(BALANCERS)), frame=session.store.last_id))
+    if session.store.latest is not None:
+        slot.put_frame(session.store.latest.message_for(slot.viewer_id))
     sender = asyncio.create_task(_send(ws, slot))
     try:
         while True:
@@ -76,12 +98,15 @@ async def viewer_socket(ws: WebSocket) -> None:
             match request:
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
+                case CameraUpdate() if watching:
+                    slot.put_control(ViewerError(message=WATCHERS_DO_NOT_STEER))
                 case CameraUpdate():
-                    service.set_camera(request.camera, slot.viewer_id, request.seq)
-                    service.viewers.broadcast(CameraUpdate(camera=request.camera), exclude=slot)
+                    session.set_camera(request.camera, slot.viewer_id, request.seq)
+                    session.viewers.broadcast(CameraUpdate(camera=request.camera), exclude=slot)
     except (WebSocketDisconnect, RuntimeError):
         pass
     finally:
         sender.cancel()
-        service.viewers.leave(slot)
-        service.viewer_left(slot.viewer_id)
+        session.viewers.leave(slot)
+        session.viewer_left(slot.viewer_id)
+        session.touch()

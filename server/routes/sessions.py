@@ -1,0 +1,112 @@
+"""Sessions (issue 19): ``POST /api/sessions`` opens one, ``GET /api/sessions`` lists them,
+``GET|DELETE /api/sessions/{id}``, ``PUT /api/sessions/{id}/size``. The routes that act on a
+session (camera, frame.png, objects, animation, balancer, stats) are served under
+``/api/sessions/{id}/…`` as under ``/api/…`` for the default session (server/app.py)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Annotated, Any
+from urllib.parse import quote
+
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from pydantic import BaseModel, ConfigDict, Field, StrictInt
+
+from server.routes.camera import CameraBody
+from server.routes.deps import get_service, get_session, require_token
+from server.scene_library import SceneLibrary, SceneRefused
+from server.service import RenderService, SessionsFull
+from server.sessions import Session, fit_size
+from tessera.geometry import Camera, CameraError
+
+router = APIRouter(tags=["sessions"], dependencies=[Depends(require_token)])
+
+Size = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
+
+
+class NewSession(BaseModel):
+    """``scene``: a name of ``GET /api/scenes``; ``size`` [w, h] px (default ``--size``; scaled down
+    to fit ``--max-size``); ``camera``: where it starts (default: framing the scene)."""
+
+    model_config = ConfigDict(extra="forbid")
+    scene: Annotated[str, Field(min_length=1, max_length=1024)]
+    size: Size | None = None
+    camera: CameraBody | None = None
+
+
+class SizeBody(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    size: Size
+
+
+def checked_size(size: list[int], service: RenderService) -> tuple[int, int]:
+    try:
+        return fit_size((size[0], size[1]), service.settings.max_size)
+    except ValueError as exc:
+        raise HTTPException(status_code=422, detail=str(exc)) from None
+
+
+def links(request: Request, session: Session) -> dict[str, str]:
+    """The viewer page that drives the session, and the one that only watches it."""
+    base = str(request.base_url)
+    return {"viewer_url": f"{base}?session={quote(session.id)}",
+            "watch_url": f"{base}?session={quote(session.watch_key)}&watch=1"}
+
+
+@router.post("/api/sessions", status_code=201)
+async def open_session(body: NewSession, request: Request,
+                       service: RenderService = Depends(get_service)) -> dict[str, Any]:
+    """Open a session showing ``scene``: 201 ``{"id", "viewer_url", "watch_url", "size"}``. An unknown
+    scene or a bad size or camera is 422; 503 when ``--max-sessions`` are open. Nodes load the
+    scene (from the coordinator, by its content hash, when they lack the file)."""
+    library: SceneLibrary = request.app.state.scenes
+    try:
+        entry = library.find(body.scene)
+        camera = None if body.camera is None else Camera.from_json(body.camera.model_dump(exclude_none=True))
+    except (SceneRefused, CameraError) as exc:
+        raise HTTPException(status_code=422, detail=str(exc)) from None
+    size = checked_size(body.size, service) if body.size is not None else service.settings.size
+    fetch = None
+    if entry.path is not None:
+        sha256 = await asyncio.to_thread(library.content_hash, entry)
+        fetch = (f"/api/scenes/{quote(entry.name, safe='')}/file", sha256)
+    try:
+        session = service.create_session(entry.name, size, camera, entry.spec, fetch)
+    except SessionsFull as exc:
+        raise HTTPException(status_code=503, detail=str(exc)) from None
+    return {"id": session.id, **links(request, session), "size": list(session.size)}
+
+
+@router.get("/api/sessions")
+async def list_sessions(service: RenderService = Depends(get_service)) -> list[dict[str, Any]]:
+    """Every open session: ``id``, ``scene``, ``size``, ``viewers``, ``fps``, ``latency_ms``,
+    ``node_share`` (its fraction of node busy time), ``state``, ``camera``, ``idle_s``."""
+    now = time.monotonic()
+    return [s.summary(now) for s in service.sessions.values()]
+
+
+@router.get("/api/sessions/{session_id}")
+async def get_session_summary(request: Request, session: Session = Depends(get_session)) -> dict[str, Any]:
+    """The session's summary (as in the list) with its links."""
+    return {**session.summary(time.monotonic()), **links(request, session)}
+
+
+@router.delete("/api/sessions/{session_id}", status_code=204)
+async def close_session(session: Session = Depends(get_session),
+                        service: RenderService = Depends(get_service)) -> Response:
+    """Close the session: its frames are dropped and its viewers disconnected (4404). The default
+    session cannot be closed (409)."""
+    if session is service.default:
+        raise HTTPException(status_code=409, detail="the default session cannot be closed")
+    service.close_session(session)
+    return Response(status_code=204)
+
+
+@router.put("/api/sessions/{session_id}/size")
+async def put_size(body: SizeBody, session: Session = Depends(get_session),
+                   service: RenderService = Depends(get_service)) -> dict[str, Any]:
+    """Frames of ``size`` [w, h] from now on (scaled down to fit ``--max-size``): ``frame`` is the
+    first frame id of that size, ``size`` the size it has."""
+    size = checked_size(body.size, service)
+    return {"frame": session.resize(size), "size": list(size)}

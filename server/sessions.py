@@ -1,0 +1,158 @@
+"""A session as the coordinator serves it (issue 19): one user's picture — its scene, frame size,
+camera, scene state and balancer (kept by the scheduler's :class:`SessionFrames`) — with its own
+frame store and viewers. The routes act on a session: the default one (made at start-up from
+``--scene`` and ``--size``) under ``/api/…``, any other under ``/api/sessions/{id}/…``.
+
+A session's id is the key that drives it (128 random bits, ``secrets.token_urlsafe``); its watch
+key is drawn apart, so a watch link (``?session=KEY&watch=1``) cannot be turned into a drive link.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from server.frame_store import FrameStore
+from server.viewers import ViewerHub
+from tessera.balancers import create_balancer
+from tessera.balancers.base import Balancer
+from tessera.geometry import Camera
+from tessera.scene.state import ObjectPatch
+from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.session_frames import SessionFrames
+
+if TYPE_CHECKING:
+    from server.service import RenderService
+
+#: Random bytes of a session id and of its watch key (128 bits each).
+KEY_BYTES = 16
+
+
+def new_key() -> str:
+    return secrets.token_urlsafe(KEY_BYTES)
+
+
+class Session:
+    """Session ``session_id`` of ``service``: ``scene`` is the spec its nodes load (a file path or
+    ``builtin:NAME``), ``name`` what the user picked it by (a library name); ``state`` is
+    "loading" until a node reported the scene, then "ready", or "error" with ``error``."""
+
+    def __init__(self, service: RenderService, session_id: str, scene: str, name: str | None = None) -> None:
+        self.service = service
+        self.id = session_id
+        self.watch_key = new_key()
+        self.scene = scene
+        self.name = name or scene
+        self.store = FrameStore()
+        self.viewers = ViewerHub()
+        self.bounds: np.ndarray | None = None
+        self.state = "loading"
+        self.error: str | None = None
+        self.created_at = self.last_used = time.monotonic()
+
+    @property
+    def frames(self) -> SessionFrames:
+        """The scheduler's side of the session."""
+        return self.service.scheduler.sessions[self.id]
+
+    @property
+    def camera(self) -> Camera | None:
+        return self.frames.camera
+
+    @property
+    def balancer(self) -> Balancer:
+        return self.frames.mode.tiles.balancer
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.frames.size
+
+    def touch(self) -> None:
+        """Someone used the session now (an API call, a viewer): it is not idle."""
+        self.last_used = time.monotonic()
+
+    def idle_for(self, now: float) -> float:
+        """Seconds since the session was last used, 0 while a viewer watches it."""
+        return 0.0 if self.viewers.slots else now - self.last_used
+
+    # ----------------------------------------------------------------- what users change
+    def set_camera(self, camera: Camera, viewer_id: int | None = None, seq: int | None = None) -> int:
+        """Make ``camera`` the newest (``seq``: viewer ``viewer_id``'s input number); returns the
+        id of the first frame that can show it."""
+        return self._event(lambda now: self.service.scheduler.set_camera(camera, now, viewer_id, seq, self.id))
+
+    def set_balancer(self, name: str, params: dict[str, Any]) -> Balancer:
+        balancer = create_balancer(name, params)
+        self._event(lambda now: self.service.scheduler.set_balancer(balancer, now, self.id))
+        return balancer
+
+    def set_objects(self, patches: dict[str, ObjectPatch]) -> int:
+        """Pose objects; returns the first frame id that shows it. UnknownObjectError, and nothing
+        changes, for a name that is not an object."""
+        return self._event(lambda now: self.service.scheduler.set_objects(patches, now, self.id))
+
+    def set_animation(self, playing: bool | None = None, time_s: float | None = None,
+                      speed: float | None = None) -> int:
+        """Play, pause, jump to ``time_s``, change speed; returns the first frame id that shows it.
+        SceneStateError, and nothing changes, for a bad value."""
+        return self._event(lambda now: self.service.scheduler.set_animation(now, playing, time_s, speed, self.id))
+
+    def resize(self, size: tuple[int, int]) -> int:
+        """Frames of ``size`` (w, h) from now on; returns the first frame id of that size."""
+        return self._event(lambda now: self.service.scheduler.resize(size, now, self.id))
+
+    def request_frame(self) -> None:
+        """Someone waits for a newer frame: render one if nothing is on its way (render on demand)."""
+        if self.frames.settled:
+            self._event(lambda now: self.service.scheduler.invalidate(now, self.id))
+
+    def viewer_left(self, viewer_id: int) -> None:
+        frames = self.service.scheduler.sessions.get(self.id)   # None once the session was closed
+        if frames is not None:
+            frames.forget_source(viewer_id)
+
+    def _event(self, change):
+        self.touch()
+        result = change(time.monotonic())
+        self.service.apply()
+        return result
+
+    # ----------------------------------------------------------------- what users read
+    def next_frame_id(self) -> int:
+        """The id the next frame to start will have."""
+        return self.service.scheduler.next_frame_id
+
+    def scene_timeline(self) -> SceneTimeline | None:
+        """The scene's objects, animations and poses (None until a node reported them)."""
+        return self.frames.scene
+
+    def scene_state(self) -> dict[str, Any] | None:
+        """The newest state version a frame was bound to, the scene time now (s), whether the
+        animation plays; None until a node reported the scene's objects."""
+        scene = self.frames.scene
+        if scene is None:
+            return None
+        return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
+                "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
+
+    def summary(self, now: float) -> dict[str, Any]:
+        """The session in ``/api/sessions`` and ``/api/stats``' ``sessions``."""
+        stats = self.frames.stats
+        return {"id": self.id, "scene": self.name, "size": list(self.size), "viewers": len(self.viewers.slots),
+                "fps": round(stats.fps(now), 2), "latency_ms": round(stats.latency_ms, 2),
+                "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4), "state": self.state,
+                "error": self.error, "camera": self.camera.to_json() if self.camera else None,
+                "idle_s": round(self.idle_for(now), 1)}
+
+
+def fit_size(size: tuple[int, int], largest: tuple[int, int], smallest: int = 16) -> tuple[int, int]:
+    """``size`` (w, h) scaled down, aspect kept, to fit inside ``largest``; each side at least
+    ``smallest``. ValueError for a side below 1."""
+    width, height = size
+    if width < 1 or height < 1:
+        raise ValueError(f"a frame size is two whole numbers >= 1, got {width}x{height}")
+    scale = min(1.0, largest[0] / width, largest[1] / height)
+    return max(smallest, min(largest[0], round(width * scale))), max(smallest, min(largest[1], round(height * scale)))

@@ -1,0 +1,159 @@
+"""Sessions over the API (issue 19), in process with fake nodes: open, list, close, resize; frames
+of each session have its own size; a watcher cannot steer; bad input is refused with the reason."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from server.app import create_app
+from server.settings import Settings
+from tessera.geometry import Rect
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import TileHeader, pack_tile, unpack_frame
+from tests.conftest import seconds
+from tests.test_api import BOUNDS, HELLO, closed_with, next_json
+
+pytestmark = pytest.mark.timeout(seconds(120))
+SETTINGS = Settings(scene="builtin:spheres", size=(64, 48), codec=Codec.PNG, still_codec=None, max_sessions=3,
+                    max_size=(200, 100))
+
+
+class SceneNode:
+    """A fake node over ``/ws/node`` that holds every scene it is told to load and answers each
+    render with flat tiles whose grey level says which scene they are of."""
+
+    def __init__(self, ws) -> None:
+        self.ws = ws
+        self.scenes: list[str] = []
+        ws.send_json(HELLO)
+        next_json(ws, "welcome")
+
+    def serve(self, until) -> list[dict[str, Any]]:
+        """Handle messages until ``until(render)`` is true of an answered render; the renders."""
+        renders = []
+        while True:
+            message = self.ws.receive_json()
+            if message["type"] == "load_scene":
+                self.scenes.append(message["scene"])
+                self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "triangles": 12,
+                                   "bounds": BOUNDS})
+            elif message["type"] == "render":
+                self.answer(message)
+                renders.append(message)
+                if until(message):
+                    return renders
+
+    def answer(self, render: dict[str, Any]) -> None:
+        level = 40 * (self.scenes.index(render["scene"]) + 1)
+        for tile in render["tiles"]:
+            rect = Rect(*tile["rect"])
+            header = TileHeader(render["frame"], tile["tile"], rect, Codec.PNG, 1.0, 0.0, 0.0)
+            self.ws.send_bytes(pack_tile(header, encode(np.full((rect.h, rect.w, 3), level, np.uint8), Codec.PNG)))
+            self.ws.send_json({"type": "tile_sent", "frame": render["frame"], "tile": tile["tile"], "send_ms": 0.1,
+                               "stats": {}})
+
+
+@pytest.fixture
+def client() -> Iterator[TestClient]:
+    with TestClient(create_app(SETTINGS)) as client:
+        yield client
+
+
+def frame_png(client: TestClient, path: str, after: int) -> np.ndarray:
+    response = client.get(path, params={"after": after, "timeout": seconds(20)})
+    assert response.status_code == 200, response.text
+    return np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
+
+
+def test_a_session_has_unguessable_keys_and_its_own_scene_and_size(client):
+    created = client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [80, 40]})
+    assert created.status_code == 201, created.text
+    body = created.json()
+    session_id, watch_key = body["id"], body["watch_url"].split("session=")[1].split("&")[0]
+    assert len(session_id) >= 22 and len(watch_key) >= 22, "128 random bits each, base64url"
+    assert session_id not in body["watch_url"] and body["viewer_url"].endswith(f"?session={session_id}")
+    assert body["size"] == [80, 40]
+    listed = {s["id"]: s for s in client.get("/api/sessions").json()}
+    assert listed[session_id]["scene"] == "builtin:cluster" and listed[session_id]["size"] == [80, 40]
+    assert listed["default"]["size"] == [64, 48]
+    with client.websocket_connect("/ws/node") as ws:
+        node = SceneNode(ws)
+        first = client.put(f"/api/sessions/{session_id}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
+        assert node.scenes == ["builtin:spheres", "builtin:cluster"], "a node joining loads every session's scene"
+        session_frame = frame_png(client, f"/api/sessions/{session_id}/frame.png", first.json()["frame"])
+        assert session_frame.shape == (40, 80, 3) and (session_frame == 80).all(), "its tiles, its size"
+        default_first = client.put("/api/camera", json={"eye": [0, 0, 6], "target": [0, 0, 0]}).json()["frame"]
+        node.serve(lambda render: render["scene"] == "builtin:spheres" and render["frame"] >= default_first)
+        default_frame = frame_png(client, "/api/frame.png", default_first)
+        assert default_frame.shape == (48, 64, 3) and (default_frame == 40).all(), "never the other session's tiles"
+        stats = client.get(f"/api/sessions/{session_id}/stats").json()
+        assert stats["size"] == [80, 40] and stats["session"] == session_id
+        assert {s["id"] for s in client.get("/api/stats").json()["sessions"]} == {"default", session_id}
+
+
+def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):
+    body = client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [32, 16]}).json()
+    watch = body["watch_url"].split("?")[1]
+    with client.websocket_connect("/ws/node") as node_ws, client.websocket_connect(f"/ws/view?{watch}") as viewer:
+        node = SceneNode(node_ws)
+        hello = next_json(viewer, "hello")
+        assert hello["size"] == [32, 16]
+        viewer.send_json({"type": "camera", "camera": {"eye": [0, 0, 5], "target": [0, 0, 0]}, "seq": 1})
+        assert "cannot steer" in next_json(viewer, "error")["message"]
+        first = client.put(f"/api/sessions/{body['id']}/camera", json={"eye": [1, 0, 5], "target": [0, 0, 0]})
+        node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
+        while True:
+            message = viewer.receive()
+            if message.get("bytes"):
+                assert unpack_frame(message["bytes"]).size == (32, 16)
+                break
+        assert client.delete(f"/api/sessions/{body['id']}").status_code == 204
+        assert closed_with(viewer)[0] == 4404
+    assert client.get(f"/api/sessions/{body['id']}").status_code == 404
+    with client.websocket_connect(f"/ws/view?session={body['id']}") as gone:
+        assert closed_with(gone) == (4404, "no such session (closed, or a wrong link)")
+
+
+def test_a_drive_link_cannot_be_made_from_a_watch_key(client):
+    body = client.post("/api/sessions", json={"scene": "builtin:spheres"}).json()
+    watch_key = body["watch_url"].split("session=")[1].split("&")[0]
+    assert client.get(f"/api/sessions/{watch_key}").status_code == 404
+    with client.websocket_connect(f"/ws/view?session={watch_key}") as ws:
+        assert closed_with(ws)[0] == 4404
+
+
+def test_resizing_a_session_changes_its_frames_and_sizes_are_fitted_to_the_largest(client):
+    body = client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [400, 100]}).json()
+    assert body["size"] == [200, 50], "scaled down to --max-size 200x100, aspect kept"
+    with client.websocket_connect("/ws/node") as ws:
+        node = SceneNode(ws)
+        resized = client.put(f"/api/sessions/{body['id']}/size", json={"size": [60, 30]})
+        assert resized.status_code == 200 and resized.json()["size"] == [60, 30]
+        client.put(f"/api/sessions/{body['id']}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        renders = node.serve(lambda render: render["scene"] == "builtin:cluster")
+        assert [r["size"] for r in renders if r["scene"] == "builtin:cluster"] == [[60, 30]]
+        frame = frame_png(client, f"/api/sessions/{body['id']}/frame.png", resized.json()["frame"])
+        assert frame.shape == (30, 60, 3)
+
+
+def test_bad_sessions_are_refused_with_the_reason(client):
+    unknown = client.post("/api/sessions", json={"scene": "library/nope.glb"})
+    assert unknown.status_code == 422 and "nope.glb" in unknown.text
+    assert client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [0, 10]}).status_code == 422
+    assert client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [10]}).status_code == 422
+    nan_camera = {"scene": "builtin:cluster", "camera": {"eye": [0, 0, "NaN"], "target": [0, 0, 0]}}
+    assert client.post("/api/sessions", json=nan_camera).status_code == 422
+    assert client.delete("/api/sessions/default").status_code == 409
+    assert client.get("/api/sessions/nope/camera").status_code == 404
+    for _ in range(2):
+        assert client.post("/api/sessions", json={"scene": "builtin:spheres"}).status_code == 201
+    full = client.post("/api/sessions", json={"scene": "builtin:spheres"})
+    assert full.status_code == 503 and "--max-sessions" in full.text
