@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import secrets
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -22,10 +22,20 @@ from tessera.balancers.base import Balancer
 from tessera.geometry import Camera
 from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
+from tessera.scheduling.scheduler import FrameScheduler
 from tessera.scheduling.session_frames import SessionFrames
 
-if TYPE_CHECKING:
-    from server.service import RenderService
+
+class SessionHost(Protocol):
+    """What a session needs of the service that holds it."""
+
+    scheduler: FrameScheduler
+
+    @property
+    def settings(self) -> Any: ...
+
+    def apply(self) -> None:
+        """Carry out the scheduler's actions."""
 
 #: Random bytes of a session id and of its watch key (128 bits each).
 KEY_BYTES = 16
@@ -40,7 +50,7 @@ class Session:
     ``builtin:NAME``), ``name`` what the user picked it by (a library name); ``state`` is
     "loading" until a node reported the scene, then "ready", or "error" with ``error``."""
 
-    def __init__(self, service: RenderService, session_id: str, scene: str, name: str | None = None) -> None:
+    def __init__(self, service: SessionHost, session_id: str, scene: str, name: str | None = None) -> None:
         self.service = service
         self.id = session_id
         self.watch_key = new_key()
