@@ -11,11 +11,14 @@ import pytest
 
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera
+from tessera.scene.graph import ObjectGraph, SceneObject
+from tessera.scene.state import ObjectPatch
+from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
-from tessera.wire.protocol import TileHeader
+from tessera.wire.protocol import TileHeader, state_tag
 
 CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
 
@@ -39,8 +42,10 @@ def cluster(nodes: int, sessions: dict[str, tuple[int, int]]) -> FrameScheduler:
 
 
 def answer(s: FrameScheduler, action: RenderTiles, now: float) -> list:
+    job = s.in_flight[action.message.frame]
+    tag = state_tag(None if job.state is None else job.state.version)
     for tile in action.message.tiles:
-        header = TileHeader(action.message.frame, tile.tile, tile.rect, Codec.JPEG, 1.0, 0.0, 0.0)
+        header = TileHeader(action.message.frame, tile.tile, tile.rect, Codec.JPEG, 1.0, 0.0, 0.0, tag)
         s.tile_arrived(action.node_id, header, b"", now)
         s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
     return s.drain()
@@ -199,3 +204,23 @@ def test_a_light_session_gets_every_frame_it_asks_for_while_heavy_ones_share_the
     assert light["published"] >= light["asked"] - 1, figures
     heavy = [figures[DEFAULT_SESSION]["busy_ms"], figures["b"]["busy_ms"]]
     assert jain(heavy) >= 0.95 and min(heavy) > 4 * light["busy_ms"], figures
+
+
+def test_a_node_is_sent_a_sessions_state_whole_when_another_sessions_frame_came_between():
+    """A node keeps one scene state: a delta is sent only on the state it last got, of the same session."""
+    s = cluster(1, {"b": (64, 32)})
+    pending = []
+    for session_id in s.sessions:
+        s.set_scene(SceneTimeline(ObjectGraph([SceneObject("car")])), 0.0, session_id=session_id)
+        s.set_camera(camera(), 0.0, session_id=session_id)
+        pending += s.drain()
+    while renders := [a for a in pending if isinstance(a, RenderTiles)]:
+        pending = answer(s, renders[0], 0.5) + [a for a in pending if a is not renders[0]]
+    kinds = []
+    for now, session_id in enumerate(["default", "default", "b", "default"], start=1):
+        s.set_objects({"car": ObjectPatch.from_json({"translation": [now, 0, 0]}, "car")}, float(now), session_id)
+        renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
+        assert len(renders) == 1
+        kinds.append(type(renders[0].message.state).__name__)
+        answer(s, renders[0], now + 0.5)
+    assert kinds == ["SceneState", "StateDelta", "SceneState", "SceneState"]

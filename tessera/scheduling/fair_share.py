@@ -71,7 +71,7 @@ class FairShare:
     def in_turn(self, session: str, backlogged: Iterable[str]) -> bool:
         """``session`` is at most the costliest ``backlogged`` session's frame ahead of the least
         served of them (see the module docstring)."""
-        known = [s for s in backlogged if s in self.served]
+        known = [s for s in {*backlogged, session} if s in self.served]
         least = min((self.served[s] for s in known), default=0.0)
         ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
         return self.served[session] <= least + ahead

@@ -25,7 +25,8 @@ class NodeSchedule:
     answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
     failed in a row; ``dropped``: (frame id, tile id) it owed when their frame was dropped (the
     newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
-    owed; ``state_sent``: the scene state version its last render message brought it to (None:
+    owed; ``state_sent``: the session and scene state version its last render message brought it
+    to (a node keeps one state: another session's frame sends its state whole) (None:
     none yet, or unsure after a failed tile); the rest is the last complete frame's roll-up."""
 
     node_id: int
@@ -37,7 +38,7 @@ class NodeSchedule:
     suspect: bool = False
     ms_per_px: float | None = None
     failures: int = 0
-    state_sent: int | None = None
+    state_sent: tuple[str, int] | None = None
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)

@@ -304,7 +304,6 @@ class FrameScheduler:
         for session in list(self.sessions.values()):
             held = node_id in session.ready
             session.ready.discard(node_id)
-            session.state_sent.pop(node_id, None)
             if self._repartition(session, now):
                 self._changed(session, now, supersede=False)
                 continue
@@ -379,8 +378,7 @@ class FrameScheduler:
         if node is None:
             return
         self.table.check_owed(node, key, "render_error for tile")
-        for session in self.sessions.values():   # the failure may be a state it could not apply: send it whole
-            session.state_sent.pop(node_id, None)
+        node.state_sent = None   # the failure may be a state it could not apply: send it whole
         if key not in node.outstanding:
             return
         self.table.answered(node, key, now)
@@ -545,7 +543,7 @@ class FrameScheduler:
         for tile_id in tile_ids:
             job.tiles[tile_id].node_id = node.node_id
         self.table.assign(node, [(job.frame_id, tile_id) for tile_id in tile_ids], now)
-        state = self.sessions[job.session].state_for(node.node_id, job)
+        state = self.sessions[job.session].state_for(node, job)
         self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, state)))
 
     def _pump_pull(self, now: float) -> None:

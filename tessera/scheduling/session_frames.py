@@ -27,8 +27,7 @@ from tessera.wire.codec import Codec
 
 class SessionFrames:
     """Session ``session_id``: ``scene_key`` is the scene its nodes load (None: the coordinator's
-    own); ``ready`` the nodes that hold it; ``state_sent`` the scene-state version each node was
-    last brought to for this session; ``frames`` its frames in flight by id; ``charges`` what each
+    own); ``ready`` the nodes that hold it; ``frames`` its frames in flight by id; ``charges`` what each
     was charged of node time (:class:`tessera.scheduling.fair_share.FairShare`)."""
 
     def __init__(self, session_id: str, config, balancer: Balancer, scene_key: str | None = None) -> None:
@@ -53,7 +52,6 @@ class SessionFrames:
         self.awaiting_send: dict[int, FrameJob] = {}
         self.next_start_at = 0.0
         self.ready: set[int] = set()
-        self.state_sent: dict[int, int] = {}
         self.frames_cancelled = 0
 
     @property
@@ -146,13 +144,13 @@ class SessionFrames:
         if self._projector is not None:
             self._project(self._projector.for_size(size))
 
-    def state_for(self, node_id: int, job: FrameJob) -> SceneState | StateDelta | None:
-        """What brings node ``node_id`` to ``job``'s state for this session: a delta on the version
-        it was sent last while the log keeps that one, else the whole state."""
+    def state_for(self, node: NodeSchedule, job: FrameJob) -> SceneState | StateDelta | None:
+        """What brings ``node`` to ``job``'s state: a delta on the version it was sent last, if that
+        was this session's and the log keeps it, else the whole state."""
         state = job.state
         if state is None or self.scene is None:
             return None
-        sent = self.state_sent.get(node_id)
-        base = None if sent is None else self.scene.log.get(sent)
-        self.state_sent[node_id] = state.version
+        sent = node.state_sent
+        base = self.scene.log.get(sent[1]) if sent is not None and sent[0] == self.id else None
+        node.state_sent = (self.id, state.version)
         return state if base is None else state.delta_from(base)
