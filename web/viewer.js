@@ -11,6 +11,7 @@ import { frameBounds, minDistanceFor } from "./orbit.js";
 import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
+import { sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
 // and API calls carry: take it out of the address bar (and so out of history and shared links).
@@ -29,7 +30,9 @@ function address(path, scheme) {
   return url.href;
 }
 
-const api = (path, init) => fetch(address(path), init);
+/** The session this page shows (`?session=…[&watch=1]`; none: the default session). */
+const session = sessionFromQuery(location.search);
+const api = (path, init) => fetch(address(sessionApiPath(path, session)), init);
 
 const state = {
   frameId: null,
@@ -210,7 +213,7 @@ const panel = new Panel(document, api, (nodes) => {
 const animation = new AnimationControls(document, api, (message) => {
   $("panel-message").textContent = message;
 });
-const connection = new Connection(address("ws/view", location.protocol === "https:" ? "wss:" : "ws:"), {
+const connection = new Connection(address(viewSocketPath(session), location.protocol === "https:" ? "wss:" : "ws:"), {
   onText,
   onBinary,
   onState,

@@ -1,0 +1,27 @@
+// web/session.js: which session a page shows, its socket path and its API paths.
+import assert from "node:assert/strict";
+import { test } from "node:test";
+
+import { sessionApiPath, sessionFromQuery, viewSocketPath } from "../../web/session.js";
+
+test("a bare page shows the default session", () => {
+  const session = sessionFromQuery("");
+  assert.deepEqual(session, { key: null, watching: false });
+  assert.equal(viewSocketPath(session), "ws/view");
+  assert.equal(sessionApiPath("api/stats", session), "api/stats");
+});
+
+test("a drive link reaches the session's own routes", () => {
+  const session = sessionFromQuery("?session=a-b_c&token=x");
+  assert.deepEqual(session, { key: "a-b_c", watching: false });
+  assert.equal(viewSocketPath(session), "ws/view?session=a-b_c");
+  assert.equal(sessionApiPath("api/balancer", session), "api/sessions/a-b_c/balancer");
+  assert.equal(sessionApiPath("web/x.js", session), "web/x.js");
+});
+
+test("a watch link watches and opens no session route", () => {
+  const session = sessionFromQuery("?session=K&watch=1");
+  assert.deepEqual(session, { key: "K", watching: true });
+  assert.equal(viewSocketPath(session), "ws/view?session=K&watch=1");
+  assert.equal(sessionApiPath("api/stats", session), "api/stats");
+});

@@ -1,0 +1,34 @@
+// Which session the page shows (issue 19): `?session=ID` drives session ID, `?session=KEY&watch=1`
+// watches the session whose watch key is KEY (frames only), none: the default session.
+
+/**
+ * @param {string} search  location.search
+ * @returns {{key: string | null, watching: boolean}}
+ */
+export function sessionFromQuery(search) {
+  const params = new URLSearchParams(search);
+  return { key: params.get("session"), watching: ["1", "true"].includes(params.get("watch") ?? "") };
+}
+
+/**
+ * The viewer socket's path for the session: `ws/view` with its query.
+ * @param {{key: string | null, watching: boolean}} session
+ */
+export function viewSocketPath(session) {
+  if (!session.key) return session.watching ? "ws/view?watch=1" : "ws/view";
+  const query = new URLSearchParams({ session: session.key });
+  if (session.watching) query.set("watch", "1");
+  return `ws/view?${query}`;
+}
+
+/**
+ * An API path (`api/…`) for the session: a driven session's own routes are under
+ * `api/sessions/ID/`; the default session's and a watcher's stay as they are (a watch key opens no
+ * API route).
+ * @param {string} path
+ * @param {{key: string | null, watching: boolean}} session
+ */
+export function sessionApiPath(path, session) {
+  if (!session.key || session.watching || !path.startsWith("api/")) return path;
+  return `api/sessions/${encodeURIComponent(session.key)}/${path.slice(4)}`;
+}
