@@ -196,14 +196,28 @@ def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
         raise ValueError(f"tile {rect.as_list()} is empty or outside the {width}x{height} frame")
 
 
+def pack_geometry(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 12) float32 vertices and (3F,) uint32 indices of all ``batches``, in order: the vertex and
+    index buffers' contents (no GL: a loader thread may pack them)."""
+    vertex_parts, index_parts = [], []
+    base_vertex = 0
+    for batch in batches:
+        vertex_parts.append(interleave_vertices(batch))
+        index_parts.append(batch.faces.reshape(-1) + np.uint32(base_vertex))
+        base_vertex += batch.vertex_count
+    return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32)
+
+
 class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``); use it
-    only on the thread that owns ``ctx``. Raises CullingUnavailableError for gpu culling without
+    only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of the scene's batches
+    when already done (None: packed here). Raises CullingUnavailableError for gpu culling without
     GL 4.3."""
 
     def __init__(self, ctx: moderngl.Context, scene: SceneData,
                  background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.AUTO,
-                 switch_params: SwitchParams = SwitchParams()) -> None:
+                 switch_params: SwitchParams = SwitchParams(),
+                 packed: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.ctx = ctx
         self.scene = scene
         self.background = background
@@ -213,7 +227,7 @@ class TileRenderer:
         self.program["u_texture"].value = 0
         self.program["u_floor"].value = 1
         self.program["u_ceil"].value = 2
-        vertices, indices = self._pack(scene.batches)
+        vertices, indices = pack_geometry(scene.batches) if packed is None else packed
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
         self.vertex_array = ctx.vertex_array(
@@ -242,17 +256,6 @@ class TileRenderer:
         if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
             raise ValueError(f"background must be three numbers in 0..1, got {list(value)}")
         self._background = rgb
-
-    @staticmethod
-    def _pack(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray]:
-        """(V, 12) float32 vertices and (3F,) uint32 indices of all batches, in order."""
-        vertex_parts, index_parts = [], []
-        base_vertex = 0
-        for batch in batches:
-            vertex_parts.append(interleave_vertices(batch))
-            index_parts.append(batch.faces.reshape(-1) + np.uint32(base_vertex))
-            base_vertex += batch.vertex_count
-        return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32)
 
     def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[int, moderngl.Texture]:
         """One sRGB mipmapped GL texture per distinct image, keyed by the image array's id."""
