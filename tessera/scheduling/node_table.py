@@ -96,6 +96,10 @@ class NodeTable:
             self._ready = [n for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.schedulable]
         return self._ready
 
+    def holding(self, holders: set[int]) -> list[NodeSchedule]:
+        """The ready nodes among ``holders`` (those that hold a session's scene), by id."""
+        return [n for n in self.ready() if n.node_id in holders]
+
     def touch(self, node: NodeSchedule, state_changed: bool = False) -> None:
         """``node``'s queue changed (and, with ``state_changed``, whether it is ready or suspect)."""
         if state_changed:

@@ -307,7 +307,7 @@ class FrameScheduler:
             if self._repartition(session, now):
                 self._changed(session, now, supersede=False)
                 continue
-            ready = self._ready_for(session)
+            ready = self.table.holding(session.ready)
             for job in list(session.frames.values()):
                 owed = job.owed_by(node_id)
                 if owed and not ready:
@@ -390,7 +390,8 @@ class FrameScheduler:
         job = self.in_flight.get(frame_id)
         if job is not None and not job.tiles[tile_id].done and job.tiles[tile_id].node_id == node_id:
             session = self.sessions[job.session]
-            others = [n for n in self._ready_for(session) if n is not node and session.mode.tiles_move] or [node]
+            movable = session.mode.tiles_move
+            others = [n for n in self.table.holding(session.ready) if n is not node and movable] or [node]
             self._redispatch(job, [tile_id], others, now)
         self._advance(now)
 
@@ -423,24 +424,20 @@ class FrameScheduler:
                                                                                               NO_NODE_SLOT))
 
     # ----------------------------------------------------------------- internals
-    def _ready_for(self, session: SessionFrames) -> list[NodeSchedule]:
-        """Schedulable nodes that hold the session's scene, by id."""
-        return [n for n in self.table.ready() if n.node_id in session.ready]
-
     def _back_up_stragglers(self, now: float) -> None:
         """Copy the tiles of overdue nodes to others that hold their scene (see the module
         docstring); not where tiles cannot move (sort-last: no other node holds the share)."""
         for node in self.table.overdue(self.in_flight, self.config.backup_factor, self.config.backup_floor_s, now):
             owed = [(self.in_flight[f], t) for f, t in node.outstanding if f in self.in_flight]
             movable = [(job, t) for job, t in owed if self.sessions[job.session].mode.tiles_move]
-            if not movable or not any(n is not node for job, _ in movable for n in self._ready_for(
-                    self.sessions[job.session])):
+            holders = [self.table.holding(self.sessions[job.session].ready) for job, _ in movable]
+            if not any(n is not node for ready in holders for n in ready):
                 continue
             node.suspect = True
             self.table.touch(node, state_changed=True)
             self.backups += 1
             for job, tile_id in movable:
-                others = [n for n in self._ready_for(self.sessions[job.session]) if n is not node]
+                others = [n for n in self.table.holding(self.sessions[job.session].ready) if n is not node]
                 if not others or job.tiles[tile_id].done or job.tiles[tile_id].node_id != node.node_id:
                     continue
                 job.tiles[tile_id].earlier.add(node.node_id)
@@ -508,7 +505,7 @@ class FrameScheduler:
             self._pump_pull(now)
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
-        ready = self._ready_for(session)
+        ready = self.table.holding(session.ready)
         job, error = session.start_frame(self.next_frame_id, ready, now, still)
         if error is not None:
             self._actions.append(BalancerFailed(error))
