@@ -125,7 +125,10 @@ class ServiceCollector(Collector):
                     "viewer_bytes": stats["coordinator_cpu"]["viewer_bytes"]}
         for family in families:
             key = family.name.removeprefix("tessera_")
-            if key == "node_phase_ms":
+            if key.startswith("session_"):
+                for session in stats["sessions"]:
+                    family.add_metric([session["label"]], session[key.removeprefix("session_")])
+            elif key == "node_phase_ms":
                 assert isinstance(family, GaugeMetricFamily)
                 for node in stats["nodes"]:
                     for phase in GAUGE_PHASES:
@@ -148,6 +151,11 @@ class ServiceCollector(Collector):
             gauge("tessera_nodes", "Connected render nodes."),
             gauge("tessera_node_phase_ms", "A node's time per phase (ms) in the last complete frame, summed "
                   "over its tiles; busy is the sum of the phases.", labels=["node", "phase"]),
+            gauge("tessera_session_fps", "A session's published frames per second.", labels=["session"]),
+            gauge("tessera_session_latency_ms", "A session's mean input → publish time (ms).", labels=["session"]),
+            gauge("tessera_session_node_share", "A session's fraction of the node time of the last 5 s.",
+                  labels=["session"]),
+            gauge("tessera_session_viewers", "Viewers of a session.", labels=["session"]),
             counter("tessera_frames_published", "Frames published."),
             counter("tessera_frames_cancelled", "Frames dropped before they were complete."),
             counter("tessera_viewer_bytes", "Bytes of frames sent to viewers."),

@@ -102,6 +102,7 @@ class RenderService:
         self.sessions: dict[str, Session] = {DEFAULT_SESSION: self.default}
         self._watch_keys: dict[str, str] = {self.default.watch_key: DEFAULT_SESSION}
         self._fetch: dict[str, tuple[str, str]] = {}
+        self._sessions_opened = 0
         self._next_node_id = 1
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
@@ -138,7 +139,8 @@ class RenderService:
         if len(self.sessions) >= self.settings.max_sessions:
             raise SessionsFull(f"{len(self.sessions)} sessions are open, the most this coordinator serves "
                                "(--max-sessions); close one or try later")
-        session = Session(self, new_key(), spec or scene, scene)
+        self._sessions_opened += 1
+        session = Session(self, new_key(), spec or scene, scene, label=str(self._sessions_opened))
         if fetch is not None:
             self._fetch[session.scene] = fetch
         config = dataclasses.replace(self.settings.scheduler_config(), size=size or self.settings.size)

@@ -50,9 +50,12 @@ class Session:
     ``builtin:NAME``), ``name`` what the user picked it by (a library name); ``state`` is
     "loading" until a node reported the scene, then "ready", or "error" with ``error``."""
 
-    def __init__(self, service: SessionHost, session_id: str, scene: str, name: str | None = None) -> None:
+    def __init__(self, service: SessionHost, session_id: str, scene: str, name: str | None = None,
+                 label: str = "default") -> None:
         self.service = service
         self.id = session_id
+        #: What metrics call it: not its id, which drives it (``/metrics`` is open).
+        self.label = label
         self.watch_key = new_key()
         self.scene = scene
         self.name = name or scene
@@ -151,7 +154,8 @@ class Session:
     def summary(self, now: float) -> dict[str, Any]:
         """The session in ``/api/sessions`` and ``/api/stats``' ``sessions``."""
         stats = self.frames.stats
-        return {"id": self.id, "scene": self.name, "size": list(self.size), "viewers": len(self.viewers.slots),
+        return {"id": self.id, "label": self.label, "scene": self.name, "size": list(self.size),
+                "viewers": len(self.viewers.slots),
                 "fps": round(stats.fps(now), 2), "latency_ms": round(stats.latency_ms, 2),
                 "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4), "state": self.state,
                 "error": self.error, "camera": self.camera.to_json() if self.camera else None,

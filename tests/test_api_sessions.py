@@ -157,3 +157,11 @@ def test_bad_sessions_are_refused_with_the_reason(client):
         assert client.post("/api/sessions", json={"scene": "builtin:spheres"}).status_code == 201
     full = client.post("/api/sessions", json={"scene": "builtin:spheres"})
     assert full.status_code == 503 and "--max-sessions" in full.text
+
+
+def test_metrics_label_sessions_by_number_never_by_their_drive_key(client):
+    body = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()
+    text = client.get("/metrics").text
+    assert 'tessera_session_viewers{session="default"} 0.0' in text
+    assert 'tessera_session_node_share{session="1"}' in text
+    assert body["id"] not in text and "tessera_session_fps" in text
