@@ -1,8 +1,10 @@
 """The render node's network adapter: connect to the coordinator, feed its messages to the node's
 protocol core (:class:`node.protocol.NodeProtocol`, where every decision of the conversation is
 made) and carry out the actions it hands out with the GL thread (:class:`node.gl.worker.GLWorker`:
-the scene loaded once, retained mode, seed 002), the encoder thread and the socket; reconnect with
-exponential back-off.
+each scene loaded once, retained mode, seed 002; several held at once, issue 19), the encoder
+thread and the socket; reconnect with exponential back-off. A scene loads in the background (read
+in the worker's loader thread, fetched from the coordinator when the node cannot open it): tiles
+of the scenes already held go on meanwhile, and its end is fed back to the protocol.
 
 Functional parallelism (seed 002 §4): three stages per tile run concurrently — drawing (the one GL
 thread), encoding (an encoder thread, :mod:`node.tile_messages`) and sending (the event loop's
@@ -35,6 +37,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 from node.gl.context import GLUnavailableError
 from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, Send
+from node.scene.fetch import SceneFetcher
 from node.settings import NodeSettings
 from node.tile_messages import encode_depth_message, encode_tile
 from tessera.wire import messages
@@ -74,7 +77,8 @@ class NodeClient:
     def __init__(self, settings: NodeSettings, worker: GLWorker | None = None,
                  sleep: Callable[[float], Awaitable[Any]] = asyncio.sleep) -> None:
         self.settings = settings
-        self.worker = worker or GLWorker(settings.culling, settings.face_limit)
+        self.worker = worker or GLWorker(settings.culling, settings.face_limit, settings.scene_memory_mb << 20,
+                                         SceneFetcher(settings.coordinator, settings.token, settings.scene_cache_dir))
         self.protocol = NodeProtocol(settings.name, settings.token or "", settings.slowdown)
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
@@ -129,14 +133,15 @@ class NodeClient:
     async def _session(self, ws: ClientConnection) -> None:
         work = asyncio.Event()
         outbox: Outbox = asyncio.Queue()
+        loads: set[asyncio.Task[None]] = set()
         tasks = [asyncio.create_task(self._receive(ws, work)), asyncio.create_task(self._send_loop(ws, outbox)),
-                 asyncio.create_task(self._job_loop(work, outbox))]
+                 asyncio.create_task(self._job_loop(work, outbox, loads))]
         try:
             done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
-            for task in tasks:
+            for task in (*tasks, *loads):   # a scene being read goes on in the worker, for the next connection
                 task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
+            await asyncio.gather(*tasks, *loads, return_exceptions=True)
         for task in done:
             error = None if task.cancelled() else task.exception()
             if error is not None and not isinstance(error, ConnectionClosed):
@@ -153,8 +158,9 @@ class NodeClient:
             self.protocol.receive_text(raw)
             work.set()
 
-    async def _job_loop(self, work: asyncio.Event, outbox: Outbox) -> None:
-        """Carry out the protocol's actions in order, each done before the next is asked for."""
+    async def _job_loop(self, work: asyncio.Event, outbox: Outbox, loads: set[asyncio.Task[None]]) -> None:
+        """Carry out the protocol's actions in order, each done before the next is asked for, but
+        loads: each goes on in the background (in ``loads``) and wakes ``work`` when it ends."""
         while True:
             action = self.protocol.next_action()
             match action:
@@ -164,13 +170,16 @@ class NodeClient:
                 case Send():
                     outbox.put_nowait(action.message)
                 case Load():
-                    await self._load_scene(action.request, outbox)
+                    load = asyncio.create_task(self._load_scene(action.request, outbox, work))
+                    loads.add(load)
+                    load.add_done_callback(loads.discard)
                 case Measure():
-                    await self._calibrate(action.request, outbox)
+                    await self._calibrate(action, outbox)
                 case Draw():
                     await self._draw(action, outbox)
 
-    async def _load_scene(self, message: messages.LoadScene, outbox: Outbox) -> None:
+    async def _load_scene(self, message: messages.LoadScene, outbox: Outbox, work: asyncio.Event) -> None:
+        """Load ``message``'s scene, tell the protocol how it ended and queue its answer."""
         loop = asyncio.get_running_loop()
         spec = message.scene
 
@@ -180,14 +189,15 @@ class NodeClient:
 
         started = time.perf_counter()
         try:
-            scene = await self.worker.load(spec, message.background, progress, message.share)
+            loaded = await self.worker.load(message, progress)
         except Exception as exc:  # SceneError, or a GL failure while uploading
-            outbox.put_nowait(self.protocol.scene_failed(spec, exc))
-            return
-        load_ms = (time.perf_counter() - started) * 1e3
-        log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
-                 len(scene.batches), scene.chunks.chunk_count, load_ms)
-        outbox.put_nowait(self.protocol.scene_loaded(scene, self.worker.share_version))
+            outbox.put_nowait(self.protocol.scene_failed(message, exc))
+        else:
+            scene = loaded.scene
+            log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
+                     len(scene.batches), scene.chunks.chunk_count, (time.perf_counter() - started) * 1e3)
+            outbox.put_nowait(self.protocol.scene_loaded(message, scene, loaded.share_version))
+        work.set()
 
     async def _draw(self, action: Draw, outbox: Outbox) -> None:
         """One tile: drawn on the GL thread, encoded in the encoder thread, queued to send in order."""
@@ -196,8 +206,8 @@ class NodeClient:
             await self._draw_depth(action, job.depth, outbox)
             return
         try:
-            rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state)
-        except Exception as exc:  # a bad rect, no scene, or a GL failure: report, keep serving
+            rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene)
+        except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return
         render_ms = await self._slow_down(rendered.render_ms)
@@ -217,8 +227,8 @@ class NodeClient:
         """One tile of a depth ``render``: drawn as a layer, encoded as a depth tile in the encoder thread."""
         job, request, state = action.render, action.tile, action.state
         try:
-            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state)
-        except Exception as exc:  # a bad tile id, no scene, another share, or a GL failure: report, keep serving
+            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene)
+        except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return
         render_ms, readback_ms = drawn.times
@@ -226,17 +236,17 @@ class NodeClient:
         stats = drawn.stats()
         packed = asyncio.get_running_loop().run_in_executor(
             self._encoder, encode_depth_message, job.frame, request, drawn.depth_layer(), drawn.core,
-            drawn.blend_layer(), (render_ms, readback_ms), job.codec, job.jpeg_quality, state,
-            self.worker.share_version or 0, stats)
+            drawn.blend_layer(), (render_ms, readback_ms), job.codec, job.jpeg_quality, state, drawn.share, stats)
         outbox.put_nowait(PendingTile(job.frame, request.tile, packed, stats))
 
-    async def _calibrate(self, job: messages.Calibrate, outbox: Outbox) -> None:
+    async def _calibrate(self, action: Measure, outbox: Outbox) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and
         report the best time (× slowdown, after sleeping the emulated extra, like a tile)."""
+        job = action.request
         try:
-            times = [(await self.worker.render(job.camera, job.size, job.rect, CALIBRATION_SLOT)).render_ms
-                     for _ in range(job.repeats)]
-        except Exception as exc:  # no scene, a bad rect or a GL failure: report, keep serving
+            times = [(await self.worker.render(job.camera, job.size, job.rect, CALIBRATION_SLOT, None,
+                                               action.scene)).render_ms for _ in range(job.repeats)]
+        except Exception as exc:  # a scene not held, a bad rect or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.calibration_failed(exc))
             return
         best = min(times)

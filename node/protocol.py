@@ -1,19 +1,27 @@
 """The render node's side of the coordinator conversation, without I/O (the sans-I/O pattern of
 websockets' ``Protocol``): :class:`NodeProtocol` takes the coordinator's text messages and the
 results of the node's work in, and hands actions out — load this scene, draw this tile of this
-frame in this state, calibrate, send this message — for :class:`node.client.NodeClient` to carry
-out with the GL thread, the encoder and the socket. No sockets, no GL, no asyncio, no clocks.
+scene and frame in this state, calibrate, send this message — for :class:`node.client.NodeClient`
+to carry out with the GL thread, the encoder and the socket. No sockets, no GL, no asyncio, no
+clocks.
 
 Messages follow the catalogue in :mod:`tessera.wire.messages`. Cancels and the welcome take effect
-at once on receipt; everything else is a job, done in order:
+at once on receipt; a ``render``'s state brings the node's :class:`tessera.scene.state.StateReplica`
+to the frame's scene state (issue 11) on receipt too, so in message order, also for a frame
+cancelled since (a state that does not apply fails all its tiles in the frame's turn). A node
+holds several scenes (issue 19), so the rest is:
 
-- ``load_scene``: of several waiting, only the newest is loaded (the others are superseded);
-- ``render``: its state brings the node's :class:`tessera.scene.state.StateReplica` to the frame's
-  scene state (issue 11), in message order, also for a frame cancelled since (a state that does
-  not apply fails all its tiles); then its tiles are handed out one at a time, each once the one
-  before is done, so a ``cancel`` received meanwhile drops the tiles not begun, reported together
-  in a ``tiles_dropped`` after the frame's last tile;
-- ``calibrate``;
+- ``load_scene``: a background action, handed out at once: the scene is read while tiles of the
+  scenes already held are drawn, and its end comes back as :meth:`NodeProtocol.scene_loaded` or
+  :meth:`NodeProtocol.scene_failed`. One load per key (scene and share) runs at a time; of several
+  waiting for the same key, only the newest is loaded (the others are superseded);
+- ``render`` and ``calibrate``: jobs, done in message order, each of the scene it names (None: the
+  scene of the newest ``load_scene`` received, else whatever the node loaded last). A job waits
+  while a load of its scene received before it is under way, and later jobs pass it by, except
+  those of the same scene; a load that fails fails the jobs waiting for it with the reason. A
+  ``render``'s tiles are handed out one at a time, each once the one before is done, so a
+  ``cancel`` received meanwhile drops the tiles not begun, reported together in a
+  ``tiles_dropped`` after the frame's last tile (a cancelled frame waits for no load);
 - a message that names one of these kinds but is malformed is refused in its turn, as far as it
   can be read: a ``render``'s tiles fail with ``render_error``, a ``calibrate`` fails, a
   ``load_scene`` is a ``scene_error``.
@@ -34,37 +42,40 @@ from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
 
 log = logging.getLogger("tessera.node")
 
-#: Cancelled frame ids a node remembers (its queue never holds more frames than this).
+#: Cancelled frame ids a node remembers.
 CANCELLED_MEMORY = 256
 
-#: The node's work, done in order: coordinator messages, and malformed ones to refuse.
-Job = messages.LoadScene | messages.Render | messages.Calibrate | messages.InvalidMessage
+#: A load's key: its scene spec and share (index, weights; None: the whole scene).
+LoadKey = tuple[str, tuple[int, tuple[float, ...]] | None]
 
 
 @dataclass(frozen=True, slots=True)
 class Load:
-    """Load (or reuse) the scene ``request`` names; then report :meth:`NodeProtocol.scene_loaded`
-    or :meth:`NodeProtocol.scene_failed`."""
+    """Load (or reuse) the scene ``request`` names, in the background; then report
+    :meth:`NodeProtocol.scene_loaded` or :meth:`NodeProtocol.scene_failed` with it."""
 
     request: messages.LoadScene
 
 
 @dataclass(frozen=True, slots=True)
 class Draw:
-    """Draw ``tile`` of the frame ``render`` asks for (a depth tile when it has a depth request) in
-    scene ``state`` (None: the base pose); report a failure with :meth:`NodeProtocol.tile_failed`."""
+    """Draw ``tile`` of the frame ``render`` asks for (a depth tile when it has a depth request) of
+    ``scene`` (a spec; None: the scene loaded last) in scene ``state`` (None: the base pose);
+    report a failure with :meth:`NodeProtocol.tile_failed`."""
 
     render: messages.Render
     tile: messages.RenderTile
     state: SceneState | None
+    scene: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class Measure:
-    """Time the region ``request`` asks for (a calibration); report a failure with
-    :meth:`NodeProtocol.calibration_failed`."""
+    """Time the region ``request`` asks for (a calibration) of ``scene`` (None: the scene loaded
+    last); report a failure with :meth:`NodeProtocol.calibration_failed`."""
 
     request: messages.Calibrate
+    scene: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,12 +88,43 @@ class Send:
 NodeAction = Load | Draw | Measure | Send
 
 
+def load_key(request: messages.LoadScene) -> LoadKey:
+    """The scene and share ``request`` loads: two loads of one key hold the same data."""
+    share = request.share
+    return request.scene, None if share is None else (share.index, share.weights)
+
+
+@dataclass(eq=False)
+class _PendingLoad:
+    """A ``load_scene`` waiting or under way; ``first``: the number of the oldest ``load_scene`` it
+    answers (it supersedes those of its key that waited before it)."""
+
+    request: messages.LoadScene
+    first: int
+
+
+@dataclass(eq=False)
+class _SceneJob:
+    """A ``render`` or ``calibrate`` of ``scene`` (None: the scene loaded last), received after
+    ``load_scene`` number ``after``; a render's ``state``, or why its state does not apply."""
+
+    message: messages.Render | messages.Calibrate
+    scene: str | None
+    after: int
+    state: SceneState | None = None
+    state_error: str | None = None
+
+
+#: The node's jobs, in message order: renders and calibrations, and malformed messages to refuse.
+Job = _SceneJob | messages.InvalidMessage
+
+
 @dataclass
 class _FrameTiles:
     """A ``render`` job whose tiles are being handed out: those still to come, those dropped."""
 
+    job: _SceneJob
     render: messages.Render
-    state: SceneState | None
     tiles: Iterator[messages.RenderTile]
     dropped: list[int] = field(default_factory=list)
 
@@ -93,10 +135,11 @@ class NodeProtocol:
     welcome; :attr:`tiles_dropped` counts tiles skipped for a cancelled frame.
 
     Per connection: :meth:`connect`, then :meth:`receive_text` for each text message and
-    :meth:`next_action` until it gives None (more comes with the next message); the results of
-    the work it hands out go back through :meth:`scene_loaded`, :meth:`scene_failed`,
-    :meth:`tile_failed`, :meth:`encoding_failed` and :meth:`calibration_failed`, which give the
-    message to send. The cancel memory outlives a connection; the scene state does not.
+    :meth:`next_action` until it gives None (more comes with the next message or the end of a
+    load); the results of the work it hands out go back through :meth:`scene_loaded`,
+    :meth:`scene_failed`, :meth:`tile_failed`, :meth:`encoding_failed` and
+    :meth:`calibration_failed`, which give the message to send. The cancel memory outlives a
+    connection; the scene state and the loads waiting or under way do not.
     """
 
     def __init__(self, name: str, token: str = "", slowdown: float = 1.0) -> None:
@@ -107,26 +150,33 @@ class NodeProtocol:
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
         self._replica = StateReplica()
         self._jobs: deque[Job] = deque()
-        self._newest_load: messages.LoadScene | None = None
         self._ready: deque[NodeAction] = deque()
         self._frame: _FrameTiles | None = None
+        self._load_count = 0
+        self._newest_scene: str | None = None
+        self._waiting: dict[LoadKey, _PendingLoad] = {}
+        self._running: dict[LoadKey, _PendingLoad] = {}
 
     def connect(self, renderer: str) -> messages.NodeHello:
         """A new connection (attempt) of the node whose GL renderer is ``renderer``: not welcomed
-        yet, no scene state, no work waiting; returns the hello to send first."""
+        yet, no scene state, no work waiting (loads under way are forgotten); returns the hello to
+        send first."""
         self.welcomed = False
         self._replica = StateReplica()
         self._jobs.clear()
         self._ready.clear()
         self._frame = None
-        self._newest_load = None
+        self._newest_scene = None
+        self._waiting.clear()
+        self._running.clear()
         capabilities = messages.Capabilities(slowdown=self.slowdown, calibrate=True, depth=True)
         return messages.NodeHello(name=self.name, token=self.token, renderer=renderer, version=PROTOCOL_VERSION,
                                   capabilities=capabilities)
 
     def receive_text(self, text: str) -> None:
-        """Take a text message: a cancel or the welcome takes effect now, other kinds wait as jobs
-        (a malformed one too, refused in its turn); anything else is logged and ignored."""
+        """Take a text message: a cancel or the welcome takes effect now, a load waits to be handed
+        out, other kinds wait as jobs (a malformed one too, refused in its turn); anything else is
+        logged and ignored."""
         try:
             message = messages.parse(text, messages.TO_NODE)
         except messages.InvalidMessage as exc:
@@ -143,52 +193,79 @@ class NodeProtocol:
                 self.welcomed = True
                 log.info("registered as node %s", self.node_id)
             case messages.LoadScene():
-                self._newest_load = message
-                self._jobs.append(message)
+                self._receive_load(message)
             case messages.Render() | messages.Calibrate():
-                self._jobs.append(message)
+                self._jobs.append(self._scene_job(message))
+
+    def _receive_load(self, request: messages.LoadScene) -> None:
+        """Queue ``request``'s load; one of its key waiting already is superseded by it."""
+        self._load_count += 1
+        self._newest_scene = request.scene
+        key = load_key(request)
+        superseded = self._waiting.pop(key, None)
+        self._waiting[key] = _PendingLoad(request, self._load_count if superseded is None else superseded.first)
+
+    def _scene_job(self, message: messages.Render | messages.Calibrate) -> _SceneJob:
+        """``message`` as a job of its scene, after the loads received so far; a render's state
+        applied now, in message order."""
+        job = _SceneJob(message, message.scene or self._newest_scene, self._load_count)
+        if isinstance(message, messages.Render) and message.state is not None:
+            try:
+                job.state = self._replica.receive(message.state)
+            except SceneStateError as exc:
+                job.state_error = f"scene state: {exc}"
+        return job
 
     def next_action(self) -> NodeAction | None:
-        """What to do next, in order; None: nothing waits. Ask again once an action is done (a
-        tile of a cancelled frame is dropped when its turn comes)."""
+        """What to do next: loads first (they run in the background), then the jobs in order, a job
+        waiting for its scene's load passed by; None: nothing can be done now. Ask again once an
+        action is done or a load ended (a tile of a cancelled frame is dropped when its turn comes)."""
         while True:
             if self._ready:
                 return self._ready.popleft()
+            load = next((key for key in self._waiting if key not in self._running), None)
+            if load is not None:
+                pending = self._running[load] = self._waiting.pop(load)
+                return Load(pending.request)
             if self._frame is not None:
                 self._next_tile(self._frame)
-            elif self._jobs:
-                self._start(self._jobs.popleft())
-            else:
+                continue
+            job = next((job for job in self._jobs if not self._waits(job)), None)
+            if job is None:
                 return None
+            self._jobs.remove(job)
+            self._start(job)
+
+    def _waits(self, job: Job) -> bool:
+        """Whether ``job`` waits for a load of its scene received before it (a cancelled frame does not)."""
+        if not isinstance(job, _SceneJob) or job.scene is None:
+            return False
+        if isinstance(job.message, messages.Render) and job.message.frame in self._cancelled:
+            return False
+        return any(self._holds_back(pending, job) for pending in (*self._running.values(), *self._waiting.values()))
+
+    @staticmethod
+    def _holds_back(pending: _PendingLoad, job: _SceneJob) -> bool:
+        return pending.request.scene == job.scene and pending.first <= job.after
 
     def _start(self, job: Job) -> None:
         match job:
-            case messages.LoadScene():
-                if job is self._newest_load:   # else a newer one waits: this one is superseded
-                    self._ready.append(Load(job))
-            case messages.Calibrate():
-                self._ready.append(Measure(job))
-            case messages.Render():
-                self._start_frame(job)
             case messages.InvalidMessage():
                 self._refuse(job)
-
-    def _start_frame(self, render: messages.Render) -> None:
-        """Bring the replica to ``render``'s state (in message order, cancelled or not), then hand
-        out its tiles; a state that does not apply fails them all."""
-        try:
-            state = None if render.state is None else self._replica.receive(render.state)
-        except SceneStateError as exc:
-            self._fail_tiles(render.frame, [t.tile for t in render.tiles], f"scene state: {exc}")
-            return
-        self._frame = _FrameTiles(render, state, iter(render.tiles))
+            case _SceneJob(message=messages.Calibrate() as calibrate):
+                self._ready.append(Measure(calibrate, job.scene))
+            case _SceneJob(message=messages.Render() as render):
+                if job.state_error is not None:
+                    self._fail_tiles(render.frame, [t.tile for t in render.tiles], job.state_error)
+                else:
+                    self._frame = _FrameTiles(job, render, iter(render.tiles))
 
     def _next_tile(self, frame: _FrameTiles) -> None:
         """Hand out ``frame``'s next tile unless its frame is cancelled; after the last, the dropped."""
         render = frame.render
         for tile in frame.tiles:
             if render.frame not in self._cancelled:
-                self._ready.append(Draw(render, tile, frame.state))
+                self._ready.append(Draw(render, tile, frame.job.state, frame.job.scene))
                 return
             frame.dropped.append(tile.tile)
         self._frame = None
@@ -215,21 +292,42 @@ class NodeProtocol:
     def _fail_tiles(self, frame: int, tiles: list[int], reason: str) -> None:
         self._ready.extend(Send(messages.RenderError(frame=frame, tile=tile, message=reason)) for tile in tiles)
 
-    @staticmethod
-    def scene_loaded(scene: SceneData, share: int | None) -> messages.SceneReady:
-        """The ``scene_ready`` of ``scene``, loaded (sort-last: the share of partition ``share``)."""
+    def _finished(self, request: messages.LoadScene) -> _PendingLoad | None:
+        """The load of ``request`` ended: no longer under way (None: not one of this connection's)."""
+        key = load_key(request)
+        pending = self._running.get(key)
+        if pending is None or pending.request is not request:
+            return None
+        return self._running.pop(key)
+
+    def scene_loaded(self, request: messages.LoadScene, scene: SceneData, share: int | None) -> messages.SceneReady:
+        """The load of ``request`` ended with ``scene`` held (sort-last: the share of partition
+        ``share``): the jobs waiting for it may go; returns its ``scene_ready``."""
+        self._finished(request)
         groups = messages.SceneGroups(boxes=scene.groups.boxes.tolist(), counts=scene.groups.counts.tolist(),
                                       objects=scene.groups.owners.tolist())
-        return messages.SceneReady(triangles=scene.triangle_count, bounds=scene.bounds.tolist(), groups=groups,
-                                   objects=scene.objects.to_json(),
+        return messages.SceneReady(scene=request.scene, triangles=scene.triangle_count, bounds=scene.bounds.tolist(),
+                                   groups=groups, objects=scene.objects.to_json(),
                                    animations=[a.keyframes_json() for a in scene.animations], share=share)
 
-    @staticmethod
-    def scene_failed(spec: str, error: Exception) -> messages.SceneError:
-        """The ``scene_error`` of scene ``spec``, whose loading raised ``error``."""
+    def scene_failed(self, request: messages.LoadScene, error: Exception) -> messages.SceneError:
+        """The load of ``request`` raised ``error``: the jobs waiting for it fail with the reason
+        (their messages are handed out next); returns its ``scene_error``."""
         reason = one_line(error) or type(error).__name__
-        log.warning("scene %s failed: %s", spec, reason)
-        return messages.SceneError(scene=spec, message=reason)
+        log.warning("scene %s failed: %s", request.scene, reason)
+        pending = self._finished(request)
+        if pending is not None:
+            failed = [job for job in self._jobs if isinstance(job, _SceneJob) and self._holds_back(pending, job)]
+            for job in failed:
+                self._jobs.remove(job)
+                self._fail_job(job, f"scene {request.scene} failed to load: {reason}")
+        return messages.SceneError(scene=request.scene, message=reason)
+
+    def _fail_job(self, job: _SceneJob, reason: str) -> None:
+        if isinstance(job.message, messages.Render):
+            self._fail_tiles(job.message.frame, [t.tile for t in job.message.tiles], reason)
+        else:
+            self._ready.append(Send(messages.RenderError(frame=0, tile=0, message=f"calibration failed: {reason}")))
 
     @staticmethod
     def tile_failed(frame: int, tile: int, error: Exception) -> messages.RenderError:

@@ -6,11 +6,12 @@ from __future__ import annotations
 import argparse
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from node.culling.switch import CullMode
+from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
@@ -19,6 +20,8 @@ from tessera.wire.messages import MAX_SIDE
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"
 DEFAULT_SIZE = (1280, 720)
+#: The budget of the scenes a node holds at once, in MiB (:mod:`node.gl.resident`).
+DEFAULT_SCENE_MEMORY_MB = 2048
 parse_size = size_parser(1, MAX_SIDE)
 ENV_PREFIX = "TESSERA_"
 
@@ -45,6 +48,8 @@ class NodeSettings:
     face_limit: int = DEFAULT_FACE_LIMIT
     time: float = 0.0
     objects: Path | None = None
+    scene_memory_mb: int = DEFAULT_SCENE_MEMORY_MB
+    scene_cache_dir: Path = DEFAULT_CACHE_DIR
 
 
 #: A scene time in seconds.
@@ -62,15 +67,23 @@ def parse_culling(text: str) -> CullMode:
         raise argparse.ArgumentTypeError(f"culling must be one of {choices}, got {text!r}") from None
 
 
-def parse_face_limit(text: str) -> int:
-    """An integer ≥ 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"face limit must be an integer >= 1, got {text!r}")
-    return value
+def positive_int_parser(what: str) -> Callable[[str], int]:
+    """A parser of an integer ≥ 1; its error names ``what``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"{what} must be an integer >= 1, got {text!r}")
+        return value
+
+    return parse
+
+
+parse_face_limit = positive_int_parser("face limit")
+parse_scene_memory = positive_int_parser("scene memory")
 
 
 def parse_coordinator(text: str) -> str:
@@ -114,6 +127,11 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "visible}} (any subset of those)", type=Path, metavar="STATE.json")
     add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into octree chunks of at most this many faces at load "
         "(seed 002)", type=parse_face_limit)
+    add("--scene-memory-mb", DEFAULT_SCENE_MEMORY_MB, "memory for the scenes a node holds at once (their vertex "
+        "and index buffers and arrays); after a load the least recently used others are released until they fit",
+        type=parse_scene_memory, metavar="MB")
+    add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder for scene files fetched from the coordinator (a scene the "
+        "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
     return parser
 
 

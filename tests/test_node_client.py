@@ -8,6 +8,8 @@ import asyncio
 import dataclasses
 import json
 import os
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -94,8 +96,9 @@ async def play_coordinator(coordinator: FakeCoordinator,
     while (message := await receive_json(ws))["type"] == "scene_progress":
         progress.append(message["fraction"])
     assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
-    assert set(message) == {"type", "triangles", "bounds", "groups", "objects", "animations"}, \
+    assert set(message) == {"type", "scene", "triangles", "bounds", "groups", "objects", "animations"}, \
         "what the coordinator reads, no more"
+    assert message["scene"] == "builtin:spheres", "the spec loaded, echoed"
     assert [o["name"] for o in message["objects"]] == list(scene_data.objects.names)
     assert message["animations"] == []
     assert message["triangles"] == triangles and np.allclose(message["bounds"], scene_data.bounds)
@@ -245,6 +248,8 @@ def test_settings_defaults():
     assert settings.background == DEFAULT_BACKGROUND and settings.scene == "builtin:cluster"
     assert settings.name.endswith(f"-{os.getpid()}")
     assert settings.culling is CullMode.AUTO and settings.face_limit == DEFAULT_FACE_LIMIT
+    assert settings.scene_memory_mb == 2048
+    assert settings.scene_cache_dir == Path(tempfile.gettempdir()) / "tessera-scenes"
 
 
 def test_culling_settings_from_environment_and_argv():
@@ -254,10 +259,19 @@ def test_culling_settings_from_environment_and_argv():
     assert (overridden.culling, overridden.face_limit) == (CullMode.OFF, 64)
 
 
+def test_scene_settings_from_environment_and_argv():
+    environ = {"TESSERA_SCENE_MEMORY_MB": "512", "TESSERA_SCENE_CACHE_DIR": "/var/cache/tessera"}
+    settings = parse_settings([], environ)
+    assert (settings.scene_memory_mb, settings.scene_cache_dir) == (512, Path("/var/cache/tessera"))
+    overridden = parse_settings(["--scene-memory-mb", "64", "--scene-cache-dir", "cache"], environ)
+    assert (overridden.scene_memory_mb, overridden.scene_cache_dir) == (64, Path("cache"))
+
+
 @pytest.mark.parametrize("argv", [["--slowdown", "0.5"], ["--slowdown", "nan"], ["--size", "0x10"],
                                   ["--size", "big"], ["--background", "#12345"], ["--background", "0,0,2"],
                                   ["--coordinator", "http://host:8000/ws/node"], ["--culling", "sometimes"],
-                                  ["--face-limit", "0"], ["--face-limit", "1.5"]])
+                                  ["--face-limit", "0"], ["--face-limit", "1.5"], ["--scene-memory-mb", "0"],
+                                  ["--scene-memory-mb", "lots"]])
 def test_settings_refuse_bad_values(argv, capsys):
     with pytest.raises(SystemExit) as exited:
         parse_settings(argv, {})

@@ -1,22 +1,31 @@
 """Scene files a node cannot open, fetched by digest (node/scene/fetch.py, issue 19), against a real
 HTTP server on port 0 serving a scan from ../shared/scenes: the token as a bearer header to the
 coordinator's origin only, downloads cached and reused, a wrong digest or a missing token refused
-with the reason."""
+with the reason; and a node (NodeClient) loading a scene file its coordinator serves."""
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
+import json
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
+from websockets.asyncio.server import ServerConnection, serve
+from websockets.datastructures import Headers
+from websockets.http11 import Request, Response
 
+from node.client import NodeClient
 from node.scene.fetch import SceneFetcher, http_origin, resolve_url
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
-from tests.conftest import scene_path
+from node.settings import NodeSettings
+from tessera.wire.protocol import unpack_tile
+from tests.conftest import scene_path, seconds
+from tests.test_node_client import FakeCoordinator, receive, receive_json, send
 
 BUNNY = "bunny/bun_zipper.ply"
 BUNNY_TRIANGLES = 69_451
@@ -145,3 +154,59 @@ def test_an_unreachable_server_is_a_scene_error(scan_server, tmp_path):
     fetcher = SceneFetcher("ws://127.0.0.1:9/ws/node", TOKEN, tmp_path)
     with pytest.raises(SceneError, match=r"download from http://127\.0\.0\.1:9/api/scenes/bunny/file into .* failed"):
         fetcher.source(SPEC, scan_server.digest, FILE_PATH, no_progress)
+
+
+async def serve_bunny_file(data: bytes, connection: ServerConnection, request: Request) -> Response | None:
+    """The fake coordinator's HTTP side: the scene file to requests with the token, the WebSocket otherwise."""
+    if request.path != FILE_PATH:
+        return None
+    if request.headers.get("Authorization") != f"Bearer {TOKEN}":
+        return connection.respond(401, "no token\n")
+    return Response(200, "OK", Headers({"Content-Length": str(len(data)), "Content-Type": "application/octet-stream"}),
+                    data)
+
+
+async def node_fetches_from_its_coordinator(data: bytes, cache) -> tuple[dict, bytes, dict]:
+    """A node with a token loads a scene file its coordinator serves and renders a tile of it, then
+    is asked for the file with a wrong digest; returns (scene_ready, the tile, scene_error)."""
+    coordinator = FakeCoordinator()
+    digest = hashlib.sha256(data).hexdigest()
+    async with serve(coordinator.handler, "127.0.0.1", 0,
+                     process_request=lambda connection, request: serve_bunny_file(data, connection, request)) as server:
+        port = server.sockets[0].getsockname()[1]
+        settings = NodeSettings(coordinator=f"ws://127.0.0.1:{port}/ws/node", name="fetcher", token=TOKEN,
+                                scene_cache_dir=cache)
+        stop = asyncio.Event()
+        node = asyncio.create_task(NodeClient(settings).run(stop))
+        try:
+            ws = await coordinator.accept()
+            assert (await receive_json(ws))["type"] == "hello"
+            await send(ws, type="welcome", node_id=1)
+            await send(ws, type="load_scene", scene=SPEC, sha256=digest, url=FILE_PATH)
+            while (ready := await receive_json(ws))["type"] == "scene_progress":
+                pass
+            camera = {"eye": [0.0, 0.1, 0.3], "target": [-0.02, 0.1, 0.0]}
+            await send(ws, type="render", frame=1, camera=camera, size=[64, 48], codec="png", scene=SPEC,
+                       tiles=[{"tile": 0, "rect": [0, 0, 64, 48]}])
+            tile = await receive(ws)
+            assert (await receive_json(ws))["type"] == "tile_sent"
+            await send(ws, type="load_scene", scene="/elsewhere/bun_zipper.ply", sha256=WRONG, url=FILE_PATH)
+            while (error := await receive_json(ws))["type"] == "scene_progress":
+                pass
+        finally:
+            stop.set()
+            await asyncio.wait_for(node, seconds(30))
+    assert isinstance(tile, bytes)
+    return ready, tile, error
+
+
+@pytest.mark.gl
+def test_a_node_loads_a_scene_file_its_coordinator_serves(bunny_bytes, tmp_path):
+    ready, tile, error = asyncio.run(node_fetches_from_its_coordinator(bunny_bytes, tmp_path))
+    assert ready["type"] == "scene_ready", json.dumps(ready)
+    assert ready["scene"] == SPEC and ready["triangles"] == BUNNY_TRIANGLES
+    header, _ = unpack_tile(tile)
+    assert (header.frame_id, header.tile_id) == (1, 0)
+    assert error["type"] == "scene_error" and error["scene"] == "/elsewhere/bun_zipper.ply"
+    assert f"not {WRONG}" in error["message"]
+    assert [p.name for p in tmp_path.iterdir()] == [f"{hashlib.sha256(bunny_bytes).hexdigest()}.ply"]

@@ -1,42 +1,60 @@
 """The render node's GL thread (:class:`GLWorker`): the one thread that owns the GL context, where
-scenes are loaded, uploaded and drawn — plain tiles, depth tiles (:mod:`node.gl.depth_layers`) and
-calibration renders — for :class:`node.client.NodeClient`, which awaits each call."""
+scenes are uploaded and drawn — plain tiles, depth tiles (:mod:`node.gl.depth_layers`) and
+calibration renders — for :class:`node.client.NodeClient`, which awaits each call.
+
+A node holds several scenes at once (issue 19: :mod:`node.gl.resident`, within a memory budget) and
+draws a tile of whichever a ``render`` names. A scene is read — fetched when the node cannot open
+it (:mod:`node.scene.fetch`), parsed, split into chunks, its share kept, its buffers packed — in a
+loader thread of its own, so the seconds a big scan takes to parse never hold back tiles of the
+scenes already held: only its upload (tens of ms for a million triangles) runs on the GL thread,
+between two tiles. Both threads share the GIL, so tiles drawn meanwhile may take longer.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import logging
 import time
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import moderngl
+import numpy as np
 
 from node.culling.switch import CullMode
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
-from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer, pack_geometry
+from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.scene.data import SceneData
+from node.scene.fetch import SceneFetcher
 from node.scene.loading import ProgressCallback, load_scene
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.shares import keep_share
+from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
-from tessera.geometry import Camera, Rect
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.scene.state import SceneState
-from tessera.wire.messages import DepthRequest, ShareSpec
+from tessera.wire.messages import DepthRequest, LoadScene
+
+log = logging.getLogger("tessera.node")
 
 
 @dataclass(frozen=True, slots=True)
 class DepthRender:
     """A depth tile as drawn: its ``layer`` (None: nothing of it in view), its ``core`` (sent
-    without depth; None: none), its blended fragments drawn apart (sort-last; None: none) and the
-    ms spent choosing its chunks."""
+    without depth; None: none), its blended fragments drawn apart (sort-last; None: none), the
+    ms spent choosing its chunks and the data partition version of the share drawn (0: the whole
+    scene)."""
 
     layer: RenderedTile | None
     core: Rect | None
     blend: BlendedFragments | None
     plan_ms: float
+    share: int = 0
 
     def depth_layer(self) -> DepthLayer | None:
         return None if self.layer is None else as_depth_layer(self.layer, 0)
@@ -62,24 +80,40 @@ class DepthRender:
         return stats
 
 
-class GLWorker:
-    """The one thread that owns the GL context: scenes are loaded (split into chunks of at most
-    ``face_limit`` faces; in sort-last only a share kept), uploaded and drawn (with ``culling``)
-    only there.
+@dataclass(frozen=True, slots=True)
+class LoadedScene:
+    """A scene held, as a load answers: its data and the partition version of its share (None: whole)."""
 
-    The loaded scene survives reconnects; asking for the same scene (and share) again reuses it.
-    ``share_version``: the data partition version of the share loaded (None: the whole scene).
+    scene: SceneData
+    share_version: int | None
+
+
+@dataclass(frozen=True, eq=False)
+class _ReadScene:
+    """A scene read in the loader thread: its data and :func:`pack_geometry` of its batches."""
+
+    scene: SceneData
+    packed: tuple[np.ndarray, np.ndarray]
+
+
+class GLWorker:
+    """The one thread that owns the GL context, and the loader thread: scenes are read (split into
+    chunks of at most ``face_limit`` faces; in sort-last only a share kept; fetched by ``fetcher``
+    when the node cannot open them, None: never) in the loader thread, then uploaded and drawn
+    (with ``culling``) on the GL thread, which holds them within ``memory_bytes``
+    (:class:`node.gl.resident.ResidentScenes`).
+
+    The scenes held survive reconnects; asking for a scene (and share) held again reuses it.
     """
 
-    def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT) -> None:
+    def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT,
+                 memory_bytes: int = DEFAULT_SCENE_MEMORY_MB << 20, fetcher: SceneFetcher | None = None) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
+        self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
         self._ctx: moderngl.Context | None = None
-        self._renderer: TileRenderer | None = None
-        self._planning: PlanningScene | None = None
-        self.scene_spec: str | None = None
-        self._share: tuple[int, tuple[float, ...]] | None = None
-        self.share_version: int | None = None
-        self.culling, self.face_limit = culling, face_limit
+        self._scenes = ResidentScenes(memory_bytes)
+        self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
+        self.culling, self.face_limit, self.fetcher = culling, face_limit, fetcher
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
@@ -92,80 +126,115 @@ class GLWorker:
         self._ctx = create_gl_context()
         return renderer_string(self._ctx)
 
-    async def load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback,
-                   share: ShareSpec | None = None) -> SceneData:
-        """Load and upload ``spec`` (only ``share`` of it, if given), or reuse it when already
-        loaded; raises SceneError."""
-        return await self._call(self._load, spec, background, progress, share)
+    async def load(self, request: LoadScene, progress: ProgressCallback) -> LoadedScene:
+        """Load ``request``'s scene (only its share, if any) beside those held, or reuse it when
+        held (a load of it under way, asked for on an earlier connection, is waited for); raises
+        SceneError, or the upload's GL error."""
+        key = scene_key(request.scene, request.share)
+        while True:
+            loaded = await self._call(self._reuse, key, request)
+            if loaded is not None:
+                return loaded
+            reading = self._reading.get(key)
+            if reading is None:
+                reading = asyncio.get_running_loop().create_task(self._read_and_upload(key, request, progress))
+                self._reading[key] = reading
+                reading.add_done_callback(lambda task: self._read_done(key, task))
+                return await asyncio.shield(reading)
+            await asyncio.shield(reading)
 
-    def _load(self, spec: str, background: Sequence[float] | None, progress: ProgressCallback,
-              share: ShareSpec | None) -> SceneData:
-        assert self._ctx is not None
-        share_key = None if share is None else (share.index, share.weights)
-        if self._renderer is not None and spec == self.scene_spec and share_key == self._share:
-            if background is not None:
-                self._renderer.background = background
-            self.share_version = None if share is None else share.version
-            return self._renderer.scene
-        self._release_scene()
-        scene = load_scene(spec, progress, self.face_limit)
+    def _read_done(self, key: SceneKey, task: asyncio.Task[LoadedScene]) -> None:
+        """Forget the load of ``key`` once done; its error reached whoever awaited it (none: dropped)."""
+        self._reading.pop(key, None)
+        if not task.cancelled():
+            task.exception()
+
+    async def _read_and_upload(self, key: SceneKey, request: LoadScene, progress: ProgressCallback) -> LoadedScene:
+        read = await asyncio.get_running_loop().run_in_executor(self._loader, self._read, request, progress)
+        loaded: LoadedScene = await self._call(self._upload, key, request, read, progress)
+        return loaded
+
+    def _read(self, request: LoadScene, progress: ProgressCallback) -> _ReadScene:
+        """In the loader thread: fetch (if need be), parse, split, keep the share, pack."""
+        spec, share = request.scene, request.share
+        source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
+        scene = load_scene(source, progress, self.face_limit)
+        if source != spec:
+            scene = dataclasses.replace(scene, name=spec)
         if share is not None:
             progress(0.8, f"keeping share {share.index + 1} of {len(share.weights)}")
             scene = keep_share(scene, share.weights, share.index)
+        return _ReadScene(scene, pack_geometry(scene.batches))
+
+    def _upload(self, key: SceneKey, request: LoadScene, read: _ReadScene, progress: ProgressCallback) -> LoadedScene:
+        """On the GL thread: upload ``read``, hold it, release the least recently used others over budget."""
+        assert self._ctx is not None
+        scene, share = read.scene, request.share
         progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
-        if background is None:
-            self._renderer = TileRenderer(self._ctx, scene, culling=self.culling)
-        else:
-            self._renderer = TileRenderer(self._ctx, scene, background, culling=self.culling)
-        self._planning = PlanningScene.of(scene, self._renderer.culler.bvh)
-        self.scene_spec, self._share = spec, share_key
-        self.share_version = None if share is None else share.version
-        return scene
+        background = DEFAULT_BACKGROUND if request.background is None else request.background
+        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=read.packed)
+        version = None if share is None else share.version
+        held = ResidentScene(key, renderer, PlanningScene.of(scene, renderer.culler.bvh), version,
+                             estimated_bytes(renderer))
+        for spec, _ in self._scenes.add(held):
+            log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
+                     self._scenes.budget_bytes / (1 << 20))
+        return LoadedScene(scene, version)
+
+    def _reuse(self, key: SceneKey, request: LoadScene) -> LoadedScene | None:
+        """The scene of ``key`` if held, with ``request``'s background and share version; else None."""
+        held = self._scenes.reloaded(key)
+        if held is None:
+            return None
+        if request.background is not None:
+            held.renderer.background = request.background
+        held.share_version = None if request.share is None else request.share.version
+        return LoadedScene(held.renderer.scene, held.share_version)
+
+    async def held(self) -> list[SceneKey]:
+        """The keys of the scenes held, least recently used first."""
+        keys: list[SceneKey] = await self._call(self._scenes.keys)
+        return keys
 
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
-                     state: SceneState | None = None) -> RenderedTile:
-        """Render ``rect`` in scene ``state`` (None: the base pose); ``slot`` (the tile id) keys the
-        tile's hybrid culling switch."""
-        return await self._call(self._render, camera, size, rect, slot, state)
+                     state: SceneState | None = None, scene: str | None = None) -> RenderedTile:
+        """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
+        (None: the base pose); ``slot`` (the tile id) keys the tile's hybrid culling switch.
+        Raises SceneNotLoadedError for a scene not held."""
+        return await self._call(self._render, camera, size, rect, slot, state, scene)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
-                state: SceneState | None) -> RenderedTile:
-        if self._renderer is None:
-            raise RuntimeError("no scene loaded")
-        return self._renderer.render_tile(camera, size, rect, slot, state=state)
+                state: SceneState | None, scene: str | None) -> RenderedTile:
+        return self._scenes.find(scene).renderer.render_tile(camera, size, rect, slot, state=state)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                           state: SceneState | None) -> DepthRender:
-        """Tile ``tile_id`` of a depth ``request`` in scene ``state`` as a depth layer."""
-        return await self._call(self._render_depth, camera, size, request, tile_id, state)
+                           state: SceneState | None, scene: str | None = None) -> DepthRender:
+        """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
+        scene ``state`` as a depth layer; sort-last draws the share of the request's partition
+        version. Raises SceneNotLoadedError for a scene or share not held."""
+        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                      state: SceneState | None) -> DepthRender:
-        if self._renderer is None or self._planning is None:
-            raise RuntimeError("no scene loaded")
-        if request.mode == "sort-last" and request.share != self.share_version:
-            raise RuntimeError(f"share of partition {request.share} asked for; this node holds "
-                               f"{self.share_version or 'the whole scene'}")
+                      state: SceneState | None, scene: str | None) -> DepthRender:
+        held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
+        renderer, share = held.renderer, held.share_version or 0
         started = time.perf_counter()
-        plan = live_plan(self._planning, self._renderer.pose_of(state), camera, size, request, tile_id)
+        plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id)
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
-            return DepthRender(None, None, None, plan_ms)
-        layer, blend = render_plan(self._renderer, camera, size, plan, state)
-        return DepthRender(layer, plan.exclusive, blend, plan_ms)
-
-    def _release_scene(self) -> None:
-        if self._renderer is not None:
-            self._renderer.release()
-        self._renderer, self._planning, self.scene_spec, self._share, self.share_version = None, None, None, None, None
+            return DepthRender(None, None, None, plan_ms, share)
+        layer, blend = render_plan(renderer, camera, size, plan, state)
+        return DepthRender(layer, plan.exclusive, blend, plan_ms, share)
 
     def _close(self) -> None:
-        self._release_scene()
+        self._scenes.release_all()
         if self._ctx is not None:
             self._ctx.release()
             self._ctx = None
 
     def close(self) -> None:
-        """Free GL resources on the GL thread and stop it (waits for a running draw)."""
+        """Stop the loader thread (waits for a scene being read), free GL resources on the GL
+        thread and stop it (waits for a running draw)."""
+        self._loader.shutdown(wait=True, cancel_futures=True)
         self._executor.submit(self._close)
         self._executor.shutdown(wait=True)

@@ -72,6 +72,14 @@ class SceneData:
     def vertex_count(self) -> int:
         return sum(b.vertex_count for b in self.batches)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its batches' arrays (positions, normals, faces, uvs, colours, textures), an
+        array batches share (a texture) once."""
+        arrays = {id(a): a for b in self.batches
+                  for a in (b.positions, b.normals, b.faces, b.uvs, b.colors, b.texture) if a is not None}
+        return sum(a.nbytes for a in arrays.values())
+
     def state_at(self, time: float, overrides: Mapping[str, ObjectPatch] | None = None) -> SceneState:
         """The scene at ``time`` seconds: its animations sampled there, then ``overrides`` (a pose
         given by name); raises UnknownObjectError naming an object the scene lacks."""

@@ -1,0 +1,200 @@
+"""Several scenes on one node (issue 19), on the real GL thread (node/gl/worker.py GLWorker, Mesa
+llvmpipe): tiles of two scenes drawn alternately, each equal to that scene drawn alone; a whole
+scene beside another's sort-last share; least-recently-used scenes released over the memory
+budget; and a scene read in the loader thread while tiles of another keep coming."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import numpy as np
+import pytest
+
+from node.gl.renderer import TileRenderer
+from node.gl.resident import SceneNotLoadedError, estimated_bytes
+from node.gl.worker import GLWorker
+from node.scene.fetch import SceneFetcher
+from node.scene.loading import load_scene
+from node.scene.shares import keep_share
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, default_camera
+from tessera.wire.messages import DepthRequest, LoadScene, ShareSpec
+from tests.conftest import scene_path, seconds
+
+pytestmark = pytest.mark.gl
+
+SIZE = (96, 64)
+RECTS = (Rect(0, 0, 40, 64), Rect(40, 0, 56, 64))
+SPHERES, CLUSTER, TRAFFIC = "builtin:spheres", "builtin:cluster", "builtin:traffic"
+LUCY = "large_scan/stanford_lucy_240k.ply"
+
+
+def no_progress(fraction: float, message: str) -> None:
+    pass
+
+
+def camera_of(spec: str) -> Camera:
+    return default_camera(load_scene(spec).bounds, aspect=SIZE[0] / SIZE[1])
+
+
+def run_with_worker(body: Callable[[GLWorker], Awaitable[Any]], **options: Any) -> Any:
+    """``body`` run with a started GLWorker (its own GL thread and context), closed after."""
+
+    async def main() -> Any:
+        worker = GLWorker(**options)
+        await worker.start()
+        try:
+            return await body(worker)
+        finally:
+            await asyncio.to_thread(worker.close)
+
+    return asyncio.run(main())
+
+
+def test_tiles_of_two_scenes_drawn_alternately_are_each_the_scene_drawn_alone(ctx):
+    specs = (SPHERES, CLUSTER)
+    cameras = {spec: camera_of(spec) for spec in specs}
+
+    async def body(worker: GLWorker) -> dict:
+        for spec in specs:
+            loaded = await worker.load(LoadScene(scene=spec), no_progress)
+            assert loaded.scene.name == spec and loaded.share_version is None
+        tiles = {}
+        for rect in RECTS:
+            for spec in specs:
+                tiles[spec, rect] = (await worker.render(cameras[spec], SIZE, rect, rect, scene=spec)).pixels
+        last = (await worker.render(cameras[CLUSTER], SIZE, RECTS[0], "x")).pixels
+        await worker.load(LoadScene(scene=SPHERES), no_progress)
+        reloaded = (await worker.render(cameras[SPHERES], SIZE, RECTS[0], "x")).pixels
+        assert await worker.held() == [(CLUSTER, None), (SPHERES, None)]
+        return {**tiles, "last": last, "reloaded": reloaded}
+
+    drawn = run_with_worker(body)
+    for spec in specs:
+        renderer = TileRenderer(ctx, load_scene(spec), DEFAULT_BACKGROUND)
+        for rect in RECTS:
+            alone = renderer.render_tile(cameras[spec], SIZE, rect).pixels
+            assert np.array_equal(drawn[spec, rect], alone), f"{spec} {rect}"
+        renderer.release()
+    assert np.array_equal(drawn["last"], drawn[CLUSTER, RECTS[0]]), "no scene named: the one loaded last"
+    assert np.array_equal(drawn["reloaded"], drawn[SPHERES, RECTS[0]]), "a reload makes it the one loaded last"
+
+
+def test_a_node_holds_one_scene_whole_and_a_share_of_another(ctx):
+    share = ShareSpec(version=3, index=0, weights=(1.0, 1.0))
+    camera = camera_of(CLUSTER)
+    sort_last = DepthRequest(mode="sort-last", share=3)
+
+    async def body(worker: GLWorker) -> tuple:
+        await worker.load(LoadScene(scene=SPHERES), no_progress)
+        loaded = await worker.load(LoadScene(scene=CLUSTER, share=share), no_progress)
+        drawn = await worker.render_depth(camera, SIZE, sort_last, 0, None, scene=CLUSTER)
+        whole = await worker.render(camera_of(SPHERES), SIZE, RECTS[1], 1, scene=SPHERES)
+        with pytest.raises(SceneNotLoadedError, match=f"share of partition 2 of scene {CLUSTER} asked for; "
+                                                      "this node holds 3"):
+            await worker.render_depth(camera, SIZE, DepthRequest(mode="sort-last", share=2), 0, None, scene=CLUSTER)
+        with pytest.raises(SceneNotLoadedError, match="this node holds the whole scene"):
+            await worker.render_depth(camera, SIZE, sort_last, 0, None, scene=SPHERES)
+        return loaded, drawn, whole, await worker.held()
+
+    loaded, drawn, whole, held = run_with_worker(body)
+    kept = keep_share(load_scene(CLUSTER), share.weights, share.index)
+    assert loaded.share_version == 3 and loaded.scene.triangle_count == kept.triangle_count
+    assert drawn.share == 3 and drawn.layer is not None and drawn.layer.triangles > 0
+    assert whole.triangles > 0
+    assert held == [(CLUSTER, (0, (1.0, 1.0))), (SPHERES, None)], "least recently used first"
+
+
+def test_the_least_recently_used_scenes_are_released_over_the_budget(ctx):
+    sizes = {}
+    for spec in (SPHERES, TRAFFIC, CLUSTER):
+        renderer = TileRenderer(ctx, load_scene(spec))
+        sizes[spec] = estimated_bytes(renderer)
+        renderer.release()
+    budget = sum(sizes.values()) - 1   # two of them fit, not three
+
+    async def body(worker: GLWorker) -> list:
+        await worker.load(LoadScene(scene=SPHERES), no_progress)
+        await worker.load(LoadScene(scene=TRAFFIC), no_progress)
+        await worker.render(camera_of(SPHERES), SIZE, RECTS[0], 0, scene=SPHERES)   # traffic is now the oldest
+        await worker.load(LoadScene(scene=CLUSTER), no_progress)
+        held = await worker.held()
+        with pytest.raises(SceneNotLoadedError, match=f"^scene {TRAFFIC} is not loaded on this node$"):
+            await worker.render(camera_of(TRAFFIC), SIZE, RECTS[0], 0, scene=TRAFFIC)
+        for spec in (SPHERES, CLUSTER):
+            assert (await worker.render(camera_of(spec), SIZE, RECTS[0], 0, scene=spec)).triangles > 0
+        await worker.load(LoadScene(scene=TRAFFIC), no_progress)
+        return [held, await worker.held()]
+
+    after_cluster, after_traffic = run_with_worker(body, memory_bytes=budget)
+    assert after_cluster == [(SPHERES, None), (CLUSTER, None)]
+    assert after_traffic == [(CLUSTER, None), (TRAFFIC, None)], "spheres was used before cluster"
+
+    async def tiny(worker: GLWorker) -> list:
+        await worker.load(LoadScene(scene=TRAFFIC), no_progress)
+        return await worker.held()
+
+    assert run_with_worker(tiny, memory_bytes=1) == [(TRAFFIC, None)], "the scene just loaded stays, over budget"
+
+
+class HeldFetcher(SceneFetcher):
+    """A fetcher whose download lasts until the test lets it go."""
+
+    def __init__(self) -> None:
+        super().__init__("ws://127.0.0.1:1/ws/node")
+        self.started, self.finish = threading.Event(), threading.Event()
+
+    def source(self, spec: str, sha256: str | None, url: str | None, progress: Callable[[float, str], None]) -> str:
+        self.started.set()
+        assert self.finish.wait(seconds(30))
+        return spec
+
+
+def test_tiles_of_a_scene_held_are_drawn_while_another_is_read():
+    fetcher = HeldFetcher()
+
+    async def body(worker: GLWorker) -> tuple:
+        await worker.load(LoadScene(scene=SPHERES), no_progress)
+        fetcher.finish.clear()
+        loading = asyncio.create_task(worker.load(LoadScene(scene=TRAFFIC), no_progress))
+        assert await asyncio.to_thread(fetcher.started.wait, seconds(30))
+        triangles = [(await worker.render(camera_of(SPHERES), SIZE, rect, 0, scene=SPHERES)).triangles
+                     for rect in RECTS]
+        with pytest.raises(SceneNotLoadedError, match=f"scene {TRAFFIC} is not loaded"):
+            await worker.render(camera_of(TRAFFIC), SIZE, RECTS[0], 0, scene=TRAFFIC)
+        waiting = asyncio.create_task(worker.load(LoadScene(scene=TRAFFIC, background=(0.0, 0.0, 0.0)), no_progress))
+        assert not loading.done()
+        fetcher.finish.set()
+        first, second = await loading, await waiting
+        return triangles, first, second, await worker.held()
+
+    fetcher.finish.set()
+    triangles, first, second, held = run_with_worker(body, fetcher=fetcher)
+    assert all(count > 0 for count in triangles), "drawn while the loader thread was busy"
+    assert first.scene is second.scene, "a second load of a scene being read waits for it, then reuses it"
+    assert held == [(SPHERES, None), (TRAFFIC, None)]
+
+
+def test_a_big_scan_is_read_while_tiles_of_another_scene_keep_coming():
+    """The 240 k-triangle Lucy (about a second to parse alone) loads while a scene held is drawn
+    tile after tile: tiles keep coming at about their usual pace, no gap near the load's length."""
+    lucy = str(scene_path(LUCY))
+    camera = camera_of(CLUSTER)
+
+    async def body(worker: GLWorker) -> tuple[float, list[float]]:
+        await worker.load(LoadScene(scene=CLUSTER), no_progress)
+        started = time.perf_counter()
+        loading = asyncio.create_task(worker.load(LoadScene(scene=lucy), no_progress))
+        stamps = [started]
+        while not loading.done():
+            await worker.render(camera, (320, 180), Rect(0, 0, 320, 180), 0, scene=CLUSTER)
+            stamps.append(time.perf_counter())
+        assert (await loading).scene.triangle_count == 239_768
+        return time.perf_counter() - started, np.diff(stamps).tolist()
+
+    load_s, gaps = run_with_worker(body)
+    assert len(gaps) >= 5, f"only {len(gaps)} tiles in a load of {load_s:.2f} s"
+    assert max(gaps) < load_s / 3, f"a {max(gaps):.2f} s gap between tiles in a load of {load_s:.2f} s"
