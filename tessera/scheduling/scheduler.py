@@ -181,9 +181,11 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
-        backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
-        times = [at for s in self.sessions.values()
-                 if (at := s.start_due(now, self.table.idle)) is not None and self.fair.in_turn(s.id, backlogged)]
+        due = [(s.id, at) for s in self.sessions.values() if (at := s.start_due(now, self.table.idle)) is not None]
+        if due and len(self.sessions) > 1:   # only those in turn (one session always is)
+            backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
+            due = [(s, at) for s, at in due if self.fair.in_turn(s, backlogged)]
+        times = [at for _, at in due]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
         return min(times) if times else None
