@@ -181,11 +181,12 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
-        due = [(s.id, at) for s in self.sessions.values() if (at := s.start_due(now, self.table.idle)) is not None]
-        if due and len(self.sessions) > 1:   # only those in turn (one session always is)
+        if len(self.sessions) == 1:   # one session is always in turn
+            times = [at] if (at := self.default.start_due(now, self.table.idle)) is not None else []
+        else:
             backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
-            due = [(s, at) for s, at in due if self.fair.in_turn(s, backlogged)]
-        times = [at for _, at in due]
+            times = [at for s in self.sessions.values()
+                     if (at := s.start_due(now, self.table.idle)) is not None and self.fair.in_turn(s.id, backlogged)]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
         return min(times) if times else None
@@ -494,13 +495,14 @@ class FrameScheduler:
         that has had least node time first."""
         self._pump_pull(now)
         while self.table.idle:
-            wanting = [s.id for s in self.sessions.values() if s.may_start(now, self.table.idle)]
+            wanting = [s for s in self.sessions.values() if s.may_start(now, self.table.idle)]
+            if len(wanting) > 1 or (wanting and len(self.sessions) > 1):
+                busy = [s.id for s in self.sessions.values() if s.frames]
+                order = self.fair.order([s.id for s in wanting], busy, now)
+                wanting = [self.sessions[order[0]]] if order else []   # none: the least served goes next
             if not wanting:
                 return
-            order = self.fair.order(wanting, [s.id for s in self.sessions.values() if s.frames], now)
-            if not order:
-                return   # the sessions that may start are ahead: the least served goes next
-            session = self.sessions[order[0]]
+            session = wanting[0]
             kind = session.owed(now)
             assert kind is not None
             self._start_frame(session, now, still=kind == STILL)
@@ -554,7 +556,10 @@ class FrameScheduler:
         idle = sorted((self.nodes[i] for i in self.table.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
         for job in self.in_flight.values():
             holders = self.sessions[job.session].ready
-            while job.pull_queue and (node := next((n for n in idle if n.node_id in holders), None)):
+            while job.pull_queue and idle:
+                node = idle[0] if idle[0].node_id in holders else next((n for n in idle if n.node_id in holders), None)
+                if node is None:
+                    break
                 idle.remove(node)
                 self._push(job, node, [job.pull_queue.popleft()], now)
 
