@@ -25,7 +25,8 @@ class BalancedTiles:
         self.balancer = balancer
         self.size = size
         self.last: Partition | None = None
-        self.moving = True
+        self._before: Partition | None = None
+        self._moving: bool | None = True
         self.error: str | None = None
         self._last_at: float | None = None
         self._timings: tuple[TileTiming, ...] = ()
@@ -34,7 +35,7 @@ class BalancedTiles:
     def set_balancer(self, balancer: Balancer) -> None:
         """Partition with ``balancer`` from the next frame (its history starts anew)."""
         self.balancer = balancer
-        self.last, self.moving = None, True
+        self.last, self._before, self._moving = None, None, True
 
     def partition(self, node_ids: Sequence[int], weights: dict[int, float], now: float,
                   groups: ProjectedGroups | None) -> Partition:
@@ -57,10 +58,18 @@ class BalancedTiles:
         return partition
 
     def remember(self, partition: Partition) -> None:
-        """``partition`` was used; ``moving``: it differs from the one before (the edges still
-        move), or it is the first (compared here once, not each time the scheduler asks)."""
-        previous, self.last = self.last, partition
-        self.moving = previous is None or (partition is not previous and tile_set(partition) != tile_set(previous))
+        """``partition`` was used (:attr:`moving` compares it with the one before)."""
+        self._before, self.last = self.last, partition
+        self._moving = None if self._before is not None else True
+
+    @property
+    def moving(self) -> bool:
+        """The last partition differs from the one before (the edges still move), or it is the
+        first; compared once per partition, when first asked (only while settle frames are owed)."""
+        if self._moving is None:
+            assert self.last is not None and self._before is not None
+            self._moving = self.last is not self._before and tile_set(self.last) != tile_set(self._before)
+        return self._moving
 
     def take_timings(self, frame_id: int, timings: tuple[TileTiming, ...]) -> bool:
         """Interactive frame ``frame_id``'s tile timings feed the next partition unless newer ones

@@ -43,6 +43,11 @@ class RenderDemand:
         return None
 
     @property
+    def settling(self) -> bool:
+        """Settle frames are left: whether the partition still moves matters."""
+        return self._settle_left > 0
+
+    @property
     def quiet_until(self) -> float:
         """When the still frame is due if nothing changes (s)."""
         return self.changed_at + self.still_delay_s

@@ -62,8 +62,9 @@ class SessionFrames:
         """"interactive", "still" or None: the kind of frame the session's state asks for at ``now``."""
         if self.camera is None:
             return None
-        return self.demand.owed(now, self.scene is not None and self.scene.animating, self.mode.tiles.moving,
-                                bool(self.frames), ignore_quiet)
+        moving = self.demand.settling and self.mode.tiles.moving
+        return self.demand.owed(now, self.scene is not None and self.scene.animating, moving, bool(self.frames),
+                                ignore_quiet)
 
     def may_start(self, now: float, idle: set[int]) -> bool:
         """A frame is owed, another may be in flight, and a node holding the scene is ``idle``."""
