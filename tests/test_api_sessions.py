@@ -18,6 +18,7 @@ from tessera.geometry import Rect
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import TileHeader, pack_tile, unpack_frame
 from tests.conftest import seconds
+from tests.integration_support import wait_until
 from tests.test_api import BOUNDS, HELLO, closed_with, next_json
 
 pytestmark = pytest.mark.timeout(seconds(120))
@@ -165,3 +166,25 @@ def test_metrics_label_sessions_by_number_never_by_their_drive_key(client):
     assert 'tessera_session_viewers{session="default"} 0.0' in text
     assert 'tessera_session_node_share{session="1"}' in text
     assert body["id"] not in text and "tessera_session_fps" in text
+
+
+def test_a_sessions_frames_follow_its_drivers_window_and_the_default_session_keeps_its_size(client):
+    body = client.post("/api/sessions", json={"scene": "builtin:cluster", "size": [32, 16]}).json()
+    watch = body["watch_url"].split("?")[1]
+    with client.websocket_connect("/ws/node") as node_ws, \
+            client.websocket_connect(f"/ws/view?session={body['id']}") as driver, \
+            client.websocket_connect(f"/ws/view?{watch}") as watcher, \
+            client.websocket_connect("/ws/view") as default_viewer:
+        node = SceneNode(node_ws)
+        for ws in (driver, watcher, default_viewer):
+            next_json(ws, "hello")
+        watcher.send_json({"type": "size", "size": [100, 50]})
+        assert "cannot steer" in next_json(watcher, "error")["message"]
+        default_viewer.send_json({"type": "size", "size": [100, 50]})
+        driver.send_json({"type": "size", "size": [500, 100]})        # fitted to --max-size 200x100
+        wait_until(lambda: client.get(f"/api/sessions/{body['id']}").json()["size"] == [200, 40], seconds(10),
+                   "the session to take its driver's size")
+        assert client.get("/api/sessions/default").json()["size"] == [64, 48]
+        client.put(f"/api/sessions/{body['id']}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        renders = node.serve(lambda render: render["scene"] == "builtin:cluster")
+        assert [r["size"] for r in renders if r["scene"] == "builtin:cluster"] == [[200, 40]]

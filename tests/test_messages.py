@@ -40,6 +40,7 @@ from tessera.wire.messages import (
     ViewerError,
     ViewerHello,
     ViewerScene,
+    ViewerSize,
     Welcome,
     parse,
 )
@@ -71,6 +72,7 @@ EXAMPLES: list[Message] = [
     ViewerScene(bounds=BOUNDS, camera=CAMERA),
     ViewerError(message="bad camera"),
     LatencyReport(p50_ms=40.0, p90_ms=60.0, samples=30.0, interval_ms=33.3),
+    ViewerSize(size=(1600, 900)),
     # the depth modes (issue 10)
     Render(frame=6, camera=CAMERA, size=(640, 480), codec=Codec.JPEG,
            tiles=(RenderTile(tile=1, rect=Rect(320, 0, 320, 480)),),

@@ -32,3 +32,21 @@ export function sessionApiPath(path, session) {
   if (!session.key || session.watching || !path.startsWith("api/")) return path;
   return `api/sessions/${encodeURIComponent(session.key)}/${path.slice(4)}`;
 }
+
+/**
+ * The frame size a driving viewer asks for: its canvas's CSS size × devicePixelRatio, whole
+ * pixels, scaled down (aspect kept) to fit `largest` and at least 16 a side; null while the canvas
+ * has no size yet.
+ * @param {number} cssWidth
+ * @param {number} cssHeight
+ * @param {number} dpr  window.devicePixelRatio
+ * @param {[number, number]} largest  the coordinator's --max-size
+ * @returns {[number, number] | null}
+ */
+export function frameSizeFor(cssWidth, cssHeight, dpr, largest = [3840, 2160]) {
+  const width = cssWidth * (dpr || 1);
+  const height = cssHeight * (dpr || 1);
+  if (!(width >= 1 && height >= 1)) return null;
+  const scale = Math.min(1, largest[0] / width, largest[1] / height);
+  return [Math.max(16, Math.round(width * scale)), Math.max(16, Math.round(height * scale))];
+}

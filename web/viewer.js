@@ -11,7 +11,7 @@ import { frameBounds, minDistanceFor } from "./orbit.js";
 import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
-import { sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
+import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
 // and API calls carry: take it out of the address bar (and so out of history and shared links).
@@ -160,6 +160,8 @@ function adoptCamera(camera) {
 function onText(message) {
   switch (message.type) {
     case "hello":
+      sizeSent = null;
+      if (session.key && !session.watching) setTimeout(sendSize, 0);
       state.viewerId = message.viewer;
       samplesReported = 0;
       setSize(...message.size);
@@ -220,6 +222,24 @@ const connection = new Connection(address(viewSocketPath(session), location.prot
 });
 
 new ResizeObserver(() => state.overlay && redrawOverlay()).observe(overlayCanvas);
+
+/** How long the window must rest before a session's driver asks for frames of its new size (ms). */
+const RESIZE_DEBOUNCE_MS = 300;
+let sizeTimer = null;
+let sizeSent = null;
+/** A session's driving viewer asks for frames of its canvas size × devicePixelRatio (the default
+ * session keeps the coordinator's --size; watchers letterbox). */
+function sendSize() {
+  const size = frameSizeFor(frameCanvas.clientWidth, frameCanvas.clientHeight, window.devicePixelRatio);
+  if (!size || (sizeSent && size[0] === sizeSent[0] && size[1] === sizeSent[1])) return;
+  if (connection.send({ type: "size", size })) sizeSent = size;
+}
+if (session.key && !session.watching) {
+  new ResizeObserver(() => {
+    clearTimeout(sizeTimer);
+    sizeTimer = setTimeout(sendSize, RESIZE_DEBOUNCE_MS);
+  }).observe(frameCanvas);
+}
 $("toggle-overlay").addEventListener("change", (event) => setOverlay(event.target.checked));
 $("reset-view").addEventListener("click", resetView);
 frameCanvas.addEventListener("dblclick", resetView);

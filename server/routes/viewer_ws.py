@@ -5,8 +5,11 @@ viewers over ``--max-viewers`` and sockets over their message size or rate are r
 (``server/routes/guards.py``).
 
 ``?session=ID`` joins session ``ID`` (none: the default session); ``?session=KEY&watch=1`` watches
-the session whose watch key is ``KEY``: frames come, camera messages are refused with the reason.
-An unknown session closes the socket with 4404, as does closing the session."""
+the session whose watch key is ``KEY``: frames come, camera and size messages are refused with the
+reason. A session's driving viewer sends its size (canvas × devicePixelRatio): the session's
+frames follow it, fitted to ``--max-size``; the default session keeps ``--size`` (everyone who
+opens the bare page shares it). An unknown session closes the socket with 4404, as does closing
+the session."""
 
 from __future__ import annotations
 
@@ -19,8 +22,17 @@ from server.routes import guards
 from server.routes.balancer import BALANCERS
 from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
+from server.sessions import fit_size
 from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
-from tessera.wire.messages import FROM_VIEWER, CameraUpdate, LatencyReport, ViewerError, ViewerHello, parse
+from tessera.wire.messages import (
+    FROM_VIEWER,
+    CameraUpdate,
+    LatencyReport,
+    ViewerError,
+    ViewerHello,
+    ViewerSize,
+    parse,
+)
 from tessera.wire.protocol import ProtocolError
 
 router = APIRouter()
@@ -31,7 +43,7 @@ log = logging.getLogger("tessera.server")
 #: Close code for a session that does not exist (any more).
 CLOSE_NO_SESSION = 4404
 #: What a watcher's camera message is told.
-WATCHERS_DO_NOT_STEER = "this viewer watches the session (a watch link): it cannot steer the camera"
+WATCHERS_DO_NOT_STEER = "this viewer watches the session (a watch link): it cannot steer the camera or the size"
 
 
 async def _send(ws: WebSocket, slot: ViewerSlot) -> None:
@@ -98,8 +110,12 @@ async def viewer_socket(ws: WebSocket) -> None:
             match request:
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
-                case CameraUpdate() if watching:
+                case CameraUpdate() | ViewerSize() if watching:
                     slot.put_control(ViewerError(message=WATCHERS_DO_NOT_STEER))
+                case ViewerSize() if session is not service.default:   # the default session keeps --size
+                    fitted = fit_size(request.size, settings.max_size)
+                    if fitted != session.size:
+                        session.resize(fitted)
                 case CameraUpdate():
                     session.set_camera(request.camera, slot.viewer_id, request.seq)
                     session.viewers.broadcast(CameraUpdate(camera=request.camera), exclude=slot)

@@ -503,12 +503,19 @@ class LatencyReport(Message):
     interval_ms: NonNegative
 
 
+class ViewerSize(Message):
+    """The size (w, h px) a session's driving viewer shows frames at: its canvas × devicePixelRatio."""
+
+    kind = "size"
+    size: Size
+
+
 #: What the coordinator accepts from a node after its hello.
 FROM_NODE = (SceneProgress, SceneReady, SceneError, TileSent, TilesDropped, RenderError, Calibration)
 #: What a node accepts from the coordinator.
 TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel)
 #: What the coordinator accepts from a viewer.
-FROM_VIEWER = (CameraUpdate, LatencyReport)
+FROM_VIEWER = (CameraUpdate, LatencyReport, ViewerSize)
 
 M = TypeVar("M", bound=Message)
 

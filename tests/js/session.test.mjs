@@ -2,7 +2,7 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
-import { sessionApiPath, sessionFromQuery, viewSocketPath } from "../../web/session.js";
+import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "../../web/session.js";
 
 test("a bare page shows the default session", () => {
   const session = sessionFromQuery("");
@@ -24,4 +24,12 @@ test("a watch link watches and opens no session route", () => {
   assert.deepEqual(session, { key: "K", watching: true });
   assert.equal(viewSocketPath(session), "ws/view?session=K&watch=1");
   assert.equal(sessionApiPath("api/stats", session), "api/stats");
+});
+
+test("a driver asks for its canvas in device pixels, fitted to the largest size", () => {
+  assert.deepEqual(frameSizeFor(800, 450, 2), [1600, 900]);
+  assert.deepEqual(frameSizeFor(2560, 1440, 2, [3840, 2160]), [3840, 2160]);
+  assert.deepEqual(frameSizeFor(1000, 100, 1, [500, 500]), [500, 50]);
+  assert.deepEqual(frameSizeFor(4, 2, 1), [16, 16]);
+  assert.equal(frameSizeFor(0, 300, 1), null);
 });
