@@ -7,6 +7,7 @@ import json
 import urllib.request
 
 import pytest
+import trimesh
 
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context
 from tests.conftest import seconds
@@ -56,4 +57,41 @@ def test_a_session_page_follows_the_window_and_its_watch_link_shows_it(coordinat
         assert watcher.evaluate("document.getElementById('frame').width") == resized[0]
         assert call(base, session)["size"] == resized, "a watcher's window does not size the session"
         assert call(base, session)["viewers"] == 2
+        assert errors == [], f"errors in the page: {errors}"
+
+
+def test_a_new_session_from_the_library_and_a_dropped_file_open_in_the_page(coordinator_factory, tmp_path):
+    data_dir = tmp_path / "data"
+    data_dir.mkdir()
+    coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "160x120", "--local-nodes", "1",
+                                      "--data-dir", str(data_dir))
+    base = coordinator.url
+    wait_ms = seconds(60) * 1000
+    box_ply = trimesh.creation.box(extents=(1.0, 2.0, 0.5)).export(file_type="ply")
+    with chromium_context(tmp_path / "profile", viewport={"width": 700, "height": 500}) as context:
+        page = context.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        page.goto(base + "/")
+        page.wait_for_function("() => document.querySelectorAll('#scene-pick option').length > 1", timeout=wait_ms)
+        page.select_option("#scene-pick", "builtin:cluster")
+        page.click("#new-session")
+        page.wait_for_url("**/?session=*", timeout=wait_ms)
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
+        page.wait_for_function("() => !document.getElementById('session-links').hidden", timeout=wait_ms)
+        drive = page.input_value("#drive-link")
+        assert drive == page.url and "watch=1" in page.input_value("#watch-link")
+        assert {s["scene"] for s in call(base, "/api/sessions")} == {"builtin:spheres", "builtin:cluster"}
+
+        dropped = page.evaluate_handle("""(bytes) => {
+          const transfer = new DataTransfer();
+          transfer.items.add(new File([new Uint8Array(bytes)], "box.ply"));
+          return transfer;
+        }""", list(box_ply))
+        page.dispatch_event("body", "drop", {"dataTransfer": dropped})
+        page.wait_for_function(f"() => location.href !== {json.dumps(drive)}", timeout=wait_ms)
+        page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
+        scenes = {s["scene"] for s in call(base, "/api/sessions")}
+        assert "upload/box.ply" in scenes, scenes
+        assert page.text_content("#session-name").startswith("upload/box.ply")
         assert errors == [], f"errors in the page: {errors}"

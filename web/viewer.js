@@ -12,6 +12,7 @@ import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
+import { SessionControls } from "./session_controls.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
 // and API calls carry: take it out of the address bar (and so out of history and shared links).
@@ -249,6 +250,10 @@ document.addEventListener("keydown", (event) => {
   if (event.key === "r" || event.key === "R") resetView();
 });
 
+const sessionControls = new SessionControls(document, (path, init) => fetch(address(path), init), session,
+  (message) => { $("panel-message").textContent = message; }, (url) => location.assign(url));
+
 connection.start();
 panel.start();
+sessionControls.start().catch((error) => console.warn("tessera: session controls:", error));
 setInterval(reportLatency, LATENCY_REPORT_MS);
