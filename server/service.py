@@ -30,6 +30,7 @@ from server.frame_store import FrameStore, PublishedFrame
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.nodes import NodeLink
 from server.scene_library import SceneLibrary
+from server.session_store import SessionStore
 from server.sessions import Session, new_key
 from server.settings import Settings
 from server.viewers import ViewerHub
@@ -102,12 +103,17 @@ class RenderService:
         self.sessions: dict[str, Session] = {DEFAULT_SESSION: self.default}
         self._watch_keys: dict[str, str] = {self.default.watch_key: DEFAULT_SESSION}
         self._fetch: dict[str, tuple[str, str]] = {}
+        self.session_store = None if settings.data_dir is None else SessionStore(settings.data_dir)
+        #: A session was opened, closed or changed since they were last saved.
+        self.changed_sessions = False
         self._sessions_opened = 0
         self._next_node_id = 1
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
         self.cpu_ms = {"receive": 0.0, "publish": 0.0, "merge": 0.0}
         self.calibration = CalibrationQueue()
+        if self.session_store is not None:
+            self._restore_sessions()
 
     @property
     def store(self) -> FrameStore:
@@ -126,6 +132,10 @@ class RenderService:
         return self.default.camera
 
     # ----------------------------------------------------------------- sessions
+    def fetch_of(self, scene: str) -> tuple[str, str] | None:
+        """Where a node fetches scene file ``scene`` (its URL and sha256), if it is a library file."""
+        return self._fetch.get(scene)
+
     def find_session(self, key: str, watch: bool = False) -> Session | None:
         """The session ``key`` drives (its id), or with ``watch`` the one it watches (its watch key)."""
         session_id = self._watch_keys.get(key) if watch else key
@@ -140,7 +150,11 @@ class RenderService:
             raise SessionsFull(f"{len(self.sessions)} sessions are open, the most this coordinator serves "
                                "(--max-sessions); close one or try later")
         self._sessions_opened += 1
-        session = Session(self, new_key(), spec or scene, scene, label=str(self._sessions_opened))
+        return self._open(Session(self, new_key(), spec or scene, scene, label=str(self._sessions_opened)),
+                          size, camera, fetch)
+
+    def _open(self, session: Session, size: tuple[int, int] | None, camera: Camera | None,
+              fetch: tuple[str, str] | None) -> Session:
         if fetch is not None:
             self._fetch[session.scene] = fetch
         config = dataclasses.replace(self.settings.scheduler_config(), size=size or self.settings.size)
@@ -151,14 +165,53 @@ class RenderService:
         if camera is not None:
             self.scheduler.set_camera(camera, time.monotonic(), session_id=session.id)
         self.apply()
-        log.info("session %s… opened: %s at %dx%d", session.id[:6], scene, *config.size)
+        self.changed_sessions = True
+        log.info("session %s… opened: %s at %dx%d", session.id[:6], session.name, *config.size)
         return session
+
+    # ----------------------------------------------------------------- sessions across restarts
+    def save_sessions(self) -> None:
+        """Write every session to ``--data-dir`` (nothing without one)."""
+        if self.session_store is not None:
+            self.session_store.save([s.record() for s in self.sessions.values()])
+            self.changed_sessions = False
+
+    def _restore_sessions(self) -> None:
+        """The sessions ``--data-dir`` held when the coordinator stopped, under their ids and keys."""
+        assert self.session_store is not None
+        for record in self.session_store.load():
+            try:
+                self._restore(record)
+            except (KeyError, TypeError, ValueError) as exc:   # CameraError is a ValueError
+                log.error("session %s… not restored: %s", str(record.get("id"))[:6], exc)
+
+    def _restore(self, record: dict[str, Any]) -> None:
+        camera = None if record.get("camera") is None else Camera.from_json(record["camera"])
+        if record["id"] == DEFAULT_SESSION:
+            session = self.default
+            if camera is not None:
+                self.scheduler.set_camera(camera, time.monotonic())
+        else:
+            session = Session(self, str(record["id"]), str(record["scene"]), str(record["name"]),
+                              label=str(record["label"]))
+            session.watch_key = str(record["watch_key"])
+            fetch = record.get("fetch")
+            self._open(session, (int(record["size"][0]), int(record["size"][1])), camera,
+                       None if fetch is None else (str(fetch[0]), str(fetch[1])))
+            self._sessions_opened = max(self._sessions_opened, int(record["label"]))
+        balancer = record.get("balancer")
+        if balancer is not None:
+            self.scheduler.set_balancer(create_balancer(balancer["name"], balancer["params"]), time.monotonic(),
+                                        session.id)
+        session.pending_state = record.get("scene_state")
+        log.info("session %s… restored: %s", session.id[:6], session.name)
 
     def close_session(self, session: Session, reason: str = "session closed") -> None:
         """Close ``session`` (not the default one): its frames are dropped, its viewers told."""
         if session is self.default or self.sessions.pop(session.id, None) is None:
             return
         self._watch_keys.pop(session.watch_key, None)
+        self.changed_sessions = True
         self.scheduler.remove_session(session.id, time.monotonic())
         for slot in list(session.viewers.slots):
             slot.close(4404, reason)
@@ -179,6 +232,7 @@ class RenderService:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        self.save_sessions()
 
     async def _timer(self) -> None:
         """Tick the scheduler at its next deadline (frame-rate cap, still frame, tile timeouts) and
@@ -200,6 +254,8 @@ class RenderService:
                 calibration_at = now
                 self._start_calibration()
                 self._collect_idle_sessions(now)
+                if self.changed_sessions:
+                    self.save_sessions()
 
     def apply(self) -> None:
         """Carry out the scheduler's actions, then let the timer look at the new deadline."""
@@ -341,6 +397,9 @@ class RenderService:
             width, height = session.size
             self.scheduler.set_camera(default_camera(bounds, aspect=width / height), now, session_id=session.id)
         assert session.camera is not None
+        if session.pending_state is not None:
+            session.restore_state(session.pending_state, now)
+            session.pending_state = None
         session.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=session.camera))
 
     # ----------------------------------------------------------------- calibration (seed 003 §1)

@@ -9,6 +9,7 @@ key is drawn apart, so a watch link (``?session=KEY&watch=1``) cannot be turned 
 
 from __future__ import annotations
 
+import contextlib
 import secrets
 import time
 from typing import Any, Protocol
@@ -20,7 +21,7 @@ from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
 from tessera.geometry import Camera
-from tessera.scene.state import ObjectPatch
+from tessera.scene.state import ObjectPatch, SceneStateError
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.scheduler import FrameScheduler
 from tessera.scheduling.session_frames import SessionFrames
@@ -34,8 +35,13 @@ class SessionHost(Protocol):
     @property
     def settings(self) -> Any: ...
 
+    changed_sessions: bool
+
     def apply(self) -> None:
         """Carry out the scheduler's actions."""
+
+    def fetch_of(self, scene: str) -> tuple[str, str] | None:
+        """Where a node fetches scene file ``scene`` (its URL and sha256), if it is a library file."""
 
 #: Random bytes of a session id and of its watch key (128 bits each).
 KEY_BYTES = 16
@@ -65,6 +71,8 @@ class Session:
         self.state = "loading"
         self.error: str | None = None
         self.created_at = self.last_used = time.monotonic()
+        #: A restored session's object poses and animation clock, applied once its scene is known.
+        self.pending_state: dict[str, Any] | None = None
 
     @property
     def frames(self) -> SessionFrames:
@@ -131,7 +139,33 @@ class Session:
         self.touch()
         result = change(time.monotonic())
         self.service.apply()
+        self.service.changed_sessions = True
         return result
+
+    # ----------------------------------------------------------------- across restarts
+    def record(self) -> dict[str, Any]:
+        """What brings the session back after a restart (plain JSON)."""
+        scene, now = self.frames.scene, time.monotonic()
+        state = None if scene is None else {
+            "poses": {name: patch.to_json() for name, patch in scene.overrides.items()},
+            "playing": scene.playing, "time": scene.time_at(now), "speed": scene.speed}
+        return {"id": self.id, "watch_key": self.watch_key, "label": self.label, "name": self.name,
+                "scene": self.scene, "fetch": self.service.fetch_of(self.scene), "size": list(self.size),
+                "camera": self.camera.to_json() if self.camera else None,
+                "balancer": {"name": self.balancer.name, "params": self.balancer.params},
+                "scene_state": state if state is not None else self.pending_state}
+
+    def restore_state(self, state: dict[str, Any], now: float) -> None:
+        """Object poses and the animation clock of :meth:`record`, once the scene is known; a pose
+        of an object the scene no longer has is skipped."""
+        scheduler = self.service.scheduler
+        for name, pose in dict(state.get("poses") or {}).items():
+            try:
+                scheduler.set_objects({name: ObjectPatch.from_json(pose, name)}, now, self.id)
+            except SceneStateError:
+                continue
+        with contextlib.suppress(SceneStateError):   # a value the scene no longer takes: its clock as it is
+            scheduler.set_animation(now, bool(state.get("playing")), state.get("time"), state.get("speed"), self.id)
 
     # ----------------------------------------------------------------- what users read
     def next_frame_id(self) -> int:

@@ -3,6 +3,7 @@ of each session have its own size; a watcher cannot steer; bad input is refused 
 
 from __future__ import annotations
 
+import dataclasses
 import io
 from collections.abc import Iterator
 from typing import Any
@@ -44,7 +45,7 @@ class SceneNode:
             if message["type"] == "load_scene":
                 self.scenes.append(message["scene"])
                 self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "triangles": 12,
-                                   "bounds": BOUNDS})
+                                   "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}]})
             elif message["type"] == "render":
                 self.answer(message)
                 renders.append(message)
@@ -188,3 +189,51 @@ def test_a_sessions_frames_follow_its_drivers_window_and_the_default_session_kee
         client.put(f"/api/sessions/{body['id']}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
         renders = node.serve(lambda render: render["scene"] == "builtin:cluster")
         assert [r["size"] for r in renders if r["scene"] == "builtin:cluster"] == [[200, 40]]
+
+
+def test_sessions_come_back_after_a_restart_with_their_ids_keys_sizes_cameras_and_balancers(tmp_path):
+    settings = dataclasses.replace(SETTINGS, data_dir=tmp_path)
+    camera = {"eye": [1.0, 2.0, 6.0], "target": [0.0, 0.5, 0.0], "up": [0.0, 1.0, 0.0], "fovy_deg": 40.0}
+    with TestClient(create_app(settings)) as first:
+        body = first.post("/api/sessions", json={"scene": "builtin:cluster", "size": [40, 20], "camera": camera}).json()
+        first.put(f"/api/sessions/{body['id']}/balancer", json={"name": "static", "params": {}})
+        first.put("/api/camera", json={"eye": [0.0, 0.0, 9.0], "target": [0.0, 0.0, 0.0]})
+    assert not list(tmp_path.glob(".*.tmp")), "the file is written whole, then renamed"
+    with TestClient(create_app(settings)) as second:
+        again = second.get(f"/api/sessions/{body['id']}").json()
+        assert again["size"] == [40, 20] and again["scene"] == "builtin:cluster"
+        assert again["watch_url"] == body["watch_url"] and again["camera"]["eye"] == camera["eye"]
+        assert second.get(f"/api/sessions/{body['id']}/balancer").json()["name"] == "static"
+        assert second.get("/api/camera").json()["camera"]["eye"] == [0.0, 0.0, 9.0]
+        watch = body["watch_url"].split("?")[1]
+        with second.websocket_connect(f"/ws/view?{watch}") as viewer:
+            assert next_json(viewer, "hello")["size"] == [40, 20]
+
+
+def test_a_sessions_file_that_does_not_read_is_set_aside(tmp_path):
+    (tmp_path / "sessions.json").write_text("{not json")
+    with TestClient(create_app(dataclasses.replace(SETTINGS, data_dir=tmp_path))) as client:
+        assert [s["id"] for s in client.get("/api/sessions").json()] == ["default"]
+    assert (tmp_path / "sessions.json.bad").read_text() == "{not json"
+
+
+def test_a_restored_session_gets_its_object_poses_back_once_a_node_reports_its_scene(tmp_path):
+    settings = dataclasses.replace(SETTINGS, data_dir=tmp_path)
+    with TestClient(create_app(settings)) as first:
+        body = first.post("/api/sessions", json={"scene": "builtin:cluster"}).json()
+        with first.websocket_connect("/ws/node") as ws:
+            node = SceneNode(ws)
+            node.serve(lambda render: render["scene"] == "builtin:spheres")
+            wait_until(lambda: first.get(f"/api/sessions/{body['id']}/objects").status_code == 200, seconds(10),
+                       "the session's scene")
+            moved = first.put(f"/api/sessions/{body['id']}/objects/car", json={"translation": [3.0, 0.0, 0.0]})
+            assert moved.status_code == 200
+    with TestClient(create_app(settings)) as second:
+        assert second.get(f"/api/sessions/{body['id']}/objects").status_code == 409, "no node reported it yet"
+        with second.websocket_connect("/ws/node") as ws:
+            node = SceneNode(ws)
+            node.serve(lambda render: render["scene"] == "builtin:spheres")
+            objects = wait_until(lambda: second.get(f"/api/sessions/{body['id']}/objects").json()
+                                 if second.get(f"/api/sessions/{body['id']}/objects").status_code == 200 else None,
+                                 seconds(10), "the restored session's scene")
+            assert objects[0]["translation"] == [3.0, 0.0, 0.0]
