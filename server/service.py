@@ -42,6 +42,7 @@ from tessera.scene.graph import ObjectGraph
 from tessera.scene.state import SceneStateError
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling import actions
+from tessera.scheduling.fair_share import SHARE_WINDOW_S
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.scheduler import FrameScheduler
 from tessera.wire import messages
@@ -510,6 +511,7 @@ class RenderService:
                 "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
             },
             "sessions": [s.summary(now) for s in self.sessions.values()],
+            "share_window_s": SHARE_WINDOW_S,
             "nodes": [link.describe(scheduler.nodes[link.node_id])
                       for link in sorted(self.nodes.values(), key=lambda n: n.node_id)],
         }

@@ -191,7 +191,8 @@ class Session:
         return {"id": self.id, "label": self.label, "scene": self.name, "size": list(self.size),
                 "viewers": len(self.viewers.slots),
                 "fps": round(stats.fps(now), 2), "latency_ms": round(stats.latency_ms, 2),
-                "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4), "state": self.state,
+                "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4),
+                "node_busy_ms": round(self.service.scheduler.fair.busy_ms(self.id, now), 3), "state": self.state,
                 "error": self.error, "camera": self.camera.to_json() if self.camera else None,
                 "idle_s": round(self.idle_for(now), 1)}
 

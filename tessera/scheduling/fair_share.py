@@ -25,7 +25,9 @@ FIRST_FRAME_MS = 10.0
 #: A session without work for this long (s) is idle: it is owed nothing when it comes back (the
 #: gap between a frame and the viewer's next camera is not idleness).
 IDLE_S = 0.5
-#: How many of each session's recent frames its node share is figured over.
+#: The window (s) a session's node share is figured over.
+SHARE_WINDOW_S = 5.0
+#: How many of each session's recent frames its node share is figured over at most.
 SHARE_WINDOW_FRAMES = 60
 
 
@@ -93,10 +95,12 @@ class FairShare:
             self._cost[session] = max(busy_ms, 0.1)
             self._busy[session].append((now, busy_ms))
 
-    def node_share(self, session: str, now: float, window_s: float = 5.0) -> float:
+    def busy_ms(self, session: str, now: float, window_s: float = SHARE_WINDOW_S) -> float:
+        """Node time (ms) the session's frames that ended in the last ``window_s`` seconds took."""
+        return sum(ms for at, ms in self._busy.get(session, ()) if at >= now - window_s)
+
+    def node_share(self, session: str, now: float, window_s: float = SHARE_WINDOW_S) -> float:
         """The session's fraction of the node time all sessions' frames took over the last
         ``window_s`` seconds (0 when none took any)."""
-        since = now - window_s
-        spent = {s: sum(ms for at, ms in frames if at >= since) for s, frames in self._busy.items()}
-        total = sum(spent.values())
-        return spent.get(session, 0.0) / total if total > 0.0 else 0.0
+        total = sum(self.busy_ms(s, now, window_s) for s in self._busy)
+        return self.busy_ms(session, now, window_s) / total if total > 0.0 else 0.0
