@@ -46,7 +46,7 @@ def test_play_pause_and_the_time_slider(coordinator_factory, tmp_path):
         wait_until(lambda: not animation(base_url)["playing"], seconds(30), "the animation to pause")
         page.wait_for_function("() => window.tessera.still === true", timeout=wait_ms, polling=100)
         paused_at = animation(base_url)["time"]
-        assert page.evaluate("window.tessera.scene.animation.playing") is False
+        assert page.evaluate("window.tessera.animation.playing") is False
         assert animation(base_url)["time"] == paused_at, "paused: the scene time stands still"
 
         page.locator("#scene-time").fill("40")
