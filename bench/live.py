@@ -47,7 +47,7 @@ import websockets.sync.client as ws_client
 from PIL import Image
 
 from bench.images import psnr, viewer_frame_image
-from bench.processes import REPO, cpu_seconds, orbit, process_tree, start_coordinator, write_result
+from bench.processes import REPO, cpu_seconds, orbit, process_tree, show_result, start_coordinator
 from tessera.cli_values import size_parser
 from tessera.wire.messages import CameraUpdate
 from tessera.wire.protocol import unpack_frame
@@ -300,9 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     result = measure(args)
-    print(report(result))
-    if args.json:
-        write_result(args.json, result, argv)
+    show_result(report(result), result, args.json, argv)
     return 0
 
 

@@ -184,6 +184,13 @@ def orbit(camera: dict[str, Any], angle: float) -> dict[str, Any]:
     return {**camera, "eye": [float(target[0] + c * x + s * z), float(eye[1]), float(target[2] - s * x + c * z)]}
 
 
+def show_result(text: str, result: dict[str, Any], path: Path | None, argv: Sequence[str] | None) -> None:
+    """Print a benchmark's table ``text``, and write its ``result`` as JSON at ``path`` if given."""
+    print(text)
+    if path is not None:
+        write_result(path, result, argv)
+
+
 def write_result(path: Path, result: dict[str, Any], argv: Sequence[str] | None) -> None:
     """A benchmark's figures as JSON at ``path``, with the Python version, CPU count and arguments
     (``argv``, or the command line's when None) under ``meta``."""

@@ -35,7 +35,7 @@ import numpy as np
 import websockets.sync.client as ws_client
 
 from bench.live import IDLE_AFTER_S, ScriptedViewer, latencies, wait_ready
-from bench.processes import cpu_seconds, orbit, process_tree, start_coordinator, write_result
+from bench.processes import cpu_seconds, orbit, process_tree, show_result, start_coordinator
 from tessera.cli_values import size_parser
 
 
@@ -197,9 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.sessions < 1 or args.nodes < 1 or args.moving_s <= 1.0:
         raise SystemExit("--sessions and --nodes must be >= 1, --moving-s > 1")
     result = measure(args)
-    print(report(result))
-    if args.json:
-        write_result(args.json, result, argv)
+    show_result(report(result), result, args.json, argv)
     return 0
 
 

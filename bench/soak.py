@@ -44,7 +44,7 @@ from typing import Any
 import httpx
 import websockets.sync.client as ws_client
 
-from bench.processes import CLOCK_TICKS, PYTHON, LoggedProcess, orbit, start_coordinator, write_result
+from bench.processes import CLOCK_TICKS, PYTHON, LoggedProcess, orbit, show_result, start_coordinator
 from server.local_nodes import llvmpipe_threads_per_node
 from tessera.cli_values import size_parser
 from tessera.wire.protocol import unpack_frame
@@ -647,9 +647,7 @@ def run_bench(args: argparse.Namespace, prefix: str, drive: Callable[[Soak], dic
         if in_main:
             signal.signal(signal.SIGTERM, previous)
     result = figures(soak, run)
-    print(report(result))
-    if args.json:
-        write_result(args.json, result, argv)
+    show_result(report(result), result, args.json, argv)
     return result
 
 
