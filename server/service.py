@@ -21,6 +21,7 @@ import dataclasses
 import logging
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -105,6 +106,7 @@ class RenderService:
         self._watch_keys: dict[str, str] = {self.default.watch_key: DEFAULT_SESSION}
         self._fetch: dict[str, tuple[str, str]] = {}
         self.session_store = None if settings.data_dir is None else SessionStore(settings.data_dir)
+        self._session_writer = ThreadPoolExecutor(1, thread_name_prefix="tessera-sessions")
         #: A session was opened, closed or changed since they were last saved.
         self.changed_sessions = False
         self._sessions_opened = 0
@@ -171,11 +173,22 @@ class RenderService:
         return session
 
     # ----------------------------------------------------------------- sessions across restarts
-    def save_sessions(self) -> None:
-        """Write every session to ``--data-dir`` (nothing without one)."""
-        if self.session_store is not None:
-            self.session_store.save([s.record() for s in self.sessions.values()])
-            self.changed_sessions = False
+    def save_sessions(self) -> Future[None] | None:
+        """Write every session to ``--data-dir`` (nothing without one) on the writer thread, off the
+        event loop (the file is fsynced); writes happen in the order asked."""
+        if self.session_store is None:
+            return None
+        records = [s.record() for s in self.sessions.values()]
+        self.changed_sessions = False
+        path = self.session_store.path
+
+        def report(done: Future[None]) -> None:
+            if done.exception() is not None:
+                log.error("cannot save the sessions to %s: %s", path, done.exception())
+
+        written = self._session_writer.submit(self.session_store.save, records)
+        written.add_done_callback(report)
+        return written
 
     def _restore_sessions(self) -> None:
         """The sessions ``--data-dir`` held when the coordinator stopped, under their ids and keys."""
@@ -234,6 +247,7 @@ class RenderService:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self.save_sessions()
+        await asyncio.to_thread(self._session_writer.shutdown, wait=True)   # every write asked is done
 
     async def _timer(self) -> None:
         """Tick the scheduler at its next deadline (frame-rate cap, still frame, tile timeouts) and
