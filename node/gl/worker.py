@@ -4,16 +4,16 @@ calibration renders — for :class:`node.client.NodeClient`, which awaits each c
 
 A node holds several scenes at once (issue 19: :mod:`node.gl.resident`, within a memory budget) and
 draws a tile of whichever a ``render`` names. A scene is read — fetched when the node cannot open
-it (:mod:`node.scene.fetch`), parsed, split into chunks, its share kept, its buffers packed — in a
-loader thread of its own, so the seconds a big scan takes to parse never hold back tiles of the
-scenes already held: only its upload (tens of ms for a million triangles) runs on the GL thread,
-between two tiles. Both threads share the GIL, so tiles drawn meanwhile may take longer.
+it (:mod:`node.scene.fetch`), parsed, split into chunks, its share kept, its buffers packed — off
+the GL thread, so the seconds a big scan takes to parse never hold back tiles of the scenes
+already held: a loader thread fetches it and reads it, a large file in a child process of lower
+CPU priority (:mod:`node.scene.read_process`: a thread would hold the GIL the GL thread needs).
+Only its upload (tens of ms for a million triangles) runs on the GL thread, between two tiles.
 """
 
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import time
 from collections.abc import Callable, Hashable
@@ -22,18 +22,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import moderngl
-import numpy as np
 
 from node.culling.switch import CullMode
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
-from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer, pack_geometry
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
-from node.scene.loading import ProgressCallback, load_scene
+from node.scene.loading import ProgressCallback
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.scene.shares import keep_share
+from node.scene.read_process import READ_IN_PROCESS_BYTES, ReadScene, SceneReaderProcess, read_scene, reads_in_process
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
@@ -88,28 +87,24 @@ class LoadedScene:
     share_version: int | None
 
 
-@dataclass(frozen=True, eq=False)
-class _ReadScene:
-    """A scene read in the loader thread: its data and :func:`pack_geometry` of its batches."""
-
-    scene: SceneData
-    packed: tuple[np.ndarray, np.ndarray]
-
-
 class GLWorker:
     """The one thread that owns the GL context, and the loader thread: scenes are read (split into
     chunks of at most ``face_limit`` faces; in sort-last only a share kept; fetched by ``fetcher``
-    when the node cannot open them, None: never) in the loader thread, then uploaded and drawn
-    (with ``culling``) on the GL thread, which holds them within ``memory_bytes``
+    when the node cannot open them, None: never) by the loader thread — files of at least
+    ``read_in_process_bytes`` in the scene reader process —, then uploaded and drawn (with
+    ``culling``) on the GL thread, which holds them within ``memory_bytes``
     (:class:`node.gl.resident.ResidentScenes`).
 
     The scenes held survive reconnects; asking for a scene (and share) held again reuses it.
     """
 
     def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT,
-                 memory_bytes: int = DEFAULT_SCENE_MEMORY_MB << 20, fetcher: SceneFetcher | None = None) -> None:
+                 memory_bytes: int = DEFAULT_SCENE_MEMORY_MB << 20, fetcher: SceneFetcher | None = None,
+                 read_in_process_bytes: int = READ_IN_PROCESS_BYTES) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
+        self._reader = SceneReaderProcess()
+        self.read_in_process_bytes = read_in_process_bytes
         self._ctx: moderngl.Context | None = None
         self._scenes = ResidentScenes(memory_bytes)
         self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
@@ -154,19 +149,15 @@ class GLWorker:
         loaded: LoadedScene = await self._call(self._upload, key, request, read, progress)
         return loaded
 
-    def _read(self, request: LoadScene, progress: ProgressCallback) -> _ReadScene:
-        """In the loader thread: fetch (if need be), parse, split, keep the share, pack."""
+    def _read(self, request: LoadScene, progress: ProgressCallback) -> ReadScene:
+        """In the loader thread: fetch (if need be), then parse, split, keep the share, pack (here,
+        or a large file in the scene reader process)."""
         spec, share = request.scene, request.share
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
-        scene = load_scene(source, progress, self.face_limit)
-        if source != spec:
-            scene = dataclasses.replace(scene, name=spec)
-        if share is not None:
-            progress(0.8, f"keeping share {share.index + 1} of {len(share.weights)}")
-            scene = keep_share(scene, share.weights, share.index)
-        return _ReadScene(scene, pack_geometry(scene.batches))
+        read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
+        return read(source, spec, self.face_limit, share, progress)
 
-    def _upload(self, key: SceneKey, request: LoadScene, read: _ReadScene, progress: ProgressCallback) -> LoadedScene:
+    def _upload(self, key: SceneKey, request: LoadScene, read: ReadScene, progress: ProgressCallback) -> LoadedScene:
         """On the GL thread: upload ``read``, hold it, release the least recently used others over budget."""
         assert self._ctx is not None
         scene, share = read.scene, request.share
@@ -233,8 +224,9 @@ class GLWorker:
             self._ctx = None
 
     def close(self) -> None:
-        """Stop the loader thread (waits for a scene being read), free GL resources on the GL
-        thread and stop it (waits for a running draw)."""
+        """Stop the loader thread (waits for a scene being read) and the scene reader process, free
+        GL resources on the GL thread and stop it (waits for a running draw)."""
         self._loader.shutdown(wait=True, cancel_futures=True)
+        self._reader.close()
         self._executor.submit(self._close)
         self._executor.shutdown(wait=True)

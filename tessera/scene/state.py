@@ -275,6 +275,9 @@ class StateDelta:
         object.__setattr__(self, "time", _time(self.time))
         object.__setattr__(self, "objects", _frozen(self.objects))
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        return StateDelta, (self.base, self.version, self.time, dict(self.objects))
+
     def to_json(self) -> dict[str, Any]:
         return {"base": self.base, "version": self.version, "time": self.time,
                 "objects": {name: state.to_json() for name, state in self.objects.items()}}
@@ -295,6 +298,10 @@ class SceneState:
         _version(self.version, "state version")
         object.__setattr__(self, "time", _time(self.time))
         object.__setattr__(self, "objects", _frozen(self.objects))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its objects as a plain dict (a read-only mapping view cannot be pickled)."""
+        return SceneState, (self.version, self.time, dict(self.objects))
 
     def same_as(self, other: SceneState) -> bool:
         """Same time and the same objects in the same states."""
