@@ -37,6 +37,7 @@ from server.settings import Settings
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.hetero import calibration_weights
+from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
 from tessera.scene.animation import Animation, AnimationError
 from tessera.scene.graph import ObjectGraph
@@ -145,26 +146,30 @@ class RenderService:
         return self.sessions.get(session_id) if session_id is not None else None
 
     def create_session(self, scene: str, size: tuple[int, int] | None = None, camera: Camera | None = None,
-                       spec: str | None = None, fetch: tuple[str, str] | None = None) -> Session:
+                       spec: str | None = None, fetch: tuple[str, str] | None = None,
+                       wall: WallLayout | None = None) -> Session:
         """A session showing library scene ``scene`` (``spec``: what nodes load, default the name;
         ``fetch``: the file's URL on this coordinator and its sha256, for nodes without it) at
-        ``size`` (default ``--size``); SessionsFull when ``--max-sessions`` are open."""
+        ``size`` (default ``--size``; a ``wall``'s: the whole wall); SessionsFull when
+        ``--max-sessions`` are open."""
         if len(self.sessions) >= self.settings.max_sessions:
             raise SessionsFull(f"{len(self.sessions)} sessions are open, the most this coordinator serves "
                                "(--max-sessions); close one or try later")
         self._sessions_opened += 1
-        return self._open(Session(self, new_key(), spec or scene, scene, label=str(self._sessions_opened)),
-                          size, camera, fetch)
+        return self._open(Session(self, new_key(), spec or scene, scene, label=str(self._sessions_opened),
+                                  wall=wall), size, camera, fetch)
 
     def _open(self, session: Session, size: tuple[int, int] | None, camera: Camera | None,
               fetch: tuple[str, str] | None) -> Session:
         if fetch is not None:
             self._fetch[session.scene] = fetch
+        size = session.wall.size if session.wall is not None else size
         config = dataclasses.replace(self.settings.scheduler_config(), size=size or self.settings.size)
         self.sessions[session.id] = session
         self._watch_keys[session.watch_key] = session.id
         self.scheduler.add_session(session.id, config, create_balancer(self.settings.balancer), session.scene,
                                    time.monotonic())
+        session.frames.wall = session.wall
         if camera is not None:
             self.scheduler.set_camera(camera, time.monotonic(), session_id=session.id)
         self.apply()
@@ -206,8 +211,9 @@ class RenderService:
             if camera is not None:
                 self.scheduler.set_camera(camera, time.monotonic())
         else:
+            wall = None if record.get("wall") is None else WallLayout.from_json(record["wall"])
             session = Session(self, str(record["id"]), str(record["scene"]), str(record["name"]),
-                              label=str(record["label"]))
+                              label=str(record["label"]), wall=wall)
             session.watch_key = str(record["watch_key"])
             fetch = record.get("fetch")
             self._open(session, (int(record["size"][0]), int(record["size"][1])), camera,
@@ -516,6 +522,7 @@ class RenderService:
             "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec else "none",
             "viewers": len(session.viewers.slots),
             "viewer_stats": session.viewers.describe(),
+            "frame_lock": session.viewers.lock.describe() if session.wall is not None else None,
             "coordinator_cpu": {
                 "frames": stats.frames_published,
                 "receive_ms": round(self.cpu_ms["receive"], 3),

@@ -20,6 +20,7 @@ from server.frame_store import FrameStore
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
+from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Camera
 from tessera.scene.state import ObjectPatch, SceneStateError
 from tessera.scene.timeline import SceneTimeline
@@ -54,19 +55,21 @@ def new_key() -> str:
 class Session:
     """Session ``session_id`` of ``service``: ``scene`` is the spec its nodes load (a file path or
     ``builtin:NAME``), ``name`` what the user picked it by (a library name); ``state`` is
-    "loading" until a node reported the scene, then "ready", or "error" with ``error``."""
+    "loading" until a node reported the scene, then "ready", or "error" with ``error``. A display
+    wall's session (issue 22) has its ``wall``: its frame is the whole wall, its size fixed."""
 
     def __init__(self, service: SessionHost, session_id: str, scene: str, name: str | None = None,
-                 label: str = "default") -> None:
+                 label: str = "default", wall: WallLayout | None = None) -> None:
         self.service = service
         self.id = session_id
+        self.wall = wall
         #: What metrics call it: not its id, which drives it (``/metrics`` is open).
         self.label = label
         self.watch_key = new_key()
         self.scene = scene
         self.name = name or scene
         self.store = FrameStore()
-        self.viewers = ViewerHub()
+        self.viewers = ViewerHub(wall)
         self.bounds: np.ndarray | None = None
         self.state = "loading"
         self.error: str | None = None
@@ -153,6 +156,7 @@ class Session:
                 "scene": self.scene, "fetch": self.service.fetch_of(self.scene), "size": list(self.size),
                 "camera": self.camera.to_json() if self.camera else None,
                 "balancer": {"name": self.balancer.name, "params": self.balancer.params},
+                "wall": self.wall.to_json() if self.wall else None,
                 "scene_state": state if state is not None else self.pending_state}
 
     def restore_state(self, state: dict[str, Any], now: float) -> None:
@@ -194,7 +198,7 @@ class Session:
                 "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4),
                 "node_busy_ms": round(self.service.scheduler.fair.busy_ms(self.id, now), 3), "state": self.state,
                 "error": self.error, "camera": self.camera.to_json() if self.camera else None,
-                "idle_s": round(self.idle_for(now), 1)}
+                "idle_s": round(self.idle_for(now), 1), "wall": self.wall.to_json() if self.wall else None}
 
 
 def fit_size(size: tuple[int, int], largest: tuple[int, int], smallest: int = 16) -> tuple[int, int]:

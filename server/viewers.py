@@ -4,7 +4,12 @@ Control messages (hello, scene, errors) are queued in order, never dropped; a vi
 :data:`MAX_QUEUED_CONTROL` pile up is not reading its socket and is closed (``behind``). Cameras
 other viewers set have a latest-camera slot of their own, as frames do. Each viewer's copy of a
 frame says which of that viewer's inputs it answers; each viewer reports its own input → display
-latency."""
+latency.
+
+A display wall's hub (issue 22) gives each cell viewer only its cell's tiles, rects relative to
+the cell (the partition is cut at the cell edges: :mod:`tessera.decomposition.wall_cells`), built
+once per cell and frame; whole-wall viewers get the whole frame. It holds the wall's frame lock
+(:class:`FrameLock`): ``present`` goes to the cells once every live cell holds a frame."""
 
 from __future__ import annotations
 
@@ -13,7 +18,13 @@ import itertools
 from collections import deque
 from typing import Any, Protocol
 
+from tessera.decomposition.wall_cells import WallLayout
+from tessera.geometry import Rect
+from tessera.scheduling.frame_lock import FrameLock
+from tessera.wire.codec import Codec
 from tessera.wire.messages import CameraUpdate, Message
+from tessera.wire.protocol import pack_frame
+from tessera.wire.wall_messages import PresentFrame
 
 #: Control messages a viewer may have waiting before it counts as not reading its socket.
 MAX_QUEUED_CONTROL = 256
@@ -22,12 +33,28 @@ MAX_QUEUED_CONTROL = 256
 class ViewerMessages(Protocol):
     """A published frame as each viewer gets it (``PublishedFrame``)."""
 
+    frame_id: int
+    still: bool
+    tiles: list[tuple[Rect, Codec, int, bytes]]
+
     def message_for(self, viewer_id: object) -> bytes: ...
 
 
+def cell_message(frame: ViewerMessages, wall: WallLayout, cell: tuple[int, int]) -> bytes:
+    """The TFRM message of ``frame``'s tiles inside ``cell`` (col, row) of ``wall``: a frame of the
+    cell's size, rects relative to its top-left corner, the nodes' bytes as they are."""
+    tiles = frame.tiles
+    parts = [(rect, tiles[index][1], tiles[index][2], tiles[index][3])
+             for index, rect in wall.in_cell([t[0] for t in tiles], *cell)]
+    return pack_frame(frame.frame_id, wall.cell, parts, still=frame.still)
+
+
 class ViewerSlot:
-    def __init__(self, viewer_id: int = 0) -> None:
+    """One viewer's queue; ``cell``: the wall cell (col, row) it shows (None: the whole frame)."""
+
+    def __init__(self, viewer_id: int = 0, cell: tuple[int, int] | None = None) -> None:
         self.viewer_id = viewer_id
+        self.cell = cell
         self.frame: bytes | None = None
         self.control: deque[str] = deque()
         self.camera: str | None = None
@@ -85,31 +112,64 @@ class ViewerSlot:
         """This viewer in ``/api/stats``: frames sent and skipped, and the input → display latency
         it measured itself (``p50_ms``, ``p90_ms``, ``samples``, ``interval_ms``; empty until it reports)."""
         return {"id": self.viewer_id, "frames_sent": self.frames_sent, "frames_dropped": self.frames_dropped,
-                "input_latency": dict(self.latency)}
+                "input_latency": dict(self.latency), "cell": None if self.cell is None else list(self.cell)}
 
 
 class ViewerHub:
-    def __init__(self) -> None:
+    """The viewers of one session; ``wall``: the session's display wall, whose cell viewers get
+    their cells' tiles and are frame-locked by ``lock``."""
+
+    def __init__(self, wall: WallLayout | None = None) -> None:
         self.slots: set[ViewerSlot] = set()
         self.bytes_published = 0
         self._ids = itertools.count(1)
+        self.wall = wall
+        self.lock = FrameLock()
 
-    def join(self) -> ViewerSlot:
-        slot = ViewerSlot(next(self._ids))
+    def join(self, cell: tuple[int, int] | None = None, now: float = 0.0) -> ViewerSlot:
+        """A new viewer, of wall cell ``cell`` (None: the whole frame); a cell joins the frame lock."""
+        slot = ViewerSlot(next(self._ids), cell)
         self.slots.add(slot)
+        if cell is not None:
+            self.lock.join(slot.viewer_id, now)
         return slot
 
     def leave(self, slot: ViewerSlot) -> None:
         self.slots.discard(slot)
+        self.lock.leave(slot.viewer_id)
+
+    def message_for(self, frame: ViewerMessages, slot: ViewerSlot) -> bytes:
+        """``frame`` as ``slot`` gets it: its cell's part, or the whole frame with its input number."""
+        if slot.cell is None or self.wall is None:
+            return frame.message_for(slot.viewer_id)
+        return cell_message(frame, self.wall, slot.cell)
 
     def publish_frame(self, frame: ViewerMessages) -> None:
-        """Put ``frame`` in every slot; ``bytes_published`` counts each frame once."""
+        """Put ``frame`` in every slot (a cell's part built once per cell); ``bytes_published``
+        counts each whole frame once and each cell's part once."""
         length = 0
+        parts: dict[tuple[int, int], bytes] = {}
         for slot in self.slots:
-            message = frame.message_for(slot.viewer_id)
-            slot.put_frame(message)
-            length = len(message)
-        self.bytes_published += length
+            if slot.cell is not None and self.wall is not None:
+                if slot.cell not in parts:
+                    parts[slot.cell] = cell_message(frame, self.wall, slot.cell)
+                slot.put_frame(parts[slot.cell])
+            else:
+                message = frame.message_for(slot.viewer_id)
+                slot.put_frame(message)
+                length = len(message)
+        self.bytes_published += length + sum(len(part) for part in parts.values())
+
+    def check_lock(self, now: float) -> None:
+        """Tell the wall's cells to present the frame every live one holds, if a newer one is due."""
+        frame_id = self.lock.due(now)
+        if frame_id is None:
+            return
+        message = PresentFrame(frame=frame_id)
+        text = message.to_text()
+        for slot in self.slots:
+            if slot.cell is not None:
+                slot.put_control(message, text)
 
     def broadcast(self, message: Message, exclude: ViewerSlot | None = None) -> None:
         """Queue ``message`` for every viewer but ``exclude``, encoded once."""

@@ -1,6 +1,6 @@
-"""Sessions (issue 19): ``POST /api/sessions`` opens one, ``GET /api/sessions`` lists them,
-``GET|DELETE /api/sessions/{id}``, ``PUT /api/sessions/{id}/size``. The routes that act on a
-session (camera, frame.png, objects, animation, balancer, stats) are served under
+"""Sessions (issue 19): ``POST /api/sessions`` opens one (with ``wall``: a display wall's, issue 22),
+``GET /api/sessions`` lists them, ``GET|DELETE /api/sessions/{id}``, ``PUT /api/sessions/{id}/size``.
+The routes that act on a session (camera, frame.png, objects, animation, balancer, stats) are served under
 ``/api/sessions/{id}/…`` as under ``/api/…`` for the default session (server/app.py)."""
 
 from __future__ import annotations
@@ -18,21 +18,37 @@ from server.routes.deps import get_service, get_session, require_token
 from server.scene_library import SceneLibrary, SceneRefused
 from server.service import RenderService, SessionsFull
 from server.sessions import Session, fit_size
+from tessera.decomposition.wall_cells import WallError, WallLayout
 from tessera.geometry import Camera, CameraError
+
+#: Why a wall session's size does not change.
+WALL_SIZE_FIXED = "a wall's frame is the whole wall: its size is fixed by its cells and bezels"
 
 router = APIRouter(tags=["sessions"], dependencies=[Depends(require_token)])
 
 Size = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
 
 
+class WallBody(BaseModel):
+    """A display wall: ``cols`` × ``rows`` screens of ``cell`` [w, h] px, ``bezel`` [bx, by] px apart."""
+
+    model_config = ConfigDict(extra="forbid")
+    cols: StrictInt
+    rows: StrictInt
+    cell: Size
+    bezel: Size | None = None
+
+
 class NewSession(BaseModel):
     """``scene``: a name of ``GET /api/scenes``; ``size`` [w, h] px (default ``--size``; scaled down
-    to fit ``--max-size``); ``camera``: where it starts (default: framing the scene)."""
+    to fit ``--max-size``); ``camera``: where it starts (default: framing the scene); ``wall``: a
+    display wall's session, whose frame is the whole wall (no ``size`` then)."""
 
     model_config = ConfigDict(extra="forbid")
     scene: Annotated[str, Field(min_length=1, max_length=1024)]
     size: Size | None = None
     camera: CameraBody | None = None
+    wall: WallBody | None = None
 
 
 class SizeBody(BaseModel):
@@ -44,6 +60,20 @@ def checked_size(size: list[int], service: RenderService) -> tuple[int, int]:
     try:
         return fit_size((size[0], size[1]), service.settings.max_size)
     except ValueError as exc:
+        raise HTTPException(status_code=422, detail=str(exc)) from None
+
+
+def checked_wall(body: WallBody, service: RenderService) -> WallLayout:
+    """The wall, or 422 with what is wrong: no cells, a cell over ``--max-size``, the whole wall over
+    4 × ``--max-size``'s pixels or 16384 px a side; walls need ``--mode sort-first`` (a cell's tiles
+    are the nodes' own, cut at the cell edges)."""
+    if service.settings.mode != "sort-first":
+        raise HTTPException(status_code=422, detail=f"a wall needs --mode sort-first (this coordinator runs "
+                                                    f"{service.settings.mode})")
+    largest = service.settings.max_size
+    try:
+        return WallLayout.checked(body.cols, body.rows, body.cell, body.bezel, largest, 4 * largest[0] * largest[1])
+    except WallError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
 
 
@@ -66,13 +96,16 @@ async def open_session(body: NewSession, request: Request,
         camera = None if body.camera is None else Camera.from_json(body.camera.model_dump(exclude_none=True))
     except (SceneRefused, CameraError) as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
+    if body.wall is not None and body.size is not None:
+        raise HTTPException(status_code=422, detail="a wall's size is its cells' and bezels': give wall or size")
+    wall = None if body.wall is None else checked_wall(body.wall, service)
     size = checked_size(body.size, service) if body.size is not None else service.settings.size
     fetch = None
     if entry.path is not None:
         sha256 = await asyncio.to_thread(library.content_hash, entry)
         fetch = (f"/api/scenes/{quote(entry.name, safe='')}/file", sha256)
     try:
-        session = service.create_session(entry.name, size, camera, entry.spec, fetch)
+        session = service.create_session(entry.name, size, camera, entry.spec, fetch, wall)
     except SessionsFull as exc:
         raise HTTPException(status_code=503, detail=str(exc)) from None
     return {"id": session.id, **links(request, session), "size": list(session.size)}
@@ -107,6 +140,8 @@ async def close_session(session: Session = Depends(get_session),
 async def put_size(body: SizeBody, session: Session = Depends(get_session),
                    service: RenderService = Depends(get_service)) -> dict[str, Any]:
     """Frames of ``size`` [w, h] from now on (scaled down to fit ``--max-size``): ``frame`` is the
-    first frame id of that size, ``size`` the size it has."""
+    first frame id of that size, ``size`` the size it has. A wall's size is fixed (409)."""
+    if session.wall is not None:
+        raise HTTPException(status_code=409, detail=WALL_SIZE_FIXED)
     size = checked_size(body.size, service)
     return {"frame": session.resize(size), "size": list(size)}

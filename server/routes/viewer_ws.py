@@ -9,12 +9,21 @@ the session whose watch key is ``KEY``: frames come, camera and size messages ar
 reason. A session's driving viewer sends its size (canvas × devicePixelRatio): the session's
 frames follow it, fitted to ``--max-size``; the default session keeps ``--size`` (everyone who
 opens the bare page shares it). An unknown session closes the socket with 4404, as does closing
-the session."""
+the session.
+
+A display wall's session (issue 22): ``&cell=COL,ROW`` makes the viewer one screen of the wall. It
+gets its cell's tiles only (a frame of the cell's size), steers nothing (camera and size are
+refused with the reason), and is frame-locked: it says which frame it holds (``have``), presents
+on ``present``, and reports when (``presented``, on the coordinator's clock, which ``ping`` →
+``pong`` lets it estimate). A cell outside the wall, or a cell of a session that is no wall,
+closes the socket with 4422 and the reason. A wall's whole-wall viewer (the driver) steers as any;
+the wall's size is fixed, so its size messages are ignored."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
@@ -24,6 +33,7 @@ from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
 from server.sessions import fit_size
 from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
+from tessera.decomposition.wall_cells import WallError, parse_cell
 from tessera.wire.messages import (
     FROM_VIEWER,
     CameraUpdate,
@@ -34,6 +44,7 @@ from tessera.wire.messages import (
     parse,
 )
 from tessera.wire.protocol import ProtocolError
+from tessera.wire.wall_messages import FROM_WALL_VIEWER, ClockPing, ClockPong, FramePresented, HaveFrame, WallHello
 
 router = APIRouter()
 NOT_READING = f"not reading its socket: {MAX_QUEUED_CONTROL} control messages waiting"
@@ -42,6 +53,12 @@ log = logging.getLogger("tessera.server")
 
 #: Close code for a session that does not exist (any more).
 CLOSE_NO_SESSION = 4404
+#: Close code for a wall cell that is not one (outside the wall, or the session is no wall).
+CLOSE_BAD_CELL = 4422
+#: What a wall cell's camera or size message is told.
+CELLS_DO_NOT_STEER = "this viewer is one cell of a wall: it steers nothing (the wall's driver opens ?session=ID)"
+#: What the viewer socket accepts.
+ACCEPTED = FROM_VIEWER + FROM_WALL_VIEWER
 #: What a watcher's camera message is told.
 WATCHERS_DO_NOT_STEER = "this viewer watches the session (a watch link): it cannot steer the camera or the size"
 
@@ -75,20 +92,32 @@ async def viewer_socket(ws: WebSocket) -> None:
     if session is None:
         await guards.close(ws, CLOSE_NO_SESSION, "no such session (closed, or a wrong link)")
         return
+    cell = None
+    if (cell_text := ws.query_params.get("cell")) is not None:
+        try:
+            if session.wall is None:
+                raise WallError("this session is not a wall: it has no cells")
+            cell = parse_cell(cell_text)
+            session.wall.check_cell(*cell)
+        except WallError as exc:
+            await guards.close(ws, CLOSE_BAD_CELL, str(exc))
+            return
     viewers = sum(len(s.viewers.slots) for s in service.sessions.values())
     if full := guards.viewers_full(viewers, settings.max_viewers):
         log.warning("viewer from %s refused: %s", guards.peer(ws), full)
         await guards.close(ws, 1008, full)
         return
     limits = guards.limits_for(ws, "viewer")
-    slot = session.viewers.join()
+    slot = session.viewers.join(cell, time.monotonic())
     session.touch()
     slot.put_control(ViewerHello(
-        size=session.size, viewer=slot.viewer_id, camera=session.camera,
-        bounds=session.bounds.tolist() if session.bounds is not None else None,
+        size=session.size if cell is None or session.wall is None else session.wall.cell, viewer=slot.viewer_id,
+        camera=session.camera, bounds=session.bounds.tolist() if session.bounds is not None else None,
         balancer=session.balancer.name, balancers=tuple(sorted(BALANCERS)), frame=session.store.last_id))
+    if session.wall is not None:
+        slot.put_control(WallHello(wall=session.wall.to_json(), cell=cell))
     if session.store.latest is not None:
-        slot.put_frame(session.store.latest.message_for(slot.viewer_id))
+        slot.put_frame(session.viewers.message_for(session.store.latest, slot))
     sender = asyncio.create_task(_send(ws, slot))
     try:
         while True:
@@ -98,7 +127,7 @@ async def viewer_socket(ws: WebSocket) -> None:
             try:
                 if message.get("text") is None:
                     raise ProtocolError("a viewer sends JSON text messages, not binary ones")
-                request = parse(message["text"], FROM_VIEWER)
+                request = parse(message["text"], ACCEPTED)
             except ProtocolError as exc:
                 log.info("viewer sent invalid input: %s", exc)
                 slot.put_control(ViewerError(message=str(exc)))
@@ -108,11 +137,22 @@ async def viewer_socket(ws: WebSocket) -> None:
                     break
                 continue
             match request:
+                case ClockPing():
+                    slot.put_control(ClockPong(t0=request.t0, clock_ms=time.monotonic() * 1000.0))
+                    session.viewers.lock.heard(slot.viewer_id, time.monotonic())
+                    session.viewers.check_lock(time.monotonic())
+                case HaveFrame():
+                    session.viewers.lock.have(slot.viewer_id, request.frame, time.monotonic())
+                    session.viewers.check_lock(time.monotonic())
+                case FramePresented():
+                    session.viewers.lock.report(slot.viewer_id, request.frame, request.at_ms)
+                case CameraUpdate() | ViewerSize() if cell is not None:
+                    slot.put_control(ViewerError(message=CELLS_DO_NOT_STEER))
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
                 case CameraUpdate() | ViewerSize() if watching:
                     slot.put_control(ViewerError(message=WATCHERS_DO_NOT_STEER))
-                case ViewerSize() if session is not service.default:   # the default session keeps --size
+                case ViewerSize() if session is not service.default and session.wall is None:
                     fitted = fit_size(request.size, settings.max_size)
                     if fitted != session.size:
                         session.resize(fitted)

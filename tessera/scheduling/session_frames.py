@@ -15,6 +15,7 @@ from tessera.balancers.projection import GroupProjector
 from tessera.compositing.layers import background_pixel
 from tessera.decomposition.mode import DecompositionMode
 from tessera.decomposition.modes import create_mode
+from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import DEFAULT_BACKGROUND, Camera
 from tessera.scene.state import SceneState, StateDelta
 from tessera.scene.timeline import SceneTimeline
@@ -53,6 +54,8 @@ class SessionFrames:
         self.next_start_at = 0.0
         self.ready: set[int] = set()
         self.frames_cancelled = 0
+        #: A display wall's cells (issue 22): each frame's partition is cut at their edges.
+        self.wall: WallLayout | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -91,6 +94,8 @@ class SessionFrames:
         groups_for = self.groups_for
         partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
                                         lambda: groups_for(camera, state) if groups_for else None)
+        if self.wall is not None:
+            partition = self.wall.cut(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
         self.demand.started(still)

@@ -1,0 +1,106 @@
+"""Frame lock of a display wall's cells (issue 22, seed 004: every display swaps together).
+
+Deliver first, swap second: each cell viewer reports the newest frame it decoded and holds
+(``have``); frame K is presented once every live cell holds K or newer (the lock point is the
+oldest of their newest frames, so a cell that fell behind and jumped to the newest frame pulls the
+lock forward rather than holding the others). A cell that reported nothing for ``stale_s`` is
+left out until it reports again. Each cell then says when it presented the frame, on the
+coordinator's clock; the spread of those times over the cells is the frame's present skew.
+
+Pure: clocks come in as arguments (s for ``now``, ms for present times).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: A cell that reported nothing for this long no longer holds the others back (s).
+STALE_S = 1.0
+#: Present skews kept for the percentiles (frames).
+SKEW_WINDOW = 600
+
+
+@dataclass
+class _Cell:
+    newest: int = -1
+    heard_at: float = 0.0
+
+
+@dataclass
+class _Presenting:
+    """Frame ``frame`` was presented to ``cells``; their present times (ms) as reported."""
+
+    frame: int
+    cells: frozenset[Hashable]
+    at_ms: dict[Hashable, float] = field(default_factory=dict)
+
+
+class FrameLock:
+    """The cells of one wall, each a viewer (any hashable key)."""
+
+    def __init__(self, stale_s: float = STALE_S, window: int = SKEW_WINDOW) -> None:
+        self.stale_s = stale_s
+        self._cells: dict[Hashable, _Cell] = {}
+        self.presented = -1
+        self._presenting: _Presenting | None = None
+        self.skews_ms: deque[float] = deque(maxlen=window)
+
+    def join(self, cell: Hashable, now: float) -> None:
+        self._cells[cell] = _Cell(heard_at=now)
+
+    def leave(self, cell: Hashable) -> None:
+        self._cells.pop(cell, None)
+
+    def heard(self, cell: Hashable, now: float) -> None:
+        """``cell`` said something (a ping): it is live."""
+        if cell in self._cells:
+            self._cells[cell].heard_at = now
+
+    def have(self, cell: Hashable, frame_id: int, now: float) -> None:
+        """``cell`` decoded frame ``frame_id`` and holds it."""
+        state = self._cells.get(cell)
+        if state is not None:
+            state.newest, state.heard_at = max(state.newest, frame_id), now
+
+    def due(self, now: float) -> int | None:
+        """The frame every live cell now holds, when newer than the one presented last (it counts
+        as presented from here on); None: nothing to present."""
+        live = {key: c for key, c in self._cells.items() if now - c.heard_at <= self.stale_s}
+        if not live:
+            return None
+        lock = min(c.newest for c in live.values())
+        if lock <= self.presented:
+            return None
+        self._finish()
+        self.presented = lock
+        self._presenting = _Presenting(lock, frozenset(live))
+        return lock
+
+    def report(self, cell: Hashable, frame_id: int, at_ms: float) -> None:
+        """``cell`` put frame ``frame_id`` on screen at ``at_ms`` (the coordinator's clock)."""
+        presenting = self._presenting
+        if presenting is None or presenting.frame != frame_id or cell not in presenting.cells:
+            return
+        presenting.at_ms[cell] = at_ms
+        if len(presenting.at_ms) == len(presenting.cells):
+            self._finish()
+
+    def _finish(self) -> None:
+        """The frame presenting now is done: its skew is kept when two cells or more reported."""
+        presenting, self._presenting = self._presenting, None
+        if presenting is not None and len(presenting.at_ms) >= 2:
+            times = presenting.at_ms.values()
+            self.skews_ms.append(max(times) - min(times))
+
+    def describe(self) -> dict[str, float | int | None]:
+        """``skew_p50_ms``, ``skew_p99_ms`` (None before two cells presented a frame), ``skew_samples``,
+        ``presented`` (the last frame presented, -1: none), ``cells``."""
+        skews = np.asarray(self.skews_ms, dtype=np.float64)
+        p50, p99 = (float(np.percentile(skews, q)) for q in (50, 99)) if skews.size else (None, None)
+        return {"skew_p50_ms": None if p50 is None else round(p50, 3),
+                "skew_p99_ms": None if p99 is None else round(p99, 3),
+                "skew_samples": int(skews.size), "presented": self.presented, "cells": len(self._cells)}

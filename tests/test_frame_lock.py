@@ -1,0 +1,73 @@
+"""The wall's frame lock (issue 22, seed 004), on a virtual clock: a frame is presented once
+every live cell holds it; a cell that fell behind and jumped to the newest frame pulls the lock
+forward; a silent cell stops holding the others; the present skew over cells."""
+
+from __future__ import annotations
+
+from tessera.scheduling.frame_lock import FrameLock
+
+
+def test_a_frame_is_presented_once_every_cell_holds_it():
+    lock = FrameLock()
+    for cell in "abc":
+        lock.join(cell, 0.0)
+    lock.have("a", 5, 0.01)
+    lock.have("b", 5, 0.01)
+    assert lock.due(0.01) is None   # c holds nothing yet
+    lock.have("c", 4, 0.02)
+    assert lock.due(0.02) == 4      # every cell holds 4 (a and b hold 5 too)
+    assert lock.due(0.02) is None   # presented once
+    lock.have("c", 5, 0.03)
+    assert lock.due(0.03) == 5
+
+
+def test_a_cell_that_fell_behind_skips_to_the_newest_frame():
+    lock = FrameLock()
+    for cell in "ab":
+        lock.join(cell, 0.0)
+    for frame in (1, 2, 3, 4):
+        lock.have("a", frame, 0.01 * frame)
+    lock.have("b", 4, 0.05)            # b never decoded 1-3: it jumped to the newest
+    assert lock.due(0.05) == 4
+
+
+def test_a_silent_cell_stops_holding_the_others_and_rejoins_when_it_reports():
+    lock = FrameLock(stale_s=1.0)
+    for cell in "ab":
+        lock.join(cell, 0.0)
+    lock.have("a", 7, 0.5)
+    assert lock.due(0.5) is None
+    assert lock.due(1.2) == 7          # b said nothing for over 1 s
+    lock.leave("b")
+    lock.join("b", 2.0)                # reopened: it holds the others only once it holds a frame
+    lock.have("a", 8, 2.0)
+    assert lock.due(2.0) is None
+    lock.have("b", 8, 2.1)
+    assert lock.due(2.1) == 8
+
+
+def test_skew_is_the_spread_of_present_times_over_the_cells():
+    lock = FrameLock()
+    for cell in "abc":
+        lock.join(cell, 0.0)
+    for frame, spreads in enumerate(([0.0, 1.0, 3.0], [0.0, 0.5, 0.5], [2.0, 0.0, 0.0]), start=1):
+        for cell in "abc":
+            lock.have(cell, frame, frame)
+        assert lock.due(frame) == frame
+        for cell, offset in zip("abc", spreads, strict=True):
+            lock.report(cell, frame, 1000.0 * frame + offset)
+    lock.report("a", 1, 5000.0)         # a frame already finished: ignored
+    figures = lock.describe()
+    assert figures["skew_samples"] == 3
+    assert figures["skew_p50_ms"] == 2.0
+    assert 2.0 < figures["skew_p99_ms"] <= 3.0
+    assert figures["presented"] == 3 and figures["cells"] == 3
+
+
+def test_no_skew_before_two_cells_report():
+    lock = FrameLock()
+    lock.join("a", 0.0)
+    lock.have("a", 1, 0.0)
+    assert lock.due(0.0) == 1
+    lock.report("a", 1, 10.0)
+    assert lock.describe()["skew_p50_ms"] is None
