@@ -55,7 +55,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.settings = settings
     app.state.origins = OriginPolicy(settings.allowed_origins)
     app.state.scenes = library
-    app.state.upload_checks = UploadChecks()
+    app.state.upload_checks = UploadChecks(settings.upload_check_memory_mb)
     app.middleware("http")(refuse_cross_site_writes)
     for module in (health, scenes, nodes, node_ws, viewer_ws, web, sessions):
         app.include_router(module.router)

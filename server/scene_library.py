@@ -66,6 +66,10 @@ class NotAScene(SceneRefused):
     """An uploaded file that does not load as a scene."""
 
 
+class TooLargeToLoad(SceneRefused):
+    """An uploaded file whose check needs more memory than ``--upload-check-memory-mb``."""
+
+
 class UploadsUnavailable(SceneRefused):
     """Uploads are off (no ``--data-dir``) or their folder cannot be written."""
 
@@ -238,8 +242,9 @@ class SceneLibrary:
 
 class PendingUpload:
     """An upload on its way: a hidden temporary file beside its final place, counted and hashed as
-    it is written: :meth:`write`, :meth:`finish`, :meth:`check`, :meth:`commit`; :meth:`close` in
-    any case (it removes the temporary file if still there)."""
+    it is written: :meth:`write`, :meth:`finish`, then a check of :attr:`temporary`
+    (:mod:`server.upload_check`), :meth:`commit`; :meth:`close` in any case (it removes the
+    temporary file if still there)."""
 
     def __init__(self, library: SceneLibrary, name: str, final: Path, temporary: Path, file: BinaryIO) -> None:
         self.library = library
@@ -272,11 +277,6 @@ class PendingUpload:
         finally:
             self.file.close()
 
-    def check(self) -> int:
-        """Load the finished file as a render node would; its triangle count, or :class:`NotAScene`
-        (blocking and CPU heavy)."""
-        return check_scene_file(self.temporary, self.name)
-
     def commit(self) -> SceneEntry:
         """Put the finished file under its name (blocking); :class:`SceneExists` if another upload
         took the name meanwhile (then nothing is kept)."""
@@ -302,8 +302,9 @@ class PendingUpload:
 
 
 def check_scene_file(path: Path, name: str) -> int:
-    """The triangles of the scene file at ``path``, loaded the way a render node loads it; raises
-    :class:`NotAScene` with the loader's reason (the file called ``name`` in it). A glTF must carry
+    """The triangles of the scene file at ``path``, loaded the way a render node loads it, in this
+    process (the coordinator runs it in a child process with capped memory: :mod:`server.upload_check`);
+    raises :class:`NotAScene` with the loader's reason (the file called ``name`` in it). A glTF must carry
     its buffers and images inside (GLB chunk or ``data:`` URIs): an upload has no files beside it, and
     a relative URI could reach any file of the coordinator's host."""
     try:

@@ -161,6 +161,8 @@ class Settings(SchedulerConfig):
     #: Where uploads (``DIR/scenes``) live; None: uploads are refused.
     data_dir: Path | None = None
     max_upload_mb: int = 512
+    #: Address space of the process that loads an upload to check it (server/upload_check.py), MiB.
+    upload_check_memory_mb: int = 4096
     #: Sessions open at once, the default one included; more are refused with 503.
     max_sessions: int = 16
     #: A session (not the default one) with no viewer and no API call for this long is closed (s).
@@ -248,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: none, uploads are refused)")
     parser.add_argument("--max-upload-mb", type=_megabytes,
                         help=f"largest scene upload, MiB (default {defaults.max_upload_mb})")
+    parser.add_argument("--upload-check-memory-mb", type=_megabytes,
+                        help="memory (address space) of the process that loads an upload to check it, MiB; "
+                             f"a file that needs more is refused with 413 (default {defaults.upload_check_memory_mb})")
     parser.add_argument("--max-sessions", type=_count,
                         help=f"sessions open at once, the default one included (default {defaults.max_sessions})")
     parser.add_argument("--session-idle-timeout-s", type=POSITIVE,

@@ -143,6 +143,24 @@ def test_uploads_over_the_limit_are_413(tmp_path):
         assert list((tmp_path / "data").rglob("*.*")) == []
 
 
+def test_an_upload_that_needs_more_memory_to_load_than_the_cap_is_413_and_the_rest_goes_on(tmp_path):
+    """The check loads the file in a child process: over --upload-check-memory-mb it is refused and
+    the coordinator (this process) serves on, takes the file once it may use more, and keeps nothing
+    of the refused one."""
+    bunny = scene_path(BUNNY).read_bytes()
+    with TestClient(create_app(settings(tmp_path, upload_check_memory_mb=64))) as client:
+        answer = post(client, "bunny.ply", bunny)
+        assert answer.status_code == 413, answer.text
+        assert answer.json()["detail"] == "'upload/bunny.ply' needs more than 64 MiB to load (--upload-check-memory-mb)"
+        assert "upload/bunny.ply" not in listed(client)
+        assert list((tmp_path / "data").rglob("*.*")) == []
+        assert client.get("/api/camera").status_code == 200
+    with TestClient(create_app(settings(tmp_path))) as client:
+        answer = post(client, "bunny.ply", bunny)
+        assert answer.status_code == 201, answer.text
+        assert answer.json()["triangles"] == 69451
+
+
 def test_without_a_data_dir_uploads_are_503_and_the_library_still_lists(tmp_path):
     with TestClient(create_app(settings(tmp_path, data_dir=None))) as client:
         answer = post(client, "tri.ply", TRIANGLE_PLY)

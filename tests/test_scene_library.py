@@ -17,6 +17,7 @@ from server.scene_library import (
     NotAScene,
     SceneExists,
     SceneLibrary,
+    TooLargeToLoad,
     UnknownScene,
     UnsupportedFormat,
     UploadsUnavailable,
@@ -24,6 +25,8 @@ from server.scene_library import (
     check_scene_file,
 )
 from server.settings import Settings, load_settings
+from server.upload_check import checked_triangles
+from tests.conftest import scene_path, seconds
 from tests.scene_files_support import TRIANGLE_PLY, triangle_gltf
 
 
@@ -38,7 +41,7 @@ def upload(library: SceneLibrary, filename: str, content: bytes) -> str:
     try:
         pending.write(content)
         pending.finish()
-        pending.check()
+        check_scene_file(pending.temporary, pending.name)
         return pending.commit().name
     finally:
         pending.close()
@@ -220,6 +223,21 @@ def test_an_uploaded_gltf_must_carry_its_buffers_and_images(tmp_path):
         check_scene_file(tmp_path / "image.gltf", "upload/image.gltf")
 
 
+def test_the_coordinator_checks_in_a_child_process_with_capped_memory(tmp_path):
+    corrupt = tmp_path / "corrupt.ply"
+    corrupt.write_bytes(b"ply\nformat nonsense\n")
+    bunny = scene_path("bunny/bun_zipper.ply")
+    assert checked_triangles(bunny, "upload/bunny.ply", Settings().upload_check_memory_mb, seconds(60)) == 69451
+    with pytest.raises(NotAScene, match=r"^upload/corrupt.ply: corrupt or unreadable PLY"):
+        checked_triangles(corrupt, "upload/corrupt.ply", 4096, seconds(60))
+    # 64 MiB of address space is less than the interpreter and its libraries take: loading fails at once.
+    with pytest.raises(TooLargeToLoad, match=r"^'upload/bunny.ply' needs more than 64 MiB to load "
+                                             r"\(--upload-check-memory-mb\)$"):
+        checked_triangles(bunny, "upload/bunny.ply", 64, seconds(60))
+    with pytest.raises(NotAScene, match=r"^'upload/bunny.ply' took over 0.01 s to load$"):
+        checked_triangles(bunny, "upload/bunny.ply", 4096, 0.01)
+
+
 def multipart(*parts: tuple[str, str | None, bytes], boundary: str = "b0undary") -> bytes:
     body = b""
     for field, filename, content in parts:
@@ -266,10 +284,13 @@ def test_bodies_without_one_whole_file_field_are_refused(content_type, body, rea
 
 def test_flags_and_environment_variables(tmp_path):
     settings = load_settings(["--scenes-dir", str(tmp_path), "--max-upload-mb", "64"],
-                             {"TESSERA_DATA_DIR": str(tmp_path)})
+                             {"TESSERA_DATA_DIR": str(tmp_path), "TESSERA_UPLOAD_CHECK_MEMORY_MB": "1024"})
     assert (settings.scenes_dir, settings.data_dir, settings.max_upload_mb) == (tmp_path, tmp_path, 64)
+    assert settings.upload_check_memory_mb == 1024
+    assert load_settings(["--upload-check-memory-mb", "300"], {}).upload_check_memory_mb == 300
     assert load_settings([], {}) == Settings()
     assert (Settings().scenes_dir, Settings().data_dir, Settings().max_upload_mb) == (None, None, 512)
+    assert Settings().upload_check_memory_mb == 4096
 
 
 @pytest.mark.parametrize(("argv", "fragment"), [
@@ -277,6 +298,7 @@ def test_flags_and_environment_variables(tmp_path):
     (["--data-dir", __file__], "must be an existing folder"),
     (["--max-upload-mb", "0"], "must be at least 1"),
     (["--max-upload-mb", "lots"], "must be a whole number"),
+    (["--upload-check-memory-mb", "0"], "must be at least 1"),
 ])
 def test_bad_flags_exit_with_a_message(argv, fragment, capsys):
     with pytest.raises(SystemExit):

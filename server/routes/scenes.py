@@ -19,23 +19,25 @@ from server.scene_library import (
     SceneExists,
     SceneLibrary,
     SceneRefused,
+    TooLargeToLoad,
     UnknownScene,
     UnsupportedFormat,
     UploadsUnavailable,
     UploadTooLarge,
 )
+from server.upload_check import checked_triangles
 
 router = APIRouter(tags=["scenes"], dependencies=[Depends(require_token)])
 
 STATUS: dict[type[SceneRefused], int] = {
     UnknownScene: 404, BadSceneName: 422, UnsupportedFormat: 415, SceneExists: 409, UploadTooLarge: 413,
-    NotAScene: 422, UploadsUnavailable: 503,
+    TooLargeToLoad: 413, NotAScene: 422, UploadsUnavailable: 503,
 }
 #: Room for the multipart framing around the file (boundaries, part headers, other small fields).
 MULTIPART_OVERHEAD = 64 << 10
-#: Longest check of an upload. Loading the 990k-triangle scan (an 18.8 MB PLY) as a node does took
-#: 1.0–1.5 s on the 2-core CI machine (3.5 s while other jobs shared it), so a PLY at the default
-#: 512 MB limit takes 30–100 s.
+#: Longest check of an upload; the check's process is killed then. Loading the 990k-triangle scan
+#: (an 18.8 MB PLY) as a node does took 1.0–1.5 s on the 2-core CI machine (3.5 s while other jobs
+#: shared it), so a PLY at the default 512 MB limit takes 30–100 s.
 CHECK_TIMEOUT_S = 300.0
 #: The OpenAPI description of the upload's body (read from the stream, not declared as a parameter).
 UPLOAD_BODY = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
@@ -43,22 +45,21 @@ UPLOAD_BODY = {"requestBody": {"required": True, "content": {"multipart/form-dat
 
 
 class UploadChecks:
-    """Loads uploads to check them, one at a time (CPU heavy), each for at most
-    :data:`CHECK_TIMEOUT_S`. A thread cannot be stopped: a check that outlives its request keeps
-    its turn until it ends, so slow files cannot pile up threads."""
+    """Loads uploads to check them, one at a time (CPU heavy), each in a child process with at most
+    ``memory_mb`` MiB of address space for at most :data:`CHECK_TIMEOUT_S` (:mod:`server.upload_check`).
+    A check whose request went away keeps its turn until its process ends, so checks never pile up."""
 
-    def __init__(self) -> None:
+    def __init__(self, memory_mb: int) -> None:
+        self.memory_mb = memory_mb
         self._turn = asyncio.Lock()
 
     async def triangles(self, upload: PendingUpload) -> int:
-        """The upload's triangles; raises :class:`NotAScene`."""
+        """The upload's triangles; raises :class:`NotAScene` or :class:`TooLargeToLoad`."""
         await self._turn.acquire()
-        check = asyncio.ensure_future(asyncio.to_thread(upload.check))
+        check = asyncio.ensure_future(asyncio.to_thread(
+            checked_triangles, upload.temporary, upload.name, self.memory_mb, CHECK_TIMEOUT_S))
         check.add_done_callback(self._checked)
-        done, _ = await asyncio.wait({check}, timeout=CHECK_TIMEOUT_S)
-        if not done:
-            raise NotAScene(f"{upload.name!r} took over {CHECK_TIMEOUT_S:g} s to load")
-        return check.result()
+        return await asyncio.shield(check)
 
     def _checked(self, check: asyncio.Future[int]) -> None:
         self._turn.release()
@@ -102,9 +103,9 @@ async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) ->
 @router.post("/api/scenes", status_code=201, openapi_extra=UPLOAD_BODY)
 async def upload_scene(request: Request, library: SceneLibrary = Depends(get_library)) -> dict[str, Any]:
     """Store the file of multipart field ``file`` as ``upload/FILENAME`` once it loads as a scene:
-    ``name``, ``sha256``, ``bytes``, ``triangles``. A name taken 409, too large 413, an unsupported
-    suffix 415, a bad name or a file that does not load 422 (with the loader's reason), uploads off
-    503."""
+    ``name``, ``sha256``, ``bytes``, ``triangles``. A name taken 409, too large to send or to load
+    within ``--upload-check-memory-mb`` 413, an unsupported suffix 415, a bad name or a file that does
+    not load 422 (with the loader's reason), uploads off 503."""
     limit = library.max_upload_bytes + MULTIPART_OVERHEAD
     declared = request.headers.get("content-length", "")
     upload = None
