@@ -19,7 +19,8 @@ from bench import processes
 from bench.processes import PYTHON, REPO, LoggedProcess
 from node.gl.context import create_gl_context
 
-SCENES = REPO.parent / "shared" / "scenes"
+#: The real scenes: $TESSERA_TEST_SCENES (scripts/test sets it), else ../shared/scenes.
+SCENES = Path(os.environ.get("TESSERA_TEST_SCENES") or REPO.parent / "shared" / "scenes")
 TIMEOUT_SCALE = float(os.environ.get("TESSERA_TEST_TIMEOUT_SCALE", "1.0"))
 
 
@@ -29,11 +30,11 @@ def seconds(value: float) -> float:
 
 
 def scene_path(relative: str) -> Path:
-    """Path of a real scene under ../shared/scenes; fails the test clearly when it is missing."""
+    """Path of a real scene under SCENES; fails the test clearly when it is missing."""
     path = SCENES / relative
     if not path.exists():
         pytest.fail(f"scene {relative} not found: the tests read real scenes from {SCENES} "
-                    "(the shared/ folder beside the checkout)")
+                    "(../shared/scenes, else $TESSERA_TEST_SCENES); scripts/fetch-scenes DIR fetches them")
     return path
 
 
