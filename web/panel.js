@@ -6,6 +6,13 @@ import { nodeColor } from "./overlay.js";
 
 export const PHASES = ["render", "readback", "encode", "send"];
 const POLL_MS = 500;
+/** What each phase of a node's bar is, shown on hover. */
+export const PHASE_MEANING = {
+  render: "drawing its tiles with OpenGL",
+  readback: "copying the pixels from the GPU",
+  encode: "compressing the tiles (JPEG, PNG)",
+  send: "sending them to the coordinator",
+};
 
 /** Smallest 1, 2 or 5 × 10^k that is ≥ `ms` (the timing bars' full-scale value, ms). */
 export function niceScale(ms) {
@@ -28,6 +35,30 @@ function el(tag, className, text) {
 
 const fixed = (value, digits) => (Number.isFinite(value) ? value.toFixed(digits) : "–");
 
+/** True when nothing is being rendered: no frame published in the last 2 s (fps 0) and none in
+ * flight. Frames are rendered on demand, so a still camera and scene leave the cluster at rest. */
+export function atRest(stats) {
+  return !(Number(stats.fps) > 0) && !(Number(stats.frames_in_flight) > 0);
+}
+
+/** The fps figure: frames per second while frames come, "at rest" when none are needed. */
+export function fpsText(stats) {
+  return atRest(stats) ? "at rest" : fixed(Number(stats.fps), 1);
+}
+
+/** What a node line's figures mean, shown on hover. */
+export function nodeDetailTitle(node) {
+  const name = node.name ?? `node ${node.id}`;
+  if (node.state && node.state !== "ready") return `${name} is ${node.state}: it draws no tiles until its scene is loaded`;
+  const tiles = Array.isArray(node.tiles) ? node.tiles.length : 0;
+  return [
+    `${fixed(node.busy_ms, 1)} ms: ${name}'s time for its part of the last frame (render + readback + encode + send)`,
+    `${tiles} tile${tiles === 1 ? "" : "s"}: the screen rectangles it drew in that frame`,
+    `×${fixed(node.speed, 2)}: its speed measured at start-up, relative to the slowest node (×1.00); ` +
+      "the balancer gives faster nodes more of the screen",
+  ].join("\n");
+}
+
 /** One line about a node: busy time, tile count and relative speed, or its state while not ready. */
 export function nodeDetail(node) {
   if (node.state && node.state !== "ready") {
@@ -46,6 +77,9 @@ export function inputLatencyText(latency) {
   return latency.interval_ms > 0 ? `${ms} · ${fixed(latency.p50_ms / latency.interval_ms, 1)} fr` : ms;
 }
 
+const INPUT_LATENCY_TITLE = "Median time from a camera input in this browser to the frame showing it on screen: " +
+  "in ms and in frame intervals (fr, 1 fr = the time between two frames)";
+
 export class Panel {
   /**
    * @param {Document} doc  holds the panel's elements (ids in index.html)
@@ -59,6 +93,7 @@ export class Panel {
     this.figure = (name) => doc.getElementById(`fig-${name}`);
     this.nodes = doc.getElementById("nodes");
     this.scale = doc.getElementById("bar-scale");
+    this.renderState = doc.getElementById("render-state");
     this.select = doc.getElementById("balancer");
     this.params = doc.getElementById("balancer-params");
     this.message = doc.getElementById("panel-message");
@@ -87,11 +122,15 @@ export class Panel {
   showInputLatency(latency) {
     const figure = this.figure("input-latency");
     figure.textContent = inputLatencyText(latency);
-    figure.title = latency ? `p90 ${fixed(latency.p90_ms, 0)} ms over ${latency.samples} inputs` : "";
+    const p90 = latency ? `\np90 ${fixed(latency.p90_ms, 0)} ms over ${latency.samples} inputs` : "";
+    figure.title = `${INPUT_LATENCY_TITLE}${p90}`;
   }
 
   showStats(stats) {
-    this.figure("fps").textContent = fixed(stats.fps, 1);
+    const rest = atRest(stats);
+    this.figure("fps").textContent = fpsText(stats);
+    this.figure("fps").dataset.rest = String(rest);
+    this.renderState.hidden = !rest;
     this.figure("imbalance").textContent = fixed(stats.imbalance, 2);
     this.figure("imbalance-avg").textContent = fixed(stats.imbalance_avg, 2);
     this.figure("latency").textContent = fixed(stats.latency_ms, 0);
@@ -112,11 +151,13 @@ export class Panel {
       const row = this.nodes.children[index];
       row.querySelector(".swatch").style.background = nodeColor(node.slot);
       row.querySelector(".name").textContent = node.name ?? `node ${node.id}`;
-      row.querySelector(".detail").textContent = nodeDetail(node);
+      const detail = row.querySelector(".detail");
+      detail.textContent = nodeDetail(node);
+      detail.title = nodeDetailTitle(node);
       const widths = segmentWidths(node, scaleMs);
       row.querySelectorAll(".seg").forEach((segment, i) => {
         segment.style.width = `${widths[i]}%`;
-        segment.title = `${PHASES[i]} ${fixed(Number(node[`${PHASES[i]}_ms`]), 2)} ms`;
+        segment.title = `${PHASES[i]} ${fixed(Number(node[`${PHASES[i]}_ms`]), 2)} ms: ${PHASE_MEANING[PHASES[i]]}`;
       });
     });
   }

@@ -2,7 +2,10 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
-import { PHASES, inputLatencyText, niceScale, nodeDetail, segmentWidths } from "../../web/panel.js";
+import {
+  PHASES, PHASE_MEANING, atRest, fpsText, inputLatencyText, niceScale, nodeDetail, nodeDetailTitle,
+  segmentWidths,
+} from "../../web/panel.js";
 
 // PHASES against tessera.protocol.NODE_PHASES: tests/test_web_mirror.py reads both and compares them.
 test("one bar segment per phase, in PHASES order", () => {
@@ -41,4 +44,29 @@ test("input → display latency: p50 in ms and in frame intervals", () => {
   assert.equal(inputLatencyText({ p50_ms: 31, p90_ms: 31, samples: 1, interval_ms: 0 }), "31 ms");
   assert.equal(inputLatencyText({ p50_ms: 0, p90_ms: 0, samples: 0, interval_ms: 0 }), "–");
   assert.equal(inputLatencyText(null), "–");
+});
+
+test("at rest: no frame for 2 s (fps 0) and none in flight; the fps figure says so", () => {
+  assert.equal(atRest({ fps: 0, frames_in_flight: 0 }), true);
+  assert.equal(atRest({ fps: 0 }), true);
+  assert.equal(atRest({ fps: 0, frames_in_flight: 1 }), false);
+  assert.equal(atRest({ fps: 24.5, frames_in_flight: 0 }), false);
+  assert.equal(fpsText({ fps: 0, frames_in_flight: 0 }), "at rest");
+  assert.equal(fpsText({ fps: 24.46, frames_in_flight: 2 }), "24.5");
+  assert.equal(fpsText({ fps: 0, frames_in_flight: 1 }), "0.0");
+});
+
+test("a node line's hover text explains its busy time, tiles and speed factor", () => {
+  const title = nodeDetailTitle({ name: "n1", busy_ms: 12.34, tiles: [[0, 0, 8, 8], [8, 0, 8, 8]], speed: 1.51 });
+  const lines = title.split("\n");
+  assert.equal(lines.length, 3);
+  assert.match(lines[0], /^12\.3 ms: n1's time for its part of the last frame/);
+  assert.match(lines[1], /^2 tiles: /);
+  assert.match(lines[2], /^×1\.51: its speed .* relative to the slowest node/);
+  assert.match(nodeDetailTitle({ id: 3, state: "loading" }), /^node 3 is loading: /);
+});
+
+test("every bar phase has a meaning", () => {
+  assert.deepEqual(Object.keys(PHASE_MEANING), PHASES);
+  for (const phase of PHASES) assert.ok(PHASE_MEANING[phase].length > 10);
 });
