@@ -161,15 +161,19 @@ class ViewerHub:
         self.bytes_published += length + sum(len(part) for part in parts.values())
 
     def check_lock(self, now: float) -> None:
-        """Tell the wall's cells to present the frame every live one holds, if a newer one is due."""
-        frame_id = self.lock.due(now)
-        if frame_id is None:
+        """Tell the wall's cells to present the frame every live one holds, if a newer one is due
+        (or a cell that joined since the frame presented last, once it holds it)."""
+        due = self.lock.due(now)
+        if not due:
             return
-        message = PresentFrame(frame=frame_id)
-        text = message.to_text()
+        messages: dict[int, tuple[PresentFrame, str]] = {}
         for slot in self.slots:
-            if slot.cell is not None:
-                slot.put_control(message, text)
+            frame_id = due.get(slot.viewer_id)
+            if frame_id is not None:
+                if frame_id not in messages:
+                    message = PresentFrame(frame=frame_id)
+                    messages[frame_id] = (message, message.to_text())
+                slot.put_control(*messages[frame_id])
 
     def broadcast(self, message: Message, exclude: ViewerSlot | None = None) -> None:
         """Queue ``message`` for every viewer but ``exclude``, encoded once."""

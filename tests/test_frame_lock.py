@@ -13,12 +13,12 @@ def test_a_frame_is_presented_once_every_cell_holds_it():
         lock.join(cell, 0.0)
     lock.have("a", 5, 0.01)
     lock.have("b", 5, 0.01)
-    assert lock.due(0.01) is None   # c holds nothing yet
+    assert lock.due(0.01) == {}     # c holds nothing yet
     lock.have("c", 4, 0.02)
-    assert lock.due(0.02) == 4      # every cell holds 4 (a and b hold 5 too)
-    assert lock.due(0.02) is None   # presented once
+    assert lock.due(0.02) == {"a": 4, "b": 4, "c": 4}   # every cell holds 4 (a and b hold 5 too)
+    assert lock.due(0.02) == {}     # presented once
     lock.have("c", 5, 0.03)
-    assert lock.due(0.03) == 5
+    assert lock.due(0.03) == {"a": 5, "b": 5, "c": 5}
 
 
 def test_a_cell_that_fell_behind_skips_to_the_newest_frame():
@@ -28,7 +28,7 @@ def test_a_cell_that_fell_behind_skips_to_the_newest_frame():
     for frame in (1, 2, 3, 4):
         lock.have("a", frame, 0.01 * frame)
     lock.have("b", 4, 0.05)            # b never decoded 1-3: it jumped to the newest
-    assert lock.due(0.05) == 4
+    assert lock.due(0.05) == {"a": 4, "b": 4}
 
 
 def test_a_silent_cell_stops_holding_the_others_and_rejoins_when_it_reports():
@@ -36,14 +36,20 @@ def test_a_silent_cell_stops_holding_the_others_and_rejoins_when_it_reports():
     for cell in "ab":
         lock.join(cell, 0.0)
     lock.have("a", 7, 0.5)
-    assert lock.due(0.5) is None
-    assert lock.due(1.2) == 7          # b said nothing for over 1 s
+    assert lock.due(0.5) == {}
+    assert lock.due(1.2) == {"a": 7}   # b said nothing for over 1 s
     lock.leave("b")
-    lock.join("b", 2.0)                # reopened: it holds the others only once it holds a frame
-    lock.have("a", 8, 2.0)
-    assert lock.due(2.0) is None
-    lock.have("b", 8, 2.1)
-    assert lock.due(2.1) == 8
+    lock.have("a", 8, 1.3)
+    assert lock.due(1.3) == {"a": 8}
+    lock.join("b", 2.0)                # reopened after frame 8 was presented
+    assert lock.due(2.0) == {}
+    lock.have("b", 8, 2.1)             # it holds the newest frame: it alone presents it
+    assert lock.due(2.1) == {"b": 8}
+    assert lock.due(2.1) == {}
+    lock.have("a", 9, 2.2)
+    assert lock.due(2.2) == {}         # b holds the others back again
+    lock.have("b", 9, 2.3)
+    assert lock.due(2.3) == {"a": 9, "b": 9}
 
 
 def test_skew_is_the_spread_of_present_times_over_the_cells():
@@ -53,7 +59,7 @@ def test_skew_is_the_spread_of_present_times_over_the_cells():
     for frame, spreads in enumerate(([0.0, 1.0, 3.0], [0.0, 0.5, 0.5], [2.0, 0.0, 0.0]), start=1):
         for cell in "abc":
             lock.have(cell, frame, frame)
-        assert lock.due(frame) == frame
+        assert set(lock.due(frame).values()) == {frame}
         for cell, offset in zip("abc", spreads, strict=True):
             lock.report(cell, frame, 1000.0 * frame + offset)
     lock.report("a", 1, 5000.0)         # a frame already finished: ignored
@@ -68,6 +74,6 @@ def test_no_skew_before_two_cells_report():
     lock = FrameLock()
     lock.join("a", 0.0)
     lock.have("a", 1, 0.0)
-    assert lock.due(0.0) == 1
+    assert lock.due(0.0) == {"a": 1}
     lock.report("a", 1, 10.0)
     assert lock.describe()["skew_p50_ms"] is None

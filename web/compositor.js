@@ -2,11 +2,15 @@
 // all are drawn in one synchronous pass, so the canvas never shows a frame half old, half new.
 // Frames decode concurrently (the browser decodes images off the main thread); a decoded frame
 // is drawn only if no newer frame has been drawn meanwhile, otherwise it is dropped.
+// Held (a display wall's cell, issue 22): a decoded frame is kept, not drawn, until the coordinator
+// says every cell holds it (present(frameId)), so all cells swap together; the newest few are kept.
 
 import { Codec, ProtocolError } from "./protocol.js";
 
 /** Frames decoding at once; a frame arriving beyond this waits in a one-frame slot (latest wins). */
 export const MAX_DECODING = 3;
+/** Decoded frames a held compositor keeps while it waits for the coordinator's present. */
+export const MAX_HELD = 8;
 const MIME = { [Codec.JPEG]: "image/jpeg", [Codec.PNG]: "image/png" };
 
 /** Raw tile pixels (w×h×3 bytes, RGB, rows top-down) → RGBA bytes with alpha 255. */
@@ -54,6 +58,48 @@ export class Compositor {
     this.decoding = 0;
     this.waiting = null;
     this.dropped = 0;
+    /** null: frames are drawn once decoded; else called with each decoded frame, which is kept. */
+    this.onHeld = null;
+    /** Held decoded frames by id, oldest first: {frame, images}. */
+    this.held = new Map();
+  }
+
+  /** Keep decoded frames until present(frameId) (a wall cell); `onHeld(frame)` after each decode. */
+  hold(onHeld) {
+    this.onHeld = onHeld;
+  }
+
+  /**
+   * Draw the held frame `frameId` (or the newest held one older than it, else the oldest held),
+   * release it and every older one; returns the frame drawn, null when none is held.
+   */
+  present(frameId) {
+    const ids = [...this.held.keys()];
+    if (!ids.length) return null;
+    const older = ids.filter((id) => id <= frameId);
+    const chosen = older.length ? Math.max(...older) : Math.min(...ids);
+    const { frame, images } = this.held.get(chosen);
+    this.draw(frame, images);
+    this.onDrawn(frame);
+    for (const id of ids) {
+      if (id <= chosen) {
+        release(this.held.get(id).images);
+        this.held.delete(id);
+      }
+    }
+    return frame;
+  }
+
+  keep(frame, images) {
+    if (this.held.has(frame.frameId)) release(this.held.get(frame.frameId).images);
+    this.held.set(frame.frameId, { frame, images });
+    while (this.held.size > MAX_HELD) {
+      const [oldest] = this.held.keys();
+      release(this.held.get(oldest).images);
+      this.held.delete(oldest);
+      this.dropped++;
+    }
+    this.onHeld(frame);
   }
 
   /** Queue a parsed frame (see protocol.parseFrame) for decoding and drawing. */
@@ -71,6 +117,11 @@ export class Compositor {
     const pending = frame.tiles.map(decodeTile);
     try {
       const images = await Promise.all(pending);
+      if (this.onHeld && seq > this.drawnSeq) {
+        this.drawnSeq = seq;
+        this.keep(frame, images);
+        return;
+      }
       if (seq > this.drawnSeq) {
         this.draw(frame, images);
         this.drawnSeq = seq;

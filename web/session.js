@@ -1,23 +1,26 @@
 // Which session the page shows (issue 19): `?session=ID` drives session ID, `?session=KEY&watch=1`
-// watches the session whose watch key is KEY (frames only), none: the default session.
+// watches the session whose watch key is KEY (frames only), none: the default session;
+// `&cell=COL,ROW` shows one cell of a display wall's session (issue 22; the coordinator checks it).
 
 /**
  * @param {string} search  location.search
- * @returns {{key: string | null, watching: boolean}}
+ * @returns {{key: string | null, watching: boolean, cell: string | null}}
  */
 export function sessionFromQuery(search) {
   const params = new URLSearchParams(search);
-  return { key: params.get("session"), watching: ["1", "true"].includes(params.get("watch") ?? "") };
+  return { key: params.get("session"), watching: ["1", "true"].includes(params.get("watch") ?? ""),
+    cell: params.get("cell") };
 }
 
 /**
  * The viewer socket's path for the session: `ws/view` with its query.
- * @param {{key: string | null, watching: boolean}} session
+ * @param {{key: string | null, watching: boolean, cell?: string | null}} session
  */
 export function viewSocketPath(session) {
   if (!session.key) return session.watching ? "ws/view?watch=1" : "ws/view";
   const query = new URLSearchParams({ session: session.key });
   if (session.watching) query.set("watch", "1");
+  if (session.cell) query.set("cell", session.cell);
   return `ws/view?${query}`;
 }
 

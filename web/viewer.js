@@ -13,6 +13,7 @@ import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
 import { SessionControls } from "./session_controls.js";
+import { ClockOffset, drawCellOutlines } from "./wall.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
 // and API calls carry: take it out of the address bar (and so out of history and shared links).
@@ -46,6 +47,8 @@ const state = {
   size: null,
   bounds: null,
   overlay: false,
+  // A display wall's session (issue 22): {wall: {cols, rows, cell, bezel}, cell: [col, row] | null}.
+  wall: null,
 };
 const lastTiles = { width: 0, height: 0, tiles: [] };
 
@@ -67,9 +70,13 @@ Object.defineProperty(window, "tessera", {
 const nodeNames = new Map();
 let nodeReadback = [];
 
+/** This page drives a wall and sees it whole: its cells are outlined. */
+const wallDriver = () => state.wall !== null && state.wall.cell === null;
+
 function redrawOverlay() {
   const tiles = state.overlay ? ownershipTiles(lastTiles.tiles, nodeReadback) : [];
   drawOverlay(overlayCanvas, lastTiles.width, lastTiles.height, tiles, (slot) => nodeNames.get(slot) ?? `node ${slot}`);
+  if (wallDriver()) drawCellOutlines(overlayCanvas, lastTiles.width, lastTiles.height, state.wall.wall);
 }
 
 function setOverlay(on) {
@@ -96,6 +103,7 @@ const latencyTracker = new LatencyTracker();
 let inputSeq = 0;
 let sendScheduled = false;
 function setCamera(camera) {
+  if (session.cell) return; // a wall's cell steers nothing
   state.camera = camera;
   if (sendScheduled) return;
   sendScheduled = true;
@@ -140,7 +148,7 @@ const compositor = new Compositor(
     lastTiles.width = frame.width;
     lastTiles.height = frame.height;
     lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
-    if (state.overlay) redrawOverlay();
+    if (state.overlay || wallDriver()) redrawOverlay();
     $("frame-badge").textContent = `frame ${frame.frameId}`;
     showQuality(frame.still);
   },
@@ -162,7 +170,7 @@ function onText(message) {
   switch (message.type) {
     case "hello":
       sizeSent = null;
-      if (session.key && !session.watching) setTimeout(sendSize, 0);
+      if (session.key && !session.watching && !session.cell) setTimeout(sendSize, 0);
       state.viewerId = message.viewer;
       samplesReported = 0;
       setSize(...message.size);
@@ -178,6 +186,21 @@ function onText(message) {
       state.bounds = message.bounds;
       adoptCamera(message.camera);
       animation.load();
+      break;
+    case "wall":
+      state.wall = { wall: message.wall, cell: message.cell };
+      if (message.cell) startCell();
+      else redrawOverlay();
+      break;
+    case "present":
+      requestAnimationFrame((at) => {
+        const frame = compositor.present(message.frame);
+        const atMs = frame && clock.toCoordinator(at);
+        if (atMs !== null && atMs >= 0) connection.send({ type: "presented", frame: frame.frameId, at_ms: atMs });
+      });
+      break;
+    case "pong":
+      clock.sample(message.t0, performance.now(), message.clock_ms);
       break;
     case "error":
       console.warn("tessera: coordinator says:", message.message);
@@ -222,7 +245,22 @@ const connection = new Connection(address(viewSocketPath(session), location.prot
   onState,
 });
 
-new ResizeObserver(() => state.overlay && redrawOverlay()).observe(overlayCanvas);
+new ResizeObserver(() => (state.overlay || wallDriver()) && redrawOverlay()).observe(overlayCanvas);
+
+/** A wall cell pings the coordinator this often, to estimate its clock and to count as live (ms). */
+const PING_MS = 1000;
+/** Pings sent at once when a cell (re)joins, for a first clock estimate. */
+const FIRST_PINGS = 4;
+const clock = new ClockOffset();
+let pinging = null;
+const ping = () => connection.send({ type: "ping", t0: performance.now() });
+/** This page is one cell of a wall: full screen, frames held until the coordinator says present. */
+function startCell() {
+  document.body.dataset.wallCell = "true";
+  compositor.hold((frame) => connection.send({ type: "have", frame: frame.frameId }));
+  for (let i = 0; i < FIRST_PINGS; i++) setTimeout(ping, i * 50);
+  if (pinging === null) pinging = setInterval(ping, PING_MS);
+}
 
 /** How long the window must rest before a session's driver asks for frames of its new size (ms). */
 const RESIZE_DEBOUNCE_MS = 300;
@@ -235,7 +273,7 @@ function sendSize() {
   if (!size || (sizeSent && size[0] === sizeSent[0] && size[1] === sizeSent[1])) return;
   if (connection.send({ type: "size", size })) sizeSent = size;
 }
-if (session.key && !session.watching) {
+if (session.key && !session.watching && !session.cell) {
   new ResizeObserver(() => {
     clearTimeout(sizeTimer);
     sizeTimer = setTimeout(sendSize, RESIZE_DEBOUNCE_MS);

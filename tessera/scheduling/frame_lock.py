@@ -4,8 +4,10 @@ Deliver first, swap second: each cell viewer reports the newest frame it decoded
 (``have``); frame K is presented once every live cell holds K or newer (the lock point is the
 oldest of their newest frames, so a cell that fell behind and jumped to the newest frame pulls the
 lock forward rather than holding the others). A cell that reported nothing for ``stale_s`` is
-left out until it reports again. Each cell then says when it presented the frame, on the
-coordinator's clock; the spread of those times over the cells is the frame's present skew.
+left out until it reports again; a cell that joins (or comes back) once the others presented a
+frame is told to present that frame alone as soon as it holds it. Each cell then says when it
+presented the frame, on the coordinator's clock; the spread of those times over the cells is the
+frame's present skew.
 
 Pure: clocks come in as arguments (s for ``now``, ms for present times).
 """
@@ -18,8 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: A cell that reported nothing for this long no longer holds the others back (s).
-STALE_S = 1.0
+#: A cell that reported nothing for this long no longer holds the others back (s); cells ping
+#: every second (web/viewer.js), so a live one is never this quiet.
+STALE_S = 2.5
 #: Present skews kept for the percentiles (frames).
 SKEW_WINDOW = 600
 
@@ -28,6 +31,7 @@ SKEW_WINDOW = 600
 class _Cell:
     newest: int = -1
     heard_at: float = 0.0
+    told: int = -1
 
 
 @dataclass
@@ -66,19 +70,22 @@ class FrameLock:
         if state is not None:
             state.newest, state.heard_at = max(state.newest, frame_id), now
 
-    def due(self, now: float) -> int | None:
-        """The frame every live cell now holds, when newer than the one presented last (it counts
-        as presented from here on); None: nothing to present."""
+    def due(self, now: float) -> dict[Hashable, int]:
+        """The cells to tell to present, and which frame: every live cell the frame they all hold
+        now, when newer than the one presented last (it counts as presented from here on); else a
+        cell that holds the frame presented last but was not told it yet (it joined since)."""
         live = {key: c for key, c in self._cells.items() if now - c.heard_at <= self.stale_s}
-        if not live:
-            return None
-        lock = min(c.newest for c in live.values())
-        if lock <= self.presented:
-            return None
-        self._finish()
-        self.presented = lock
-        self._presenting = _Presenting(lock, frozenset(live))
-        return lock
+        lock = min((c.newest for c in live.values()), default=-1)
+        if lock > self.presented:
+            self._finish()
+            self.presented = lock
+            self._presenting = _Presenting(lock, frozenset(live))
+            told = live
+        else:
+            told = {key: c for key, c in live.items() if c.told < self.presented <= c.newest}
+        for cell in told.values():
+            cell.told = self.presented
+        return {key: self.presented for key in told}
 
     def report(self, cell: Hashable, frame_id: int, at_ms: float) -> None:
         """``cell`` put frame ``frame_id`` on screen at ``at_ms`` (the coordinator's clock)."""

@@ -6,14 +6,14 @@ import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "
 
 test("a bare page shows the default session", () => {
   const session = sessionFromQuery("");
-  assert.deepEqual(session, { key: null, watching: false });
+  assert.deepEqual(session, { key: null, watching: false, cell: null });
   assert.equal(viewSocketPath(session), "ws/view");
   assert.equal(sessionApiPath("api/stats", session), "api/stats");
 });
 
 test("a drive link reaches the session's own routes", () => {
   const session = sessionFromQuery("?session=a-b_c&token=x");
-  assert.deepEqual(session, { key: "a-b_c", watching: false });
+  assert.deepEqual(session, { key: "a-b_c", watching: false, cell: null });
   assert.equal(viewSocketPath(session), "ws/view?session=a-b_c");
   assert.equal(sessionApiPath("api/balancer", session), "api/sessions/a-b_c/balancer");
   assert.equal(sessionApiPath("web/x.js", session), "web/x.js");
@@ -21,9 +21,15 @@ test("a drive link reaches the session's own routes", () => {
 
 test("a watch link watches and opens no session route", () => {
   const session = sessionFromQuery("?session=K&watch=1");
-  assert.deepEqual(session, { key: "K", watching: true });
+  assert.deepEqual(session, { key: "K", watching: true, cell: null });
   assert.equal(viewSocketPath(session), "ws/view?session=K&watch=1");
   assert.equal(sessionApiPath("api/stats", session), "api/stats");
+});
+
+test("a wall cell's page names its cell on the socket", () => {
+  const session = sessionFromQuery("?session=W&cell=1,0");
+  assert.deepEqual(session, { key: "W", watching: false, cell: "1,0" });
+  assert.equal(viewSocketPath(session), "ws/view?session=W&cell=1%2C0");
 });
 
 test("a driver asks for its canvas in device pixels, fitted to the largest size", () => {
