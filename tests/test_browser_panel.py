@@ -60,7 +60,9 @@ def test_panel_says_at_rest_and_explains_every_figure_on_hover(chromium, coordin
     assert page.locator("#render-state").inner_text() == "at rest — rendering on demand"
     assert page.locator("#fig-fps").inner_text() == "at rest"
 
-    # Explanations: every figure's hover text, found by hovering it.
+    # Explanations: every figure's hover text, found by hovering it (the bars drawn first).
+    page.wait_for_function("() => [...document.querySelectorAll('#nodes .seg.render')].every((s) => s.offsetWidth > 0)",
+                           timeout=wait_ms, polling=100)
     for what, (selector, words) in EXPLAINED.items():
         page.hover(selector)
         title = page.evaluate(HOVER_TITLE_JS, selector)
