@@ -23,6 +23,9 @@ RUN python3 -c 'import tomllib; print("\n".join(tomllib.load(open("/build/pyproj
     && pip install $offline -r /build/requirements.txt \
     && pip uninstall --yes pip \
     && find /opt/venv \( -name __pycache__ -o -name tests \) -type d -prune -exec rm -rf {} +
+# The legacy builder keeps this stage as an untagged image (the cache of the dependency layers):
+# the label finds it, `docker image prune --filter label=tessera.stage=builder` removes it.
+LABEL tessera.stage=builder
 
 FROM debian:bookworm-slim
 # python3 and the EGL/GL runtime: glvnd (libegl1, libgl1) with Mesa's EGL vendor and llvmpipe (CPU).
@@ -33,7 +36,11 @@ RUN apt-get update \
 RUN mkdir -p /usr/share/glvnd/egl_vendor.d \
     && printf '{"file_format_version": "1.0.0", "ICD": {"library_path": "libEGL_nvidia.so.0"}}\n' \
         > /usr/share/glvnd/egl_vendor.d/10_nvidia.json
-RUN useradd --create-home --home-dir /home/tessera --uid 10001 --user-group tessera
+# /data (the coordinator's --data-dir) and /var/cache/tessera (a node's --scene-cache-dir) belong to
+# tessera: a named volume mounted there starts as a copy of them, so it is writable with the root
+# filesystem read-only.
+RUN useradd --create-home --home-dir /home/tessera --uid 10001 --user-group tessera \
+    && install -d -o tessera -g tessera /data /var/cache/tessera
 COPY --from=builder /opt/venv /opt/venv
 WORKDIR /app
 ENV PATH=/opt/venv/bin:$PATH \

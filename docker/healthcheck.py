@@ -3,7 +3,8 @@
 ``python healthcheck.py coordinator``: GET /healthz on this container answers 200.
 ``python healthcheck.py node``: the coordinator (from TESSERA_COORDINATOR) lists this node in
 /api/stats, i.e. the node is connected and registered, not merely running. A node is recognised by
-TESSERA_NAME when set, else by its default name ``<hostname>-<pid>``.
+its name: TESSERA_NAME when set and expanded (Swarm's template), else its container's name as the
+node takes it from Docker's DNS (node/container_name.py), else its default ``<hostname>-<pid>``.
 Exit status 0 is healthy, 1 unhealthy (the reason goes to stderr, which ``docker inspect`` shows).
 """
 
@@ -15,6 +16,11 @@ import socket
 import sys
 import urllib.parse
 import urllib.request
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the image's /app: the node package
+
+from node.container_name import container_name, is_unexpanded_template
 
 TIMEOUT_S = 4.0
 
@@ -37,7 +43,8 @@ def node_registered() -> None:
     scheme = "https" if ws_url.scheme == "wss" else "http"
     stats = json.loads(get(f"{scheme}://{ws_url.netloc}/api/stats"))
     names = [node.get("name", "") for node in stats.get("nodes", [])]
-    own_name = os.environ.get("TESSERA_NAME")
+    given = os.environ.get("TESSERA_NAME")
+    own_name = given if given and not is_unexpanded_template(given) else container_name()
     prefix = socket.gethostname() + "-"
     if not any(name == own_name or (not own_name and name.startswith(prefix)) for name in names):
         raise RuntimeError(f"not among the coordinator's nodes {names}")

@@ -10,6 +10,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from node.container_name import DOCKER_MARKER, container_name, is_unexpanded_template
 from node.culling.switch import CullMode
 from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -27,8 +28,10 @@ ENV_PREFIX = "TESSERA_"
 
 
 def default_name() -> str:
-    """``hostname-pid``: unique per process, readable in the coordinator's stats."""
-    return f"{socket.gethostname()}-{os.getpid()}"
+    """In a Compose container, its name without the project (``node_2``: :mod:`node.container_name`);
+    elsewhere ``hostname-pid``. Unique per process, readable in the coordinator's stats."""
+    in_container = DOCKER_MARKER.exists() and container_name()
+    return in_container or f"{socket.gethostname()}-{os.getpid()}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,7 +111,8 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--coordinator", DEFAULT_COORDINATOR, "coordinator URL, ws://HOST:PORT/ws/node, or wss://… through a TLS "
         "proxy (the certificate is checked against the system's CAs; SSL_CERT_FILE=CA.pem trusts another)",
         type=parse_coordinator)
-    add("--name", None, "node name shown in the coordinator's stats (default hostname-pid)")
+    add("--name", None, "node name shown in the coordinator's stats (default hostname-pid; in a Compose container "
+        "its name without the project, e.g. node_2; a name with '{{', an unexpanded Swarm template, is ignored)")
     add("--token", None, "shared secret the coordinator expects")
     add("--slowdown", 1.0, "emulate a node this many times slower (sleeps (F-1) x render time per tile)",
         type=parse_slowdown)
@@ -140,4 +144,6 @@ def parse_settings(argv: Sequence[str] | None = None, environ: Mapping[str, str]
     exits with a usage message on invalid values, as argparse does."""
     args = build_parser(os.environ if environ is None else environ).parse_args(argv)
     values = {key: value for key, value in vars(args).items() if value is not None and value != ""}
+    if is_unexpanded_template(values.get("name", "")):
+        del values["name"]
     return NodeSettings(**values)

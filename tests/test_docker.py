@@ -3,8 +3,11 @@ unchanged under Swarm (`docker stack deploy`), with docker-compose.tls.yml's TLS
 
 Builds the images (scripts/docker-base, then `compose build`), starts a coordinator and three
 render nodes, checks a composited frame against ``python -m node --render-once`` on the host, the
-viewer in headless Chromium, that every container is read-only with no capabilities, a killed node
-container, a rejoin, and that `down -v` leaves nothing. Then the TLS proxy: the API, frames, a
+viewer in headless Chromium, that node containers are named by service and replica, that every
+container is read-only with no capabilities, a killed node container, a rejoin, an uploaded scene
+rendered by a node container without the scenes folder (its bytes fetched from the coordinator by
+SHA-256) and kept with its session by a new coordinator container (the named volume), and that
+`down -v` leaves nothing. Then the TLS proxy: the API, frames, a
 ``wss://`` viewer socket, a node on the host joining over ``wss://``, the viewer page over https, a
 self-signed and a mounted certificate. Without Docker the tests skip, except in CI (CI=true), where
 they fail.
@@ -54,6 +57,10 @@ pytestmark = [pytest.mark.docker, pytest.mark.timeout(1500)]
 SIZE = (320, 240)
 TOKEN = "docker-test-token"
 SCENE = "bunny/bun_zipper.ply"
+#: A small textured GLB for the upload: not in the coordinator's /data until uploaded.
+UPLOAD = "gltf_small/Duck.glb"
+#: Compose v1 names a service's containers PROJECT_node_1, v2 PROJECT-node-1.
+NODE_NAMES = ({"node_1", "node_2", "node_3"}, {"node-1", "node-2", "node-3"})
 COMPOSE_FILES = ["-f", "docker-compose.yml"]
 TLS_COMPOSE_FILES = [*COMPOSE_FILES, "-f", "docker-compose.tls.yml"]
 
@@ -111,7 +118,20 @@ def compose(request) -> list[str]:
     built = time.monotonic()
     report(request, f"scripts/docker-base {base_done - started:.1f} s, "
                     f"compose build (tessera and the TLS proxy) {built - base_done:.1f} s")
+    remove_stale_builder_images()
     return command
+
+
+def remove_stale_builder_images() -> None:
+    """Remove the builder stages (label tessera.stage=builder, untagged) of earlier builds, keeping
+    the one this build used: it caches the dependency layers for the next build."""
+    current = run(["docker", "build", "--quiet", "--target", "builder", "."]).strip().removeprefix("sha256:")
+    builders = run(["docker", "images", "--quiet", "--no-trunc", "--filter", "label=tessera.stage=builder",
+                    "--filter", "dangling=true"]).split()
+    stale = [image for image in builders if image.removeprefix("sha256:") != current]
+    if stale:
+        run(["docker", "rmi", *stale])
+    assert any(image.removeprefix("sha256:") == current for image in builders), "the builder stage is labelled"
 
 
 @dataclass
@@ -227,12 +247,25 @@ def test_three_containers_composite_the_reference_frame(deployment, tmp_path):
                "every container's healthcheck to pass")
 
 
-def test_viewer_from_the_host_draws_a_frame(deployment, tmp_path):
+def test_node_containers_are_named_by_service_and_replica(deployment):
+    names = {node["name"] for node in wait_until(lambda: len(ready_nodes(deployment.client)) == 3 and
+                                                  ready_nodes(deployment.client), seconds(120), "3 ready nodes")}
+    assert names in NODE_NAMES, f"node names {names}"
+
+
+def test_viewer_from_the_host_draws_a_frame_and_shows_the_node_names(deployment, tmp_path):
+    names = sorted(node["name"] for node in ready_nodes(deployment.client))
     with chromium_context(tmp_path / "chromium-profile") as context:
         page = context.new_page()
         page.goto(f"{deployment.client.base_url}/?token={TOKEN}")
         page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=seconds(60) * 1000, polling=100)
         assert page.evaluate("window.tessera.framesDrawn") > 0
+        shown = "() => [...document.querySelectorAll('#nodes .name')].map((e) => e.textContent).sort()"
+        page.wait_for_function(f"() => ({shown})().join() === {json.dumps(','.join(names))}",
+                               timeout=seconds(30) * 1000, polling=100)
+        cut = page.evaluate("() => [...document.querySelectorAll('#nodes .name')]"
+                            ".filter((e) => e.scrollWidth > e.clientWidth).map((e) => e.textContent)")
+        assert cut == [], f"names cut off in the panel: {cut}"
 
 
 def test_containers_are_read_only_without_capabilities(deployment):
@@ -280,12 +313,95 @@ def test_killed_node_container_frames_resume_and_it_rejoins(deployment, tmp_path
     assert_matches_reference(frame, render_once(str(scene_path(SCENE)), cameras[2], SIZE, tmp_path), "rejoined")
 
 
+def session_frame(client: httpx.Client, session_id: str, after: int) -> np.ndarray:
+    """The session's first complete frame with id >= ``after``: (h, w, 3) uint8."""
+    response = client.get(f"/api/sessions/{session_id}/frame.png", params={"after": after}, timeout=seconds(120))
+    response.raise_for_status()
+    return np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
+
+
+def holds_file(container: str, path: str) -> bool:
+    return subprocess.run(["docker", "exec", container, "test", "-f", path], capture_output=True).returncode == 0
+
+
+def test_an_upload_reaches_a_node_without_the_scenes_and_survives_a_new_coordinator(deployment, tmp_path, request):
+    """Upload a scene and open a session of it; a node container with no /scenes mount (as on
+    another host) joins and fetches the file from the coordinator by its SHA-256; the coordinator's
+    container is then removed and created again: the upload and the session come back from the
+    named volume and render the same picture."""
+    client = deployment.client
+    wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "3 ready nodes")
+    content = scene_path(UPLOAD).read_bytes()
+    uploaded = client.post("/api/scenes", files={"file": ("duck.glb", content)})
+    assert uploaded.status_code == 201, uploaded.text
+    name, sha256 = uploaded.json()["name"], uploaded.json()["sha256"]
+    assert sha256 == hashlib.sha256(content).hexdigest()
+    created = client.post("/api/sessions", json={"scene": name, "size": list(SIZE)})
+    assert created.status_code == 201, created.text
+    session_id = created.json()["id"]
+    bounds = wait_until(lambda: client.get(f"/api/sessions/{session_id}/camera").json()["bounds"], seconds(120),
+                        "the uploaded scene's bounds")
+    cameras = orbit_cameras(bounds, 2)
+    reference = render_once(str(scene_path(UPLOAD)), cameras[0], SIZE, tmp_path)
+    first = client.put(f"/api/sessions/{session_id}/camera", json=cameras[0]).raise_for_status().json()["frame"]
+    assert_matches_reference(session_frame(client, session_id, first), reference, "uploaded scene, compose x3")
+    cached = f"/var/cache/tessera/{sha256}.glb"
+    assert all(holds_file(node, cached) for node in deployment.node_containers()), "the nodes' cache volume"
+
+    outsider = f"{deployment.project}-no-scenes"
+    run(["docker", "run", "--detach", "--rm", "--name", outsider, "--network", f"{deployment.project}_default",
+         "--read-only", "--cap-drop", "ALL", "--security-opt", "no-new-privileges:true",
+         "--mount", "type=tmpfs,destination=/tmp", "--env", "TESSERA_COORDINATOR=ws://coordinator:8000/ws/node",
+         "--env", f"TESSERA_TOKEN={TOKEN}", "--env", "MESA_SHADER_CACHE_DISABLE=true",
+         "--env", "TESSERA_NAME=no-scenes", "tessera:latest", "python", "-m", "node"])
+    try:
+        assert run(["docker", "exec", outsider, "sh", "-c", "test -e /scenes || echo absent"]).strip() == "absent"
+        wait_until(lambda: holds_file(outsider, f"/tmp/tessera-scenes/{sha256}.glb"), seconds(120),
+                   "the node without /scenes to fetch the upload by its SHA-256")
+        wait_until(lambda: "no-scenes" in {node["name"] for node in ready_nodes(client)}, seconds(60),
+                   "the node without /scenes ready")
+        turns = iter(range(1_000_000))
+
+        def outsider_renders() -> bool:
+            client.put(f"/api/sessions/{session_id}/camera", json=cameras[next(turns) % 2])
+            return any(node["name"] == "no-scenes" and node["tiles_rendered"] for node in stats(client)["nodes"])
+
+        wait_until(outsider_renders, seconds(60), "tiles from the node without /scenes", interval=0.2)
+        # A camera of its own, so the frame after it is drawn by the four nodes.
+        third = orbit(cameras[1], 0.3)
+        after = client.put(f"/api/sessions/{session_id}/camera", json=third).raise_for_status().json()["frame"]
+        assert_matches_reference(session_frame(client, session_id, after),
+                                 render_once(str(scene_path(UPLOAD)), third, SIZE, tmp_path), "with the node")
+    finally:
+        run(["docker", "rm", "--force", outsider])
+
+    replaced_at = time.monotonic()
+    old_container = deployment.containers("coordinator")
+    deployment.run("rm", "--stop", "--force", "coordinator")
+    deployment.run("up", "-d", "--no-deps", "coordinator")
+    assert deployment.containers("coordinator") != old_container, "a new coordinator container"
+    wait_serving(client, seconds(120))
+    wait_until(lambda: len(ready_nodes(client)) == 3, seconds(120), "the nodes back on the new coordinator")
+    report(request, f"coordinator container replaced → 3 nodes back {time.monotonic() - replaced_at:.1f} s")
+    assert {"name": name, "format": "glb", "bytes": len(content)} in client.get("/api/scenes").json()
+    session = client.get(f"/api/sessions/{session_id}")
+    assert session.status_code == 200, session.text
+    assert session.json()["scene"] == name and session.json()["size"] == list(SIZE)
+    restored = client.get(f"/api/sessions/{session_id}/camera").json()
+    assert restored["camera"]["eye"] == pytest.approx(third["eye"]), "the session's camera came back"
+    wait_until(lambda: client.get(f"/api/sessions/{session_id}").json()["state"] == "ready", seconds(120),
+               "the restored session's scene on the nodes")
+    again = client.put(f"/api/sessions/{session_id}/camera", json=cameras[0]).raise_for_status().json()["frame"]
+    assert_matches_reference(session_frame(client, session_id, again), reference, "after a new coordinator")
+
+
 def test_down_leaves_nothing_running(deployment):
     label = f"com.docker.compose.project={deployment.project}"
     assert labelled("container", label), "the project should be running before down"
     deployment.run("down", "-v", "--remove-orphans", "--timeout", "10")
     assert labelled("container", label) == []
     assert labelled("network", label) == []
+    assert run(["docker", "volume", "ls", "-q", "--filter", f"label={label}"]).split() == [], "down -v keeps no volume"
 
 
 @pytest.fixture
@@ -314,7 +430,10 @@ def test_stack_deploy_serves_frames_on_a_swarm(compose, swarm, tmp_path):
         run(["docker", "stack", "deploy", "--resolve-image", "never", "-c", "docker-compose.yml", stack], env=env)
         with coordinator_client(port) as client:
             wait_serving(client, seconds(120))
-            wait_until(lambda: len(ready_nodes(client)) == 3, seconds(180), "3 ready Swarm nodes")
+            nodes = wait_until(lambda: len(ready_nodes(client)) == 3 and ready_nodes(client), seconds(180),
+                               "3 ready Swarm nodes")
+            assert {node["name"] for node in nodes} == {f"{stack}_node.{slot}" for slot in (1, 2, 3)}, \
+                "Swarm task names from TESSERA_NAME's template"
             camera = orbit_cameras(client.get("/api/camera").json()["bounds"], 1)[0]
             _, frame = fetch_frame(client, client.put("/api/camera", json=camera).json()["frame"])
             assert_matches_reference(frame, render_once("builtin:cluster", camera, SIZE, tmp_path), "swarm x3")
@@ -322,6 +441,9 @@ def test_stack_deploy_serves_frames_on_a_swarm(compose, swarm, tmp_path):
         run(["docker", "stack", "rm", stack])
         wait_until(lambda: not labelled("container", label) and not labelled("network", label), seconds(120),
                    f"stack {stack} to be removed")
+        volumes = run(["docker", "volume", "ls", "-q", "--filter", f"label={label}"]).split()
+        if volumes:  # `docker stack rm` keeps the stack's named volumes
+            run(["docker", "volume", "rm", *volumes])
 
 
 
