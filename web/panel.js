@@ -49,7 +49,9 @@ export function fpsText(stats) {
 /** What a node line's figures mean, shown on hover. */
 export function nodeDetailTitle(node) {
   const name = node.name ?? `node ${node.id}`;
-  if (node.state && node.state !== "ready") return `${name} is ${node.state}: it draws no tiles until its scene is loaded`;
+  if (node.state && node.state !== "ready") {
+    return `${name} is ${node.state}: it draws no tiles until its scene is loaded`;
+  }
   const tiles = Array.isArray(node.tiles) ? node.tiles.length : 0;
   return [
     `${fixed(node.busy_ms, 1)} ms: ${name}'s time for its part of the last frame (render + readback + encode + send)`,
@@ -94,6 +96,9 @@ export class Panel {
     this.nodes = doc.getElementById("nodes");
     this.scale = doc.getElementById("bar-scale");
     this.renderState = doc.getElementById("render-state");
+    for (const phase of PHASES) {
+      doc.querySelector(`.legend .seg.${phase}`).parentElement.title = `${phase}: ${PHASE_MEANING[phase]}`;
+    }
     this.select = doc.getElementById("balancer");
     this.params = doc.getElementById("balancer-params");
     this.message = doc.getElementById("panel-message");
