@@ -16,6 +16,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         return render_once(settings)
     from node.client import run_node
+    from node.gl.environment import EnvironmentError
+    from node.gl.image_lighting import prefiltered_environment
+
+    try:
+        prefiltered_environment(settings.environment)
+    except EnvironmentError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format=f"%(asctime)s node {settings.name} %(levelname)s %(message)s")

@@ -78,7 +78,8 @@ class NodeClient:
                  sleep: Callable[[float], Awaitable[Any]] = asyncio.sleep) -> None:
         self.settings = settings
         self.worker = worker or GLWorker(settings.culling, settings.face_limit, settings.scene_memory_mb << 20,
-                                         SceneFetcher(settings.coordinator, settings.token, settings.scene_cache_dir))
+                                         SceneFetcher(settings.coordinator, settings.token, settings.scene_cache_dir),
+                                         shading=settings.shading)
         self.protocol = NodeProtocol(settings.name, settings.token or "", settings.slowdown)
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")

@@ -1,6 +1,7 @@
 """``python -m node --render-once OUT.png``: one full frame rendered alone, no coordinator — the
 reference image every composited frame is checked against. ``--face-limit`` and ``--culling`` apply
-as on a serving node; neither changes the image.
+as on a serving node; neither changes the image. ``--msaa`` and ``--environment`` shade as on a
+serving node (a hybrid or sort-last frame, drawn at one sample, equals ``--msaa 1``).
 
 The frame shows the scene state (issue 11) at ``--time T`` seconds (default 0): the scene's
 animations sampled at T, then the poses of ``--objects STATE.json``, ``{name: {"translation",
@@ -17,6 +18,7 @@ import moderngl
 
 from node.culling.tiles import CullingUnavailableError
 from node.gl.context import GLUnavailableError, create_gl_context
+from node.gl.environment import EnvironmentError
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
@@ -70,10 +72,11 @@ def render_once(settings: NodeSettings) -> int:
         state = _state(scene, settings.time, overrides, settings.objects)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
-        renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling)
+        renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling, shading=settings.shading)
         frame = renderer.render_frame(camera, settings.size, state)
         settings.render_once.write_bytes(encode_png(frame.pixels))
-    except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError) as exc:
+    except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError,
+            EnvironmentError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except moderngl.Error as exc:
@@ -85,7 +88,7 @@ def render_once(settings: NodeSettings) -> int:
     width, height = settings.size
     print(f"wrote {settings.render_once} ({width}x{height}, {scene.triangle_count} triangles in "
           f"{scene.chunks.chunk_count} chunks, {frame.triangles} drawn, {frame.cull_path} culling, "
-          f"render {frame.render_ms:.1f} ms)")
+          f"{renderer.samples}x MSAA, render {frame.render_ms:.1f} ms)")
     return 0
 
 

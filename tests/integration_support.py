@@ -30,14 +30,16 @@ SCENE_FILES = {
 
 
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
-                scene_time: float | None = None, objects: dict[str, Any] | None = None) -> np.ndarray:
+                scene_time: float | None = None, objects: dict[str, Any] | None = None,
+                msaa: int | None = None) -> np.ndarray:
     """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
-    ``objects`` poses: ``--time``, ``--objects``); (h, w, 3) uint8."""
+    ``objects`` poses, ``msaa`` samples: ``--time``, ``--objects``, ``--msaa``); (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))
     out = workdir / f"reference-{index}.png"
     extra = [] if scene_time is None else ["--time", repr(float(scene_time))]
+    extra += [] if msaa is None else ["--msaa", str(msaa)]
     if objects is not None:
         objects_file = workdir / f"objects-{index}.json"
         objects_file.write_text(json.dumps(objects))

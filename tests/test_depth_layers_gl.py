@@ -10,6 +10,7 @@ import pytest
 
 from node.gl.depth_layers import PlanningScene, as_depth_layer, chunk_bounds, hybrid_plan, sort_last_plan
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
@@ -28,6 +29,9 @@ SIZE = (160, 120)
 #: two tiles side by side, cut at x = 80
 HALVES = [Rect(0, 0, 80, 120), Rect(80, 0, 80, 120)]
 STRIP = 8
+
+#: Depth layers are drawn at one sample (node.gl.renderer); so is the whole frame they compose.
+ONE_SAMPLE = ShadingOptions(msaa=1)
 
 
 def straddling_scene() -> SceneData:
@@ -53,14 +57,15 @@ def planning(renderer: TileRenderer) -> PlanningScene:
 
 @pytest.fixture(scope="module")
 def straddling(ctx):
-    renderer = TileRenderer(ctx, straddling_scene())
+    renderer = TileRenderer(ctx, straddling_scene(), shading=ONE_SAMPLE)
     yield renderer
     renderer.release()
 
 
 @pytest.fixture(scope="module")
 def bunny(ctx):
-    renderer = TileRenderer(ctx, load_scene(str(scene_path("bunny/bun_zipper.ply")), face_limit=512))
+    renderer = TileRenderer(ctx, load_scene(str(scene_path("bunny/bun_zipper.ply")), face_limit=512),
+                            shading=ONE_SAMPLE)
     yield renderer
     renderer.release()
 

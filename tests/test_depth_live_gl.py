@@ -12,6 +12,7 @@ import pytest
 
 from node.gl.depth_layers import PlanningScene, live_plan, render_plan
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.loading import load_scene
 from node.scene.shares import keep_share
 from tessera.compositing.depth_merge import merge_depth_tiles
@@ -30,6 +31,9 @@ pytestmark = pytest.mark.gl
 
 SIZE = (200, 150)
 WEIGHTS = (1.0, 1.0, 2.0)
+
+#: Depth layers are drawn at one sample (node.gl.renderer); so is the whole frame they compose.
+ONE_SAMPLE = ShadingOptions(msaa=1)
 
 
 @pytest.fixture(scope="module")
@@ -66,14 +70,14 @@ def through_the_wire(layer, core, slot, bound, core_range):
 
 def test_sort_last_shares_on_their_own_renderers_merge_into_the_whole_render(ctx, bunny):
     camera = default_camera(bunny.bounds, aspect=SIZE[0] / SIZE[1])
-    whole_renderer = TileRenderer(ctx, bunny)
+    whole_renderer = TileRenderer(ctx, bunny, shading=ONE_SAMPLE)
     whole = whole_renderer.render_frame(camera, SIZE).pixels
     background = background_pixel(whole_renderer.background)
     whole_renderer.release()
     request = DepthRequest(mode="sort-last", share=1)
     tiles = []
     for index in range(len(WEIGHTS)):
-        renderer = TileRenderer(ctx, keep_share(bunny, WEIGHTS, index))
+        renderer = TileRenderer(ctx, keep_share(bunny, WEIGHTS, index), shading=ONE_SAMPLE)
         plan = live_plan(planning(renderer), renderer.pose_of(None), camera, SIZE, request, 0)
         assert plan is not None and plan.rect.area < SIZE[0] * SIZE[1], "bounding-box read-back"
         layer = renderer.render_layer(camera, SIZE, plan.rect, plan.chunk_ids)
@@ -85,7 +89,7 @@ def test_sort_last_shares_on_their_own_renderers_merge_into_the_whole_render(ctx
 def test_hybrid_tiles_of_a_scene_with_blended_geometry_merge_into_the_whole_render(ctx):
     scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
     assert any(batch.alpha_mode == "BLEND" for batch in scene.batches)
-    renderer = TileRenderer(ctx, scene)
+    renderer = TileRenderer(ctx, scene, shading=ONE_SAMPLE)
     size, strip = (320, 240), 32
     rects = [Rect(0, 0, 176, 139), Rect(176, 0, 144, 139), Rect(0, 139, 320, 101)]
     request = DepthRequest(mode="hybrid", tiles=tuple(rects), strip=strip)
@@ -139,8 +143,9 @@ def test_blended_fragments_peeled_and_laid_over_the_merge_equal_blending_in_plac
     pixel those in front of the merged surface: the frame GL blends in place, up to rounding (a
     level where blending rounds once instead of after each fragment)."""
     scene = load_scene(str(scene_path("multi_object/sd_macross_city_diorama.glb")))
-    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index)) for index in range(3)]
-    whole_renderer = TileRenderer(ctx, scene)
+    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index), shading=ONE_SAMPLE)
+                 for index in range(3)]
+    whole_renderer = TileRenderer(ctx, scene, shading=ONE_SAMPLE)
     size = (320, 240)
     camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
     whole = whole_renderer.render_frame(camera, size).pixels
@@ -160,8 +165,9 @@ def test_a_moved_blended_object_in_sort_last_shares_is_blended_once(ctx):
     (name,) = scene.objects.names
     extent = np.ptp(np.asarray(scene.bounds), axis=0)
     state = scene.state_at(0.0, {name: ObjectPatch(translation=tuple((0.08 * extent * (1, 0, -1)).tolist()))})
-    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index)) for index in range(3)]
-    whole_renderer = TileRenderer(ctx, scene)
+    renderers = [TileRenderer(ctx, keep_share(scene, (1.0, 1.0, 1.0), index), shading=ONE_SAMPLE)
+                 for index in range(3)]
+    whole_renderer = TileRenderer(ctx, scene, shading=ONE_SAMPLE)
     size = (320, 240)
     camera = default_camera(np.asarray(scene.bounds), aspect=size[0] / size[1])
     whole = whole_renderer.render_frame(camera, size, state).pixels

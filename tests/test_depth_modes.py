@@ -67,7 +67,7 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
             frame_after = client.put("/api/camera", json=camera).raise_for_status().json()["frame"]
             frame_id, frame = fetch_frame(client, frame_after)
             assert frame_id >= frame_after
-            assert_matches_reference(frame, render_once(scene, camera, SIZE, tmp_path),
+            assert_matches_reference(frame, render_once(scene, camera, SIZE, tmp_path, msaa=1),
                                      f"{mode} {scene_key} x{nodes} camera {index}")
             assert frame.std() > 2.0, "the frame is blank"
         found = stats(client)
@@ -104,7 +104,7 @@ def test_a_node_killed_mid_stream_in_sort_last_loses_no_frame(coordinator_factor
         assert partition["version"] > before["version"] and len(partition["holders"]) == 2
         last = client.put("/api/camera", json=cameras[2]).raise_for_status().json()["frame"]
         _, frame = fetch_frame(client, last)
-        assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path), "after the kill")
+        assert_matches_reference(frame, render_once(scene, cameras[2], SIZE, tmp_path, msaa=1), "after the kill")
         loaded = [n["triangles_loaded"] for n in stats(client)["nodes"]]
         assert sum(loaded) == 69451 and max(loaded) < 69451, loaded
 
@@ -122,5 +122,6 @@ def test_a_paused_animated_scene_with_a_moved_object_equals_render_once(coordina
         pose = {"translation": [0.5, 0.2, 0.0]}
         after = client.put(f"/api/objects/{name}", json=pose).raise_for_status().json()["frame"]
         _, frame = fetch_frame(client, after)
-        reference = render_once("builtin:traffic", camera, SIZE, tmp_path, scene_time=7.25, objects={name: pose})
+        reference = render_once("builtin:traffic", camera, SIZE, tmp_path, scene_time=7.25, objects={name: pose},
+                                msaa=1)
         assert_matches_reference(frame, reference, f"{mode} traffic at 7.25 s, {name} moved")

@@ -17,6 +17,7 @@ from PIL import Image
 
 from node.culling.switch import CullMode
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.loading import load_scene
 from tessera.geometry import Rect, default_camera
 from tessera.scene.state import ObjectPatch
@@ -46,7 +47,9 @@ def truck():
 
 @pytest.fixture(scope="module")
 def renderers(ctx, spheres, truck):
-    made = {mode: TileRenderer(ctx, spheres, culling=mode) for mode in (CullMode.OFF, CullMode.CPU, CullMode.GPU)}
+    # One sample: depth layers are drawn at one, and they are compared with whole frames here.
+    made = {mode: TileRenderer(ctx, spheres, culling=mode, shading=ShadingOptions(msaa=1))
+            for mode in (CullMode.OFF, CullMode.CPU, CullMode.GPU)}
     made["truck"] = TileRenderer(ctx, truck, culling=CullMode.CPU)
     yield made
     for renderer in made.values():

@@ -12,6 +12,7 @@ import pytest
 from PIL import Image
 
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.mesh import MeshBatch
@@ -99,7 +100,8 @@ def single_triangle_scene(normal_sign: float) -> SceneData:
 
 @pytest.mark.parametrize("normal_sign", [1.0, -1.0])
 def test_image_orientation_and_two_sided_lighting(ctx, normal_sign):
-    renderer = TileRenderer(ctx, single_triangle_scene(normal_sign), background=(0.0, 0.0, 0.0))
+    renderer = TileRenderer(ctx, single_triangle_scene(normal_sign), background=(0.0, 0.0, 0.0),
+                            shading=ShadingOptions(msaa=1))  # no edge pixels blended with the background
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), fovy_deg=60.0, near=0.1, far=10.0)
     pixels = renderer.render_frame(camera, (64, 64)).pixels
     renderer.release()

@@ -39,8 +39,15 @@ batch with its object's model matrix (folded into the view-projection uniform, s
 object draws exactly as before) and normal matrix; a moved object is culled per tile in its own
 frame (:mod:`node.culling.objects`; drawn whole among listed chunks), a hidden one not drawn at
 all; near/far come from the state's bounds. Tile and whole frame get the same uniforms.
-Shading: headlight Lambert + ambient (the light is attached to the camera), two-sided (|n·l|),
-base colour × vertex colour × sRGB texture, output sRGB-encoded.
+Shading: the glTF metallic-roughness BRDF with image-based light and a camera-attached key light,
+tone mapped (:mod:`node.gl.shading`, one shader for every draw).
+
+Anti-aliasing (``--msaa N``): plain tiles and whole frames are drawn into a frame-sized
+multisampled framebuffer, scissored to the tile, and resolved (a blit, which the scissor box
+limits to the tile) into the single-sample one they are read from. A pixel's samples never leave
+it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
+sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
+(a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames.
 """
 
 from __future__ import annotations
@@ -56,6 +63,8 @@ import numpy as np
 
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
+from node.gl.image_lighting import ImageLighting, prefiltered_environment
+from node.gl.shading import FRAGMENT_SHADER, VERTEX_SHADER, ShadingOptions
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
@@ -65,62 +74,14 @@ from tessera.scene.state import SceneState
 
 GL_SRGB8_ALPHA8 = 0x8C43
 VERTEX_FORMAT = "3f 3f 2f 4f"
-AMBIENT = 0.16
-DIFFUSE = 0.9
-#: Headlight direction in view space (towards the light): from the eye, a little above and right,
+#: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
-
-VERTEX_SHADER = """
-#version 330
-uniform mat4 u_view_projection;
-uniform mat3 u_normal_matrix;
-in vec3 in_position;
-in vec3 in_normal;
-in vec2 in_uv;
-in vec4 in_color;
-out vec3 v_normal;
-out vec2 v_uv;
-out vec4 v_color;
-void main() {
-    v_normal = u_normal_matrix * in_normal;
-    v_uv = in_uv;
-    v_color = in_color;
-    gl_Position = u_view_projection * vec4(in_position, 1.0);
-}
-"""
-
-FRAGMENT_SHADER = f"""
-#version 330
-uniform vec3 u_light_direction;
-uniform vec4 u_base_color;
-uniform float u_alpha_cutoff;
-uniform sampler2D u_texture;
-uniform bool u_peel;
-uniform sampler2D u_floor;
-uniform sampler2D u_ceil;
-uniform ivec2 u_origin;
-in vec3 v_normal;
-in vec2 v_uv;
-in vec4 v_color;
-out vec4 f_color;
-vec3 linear_to_srgb(vec3 c) {{
-    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
-}}
-void main() {{
-    if (u_peel) {{
-        ivec2 texel = ivec2(gl_FragCoord.xy) - u_origin;
-        if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
-            discard;
-    }}
-    vec4 albedo = u_base_color * v_color * texture(u_texture, v_uv);
-    if (albedo.a < u_alpha_cutoff) discard;
-    float normal_length = length(v_normal);
-    float lambert = normal_length > 0.0 ? abs(dot(v_normal / normal_length, u_light_direction)) : 0.0;
-    vec3 lit = albedo.rgb * ({AMBIENT} + {DIFFUSE} * lambert);
-    f_color = vec4(linear_to_srgb(clamp(lit, 0.0, 1.0)), albedo.a);
-}}
-"""
+#: Texture units: base colour, the peeling bounds (floor, ceiling), the material's other maps,
+#: the prefiltered environment and the BRDF table.
+UNIT_BASE, UNIT_FLOOR, UNIT_CEIL = 0, 1, 2
+UNIT_METALLIC_ROUGHNESS, UNIT_NORMAL, UNIT_OCCLUSION, UNIT_EMISSIVE = 3, 4, 5, 6
+UNIT_SPECULAR, UNIT_LUT = 7, 8
 
 
 #: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
@@ -209,24 +170,33 @@ def pack_geometry(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray]
 
 
 class TileRenderer:
-    """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``); use it
-    only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of the scene's batches
-    when already done (None: packed here). Raises CullingUnavailableError for gpu culling without
-    GL 4.3."""
+    """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
+    ``shading``; use it only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of
+    the scene's batches when already done (None: packed here). ``samples``: the multisample count
+    drawn with, ``shading.msaa`` capped at what the GL implementation offers. Raises
+    CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
+    environment file."""
 
     def __init__(self, ctx: moderngl.Context, scene: SceneData,
                  background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.AUTO,
                  switch_params: SwitchParams = SwitchParams(),
-                 packed: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 packed: tuple[np.ndarray, np.ndarray] | None = None,
+                 shading: ShadingOptions = ShadingOptions()) -> None:
         self.ctx = ctx
         self.scene = scene
         self.background = background
-        # First: it raises CullingUnavailableError before any GL object of the scene exists to leak.
+        self.shading = shading
+        self.samples = max(1, min(shading.msaa, ctx.max_samples))
+        # First: they raise before any GL object of the scene exists to leak.
+        lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
+        self.lighting = ImageLighting(ctx, lighting)
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
-        self.program["u_texture"].value = 0
-        self.program["u_floor"].value = 1
-        self.program["u_ceil"].value = 2
+        for name, unit in (("u_texture", UNIT_BASE), ("u_floor", UNIT_FLOOR), ("u_ceil", UNIT_CEIL),
+                           ("u_metallic_roughness", UNIT_METALLIC_ROUGHNESS), ("u_normal_texture", UNIT_NORMAL),
+                           ("u_occlusion", UNIT_OCCLUSION), ("u_emissive_texture", UNIT_EMISSIVE),
+                           ("u_specular_map", UNIT_SPECULAR), ("u_brdf_lut", UNIT_LUT)):
+            self.program[name].value = unit
         vertices, indices = pack_geometry(scene.batches) if packed is None else packed
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
@@ -240,6 +210,7 @@ class TileRenderer:
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
+        self._multisampled: moderngl.Framebuffer | None = None
         self._blending = False
         #: How blended batches are drawn (None: into depth only, as if opaque, colour writes off).
         self._blend_func: tuple[int, ...] | None = BLEND_OVER
@@ -257,33 +228,40 @@ class TileRenderer:
             raise ValueError(f"background must be three numbers in 0..1, got {list(value)}")
         self._background = rgb
 
-    def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[int, moderngl.Texture]:
-        """One sRGB mipmapped GL texture per distinct image, keyed by the image array's id."""
-        textures: dict[int, moderngl.Texture] = {}
+    def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[tuple[int, bool], moderngl.Texture]:
+        """One mipmapped GL texture per distinct image and encoding, keyed by (the image array's
+        id, sRGB): base colour and emissive maps are sRGB, the others linear data."""
+        textures: dict[tuple[int, bool], moderngl.Texture] = {}
         for batch in batches:
-            image = batch.texture
-            if image is None or id(image) in textures:
-                continue
-            height, width = image.shape[:2]
-            # Image row 0 is the top; GL's t = 0 is the bottom row (uvs have origin bottom-left).
-            texture = self.ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]).tobytes(),
-                                       internal_format=GL_SRGB8_ALPHA8)
-            texture.build_mipmaps()
-            texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-            textures[id(image)] = texture
+            material = batch.material
+            for image, srgb in ((batch.texture, True), (material.metallic_roughness_texture, False),
+                                (material.normal_texture, False), (material.occlusion_texture, False),
+                                (material.emissive_texture, True)):
+                if image is None or (id(image), srgb) in textures:
+                    continue
+                height, width = image.shape[:2]
+                # Image row 0 is the top; GL's t = 0 is the bottom row (uvs have origin bottom-left).
+                texture = self.ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]).tobytes(),
+                                           internal_format=GL_SRGB8_ALPHA8 if srgb else None)
+                texture.build_mipmaps()
+                texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+                textures[id(image), srgb] = texture
         return textures
 
-    def _framebuffer_for(self, size: tuple[int, int]) -> moderngl.Framebuffer:
-        framebuffer = self._framebuffer
+    def _framebuffer_for(self, size: tuple[int, int], samples: int = 1) -> moderngl.Framebuffer:
+        """The frame-sized framebuffer with ``samples`` per pixel (1 or :attr:`samples`)."""
+        framebuffer = self._framebuffer if samples == 1 else self._multisampled
         if framebuffer is None or framebuffer.size != size:
             if framebuffer is not None:
-                for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
-                    attachment.release()
-                framebuffer.release()
-            framebuffer = self._framebuffer = self.ctx.framebuffer(
-                color_attachments=[self.ctx.renderbuffer(size, 4)],
-                depth_attachment=self.ctx.depth_renderbuffer(size),
+                _release_framebuffer(framebuffer)
+            framebuffer = self.ctx.framebuffer(
+                color_attachments=[self.ctx.renderbuffer(size, 4, samples=samples if samples > 1 else 0)],
+                depth_attachment=self.ctx.depth_renderbuffer(size, samples=samples if samples > 1 else 0),
             )
+            if samples == 1:
+                self._framebuffer = framebuffer
+            else:
+                self._multisampled = framebuffer
         return framebuffer
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
@@ -338,14 +316,21 @@ class TileRenderer:
         began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
         which ``blended_moved`` picks (:meth:`_draw`)."""
         width, height = size
-        framebuffer = self._framebuffer_for((width, height))
+        samples = 1 if with_depth else self.samples
+        target = self._framebuffer_for((width, height), samples)
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
-        framebuffer.viewport = (0, 0, width, height)
-        framebuffer.scissor = gl_box
-        framebuffer.use()
-        framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
-        self.program["u_light_direction"].value = headlight_direction(camera)
-        self._draw(framebuffer, culled, pose, matrix, moved, blended_moved)
+        target.viewport = (0, 0, width, height)
+        target.scissor = gl_box
+        target.use()
+        target.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
+        self._use_camera(camera)
+        self._draw(target, culled, pose, matrix, moved, blended_moved)
+        framebuffer = self._framebuffer_for((width, height))
+        if samples > 1:
+            framebuffer.viewport = (0, 0, width, height)
+            framebuffer.scissor = gl_box
+            framebuffer.use()
+            self.ctx.copy_framebuffer(framebuffer, target)
         self.ctx.finish()
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
@@ -381,10 +366,10 @@ class TileRenderer:
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
         framebuffer.use()
-        self.program["u_light_direction"].value = headlight_direction(camera)
+        self._use_camera(camera)
         self.program["u_origin"].value = gl_box[:2]
         bounds = [self.ctx.texture((rect.w, rect.h), 1, dtype="f4") for _ in range(2)]
-        for texture, unit in zip(bounds, (1, 2), strict=True):
+        for texture, unit in zip(bounds, (UNIT_FLOOR, UNIT_CEIL), strict=True):
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
             texture.use(unit)
         depths: list[np.ndarray] = []
@@ -478,11 +463,19 @@ class TileRenderer:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
 
+    def _use_camera(self, camera: Camera) -> None:
+        """Set what shading takes from the camera (eye, key light) and bind the environment."""
+        self.program["u_light_direction"].value = headlight_direction(camera)
+        self.program["u_eye"].value = tuple(float(v) for v in camera.eye)
+        self.program["u_key_light"].value = float(self.shading.key_light)
+        self.lighting.use(self.program, UNIT_SPECULAR, UNIT_LUT)
+
     def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
         """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
-        matrix, normal = (view_proj, np.identity(3)) if owner < 0 else (view_proj @ pose.models[owner],
-                                                                         pose.normals[owner])
+        model = np.identity(4) if owner < 0 else pose.models[owner]
+        matrix, normal = (view_proj, np.identity(3)) if owner < 0 else (view_proj @ model, pose.normals[owner])
         self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
+        self.program["u_model"].write(np.asarray(model).T.astype(np.float32).tobytes())
         self.program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
 
     def _use_material(self, framebuffer: moderngl.Framebuffer, number: int) -> None:
@@ -494,20 +487,39 @@ class TileRenderer:
             self.ctx.enable(moderngl.BLEND)
             self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
-        self.program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
-        self.program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
-        texture = self.textures.get(id(batch.texture), self.white) if batch.texture is not None else self.white
-        texture.use(0)
+        material = batch.material
+        program = self.program
+        program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
+        program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
+        program["u_metallic"].value = material.metallic
+        program["u_roughness"].value = material.roughness
+        program["u_emissive"].value = material.emissive
+        program["u_normal_scale"].value = material.normal_scale
+        program["u_occlusion_strength"].value = material.occlusion_strength
+        program["u_normal_mapped"].value = material.normal_texture is not None and batch.uvs is not None
+        for image, srgb, unit in ((batch.texture, True, UNIT_BASE),
+                                  (material.metallic_roughness_texture, False, UNIT_METALLIC_ROUGHNESS),
+                                  (material.normal_texture, False, UNIT_NORMAL),
+                                  (material.occlusion_texture, False, UNIT_OCCLUSION),
+                                  (material.emissive_texture, True, UNIT_EMISSIVE)):
+            texture = self.white if image is None else self.textures.get((id(image), srgb), self.white)
+            texture.use(unit)
 
     def release(self) -> None:
         """Free the GL objects (the context stays the caller's)."""
-        if self._framebuffer is not None:
-            for attachment in (*self._framebuffer.color_attachments, self._framebuffer.depth_attachment):
-                attachment.release()
-            self._framebuffer.release()
-            self._framebuffer = None
+        for framebuffer in (self._framebuffer, self._multisampled):
+            if framebuffer is not None:
+                _release_framebuffer(framebuffer)
+        self._framebuffer = self._multisampled = None
         self.culler.release()
+        self.lighting.release()
         for texture in self.textures.values():
             texture.release()
         for resource in (self.white, self.vertex_array, self.index_buffer, self.vertex_buffer, self.program):
             resource.release()
+
+
+def _release_framebuffer(framebuffer: moderngl.Framebuffer) -> None:
+    for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
+        attachment.release()
+    framebuffer.release()

@@ -28,6 +28,7 @@ from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
+from node.gl.shading import ShadingOptions
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.loading import ProgressCallback
@@ -100,7 +101,8 @@ class GLWorker:
 
     def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT,
                  memory_bytes: int = DEFAULT_SCENE_MEMORY_MB << 20, fetcher: SceneFetcher | None = None,
-                 read_in_process_bytes: int = READ_IN_PROCESS_BYTES) -> None:
+                 read_in_process_bytes: int = READ_IN_PROCESS_BYTES,
+                 shading: ShadingOptions = ShadingOptions()) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
         self._reader = SceneReaderProcess()
@@ -109,6 +111,7 @@ class GLWorker:
         self._scenes = ResidentScenes(memory_bytes)
         self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
         self.culling, self.face_limit, self.fetcher = culling, face_limit, fetcher
+        self.shading = shading
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
@@ -163,7 +166,8 @@ class GLWorker:
         scene, share = read.scene, request.share
         progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         background = DEFAULT_BACKGROUND if request.background is None else request.background
-        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=read.packed)
+        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=read.packed,
+                                shading=self.shading)
         version = None if share is None else share.version
         held = ResidentScene(key, renderer, PlanningScene.of(scene, renderer.culler.bvh), version,
                              estimated_bytes(renderer))

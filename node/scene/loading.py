@@ -28,6 +28,7 @@ import numpy as np
 
 from node.scene.builtin import build_builtin_scene
 from node.scene.data import SceneData
+from node.scene.material import DEFAULT_METALLIC, DEFAULT_ROUGHNESS, SurfaceMaterial, emissive_strengths
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -70,8 +71,8 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
         raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
     report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances, splitting")
     try:
-        objects, owners, animations = _file_objects(path, loaded)
-        batches = batches_from_trimesh(loaded, owners)
+        objects, owners, animations, strengths = _file_objects(path, loaded)
+        batches = batches_from_trimesh(loaded, owners, strengths)
     except SceneError as exc:
         raise SceneError(f"{spec}: {exc}") from None
     except Exception as exc:
@@ -79,15 +80,19 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
     return SceneData.from_batches(spec, batches, face_limit, objects, animations)
 
 
-def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...]]:
+def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...],
+                                                  dict[str, float]]:
     """The objects of the file at ``path`` (loaded as the trimesh ``scene``), each geometry node's
-    owner among them (None: all the first's) and the file's animations."""
+    owner among them (None: all the first's), the file's animations and its materials' emissive
+    strengths by name."""
     if path.suffix.lower() in GLTF_SUFFIXES:
         document = read_gltf(path)
         objects, index = gltf_objects(document.json)
+        strengths = emissive_strengths(document.json)
         if objects:
-            return objects, geometry_owners(scene.graph, objects), file_animations(document, index, objects)
-    return [SceneObject(path.stem)], None, ()
+            return objects, geometry_owners(scene.graph, objects), file_animations(document, index, objects), strengths
+        return [SceneObject(path.stem)], None, (), strengths
+    return [SceneObject(path.stem)], None, (), {}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -95,9 +100,10 @@ def _one_line(exc: BaseException) -> str:
     return text if len(text) <= 200 else text[:197] + "..."
 
 
-def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None) -> list[MeshBatch]:
+def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None,
+                         strengths: Mapping[str, float] | None = None) -> list[MeshBatch]:
     """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh), owned by
-    object ``owners[graph node]`` (None: object 0)."""
+    object ``owners[graph node]`` (None: object 0); ``strengths``: emissive strengths by material name."""
     import trimesh
 
     textures: dict[int, np.ndarray] = {}
@@ -108,12 +114,13 @@ def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None) ->
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             continue
         owner = 0 if owners is None else owners[node_name]
-        batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures, owner))
+        batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures, owner,
+                                        strengths or {}))
     return batches
 
 
 def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray],
-                     owner: int) -> MeshBatch:
+                     owner: int, strengths: Mapping[str, float]) -> MeshBatch:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
@@ -124,19 +131,22 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
     uvs = colors = texture = None
     base_color = np.asarray(DEFAULT_BASE_COLOR, dtype=np.float32)
     alpha_mode, alpha_cutoff = "OPAQUE", 0.5
+    surface = SurfaceMaterial()
     visual = mesh.visual
     if visual.kind == "texture" and getattr(visual, "material", None) is not None:
         material = visual.material
-        if not hasattr(material, "baseColorFactor") and hasattr(material, "to_pbr"):
+        converted = not hasattr(material, "baseColorFactor")
+        if converted and hasattr(material, "to_pbr"):
             material = material.to_pbr()
         factor = getattr(material, "baseColorFactor", None)
         base_color = np.ones(4, np.float32) if factor is None else np.asarray(factor, np.float32) / 255.0
+        has_uvs = visual.uv is not None and len(visual.uv) == len(vertices)
+        surface = _surface_material(material, converted, has_uvs, textures, strengths)
         image = getattr(material, "baseColorTexture", None)
-        if image is not None and visual.uv is not None and len(visual.uv) == len(vertices):
+        if has_uvs and (image is not None or surface.textured):
             uvs = np.asarray(visual.uv, dtype=np.float32)
-            texture = textures.get(id(image))
-            if texture is None:
-                texture = textures[id(image)] = np.ascontiguousarray(np.asarray(image.convert("RGBA")))
+        if image is not None and has_uvs:
+            texture = _texture_array(image, textures)
         alpha_mode = str(getattr(material, "alphaMode", None) or "OPAQUE").upper()
         cutoff = getattr(material, "alphaCutoff", None)
         alpha_cutoff = 0.5 if cutoff is None else float(cutoff)
@@ -170,6 +180,42 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         alpha_mode=alpha_mode if alpha_mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
         alpha_cutoff=alpha_cutoff,
         owner=owner,
+        material=surface,
+    )
+
+
+def _texture_array(image: Any, textures: dict[int, np.ndarray]) -> np.ndarray:
+    """(h, w, 4) uint8 RGBA of a PIL ``image``, converted once per image (``textures`` by id)."""
+    texture = textures.get(id(image))
+    if texture is None:
+        texture = textures[id(image)] = np.ascontiguousarray(np.asarray(image.convert("RGBA")))
+    return texture
+
+
+def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: dict[int, np.ndarray],
+                      strengths: Mapping[str, float]) -> SurfaceMaterial:
+    """The metallic-roughness part of a trimesh PBR ``material``: factors absent from a glTF file
+    take the spec's defaults (metallic 1, roughness 1); a material ``converted`` from OBJ/MTL has
+    no metalness (a matte dielectric's defaults). Maps are kept only with texture coordinates."""
+    metallic = getattr(material, "metallicFactor", None)
+    roughness = getattr(material, "roughnessFactor", None)
+    default_metallic, default_roughness = (DEFAULT_METALLIC, DEFAULT_ROUGHNESS) if converted else (1.0, 1.0)
+    emissive = getattr(material, "emissiveFactor", None)
+    strength = strengths.get(str(getattr(material, "name", None)), 1.0)
+    emissive_rgb = np.zeros(3) if emissive is None else np.asarray(emissive, np.float64).reshape(-1)[:3] * strength
+
+    def texture(attribute: str) -> np.ndarray | None:
+        image = getattr(material, attribute, None)
+        return _texture_array(image, textures) if image is not None and has_uvs else None
+
+    return SurfaceMaterial(
+        metallic=float(np.clip(default_metallic if metallic is None else metallic, 0.0, 1.0)),
+        roughness=float(np.clip(default_roughness if roughness is None else roughness, 0.0, 1.0)),
+        emissive=(float(emissive_rgb[0]), float(emissive_rgb[1]), float(emissive_rgb[2])),
+        metallic_roughness_texture=texture("metallicRoughnessTexture"),
+        normal_texture=texture("normalTexture"),
+        occlusion_texture=texture("occlusionTexture"),
+        emissive_texture=texture("emissiveTexture"),
     )
 
 

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from node.scene.material import SurfaceMaterial
+
 #: Linear base colour of meshes that carry no material (scans): a warm light grey.
 DEFAULT_BASE_COLOR = (0.60, 0.57, 0.52, 1.0)
 
@@ -23,6 +25,7 @@ class MeshBatch:
     ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
     float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
     sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
+    ``material``: metallic, roughness, emission and the other maps (:mod:`node.scene.material`).
     ``owner``: the index of the scene object it belongs to (:class:`tessera.scene.graph.ObjectGraph`),
     whose model matrix moves it.
     """
@@ -38,6 +41,7 @@ class MeshBatch:
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
     owner: int = 0
+    material: SurfaceMaterial = field(default_factory=SurfaceMaterial)
 
     @property
     def triangle_count(self) -> int:

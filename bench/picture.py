@@ -1,0 +1,185 @@
+"""Picture quality (issue 20): do materials matter, and how much anti-aliasing buys at what cost.
+
+``python -m bench.picture [--scene S …] [--size 1280x720] [--frames 2] [--msaa 1,2,4]
+[--material-size 256x256] [--json OUT]``
+
+- Materials: a smooth gold metal sphere (metallic 1, roughness 0.15) and a rough dielectric sphere
+  (metallic 0, roughness 0.9) of the same base colour, each alone in the same frame and camera.
+  ``spread_ratio``: the smaller of the two spheres' luminance spreads (5th to 95th percentile of
+  Rec. 709 luma over the sphere's pixels) over the larger (1: alike; the metal reflects its
+  environment, so its spread is wider); ``colour_distance``: the mean Euclidean RGB distance
+  between the two pictures over the sphere's pixels, 8-bit levels.
+- Anti-aliasing: per scene, ``--frames`` cameras of an orbit rendered whole at each ``--msaa``
+  sample count and, as the reference, at 4×4 the size with one sample, box-filtered down to the
+  size (the sRGB-encoded values averaged, as the MSAA resolve averages them). Per setting:
+  ``psnr_mean_db`` / ``psnr_min_db`` against that reference, ``off16_fraction`` the pixels off by
+  more than 16 levels in any channel, ``frame_ms`` the mean time of a whole frame (draw, resolve,
+  read-back; llvmpipe uses the machine's cores, so the load of the machine counts).
+- ``environment_ms``: the environment's prefiltering at start-up (once per process).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import moderngl
+import numpy as np
+
+from bench.images import psnr, reported_psnr
+from bench.paths import make_path
+from bench.processes import show_result
+from node.gl.context import create_gl_context, renderer_string
+from node.gl.image_lighting import prefiltered_environment
+from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
+from node.scene.builtin import place, sphere
+from node.scene.data import SceneData
+from node.scene.loading import load_scene
+from node.scene.material import SurfaceMaterial
+from node.settings import parse_size
+from tessera.geometry import Camera
+
+SHARED_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+DEFAULT_SCENES = tuple(str(SHARED_SCENES / name) for name in (
+    "multi_object/sd_macross_city_diorama.glb", "gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf",
+    "gltf_small/2CylinderEngine.glb"))
+#: Gold (the glTF spec's metal F0 table), linear.
+GOLD = (1.0, 0.766, 0.336)
+SMOOTH_METAL = SurfaceMaterial(metallic=1.0, roughness=0.15)
+ROUGH_DIELECTRIC = SurfaceMaterial(metallic=0.0, roughness=0.9)
+SPHERE_CAMERA = Camera(eye=(0.0, 0.4, 3.2), target=(0.0, 0.0, 0.0), fovy_deg=40.0, near=0.5, far=10.0)
+SUPERSAMPLING = 4
+OFF_LEVELS = 16
+
+
+def sphere_scene(material: SurfaceMaterial, base_color: Sequence[float] = GOLD, rows: int = 48) -> SceneData:
+    """A unit sphere at the origin of ``base_color`` (linear RGB) and ``material``."""
+    batch = place("sphere", sphere(rows, 2 * rows), np.ones(3), np.identity(3), np.zeros(3),
+                  (float(base_color[0]), float(base_color[1]), float(base_color[2])))
+    return SceneData.from_batches("sphere", [dataclasses.replace(batch, material=material)])
+
+
+def luma(pixels: np.ndarray) -> np.ndarray:
+    """Rec. 709 luma of (…, 3) uint8 sRGB pixels, 0…255 float64."""
+    return pixels.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def material_contrast(ctx: moderngl.Context, size: tuple[int, int], shading: ShadingOptions = ShadingOptions(),
+                      background: Sequence[float] = (0.0, 0.0, 0.0)) -> dict[str, float]:
+    """The smooth metal and rough dielectric spheres compared: spread_ratio, colour_distance and
+    each one's ``spread`` (luma levels)."""
+    images = []
+    for material in (SMOOTH_METAL, ROUGH_DIELECTRIC):
+        renderer = TileRenderer(ctx, sphere_scene(material), background, shading=shading)
+        images.append(renderer.render_frame(SPHERE_CAMERA, size).pixels)
+        renderer.release()
+    mask = (images[0].max(axis=2) > 0) & (images[1].max(axis=2) > 0)
+    spreads = [float(np.subtract(*np.percentile(luma(image[mask]), [95, 5]))) for image in images]
+    distance = np.linalg.norm(images[0][mask].astype(np.float64) - images[1][mask].astype(np.float64), axis=1)
+    return {"metal_spread": spreads[0], "dielectric_spread": spreads[1],
+            "spread_ratio": min(spreads) / max(spreads), "colour_distance": float(distance.mean())}
+
+
+def supersampled(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
+                 factor: int = SUPERSAMPLING) -> np.ndarray:
+    """(h, w, 3) uint8: ``camera`` rendered at ``factor``× the size with one sample per pixel (the
+    renderer's own count is put aside), each factor×factor block averaged."""
+    samples = renderer.samples
+    renderer.samples = 1
+    try:
+        large = renderer.render_frame(camera, (size[0] * factor, size[1] * factor)).pixels.astype(np.float64)
+    finally:
+        renderer.samples = samples
+    blocks = large.reshape(size[1], factor, size[0], factor, 3).mean(axis=(1, 3))
+    return np.rint(blocks).astype(np.uint8)
+
+
+def orbit_cameras(scene: SceneData, frames: int) -> list[Camera]:
+    path = make_path("orbit", scene.bounds, max(frames, 2))
+    return [Camera.from_json(camera) for camera in path["frames"][:frames]]
+
+
+def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
+                         sample_counts: Sequence[int]) -> dict[str, Any]:
+    """The ``--msaa`` rows of one scene (see the module docstring)."""
+    scene = load_scene(scene_spec)
+    cameras = orbit_cameras(scene, frames)
+    renderers = {count: TileRenderer(ctx, scene, shading=ShadingOptions(msaa=count)) for count in sample_counts}
+    references = [supersampled(renderers[sample_counts[0]], camera, size) for camera in cameras]
+    rows = []
+    for count, renderer in renderers.items():
+        renderer.render_frame(cameras[0], size)
+        scores, off, times = [], [], []
+        for camera, reference in zip(cameras, references, strict=True):
+            started = time.perf_counter()
+            pixels = renderer.render_frame(camera, size).pixels
+            times.append((time.perf_counter() - started) * 1e3)
+            scores.append(psnr(pixels, reference))
+            error = np.abs(pixels.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
+            off.append(float(np.mean(error > OFF_LEVELS)))
+        rows.append({"msaa": count, "samples": renderer.samples, "psnr_mean_db": reported_psnr(float(np.mean(scores))),
+                     "psnr_min_db": reported_psnr(float(np.min(scores))), "off16_fraction": float(np.mean(off)),
+                     "frame_ms": float(np.mean(times))})
+        renderer.release()
+    return {"scene": scene_spec, "frames": len(cameras), "rows": rows}
+
+
+def parse_counts(text: str) -> list[int]:
+    counts = sorted({int(part) for part in text.split(",") if part.strip()})
+    if not counts or not all(count in (1, 2, 4, 8) for count in counts):
+        raise argparse.ArgumentTypeError(f"sample counts are 1, 2, 4 or 8, got {text!r}")
+    return counts
+
+
+def table(result: dict[str, Any]) -> str:
+    materials = result["materials"]
+    lines = [f"materials: spread ratio {materials['spread_ratio']:.2f}, colour distance "
+             f"{materials['colour_distance']:.1f} levels (metal spread {materials['metal_spread']:.1f}, "
+             f"dielectric {materials['dielectric_spread']:.1f}); environment prefiltered in "
+             f"{result['environment_ms']:.0f} ms",
+             f"{'scene':<40} {'msaa':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9}"]
+    for scene in result["scenes"]:
+        for row in scene["rows"]:
+            lines.append(f"{Path(scene['scene']).name:<40} {row['samples']:>4} {row['psnr_mean_db']:>8.2f} "
+                         f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f}")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.picture", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", action="append", help="scene (repeatable; default diorama, truck, engine)")
+    parser.add_argument("--size", type=parse_size, default=(1280, 720))
+    parser.add_argument("--frames", type=int, default=2)
+    parser.add_argument("--msaa", type=parse_counts, default=[1, 2, 4])
+    parser.add_argument("--material-size", type=parse_size, default=(256, 256))
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    prefiltered_environment.cache_clear()
+    environment_ms = prefiltered_environment(None).prefilter_ms
+    ctx = create_gl_context()
+    try:
+        result: dict[str, Any] = {
+            "meta": {"renderer": renderer_string(ctx), "python": platform.python_version(), "size": list(args.size),
+                     "argv": list(sys.argv[1:] if argv is None else argv)},
+            "environment_ms": environment_ms,
+            "materials": material_contrast(ctx, args.material_size),
+            "scenes": [measure_antialiasing(ctx, scene, args.size, args.frames, args.msaa)
+                       for scene in (args.scene or DEFAULT_SCENES)],
+        }
+    finally:
+        ctx.release()
+    result["meta"]["wall_s"] = time.perf_counter() - started
+    show_result(table(result), result, args.json, argv)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
