@@ -87,3 +87,29 @@ def test_a_node_late_on_its_tile_is_overdue_against_its_own_rate_or_the_slowest_
     fast.suspect = True
     assert table.overdue({1: job}, 4.0, 0.25, 0.3) == [fresh] and expected_s < 0.25
     assert table.overdue({}, 4.0, 0.25, 9.0) == [], "nothing owed of a frame in flight"
+
+
+def test_a_node_on_its_last_tile_wants_work_its_round_trip_before_the_tile_ends():
+    table = NodeTable()
+    node = table.add(1, 0.0)
+    node.ready = True
+    table.touch(node, state_changed=True)
+    camera = Camera(eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0))
+    jobs = {f: FrameJob.create(f, camera, (100, 100), Codec.JPEG, 60, Partition((Tile(Rect(0, 0, 100, 100), 1),)), 0.0)
+            for f in (1, 2, 3)}
+    table.assign(node, [(1, 0)], 1.0)         # sent while it owed nothing: its round trip is measured
+    assert table.wanting_work(jobs, 1.0) == set(), "rate and round trip not measured yet"
+    table.answered(node, (1, 0), 1.030, busy_ms=20.0)
+    assert node.lead_s == pytest.approx(0.010) and table.wanting_work(jobs, 1.030) == {1}, "idle"
+    node.ms_per_px = 0.002                    # 20 ms for the 10 000 px tile
+    table.assign(node, [(2, 0)], 1.030)
+    table.assign(node, [(3, 0)], 1.031)       # queued behind it: no round trip from this one
+    assert table.wanting_work(jobs, 1.045) == set(), "two tiles owed"
+    assert table.next_wanting_at(jobs, 1.045) is None
+    table.answered(node, (2, 0), 1.065, busy_ms=20.0)
+    assert node.lead_s == pytest.approx(0.011), "smoothed: 0.010 + 0.2 × (0.015 − 0.010)"
+    wants_at = 1.065 + 0.020 - 0.011         # frame 3's tile began about when frame 2's answer came
+    assert table.next_wanting_at(jobs, 1.065) == pytest.approx(wants_at)
+    assert table.wanting_work(jobs, wants_at - 1e-6) == set() and table.wanting_work(jobs, wants_at) == {1}
+    node.suspect = True
+    assert table.wanting_work(jobs, 2.0) == set(), "a suspect node wants no work"

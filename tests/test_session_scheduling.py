@@ -117,16 +117,18 @@ def test_resizing_a_session_drops_its_frames_and_renders_the_new_size():
 
 
 def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
-                wants: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
+                wants: dict[str, float] | None = None, latency_s: float = 0.0) -> dict[str, dict[str, float]]:
     """Every session moves its camera whenever a frame of it is published (or, for sessions in
     ``wants``, at that many frames per second); a node works through its queue in order, a tile
-    costing its session's ``cost_ms`` × its share of the frame's pixels. Returns per session its
-    node busy ms, frames published and frames asked for."""
+    costing its session's ``cost_ms`` × its share of the frame's pixels; messages each way take
+    ``latency_s``; the scheduler is ticked at its deadlines. Returns per session its node busy
+    ms, frames published and frames asked for, and ``latency_ms``, its mean input → frame time."""
     queue: dict[int, deque[tuple[RenderTiles, int]]] = {n: deque() for n in s.nodes}
     busy_until = dict.fromkeys(s.nodes, 0.0)
     events: list[tuple[float, int, str, object]] = []
     counter = 0
     figures = {sid: {"busy_ms": 0.0, "published": 0, "asked": 0} for sid in s.sessions}
+    ticks: set[float] = set()
 
     def push(at: float, kind: str, what: object) -> None:
         nonlocal counter
@@ -135,14 +137,15 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
 
     def carry_out(actions: list, now: float) -> None:
         for action in actions:
-            if isinstance(action, RenderTiles):
-                for tile in action.message.tiles:
-                    queue[action.node_id].append((action, tile.tile))
-                start(action.node_id, now)
+            if isinstance(action, RenderTiles | CancelFrames):
+                push(now + latency_s, "message", action)
             elif isinstance(action, PublishFrame):
                 figures[action.job.session]["published"] += 1
                 if wants is None or action.job.session not in wants:
                     ask(action.job.session, now)
+        if (deadline := s.next_deadline(now)) is not None and max(deadline, now) not in ticks:
+            ticks.add(max(deadline, now))
+            push(max(deadline, now), "tick", None)
 
     def ask(session_id: str, now: float) -> None:
         figures[session_id]["asked"] += 1
@@ -172,13 +175,28 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
         now, _, kind, what = heapq.heappop(events)
         if kind == "ask":
             ask(what, now)
-            continue
-        node_id, action, tile_id, ms = what
-        rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
-        s.tile_arrived(node_id, TileHeader(action.message.frame, tile_id, rect, Codec.JPEG, ms, 0.0, 0.0), b"", now)
-        s.tile_sent(node_id, action.message.frame, tile_id, 0.0)
-        carry_out(s.drain(), now)
-        start(node_id, now)
+        elif kind == "tick":
+            ticks.discard(now)
+            s.tick(now)
+            if (actions := s.drain()) or s.next_deadline(now) != now:
+                carry_out(actions, now)
+        elif kind == "message" and isinstance(what, CancelFrames):
+            queue[what.node_id] = deque(q for q in queue[what.node_id] if q[0].message.frame not in what.frames)
+        elif kind == "message":
+            queue[what.node_id].extend((what, tile.tile) for tile in what.message.tiles)
+            start(what.node_id, now)
+        elif kind == "done":
+            push(now + latency_s, "tile", what)
+            start(what[0], now)
+        else:
+            node_id, action, tile_id, ms = what
+            rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
+            header = TileHeader(action.message.frame, tile_id, rect, Codec.JPEG, ms, 0.0, 0.0)
+            if s.tile_arrived(node_id, header, b"", now) is not None:
+                s.tile_sent(node_id, action.message.frame, tile_id, 0.0)
+            carry_out(s.drain(), now)
+    for session_id, session in s.sessions.items():
+        figures[session_id]["latency_ms"] = session.stats.latency_ms
     return figures
 
 
@@ -194,6 +212,45 @@ def test_four_sessions_that_each_fill_the_cluster_get_equal_node_time():
     assert jain(busy) >= 0.95, figures
     assert figures["b"]["published"] > 2 * figures["c"]["published"], "cheap frames: more of them in the same time"
     assert sum(busy) / (3 * 20.0 * 1000.0) >= 0.85, "the nodes stay busy while work waits"
+
+
+def test_with_message_latency_nodes_stay_busy_and_each_session_sees_its_input_within_two_frames():
+    """Four sessions moving at 60 Hz, 5 ms each way: a node given work only once idle would sit out
+    10 ms per tile (busy 0.67 here); dispatched ahead, it stays busy, and each session's latency
+    stays under two of its own frame intervals."""
+    s = cluster(3, {"b": (64, 32), "c": (64, 32), "d": (64, 32)})
+    costs = {DEFAULT_SESSION: 60.0, "b": 30.0, "c": 90.0, "d": 60.0}
+    seconds = 20.0
+    figures = run_virtual(s, costs, seconds, wants=dict.fromkeys(costs, 60.0), latency_s=0.005)
+    busy = [f["busy_ms"] for f in figures.values()]
+    assert sum(busy) / (3 * seconds * 1000.0) >= 0.85, figures
+    assert jain(busy) >= 0.95, figures
+    for session_id, f in figures.items():
+        frame_interval_ms = 1000.0 * seconds / f["published"]
+        assert f["latency_ms"] <= 2 * frame_interval_ms, (session_id, f)
+
+
+def test_a_frame_goes_ahead_to_a_node_ending_its_last_tile_and_a_newer_input_keeps_it():
+    s = cluster(1, {"b": (64, 32)})
+    s.set_camera(camera(1), 0.0)
+    (first,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    answer(s, first, 0.030)                      # 30 ms round trip + busy 1 ms: the node's lead and rate
+    s.drain()
+    s.set_camera(camera(2), 0.030)
+    (second,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    node = s.nodes[1]
+    assert node.lead_s == pytest.approx(0.029) and node.ms_per_px is not None
+    s.set_camera(camera(3), 0.031)               # the default session has a frame in flight: not ahead
+    s.set_camera(camera(1), 0.031, session_id="b")
+    ahead_at = s.next_deadline(0.031)
+    assert ahead_at is not None and ahead_at < 0.030 + 0.001 + 1e-9, "its 1 ms tile ends within the 29 ms lead"
+    s.tick(max(ahead_at, 0.031))
+    (ahead,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    job = s.in_flight[ahead.message.frame]
+    assert job.session == "b" and job.ahead and len(node.outstanding) == 2
+    s.set_camera(camera(2), 0.032, session_id="b")
+    assert ahead.message.frame in s.in_flight, "a frame sent ahead is begun: a newer input does not drop it"
+    assert second.message.frame in s.in_flight
 
 
 def test_a_light_session_gets_every_frame_it_asks_for_while_heavy_ones_share_the_rest():

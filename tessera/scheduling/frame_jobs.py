@@ -61,7 +61,8 @@ class FrameJob:
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
     it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
-    sort-first), its tiles then depth tiles.
+    sort-first), its tiles then depth tiles; ``ahead``: pushed to nodes busy with their last tile
+    (dispatch ahead), none of its tiles heading a queue.
     """
 
     frame_id: int
@@ -84,6 +85,7 @@ class FrameJob:
     scene: str | None = None
     tiles_done: int = 0
     sends_done: int = 0
+    ahead: bool = False
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,

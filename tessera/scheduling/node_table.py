@@ -1,5 +1,12 @@
 """The nodes as the frame scheduler sees them: what each owes, since when, how fast it is, and
-which are ready and idle (kept in step, asked on every event). Pure bookkeeping."""
+which are ready and idle (kept in step, asked on every event), and which want work. Pure bookkeeping.
+
+**Dispatch ahead** (issue 19: nodes busy while work waits). A node that is given work only once it
+owes nothing sits idle for the round trip between its last tile and the next render message
+(plus the coordinator's turn), on every tile. So a node *wants work* (:meth:`NodeTable.wanting_work`)
+when it is idle, or when it is on its last tile and that tile is expected to end within the
+node's measured round trip (:attr:`NodeSchedule.lead_s`): the next frame's camera is bound that
+much before the node could begin it, no earlier, so late camera binding loses almost nothing."""
 
 from __future__ import annotations
 
@@ -9,6 +16,11 @@ from typing import Any
 
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.wire.protocol import ProtocolError
+
+#: Weight of a new round-trip sample in a node's smoothed lead time.
+LEAD_SMOOTHING = 0.2
+#: Longest lead (s): a node is never sent its next tile earlier than this before its last ends.
+MAX_LEAD_S = 0.05
 
 #: Slots for node indices in viewer frames (u16 on the wire).
 MAX_NODE_SLOTS = 1 << 16
@@ -27,7 +39,10 @@ class NodeSchedule:
     newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
     owed; ``state_sent``: the session and scene state version its last render message brought it
     to (a node keeps one state: another session's frame sends its state whole) (None:
-    none yet, or unsure after a failed tile); the rest is the last complete frame's roll-up."""
+    none yet, or unsure after a failed tile); ``lead_s``: how long before its last tile ends it is
+    sent the next (its round trip: answer time − dispatch time − busy time of tiles sent to it
+    while it owed nothing, smoothed); ``fresh``: such a tile in flight and when it went; the rest
+    is the last complete frame's roll-up."""
 
     node_id: int
     slot: int
@@ -39,6 +54,8 @@ class NodeSchedule:
     ms_per_px: float | None = None
     failures: int = 0
     state_sent: tuple[str, int] | None = None
+    lead_s: float | None = None
+    fresh: tuple[tuple[int, int], float] | None = None
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)
@@ -109,10 +126,37 @@ class NodeTable:
         else:
             self.idle.discard(node.node_id)
 
+    def wanting_work(self, in_flight: Mapping[int, FrameJob], now: float) -> set[int]:
+        """The ready nodes that want work at ``now``: the idle ones, and those whose last tile owed
+        ends within their lead (see the module docstring)."""
+        return self.idle | {n.node_id for n in self.nodes.values()
+                            if (at := self._wants_from(n, in_flight)) is not None and at <= now}
+
+    def next_wanting_at(self, in_flight: Mapping[int, FrameJob], now: float) -> float | None:
+        """The earliest time after ``now`` a node busy now will want work (None: none will
+        before it answers)."""
+        times = [at for n in self.nodes.values() if (at := self._wants_from(n, in_flight)) is not None and at > now]
+        return min(times, default=None)
+
+    @staticmethod
+    def _wants_from(node: NodeSchedule, in_flight: Mapping[int, FrameJob]) -> float | None:
+        """When a schedulable node on its last tile wants its next: the tile's expected end (its
+        busy ms per pixel × the tile's pixels after it began) less its lead; None when it owes
+        more, or its rate or round trip is not measured yet."""
+        if len(node.outstanding) != 1 or not node.schedulable or node.ms_per_px is None or node.lead_s is None:
+            return None
+        frame_id, tile_id = next(iter(node.outstanding))
+        job = in_flight.get(frame_id)
+        if job is None:
+            return None
+        expected_s = node.ms_per_px * job.tiles[tile_id].rect.area / 1000.0
+        return node.head_since + expected_s - min(node.lead_s, MAX_LEAD_S)
+
     def assign(self, node: NodeSchedule, keys: list[tuple[int, int]], now: float) -> None:
         """``node`` owes the tiles ``keys`` (frame id, tile id) from ``now``."""
         if not node.outstanding:
             node.head_since = now
+            node.fresh = (keys[0], now)
         for key in keys:
             node.outstanding[key] = now
         self.idle.discard(node.node_id)
@@ -171,9 +215,14 @@ class NodeTable:
             raise ProtocolError(f"{what} {key[1]} of frame {key[0]}, which this node does not owe "
                                 "(never asked of it, or already answered)")
 
-    def answered(self, node: NodeSchedule, key: tuple[int, int], now: float) -> None:
-        """``node`` sent back (or gave up) tile ``key``: it is no longer owed, and a suspect node that
-        answers is trusted again."""
+    def answered(self, node: NodeSchedule, key: tuple[int, int], now: float, busy_ms: float | None = None) -> None:
+        """``node`` sent back (or gave up) tile ``key``, having been busy ``busy_ms`` on it (None: not
+        known): it is no longer owed, and a suspect node that answers is trusted again."""
+        if node.fresh is not None and node.fresh[0] == key:
+            if busy_ms is not None:
+                sample = max(now - node.fresh[1] - busy_ms / 1000.0, 0.0)
+                node.lead_s = sample if node.lead_s is None else node.lead_s + LEAD_SMOOTHING * (sample - node.lead_s)
+            node.fresh = None
         if node.outstanding.pop(key, None) is not None:
             if node.outstanding:
                 node.head_since = now

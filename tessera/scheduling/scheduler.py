@@ -16,8 +16,10 @@ What it decides:
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality). Otherwise nothing
   renders.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
-  newest camera when it starts, and it starts only when a node has nothing left to do, so its
-  camera is fresh when the first node begins it; at most ``max_in_flight`` frames are in flight.
+  newest camera when it starts, and it starts only when a node wants work — it has nothing left
+  to do, or its last tile ends within its round trip (dispatch ahead,
+  :mod:`tessera.scheduling.node_table`) — so its camera is fresh when the first node begins it
+  and no node idles for the round trip; at most ``max_in_flight`` frames are in flight.
   When the state changes, frames that are superseded are dropped: a still frame, and any frame
   no node has begun (no tile arrived, none at the head of a node's queue). Nodes are told to
   drop their queued tiles of dropped frames; the scheduler stops waiting for them.
@@ -181,14 +183,18 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
+        free = self.table.wanting_work(self.in_flight, now)
         if len(self.sessions) == 1:   # one session is always in turn
-            times = [at] if (at := self.default.start_due(now, self.table.idle)) is not None else []
+            times = [at] if (at := self.default.start_due(now, self._free_for(self.default, free))) is not None else []
         else:
             backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
             times = [at for s in self.sessions.values()
-                     if (at := s.start_due(now, self.table.idle)) is not None and self.fair.in_turn(s.id, backlogged)]
+                     if (at := s.start_due(now, self._free_for(s, free))) is not None
+                     and self.fair.in_turn(s.id, backlogged)]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
+            if (at := self.table.next_wanting_at(self.in_flight, now)) is not None:
+                times.append(at)
         return min(times) if times else None
 
     def _oldest_dispatch(self) -> float:
@@ -350,7 +356,7 @@ class FrameScheduler:
             self._advance(now)
             return None
         tile = job.accept(node_id, header, payload, depth_tile)
-        self.table.answered(node, key, now)
+        self.table.answered(node, key, now, header.render_ms + header.readback_ms + header.encode_ms)
         if tile is None:
             self._advance(now)
             return None
@@ -471,9 +477,10 @@ class FrameScheduler:
         return first
 
     def _begun(self, job: FrameJob) -> bool:
-        """True once a node works on ``job``: a tile arrived, a pulled tile went out, or one of its
-        tiles heads a node's queue."""
-        return bool(job.tiles_done or (job.pull and len(job.pull_queue) < len(job.tiles))
+        """True once a node works on ``job``: a tile arrived, a pulled tile went out, one of its
+        tiles heads a node's queue, or it was dispatched ahead (else a session whose inputs come
+        faster than a node's tile would have its frame dropped and queued again, never begun)."""
+        return bool(job.tiles_done or job.ahead or (job.pull and len(job.pull_queue) < len(job.tiles))
                     or self.table.heads(job.frame_id))
 
     def _cancel(self, job: FrameJob, now: float) -> None:
@@ -494,8 +501,8 @@ class FrameScheduler:
         """Hand out pulled tiles, then start every frame that is owed and allowed, the session
         that has had least node time first."""
         self._pump_pull(now)
-        while self.table.idle:
-            wanting = [s for s in self.sessions.values() if s.may_start(now, self.table.idle)]
+        while free := self.table.wanting_work(self.in_flight, now):
+            wanting = [s for s in self.sessions.values() if s.may_start(now, self._free_for(s, free))]
             if len(wanting) > 1 or (wanting and len(self.sessions) > 1):
                 busy = [s.id for s in self.sessions.values() if s.frames]
                 order = self.fair.order([s.id for s in wanting], busy, now)
@@ -507,6 +514,13 @@ class FrameScheduler:
             assert kind is not None
             self._start_frame(session, now, still=kind == STILL)
             self._pump_pull(now)
+
+    def _free_for(self, session: SessionFrames, free: set[int]) -> set[int]:
+        """The nodes of ``free`` (they want work) a frame of ``session`` may start on: any, for a
+        session with no frame in flight; only idle ones for a session with a frame in flight,
+        whose next frame would otherwise bind its camera a whole frame early (latency over two
+        of its frame intervals, measured on the virtual clock)."""
+        return free if not session.frames else self.table.idle
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
@@ -523,6 +537,7 @@ class FrameScheduler:
                 by_node.setdefault(tile.node_id, []).append(tile.tile_id)
             for node_id, tile_ids in by_node.items():
                 self._push(job, self.nodes[node_id], tile_ids, now)
+            job.ahead = not self.table.heads(job.frame_id)
 
     def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
                      force: bool = False) -> bool:
@@ -548,12 +563,14 @@ class FrameScheduler:
         self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, state)))
 
     def _pump_pull(self, now: float) -> None:
-        """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
-        first; when several are idle at once the fastest gets the heaviest, then the first freed.
+        """Tile rotation (seed 000 §4.3): nodes that want work pull the next tiles (heaviest first),
+        oldest frame first; idle ones before those about to be, and among them the fastest gets
+        the heaviest, then the first freed.
         A node pulls only tiles of sessions whose scene it holds."""
-        if not self.table.idle or not any(job.pull_queue for job in self.in_flight.values()):
+        if not any(job.pull_queue for job in self.in_flight.values()):
             return
-        idle = sorted((self.nodes[i] for i in self.table.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
+        idle = sorted((self.nodes[i] for i in self.table.wanting_work(self.in_flight, now)),
+                      key=lambda n: (bool(n.outstanding), -n.speed, n.idle_since, n.node_id))
         for job in self.in_flight.values():
             holders = self.sessions[job.session].ready
             while job.pull_queue and idle:
