@@ -67,7 +67,7 @@ def test_skew_is_the_spread_of_present_times_over_the_cells():
     assert figures["skew_samples"] == 3
     assert figures["skew_p50_ms"] == 2.0
     assert 2.0 < figures["skew_p99_ms"] <= 3.0
-    assert figures["presented"] == 3 and figures["cells"] == 3
+    assert figures["presented"] == 3 and figures["presents"] == 3 and figures["cells"] == 3
 
 
 def test_no_skew_before_two_cells_report():

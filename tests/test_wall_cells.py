@@ -45,6 +45,14 @@ def test_a_cut_partition_covers_the_wall_with_every_piece_in_one_cell_or_the_bez
     assert in_cells + len(bezel) == len(cut.tiles)
 
 
+def test_without_bezels_no_piece_is_empty():
+    wall = WallLayout(2, 2, (160, 120))
+    cut = wall.cut(Partition((Tile(Rect(0, 0, 100, 240), 1), Tile(Rect(100, 0, 220, 240), 2))))
+    check_exact_cover(cut.rects, wall.size)
+    assert all(t.rect.w > 0 and t.rect.h > 0 for t in cut.tiles)
+    assert len(cut.tiles) == 6
+
+
 def test_a_tile_inside_one_cell_is_kept_and_a_pull_list_keeps_its_order():
     tiles = (Tile(Rect(0, 0, 640, 360), None), Tile(Rect(640, 0, 660, 730), None), Tile(Rect(0, 360, 640, 370), None))
     cut = WALL.cut(Partition(tiles, pull=True))

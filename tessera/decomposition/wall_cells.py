@@ -105,11 +105,10 @@ class WallLayout:
                             f"(col 0…{self.cols - 1}, row 0…{self.rows - 1})")
 
     def _edges(self, count: int, length: int, gap: int) -> list[int]:
-        """Where cells start and end along one axis (px), in order."""
-        edges = []
-        for index in range(count):
-            edges += [index * (length + gap), index * (length + gap) + length]
-        return edges
+        """Where cells start and end along one axis (px), in order, each once (without a bezel a
+        cell ends where the next starts)."""
+        return sorted({edge for index in range(count) for edge in (index * (length + gap),
+                                                                  index * (length + gap) + length)})
 
     def cut(self, partition: Partition) -> Partition:
         """``partition`` with every tile cut at the cell edges: each piece lies inside one cell or

@@ -50,6 +50,8 @@ class FrameLock:
         self.stale_s = stale_s
         self._cells: dict[Hashable, _Cell] = {}
         self.presented = -1
+        #: Frames the lock presented (every live cell told at once).
+        self.presents = 0
         self._presenting: _Presenting | None = None
         self.skews_ms: deque[float] = deque(maxlen=window)
 
@@ -78,7 +80,7 @@ class FrameLock:
         lock = min((c.newest for c in live.values()), default=-1)
         if lock > self.presented:
             self._finish()
-            self.presented = lock
+            self.presented, self.presents = lock, self.presents + 1
             self._presenting = _Presenting(lock, frozenset(live))
             told = live
         else:
@@ -105,9 +107,10 @@ class FrameLock:
 
     def describe(self) -> dict[str, float | int | None]:
         """``skew_p50_ms``, ``skew_p99_ms`` (None before two cells presented a frame), ``skew_samples``,
-        ``presented`` (the last frame presented, -1: none), ``cells``."""
+        ``presented`` (the last frame presented, -1: none), ``presents`` (frames presented), ``cells``."""
         skews = np.asarray(self.skews_ms, dtype=np.float64)
         p50, p99 = (float(np.percentile(skews, q)) for q in (50, 99)) if skews.size else (None, None)
         return {"skew_p50_ms": None if p50 is None else round(p50, 3),
                 "skew_p99_ms": None if p99 is None else round(p99, 3),
-                "skew_samples": int(skews.size), "presented": self.presented, "cells": len(self._cells)}
+                "skew_samples": int(skews.size), "presented": self.presented, "presents": self.presents,
+                "cells": len(self._cells)}

@@ -1,0 +1,246 @@
+"""A display wall (issue 22): a C × R wall session whose cells are frame-locked viewers, against
+one session of the same total size.
+
+``python -m bench.wall --cols 2 --rows 2 --cell 640x360 [--bezel 0x0] [--nodes 3]
+[--scene builtin:cluster] [--input-hz 30] [--moving-s 8] [--turn-s 8] [--chromium]
+[--server-args "…"] [--json OUT]``
+
+Phase 1, the wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the
+drive link that turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each
+that says ``have`` for every frame, presents on ``present`` and reports when, on the
+coordinator's clock estimated by ping → pong), or with ``--chromium`` headless Chromium pages of
+the real viewer, which present on their next animation frame. Over the window (its first second
+left out): frames the lock presented per second, frames the driver received per second, and the
+present skew between cells (p50, p99 in ms, from ``/api/sessions/{id}/stats``). Phase 2, one
+session of the wall's whole size moved the same way by one viewer: frames per second. Their ratio
+is what the wall costs in throughput.
+
+Everything shares this machine's cores: on 2 cores, N nodes, the cells and the coordinator take turns.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import shlex
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import websockets.sync.client as ws_client
+
+from bench.live import ScriptedViewer, wait_ready
+from bench.processes import show_result, start_coordinator
+from bench.sessions import move, wait_session_ready
+from tessera.cli_values import size_parser
+from tessera.wire.protocol import unpack_frame
+
+#: Pings a scripted cell sends first for its clock estimate, and how often it pings after (s).
+FIRST_PINGS = 5
+PING_S = 1.0
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-renderer-backgrounding",
+                 "--disable-background-timer-throttling", "--disable-backgrounding-occluded-windows"]
+
+
+class ScriptedCell:
+    """One cell of the wall on an open ``/ws/view?…&cell=C,R`` connection: a thread says ``have``
+    for every frame, presents on ``present`` (at once: a script has no display) and reports the
+    time on the coordinator's clock, estimated from the ping → pong with the shortest round trip."""
+
+    def __init__(self, ws: ws_client.ClientConnection) -> None:
+        self.ws = ws
+        self.offset_ms: float | None = None
+        self._best_rtt = math.inf
+        self.presented: list[int] = []
+        self._stop = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _ping(self) -> None:
+        self.ws.send(json.dumps({"type": "ping", "t0": time.perf_counter() * 1000.0}))
+
+    def _read(self) -> None:
+        for _ in range(FIRST_PINGS):
+            self._ping()
+        pinged = time.perf_counter()
+        while not self._stop.is_set():
+            if time.perf_counter() - pinged >= PING_S:
+                self._ping()
+                pinged = time.perf_counter()
+            try:
+                message = self.ws.recv(timeout=0.2)
+            except TimeoutError:
+                continue
+            except Exception:
+                return
+            if isinstance(message, bytes):
+                self.ws.send(json.dumps({"type": "have", "frame": unpack_frame(message).frame_id}))
+                continue
+            data = json.loads(message)
+            now_ms = time.perf_counter() * 1000.0
+            if data["type"] == "pong" and now_ms - data["t0"] < self._best_rtt:
+                self._best_rtt = now_ms - data["t0"]
+                self.offset_ms = data["clock_ms"] - (data["t0"] + now_ms) / 2
+            elif data["type"] == "present" and self.offset_ms is not None:
+                self.presented.append(data["frame"])
+                self.ws.send(json.dumps({"type": "presented", "frame": data["frame"],
+                                         "at_ms": max(0.0, now_ms + self.offset_ms)}))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._reader.join(timeout=5)
+
+
+@contextlib.contextmanager
+def chromium_cells(urls: list[str]) -> Iterator[None]:
+    """A headless Chromium page of the viewer at each of ``urls``, open until the block ends."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            for url in urls:
+                browser.new_page(viewport={"width": 480, "height": 320}).goto(url)
+            yield
+        finally:
+            browser.close()
+
+
+def lock_figures(client: httpx.Client, session_id: str) -> dict[str, Any]:
+    return client.get(f"/api/sessions/{session_id}/stats").json()["frame_lock"]
+
+
+def received_fps(viewer: ScriptedViewer, start: float, end: float) -> float:
+    """Interactive frames ``viewer`` received per second between ``start`` and ``end`` (perf_counter s)."""
+    with viewer.lock:
+        return sum(start <= f["at"] <= end and not f["still"] for f in viewer.frames) / (end - start)
+
+
+def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> dict[str, Any]:
+    wall = {"cols": args.cols, "rows": args.rows, "cell": list(args.cell), "bezel": list(args.bezel)}
+    created = client.post("/api/sessions", json={"scene": args.scene, "wall": wall})
+    created.raise_for_status()
+    body = created.json()
+    session_id = body["id"]
+    wait_session_ready(client, session_id)
+    cells = [f"{col},{row}" for row in range(args.rows) for col in range(args.cols)]
+    with contextlib.ExitStack() as stack:
+        if args.chromium:
+            stack.enter_context(chromium_cells([f"{body['viewer_url']}&cell={cell}" for cell in cells]))
+            scripted: list[ScriptedCell] = []
+        else:
+            scripted = [ScriptedCell(stack.enter_context(ws_client.connect(
+                f"{ws_url}/ws/view?session={session_id}&cell={cell}", max_size=256 << 20))) for cell in cells]
+        driver = ScriptedViewer(stack.enter_context(ws_client.connect(
+            f"{ws_url}/ws/view?session={session_id}", max_size=256 << 20)))
+        deadline = time.monotonic() + 120.0
+        while (first := lock_figures(client, session_id))["cells"] < len(cells) or first["presents"] < 1:
+            if time.monotonic() > deadline:
+                raise RuntimeError("the wall's cells did not present a first frame within 120 s")
+            time.sleep(0.2)
+        started = time.perf_counter()
+        stop = threading.Event()
+        mover = threading.Thread(target=move, args=([driver], started + args.moving_s, args.input_hz, args.turn_s,
+                                                    stop))
+        mover.start()
+        time.sleep(1.0)
+        before, window_start = lock_figures(client, session_id), time.perf_counter()
+        mover.join()
+        after, window_end = lock_figures(client, session_id), time.perf_counter()
+        driver_fps = received_fps(driver, window_start, window_end)
+        driver.stop()
+        for cell in scripted:
+            cell.stop()
+    client.delete(f"/api/sessions/{session_id}")
+    presented_fps = (after["presents"] - before["presents"]) / (window_end - window_start)
+    return {"size": body["size"], "presented_fps": presented_fps, "driver_fps": driver_fps,
+            **{key: after[key] for key in ("skew_p50_ms", "skew_p99_ms", "skew_samples")}}
+
+
+def single_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, size: list[int]) -> dict[str, Any]:
+    created = client.post("/api/sessions", json={"scene": args.scene, "size": size})
+    created.raise_for_status()
+    session_id = created.json()["id"]
+    wait_session_ready(client, session_id)
+    with ws_client.connect(f"{ws_url}/ws/view?session={session_id}", max_size=256 << 20) as ws:
+        viewer = ScriptedViewer(ws)
+        started = time.perf_counter()
+        move([viewer], started + args.moving_s, args.input_hz, args.turn_s, threading.Event())
+        fps = received_fps(viewer, started + 1.0, time.perf_counter())
+        viewer.stop()
+    client.delete(f"/api/sessions/{session_id}")
+    return {"size": size, "fps": fps}
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    (w, h), (bx, by) = args.cell, args.bezel
+    size = [args.cols * w + (args.cols - 1) * bx, args.rows * h + (args.rows - 1) * by]
+    server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", "64x48",
+                   "--max-size", f"{size[0]}x{size[1]}", *shlex.split(args.server_args)]   # fits the single session
+    coordinator, url = start_coordinator(server_args, log_level="warning")
+    ws_url = url.replace("http://", "ws://")
+    result: dict[str, Any] = {"cols": args.cols, "rows": args.rows, "cell": list(args.cell), "bezel": list(args.bezel),
+                              "nodes": args.nodes, "scene": args.scene, "input_hz": args.input_hz,
+                              "cells_are": "chromium" if args.chromium else "scripted", "server_args": args.server_args}
+    try:
+        with httpx.Client(base_url=url, timeout=120) as client:
+            wait_ready(client, args.nodes)
+            result["wall"] = wall_phase(args, client, ws_url)
+            result["single"] = single_phase(args, client, ws_url, size)
+    finally:
+        coordinator.stop(timeout=30.0)
+    single_fps = result["single"]["fps"]
+    result["fps_ratio"] = result["wall"]["presented_fps"] / single_fps if single_fps else math.nan
+    return result
+
+
+def report(result: dict[str, Any]) -> str:
+    wall, single = result["wall"], result["single"]
+    skew = ("no skew measured" if wall["skew_p50_ms"] is None else
+            f"present skew between cells p50 {wall['skew_p50_ms']:.2f} ms, p99 {wall['skew_p99_ms']:.2f} ms "
+            f"({wall['skew_samples']} frames)")
+    return "\n".join([
+        f"{result['cols']}x{result['rows']} wall of {result['cell'][0]}x{result['cell'][1]} cells (bezel "
+        f"{result['bezel'][0]}x{result['bezel'][1]}), {wall['size'][0]}x{wall['size'][1]} in all, "
+        f"{result['nodes']} local nodes, {result['cells_are']} cells, driver at {result['input_hz']:g} Hz",
+        f"wall:   {wall['presented_fps']:6.1f} frames presented/s (driver received {wall['driver_fps']:.1f}/s); {skew}",
+        f"single: {single['fps']:6.1f} frames/s, one viewer of {single['size'][0]}x{single['size'][1]}",
+        f"wall / single throughput {result['fps_ratio']:.3f}",
+    ])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench.wall", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cols", type=int, default=2)
+    parser.add_argument("--rows", type=int, default=2)
+    parser.add_argument("--cell", type=size_parser(16, 8192), default=(640, 360))
+    parser.add_argument("--bezel", type=size_parser(0, 1024), default=(0, 0), help="mullion between cells, BXxBY px")
+    parser.add_argument("--nodes", type=int, default=3)
+    parser.add_argument("--scene", default="builtin:cluster")
+    parser.add_argument("--input-hz", type=float, default=30.0)
+    parser.add_argument("--moving-s", type=float, default=8.0)
+    parser.add_argument("--turn-s", type=float, default=8.0)
+    parser.add_argument("--chromium", action="store_true", help="cells are headless Chromium pages of the viewer")
+    parser.add_argument("--server-args", default="", help="more flags for python -m server")
+    parser.add_argument("--json", type=Path)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.cols < 1 or args.rows < 1 or args.nodes < 1 or args.moving_s <= 2.0:
+        raise SystemExit("--cols, --rows and --nodes must be >= 1, --moving-s > 2")
+    result = measure(args)
+    show_result(report(result), result, args.json, argv)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
