@@ -6,26 +6,34 @@
 # from Debian packages and fills docker/wheels/, which the builder installs from with --no-index.
 # With docker/wheels/ empty the dependencies come from PyPI as usual.
 
-FROM debian:bookworm-slim AS builder
+FROM debian:bookworm-slim AS python
 RUN apt-get update \
     && apt-get install -y --no-install-recommends python3 python3-venv \
     && rm -rf /var/lib/apt/lists/*
+# The legacy builder keeps the last image of each stage but the final one as an untagged image (the
+# builder's is the cache of the dependency layers): the label, which both stages below inherit,
+# finds them; `docker image prune --filter label=tessera.stage=builder` removes them.
+LABEL tessera.stage=builder
+
+# pyproject.toml's runtime dependencies alone: an edit elsewhere in the file (scripts, test extras)
+# makes the same requirements.txt, and the builder's install below stays cached.
+FROM python AS requirements
+COPY pyproject.toml /build/
+RUN python3 -c 'import tomllib; print("\n".join(tomllib.load(open("/build/pyproject.toml", "rb"))["project"]["dependencies"]))' \
+        > /build/requirements.txt
+
+FROM python AS builder
 RUN python3 -m venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_NO_CACHE_DIR=1
 # Dependencies before source, so editing the source reuses this layer.
 COPY docker/wheels/ /wheels/
-COPY pyproject.toml /build/
-RUN python3 -c 'import tomllib; print("\n".join(tomllib.load(open("/build/pyproject.toml", "rb"))["project"]["dependencies"]))' \
-        > /build/requirements.txt \
-    && if ls /wheels/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /wheels"; else offline=""; fi \
+COPY --from=requirements /build/requirements.txt /build/
+RUN if ls /wheels/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /wheels"; else offline=""; fi \
     && pip install $offline -r /build/requirements.txt \
     && pip uninstall --yes pip \
     && find /opt/venv \( -name __pycache__ -o -name tests \) -type d -prune -exec rm -rf {} +
-# The legacy builder keeps this stage as an untagged image (the cache of the dependency layers):
-# the label finds it, `docker image prune --filter label=tessera.stage=builder` removes it.
-LABEL tessera.stage=builder
 
 FROM debian:bookworm-slim
 # python3 and the EGL/GL runtime: glvnd (libegl1, libgl1) with Mesa's EGL vendor and llvmpipe (CPU).

@@ -123,15 +123,15 @@ def compose(request) -> list[str]:
 
 
 def remove_stale_builder_images() -> None:
-    """Remove the builder stages (label tessera.stage=builder, untagged) of earlier builds, keeping
-    the one this build used: it caches the dependency layers for the next build."""
-    current = run(["docker", "build", "--quiet", "--target", "builder", "."]).strip().removeprefix("sha256:")
-    builders = run(["docker", "images", "--quiet", "--no-trunc", "--filter", "label=tessera.stage=builder",
-                    "--filter", "dangling=true"]).split()
-    stale = [image for image in builders if image.removeprefix("sha256:") != current]
-    if stale:
-        run(["docker", "rmi", *stale])
-    assert any(image.removeprefix("sha256:") == current for image in builders), "the builder stage is labelled"
+    """Remove the untagged images of the Dockerfile's build stages (label tessera.stage=builder) left
+    by earlier builds, keeping the ones this build used: they cache the dependency layers."""
+    current = {run(["docker", "build", "--quiet", "--target", stage, "."]).strip()
+               for stage in ("requirements", "builder")}
+    left = set(run(["docker", "images", "--quiet", "--no-trunc", "--filter", "label=tessera.stage=builder",
+                    "--filter", "dangling=true"]).split())
+    if left - current:
+        run(["docker", "rmi", *sorted(left - current)])
+    assert current <= left, "the build stages' images are labelled"
 
 
 @dataclass
