@@ -29,6 +29,13 @@ REST_SHOWN_JS = """() => {
   return state.hidden ? null : {state: state.textContent, fps: document.getElementById("fig-fps").textContent};
 }"""
 
+# The node row (1-based) whose render segment is widest, once one is at least 4 px wide.
+WIDEST_RENDER_SEGMENT_JS = """() => {
+  const widths = [...document.querySelectorAll("#nodes .seg.render")].map((segment) => segment.offsetWidth);
+  const widest = Math.max(0, ...widths);
+  return widest >= 4 && document.getAnimations().length === 0 ? widths.indexOf(widest) + 1 : null;
+}"""
+
 #: What hovering each figure must explain: the element hovered and words its explanation holds.
 EXPLAINED = {
     "fps": ("#fig-fps", r"on demand"),
@@ -38,7 +45,6 @@ EXPLAINED = {
     "imbalance avg": ("#fig-imbalance-avg", r"last 60 frames"),
     "bar scale": ("#bar-scale", r"full bar width is this many ms"),
     "a node's speed factor": ("#nodes li:first-child .detail", r"×\d\.\d\d: its speed .* slowest node"),
-    "a bar's render phase": ("#nodes li:first-child .seg.render", r"render [\d.]+ ms: drawing its tiles"),
     "the legend": (".legend li:nth-child(3)", r"encode: compressing"),
     "the rest line": ("#render-state", r"drawn only when the camera"),
 }
@@ -66,10 +72,12 @@ def test_panel_says_at_rest_and_explains_every_figure_on_hover(chromium, coordin
     shown = page.wait_for_function(REST_SHOWN_JS, timeout=wait_ms, polling=100).json_value()
     assert shown == {"state": "at rest — rendering on demand", "fps": "at rest"}
 
-    # Explanations: every figure's hover text, found by hovering it (the bars drawn first).
-    page.wait_for_function("() => [...document.querySelectorAll('#nodes .seg.render')].every((s) => s.offsetWidth > 0)",
-                           timeout=wait_ms, polling=100)
-    for what, (selector, words) in EXPLAINED.items():
+    # Explanations: every figure's hover text, found by hovering it (a bar's render phase: the widest,
+    # as a node that drew little has a segment too narrow to point at).
+    widest = page.wait_for_function(WIDEST_RENDER_SEGMENT_JS, timeout=wait_ms, polling=100).json_value()
+    explained = {**EXPLAINED, "a bar's render phase": (f"#nodes li:nth-child({widest}) .seg.render",
+                                                       r"render [\d.]+ ms: drawing its tiles")}
+    for what, (selector, words) in explained.items():
         page.hover(selector)
         title = page.evaluate(HOVER_TITLE_JS, selector)
         assert title is not None and re.search(words, title), f"hovering {what} ({selector}) shows {title!r}"
