@@ -26,13 +26,14 @@ DEFAULT_OUT = REPO / "docs" / "screenshot.png"
 DEFAULT_TURNS = 3
 
 # The page is ready for its picture: a frame drawn and still, the panel at rest with a bar per
-# node (its render segment drawn, no bar still animating) and the input → display latency known.
+# node (render segments drawn: a node that drew little may have one too narrow to show; no bar
+# still animating) and the input → display latency known.
 READY_JS = """(nodes) =>
   window.tessera && window.tessera.framesDrawn > 0 && window.tessera.still === true &&
   !document.getElementById("render-state").hidden &&
   /^\\d+ ms/.test(document.getElementById("fig-input-latency").textContent) &&
   document.querySelectorAll("#nodes li").length === nodes &&
-  [...document.querySelectorAll("#nodes .seg.render")].every((seg) => seg.offsetWidth > 0) &&
+  [...document.querySelectorAll("#nodes .seg.render")].some((seg) => seg.offsetWidth > 0) &&
   document.getAnimations().every((animation) => animation.playState !== "running")"""
 
 
