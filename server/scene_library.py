@@ -15,6 +15,7 @@ File system access is here; HTTP is in :mod:`server.routes.scenes`.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import secrets
 import unicodedata
@@ -27,6 +28,9 @@ from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
 from node.scene.mesh import SceneError
 from node.scene.objects import GLTF_SUFFIXES
 from tessera.scene.gltf import GltfError, read_document
+from tessera.scene.gltf_pack import self_contained_gltf
+
+log = logging.getLogger("tessera.server")
 
 LIBRARY_PREFIX = "library/"
 UPLOAD_PREFIX = "upload/"
@@ -197,19 +201,46 @@ class SceneLibrary:
         return self._entry(name, path)
 
     def content_hash(self, entry: SceneEntry) -> str:
-        """SHA-256 (hex) of a scene file's bytes, read once per (path, size, modification time).
-        Blocking: reads the whole file the first time."""
+        """SHA-256 (hex) of the bytes nodes fetch of a scene (its file's, or :meth:`packed_gltf`'s),
+        computed once per (path, size, modification time) of the file. Blocking: reads the whole
+        file the first time."""
         assert entry.path is not None, "built-in scenes have no file"
         stat = entry.path.stat()
         known = self._hashes.get(entry.path)
         if known is not None and known[:2] == (stat.st_size, stat.st_mtime_ns):
             return known[2]
         digest = hashlib.sha256()
-        with entry.path.open("rb") as file:
-            while chunk := file.read(1 << 20):
-                digest.update(chunk)
+        packed = self.packed_gltf(entry)
+        if packed is not None:
+            digest.update(packed)
+        else:
+            with entry.path.open("rb") as file:
+                while chunk := file.read(1 << 20):
+                    digest.update(chunk)
         self._hashes[entry.path] = (stat.st_size, stat.st_mtime_ns, digest.hexdigest())
         return digest.hexdigest()
+
+    def packed_gltf(self, entry: SceneEntry) -> bytes | None:
+        """A library ``.gltf`` whose buffers or images are separate files, made one self-contained
+        file (:mod:`tessera.scene.gltf_pack`) for nodes that fetch it; None for any other scene,
+        and for one that refers to a file outside the library or missing (then its file is
+        served as it is: nodes that share the folder still load it). Blocking."""
+        root = self.scenes_dir
+        if entry.path is None or root is None or entry.format != "gltf" or not entry.name.startswith(LIBRARY_PREFIX):
+            return None
+        folder = entry.path.parent
+
+        def read_file(uri: str) -> bytes:
+            target = (folder / uri).resolve()
+            if "://" in uri or os.path.isabs(uri) or not target.is_relative_to(root):
+                raise GltfError(f"{uri!r} is not a file of the library")
+            return target.read_bytes()
+
+        try:
+            return self_contained_gltf(entry.path.read_bytes(), read_file)
+        except (GltfError, OSError) as exc:
+            log.warning("%s is served as it is, without the files it refers to: %s", entry.name, exc)
+            return None
 
     def begin_upload(self, filename: str) -> PendingUpload:
         """A temporary file to receive the upload ``filename`` into; raises :class:`SceneRefused`

@@ -18,6 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from node.scene.builtin import BUILTIN_SCENES
+from node.scene.loading import load_scene
 from server.app import create_app
 from server.settings import Settings
 from tests.conftest import scene_path, seconds
@@ -84,6 +85,24 @@ def test_a_library_file_is_served_with_its_hash(client, tmp_path):
     assert served.status_code == 200
     assert served.content == triangle_gltf()
     assert served.headers["x-sha256"] == hashlib.sha256(triangle_gltf()).hexdigest()
+
+
+def test_a_library_gltf_with_separate_files_is_served_as_one_file_that_loads_alone(client, tmp_path):
+    truck = scene_path("gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf")
+    shutil.copytree(truck.parent, tmp_path / "library" / "truck")
+    served = client.get("/api/scenes/library/truck/CesiumMilkTruck.gltf/file")
+    assert served.status_code == 200, served.text
+    assert served.headers["x-sha256"] == hashlib.sha256(served.content).hexdigest()
+    alone = tmp_path / "alone" / "truck.gltf"
+    alone.parent.mkdir()
+    alone.write_bytes(served.content)
+    assert load_scene(str(alone)).triangle_count == load_scene(str(truck)).triangle_count > 0
+    (tmp_path / "outside.bin").write_bytes(b"\0" * 36)
+    escaping = triangle_gltf(buffer_uri="../../outside.bin")
+    (tmp_path / "library" / "sub").mkdir()
+    (tmp_path / "library" / "sub" / "out.gltf").write_bytes(escaping)
+    served = client.get("/api/scenes/library/sub/out.gltf/file")
+    assert served.status_code == 200 and served.content == escaping, "a file outside the library is never inlined"
 
 
 @pytest.mark.parametrize(("filename", "content", "status", "reason"), [

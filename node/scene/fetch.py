@@ -6,8 +6,8 @@ The cached file is ``<cache>/<sha256><suffix>`` (the suffix of the scene's own n
 parser). A download streams into a temporary file beside it, hashed as it comes, and is renamed
 into place only when its SHA-256 matches, so a cached name always holds the right bytes and nodes
 sharing a cache folder never see half a file; a file already cached is used without a download.
-Only a file that holds the whole scene can be fetched (PLY, OBJ, STL, GLB; a ``.gltf`` with
-external buffers would miss them).
+One file holds the whole scene: the coordinator serves a library ``.gltf`` whose buffers and
+images are separate files made self-contained (:mod:`tessera.scene.gltf_pack`).
 
 ``url`` is an absolute http(s) URL or a path on the coordinator, resolved against the node's
 ``--coordinator`` URL (ws → http, wss → https). The node's token goes along as ``Authorization:

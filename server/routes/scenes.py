@@ -8,7 +8,7 @@ import asyncio
 from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, Response
 
 from server.multipart_file import FileField, MultipartRefused
 from server.routes.deps import require_token
@@ -83,9 +83,9 @@ async def list_scenes(library: SceneLibrary = Depends(get_library)) -> list[dict
 
 
 @router.get("/api/scenes/{name:path}/file")
-async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) -> FileResponse:
-    """The scene file's bytes, header ``X-Sha256`` its content hash; 404 for an unknown name or a
-    built-in scene."""
+async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) -> Response:
+    """The scene file's bytes (a library ``.gltf`` with separate files: made self-contained),
+    header ``X-Sha256`` their content hash; 404 for an unknown name or a built-in scene."""
     try:
         entry = library.find(name)
     except UnknownScene as exc:
@@ -96,6 +96,10 @@ async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) ->
         sha256 = await asyncio.to_thread(library.content_hash, entry)
     except FileNotFoundError:
         raise HTTPException(status_code=404, detail=f"{name!r} is gone") from None
+    packed = await asyncio.to_thread(library.packed_gltf, entry)
+    if packed is not None:
+        return Response(packed, media_type="application/octet-stream", headers={
+            "X-Sha256": sha256, "Content-Disposition": f'attachment; filename="{entry.path.name}"'})
     return FileResponse(entry.path, media_type="application/octet-stream", filename=entry.path.name,
                         headers={"X-Sha256": sha256})
 
