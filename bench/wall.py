@@ -51,8 +51,9 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networki
 
 class ScriptedCell:
     """One cell of the wall on an open ``/ws/view?…&cell=C,R`` connection: a thread says ``have``
-    for every frame, presents on ``present`` (at once: a script has no display) and reports the
-    time on the coordinator's clock, estimated from the ping → pong with the shortest round trip."""
+    for every frame, presents on ``present`` at the time it names (a script has no display: it
+    sleeps until then) and reports the time on the coordinator's clock, estimated from the
+    ping → pong with the shortest round trip."""
 
     def __init__(self, ws: ws_client.ClientConnection) -> None:
         self.ws = ws
@@ -89,9 +90,10 @@ class ScriptedCell:
                 self._best_rtt = now_ms - data["t0"]
                 self.offset_ms = data["clock_ms"] - (data["t0"] + now_ms) / 2
             elif data["type"] == "present" and self.offset_ms is not None:
+                time.sleep(max(0.0, data["at_ms"] - self.offset_ms - now_ms) / 1000.0)
                 self.presented.append(data["frame"])
                 self.ws.send(json.dumps({"type": "presented", "frame": data["frame"],
-                                         "at_ms": max(0.0, now_ms + self.offset_ms)}))
+                                         "at_ms": max(0.0, time.perf_counter() * 1000.0 + self.offset_ms)}))
 
     def stop(self) -> None:
         self._stop.set()

@@ -26,6 +26,10 @@ from tessera.wire.messages import CameraUpdate, Message
 from tessera.wire.protocol import pack_frame
 from tessera.wire.wall_messages import PresentFrame
 
+#: How far ahead of now a wall's cells are told to present a frame (s): longer than a present
+#: message takes to reach every cell on a LAN (and through a busy page's event loop); the
+#: latency a wall adds, about one display refresh.
+PRESENT_LEAD_S = 0.020
 #: Control messages a viewer may have waiting before it counts as not reading its socket.
 MAX_QUEUED_CONTROL = 256
 
@@ -160,9 +164,10 @@ class ViewerHub:
                 length = len(message)
         self.bytes_published += length + sum(len(part) for part in parts.values())
 
-    def check_lock(self, now: float) -> None:
+    def check_lock(self, now: float, lead_s: float = PRESENT_LEAD_S) -> None:
         """Tell the wall's cells to present the frame every live one holds, if a newer one is due
-        (or a cell that joined since the frame presented last, once it holds it)."""
+        (or a cell that joined since the frame presented last, once it holds it), ``lead_s`` from
+        ``now`` (s, the coordinator's monotonic clock): time for the message to reach every cell."""
         due = self.lock.due(now)
         if not due:
             return
@@ -171,7 +176,7 @@ class ViewerHub:
             frame_id = due.get(slot.viewer_id)
             if frame_id is not None:
                 if frame_id not in messages:
-                    message = PresentFrame(frame=frame_id)
+                    message = PresentFrame(frame=frame_id, at_ms=(now + lead_s) * 1000.0)
                     messages[frame_id] = (message, message.to_text())
                 slot.put_control(*messages[frame_id])
 

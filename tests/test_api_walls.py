@@ -144,7 +144,8 @@ def test_cells_are_frame_locked_and_their_skew_is_in_the_stats(client):
         assert pong["t0"] == 12.5 and pong["clock_ms"] > 0
         left.send_json({"type": "have", "frame": 3})
         right.send_json({"type": "have", "frame": 4})
-        assert next_json(right, "present") == {"type": "present", "frame": 3}   # both hold 3
+        present = next_json(right, "present")
+        assert present["frame"] == 3 and present["at_ms"] > pong["clock_ms"]   # both hold 3; a moment ahead
         assert next_json(left, "present")["frame"] == 3
         left.send_json({"type": "presented", "frame": 3, "at_ms": 1000.0})
         right.send_json({"type": "presented", "frame": 3, "at_ms": 1004.0})

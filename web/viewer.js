@@ -192,13 +192,16 @@ function onText(message) {
       if (message.cell) startCell();
       else redrawOverlay();
       break;
-    case "present":
-      requestAnimationFrame((at) => {
+    case "present": {
+      // the first animation frame at or after the coordinator's at_ms: every cell on the same refresh
+      const due = clock.toLocal(message.at_ms);
+      setTimeout(() => requestAnimationFrame((at) => {
         const frame = compositor.present(message.frame);
         const atMs = frame && clock.toCoordinator(at);
         if (atMs !== null && atMs >= 0) connection.send({ type: "presented", frame: frame.frameId, at_ms: atMs });
-      });
+      }), due === null ? 0 : Math.max(0, due - performance.now()));
       break;
+    }
     case "pong":
       clock.sample(message.t0, performance.now(), message.clock_ms);
       break;

@@ -33,6 +33,12 @@ export class ClockOffset {
     const offset = this.offset;
     return offset === null ? null : localMs + offset;
   }
+
+  /** The coordinator's time `clockMs` on this page's clock (null before any pong). */
+  toLocal(clockMs) {
+    const offset = this.offset;
+    return offset === null ? null : clockMs - offset;
+  }
 }
 
 /**

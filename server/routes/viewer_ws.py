@@ -14,7 +14,7 @@ the session.
 A display wall's session (issue 22): ``&cell=COL,ROW`` makes the viewer one screen of the wall. It
 gets its cell's tiles only (a frame of the cell's size), steers nothing (camera and size are
 refused with the reason), and is frame-locked: it says which frame it holds (``have``), presents
-on ``present``, and reports when (``presented``, on the coordinator's clock, which ``ping`` →
+on ``present`` at the time it names, and reports when (``presented``, on the coordinator's clock, which ``ping`` →
 ``pong`` lets it estimate). A cell outside the wall, or a cell of a session that is no wall,
 closes the socket with 4422 and the reason. A wall's whole-wall viewer (the driver) steers as any;
 the wall's size is fixed, so its size messages are ignored."""

@@ -4,7 +4,8 @@ clock exchange it is measured with.
 
 coordinator → viewer: ``wall`` :class:`WallHello` (after ``hello``: the wall's layout and the cell
 the viewer shows, null for a whole-wall viewer), ``present`` :class:`PresentFrame` (every cell
-holds frame K: show it on the next animation frame), ``pong`` :class:`ClockPong` (the answer to a
+holds frame K: show it on the first animation frame at or after ``at_ms``, the coordinator's
+clock), ``pong`` :class:`ClockPong` (the answer to a
 ping, with the coordinator's clock).
 
 viewer → coordinator: ``ping`` :class:`ClockPing` (the viewer's clock when sent), ``have``
@@ -38,8 +39,12 @@ class WallHello(Message):
 
 
 class PresentFrame(Message):
+    """Show frame ``frame`` on the first animation frame at or after ``at_ms`` (the coordinator's
+    clock): every cell swaps on the same display refresh, however late the message reached it."""
+
     kind = "present"
     frame: FrameId
+    at_ms: NonNegative
 
 
 class ClockPong(Message):

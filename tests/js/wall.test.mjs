@@ -16,6 +16,7 @@ test("the clock offset is the shortest round trip's, halfway through it", () => 
   clock.sample(300, 360, 5400);   // rtt 60
   assert.equal(clock.offset, 4899);
   assert.equal(clock.toCoordinator(1000), 5899);
+  assert.equal(clock.toLocal(5899), 1000);
   for (let i = 0; i < CLOCK_SAMPLES; i++) clock.sample(1000 + i, 1030 + i, 7015 + i);
   assert.equal(clock.offset, 6000, "old samples leave the window");
 });
