@@ -165,7 +165,8 @@ def deployment_env(port: int, **extra: str) -> dict[str, str]:
             "TESSERA_SIZE": f"{SIZE[0]}x{SIZE[1]}", "TESSERA_BALANCER": "", "TESSERA_SCENE": "",
             "TESSERA_SCENES_DIR": "", "TESSERA_IMAGE": "", "TESSERA_RESTART": "no", "TESSERA_INTERACTIVE_QUALITY": "",
             "TESSERA_STILL_CODEC": "", "TESSERA_TLS_PORT": "", "TESSERA_TLS_DIR": "", "TESSERA_TLS_NAMES": "",
-            "TESSERA_PROXY_IMAGE": "", "TESSERA_MODE": "", "TESSERA_DEPTH_STRIP": "", **extra}
+            "TESSERA_PROXY_IMAGE": "", "TESSERA_MODE": "", "TESSERA_DEPTH_STRIP": "", "TESSERA_MAX_UPLOAD_MB": "",
+            "TESSERA_UPLOAD_CHECK_MEMORY_MB": "", **extra}
 
 
 def coordinator_client(port: int) -> httpx.Client:
