@@ -6,6 +6,7 @@ bad cells are refused with the reason; a wall survives a restart."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Iterator
 from typing import Any
 
@@ -19,6 +20,7 @@ from tessera.geometry import Rect
 from tessera.wire.codec import Codec, decode, encode
 from tessera.wire.protocol import TileHeader, pack_tile, unpack_frame
 from tests.conftest import seconds
+from tests.integration_support import wait_until
 from tests.test_api import BOUNDS, HELLO, closed_with, next_json
 from tests.test_api_sessions import SETTINGS, frame_png
 
@@ -133,26 +135,45 @@ def test_a_cell_gets_its_cells_tiles_relative_to_it_and_steers_nothing(client):
         assert client.get(f"/api/sessions/{body['id']}").json()["size"] == [84, 62]
 
 
+def next_text(ws, kind: str) -> dict[str, Any]:
+    """The next text message of type ``kind``, skipping the others and the frames."""
+    while True:
+        message = ws.receive()
+        if message.get("text") is not None and (data := json.loads(message["text"]))["type"] == kind:
+            return data
+
+
 def test_cells_are_frame_locked_and_their_skew_is_in_the_stats(client):
     body = open_wall(client)
     path = f"/ws/view?session={body['id']}"
-    with client.websocket_connect(f"{path}&cell=0,0") as left, client.websocket_connect(f"{path}&cell=1,0") as right:
+    with client.websocket_connect("/ws/node") as node_ws, client.websocket_connect(f"{path}&cell=0,0") as left, \
+            client.websocket_connect(f"{path}&cell=1,0") as right:
+        node = PositionNode(node_ws)
         for ws in (left, right):
-            next_json(ws, "wall")
+            next_text(ws, "wall")
+        left.send_json({"type": "have", "frame": 1})
+        assert "not published yet" in next_text(left, "error")["message"]   # a cell cannot claim frames to come
+        for camera_x in (0, 1):   # frames to hold
+            first = client.put(f"/api/sessions/{body['id']}/camera", json={**CAMERA, "eye": [camera_x, 0, 5]})
+            node.serve(lambda render, first=first.json()["frame"]: render["scene"] == "builtin:cluster"
+                       and render["frame"] >= first)
+        newer = wait_until(lambda: client.get(f"/api/sessions/{body['id']}/stats").json()["frame"], seconds(10),
+                           "a published frame")
+        older = newer - 1
         left.send_json({"type": "ping", "t0": 12.5})
-        pong = next_json(left, "pong")
+        pong = next_text(left, "pong")
         assert pong["t0"] == 12.5 and pong["clock_ms"] > 0
-        left.send_json({"type": "have", "frame": 3})
-        right.send_json({"type": "have", "frame": 4})
-        present = next_json(right, "present")
-        assert present["frame"] == 3 and present["at_ms"] > pong["clock_ms"]   # both hold 3; a moment ahead
-        assert next_json(left, "present")["frame"] == 3
-        left.send_json({"type": "presented", "frame": 3, "at_ms": 1000.0})
-        right.send_json({"type": "presented", "frame": 3, "at_ms": 1004.0})
-        left.send_json({"type": "have", "frame": 4})
-        assert next_json(left, "present")["frame"] == 4
+        left.send_json({"type": "have", "frame": older})
+        right.send_json({"type": "have", "frame": newer})
+        present = next_text(right, "present")
+        assert present["frame"] == older and present["at_ms"] > pong["clock_ms"]   # both hold it; a moment ahead
+        assert next_text(left, "present")["frame"] == older
+        left.send_json({"type": "presented", "frame": older, "at_ms": 1000.0})
+        right.send_json({"type": "presented", "frame": older, "at_ms": 1004.0})
+        left.send_json({"type": "have", "frame": newer})
+        assert next_text(left, "present")["frame"] == newer
         left.send_json({"type": "have", "frame": -1})
-        assert "frame" in next_json(left, "error")["message"]
+        assert "frame" in next_text(left, "error")["message"]
         lock = client.get(f"/api/sessions/{body['id']}/stats").json()["frame_lock"]
         assert lock["skew_samples"] == 1 and lock["skew_p50_ms"] == 4.0 and lock["cells"] == 2
 

@@ -141,6 +141,8 @@ async def viewer_socket(ws: WebSocket) -> None:
                     slot.put_control(ClockPong(t0=request.t0, clock_ms=time.monotonic() * 1000.0))
                     session.viewers.lock.heard(slot.viewer_id, time.monotonic())
                     session.viewers.check_lock(time.monotonic())
+                case HaveFrame() if request.frame > session.store.last_id:
+                    slot.put_control(ViewerError(message=f"frame {request.frame} was not published yet"))
                 case HaveFrame():
                     session.viewers.lock.have(slot.viewer_id, request.frame, time.monotonic())
                     session.viewers.check_lock(time.monotonic())
