@@ -216,3 +216,9 @@ def test_a_wall_comes_back_after_a_restart(tmp_path):
         assert summary["wall"] == WALL and summary["size"] == [84, 62]
         with second.websocket_connect(f"/ws/view?session={body['id']}&cell=1,1") as cell:
             assert next_json(cell, "hello")["size"] == [40, 30]
+
+
+def test_a_wall_needs_the_sort_first_mode():
+    with TestClient(create_app(dataclasses.replace(SETTINGS, mode="hybrid"))) as client:
+        refused = client.post("/api/sessions", json={"scene": "builtin:cluster", "wall": WALL})
+        assert refused.status_code == 422 and "--mode sort-first" in refused.text
