@@ -176,6 +176,18 @@ def test_cells_are_frame_locked_and_their_skew_is_in_the_stats(client):
         assert "frame" in next_text(left, "error")["message"]
         lock = client.get(f"/api/sessions/{body['id']}/stats").json()["frame_lock"]
         assert lock["skew_samples"] == 1 and lock["skew_p50_ms"] == 4.0 and lock["cells"] == 2
+        assert next_text(right, "present")["frame"] == newer
+        with client.websocket_connect(f"{path}&cell=1,1") as laggard:
+            next_text(laggard, "wall")
+            moved = client.put(f"/api/sessions/{body['id']}/camera", json={**CAMERA, "eye": [2, 0, 5]}).json()["frame"]
+            node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= moved)
+            newest = wait_until(lambda: (f := client.get(f"/api/sessions/{body['id']}/stats").json()["frame"]) > newer
+                                and f, seconds(10), "a newer frame")
+            for ws in (left, right):
+                ws.send_json({"type": "have", "frame": newest})   # the new cell holds nothing yet: no present
+            left.send_json({"type": "ping", "t0": 1.0})
+            assert next_text(left, "pong")["t0"] == 1.0
+        assert next_text(right, "present")["frame"] == newest, "a cell that leaves holds no one back"
 
 
 @pytest.mark.parametrize(("wall", "why"), [

@@ -166,5 +166,7 @@ async def viewer_socket(ws: WebSocket) -> None:
     finally:
         sender.cancel()
         session.viewers.leave(slot)
+        if cell is not None:   # the cell that held the others back may be this one
+            session.viewers.check_lock(time.monotonic())
         session.viewer_left(slot.viewer_id)
         session.touch()
