@@ -13,7 +13,7 @@ from bench.picture import SPHERE_CAMERA, luma, material_contrast, sphere_scene
 from node.gl.environment import EnvironmentError, read_hdr, studio_environment, write_hdr
 from node.gl.image_lighting import LEVELS, brdf_lut, ggx_convolve, irradiance_sh, sh_basis
 from node.gl.renderer import TileRenderer
-from node.gl.shading import ShadingOptions
+from node.gl.shading import AUTO_MSAA, ShadingOptions, resolve_samples
 from node.scene.data import SceneData
 from node.scene.material import SurfaceMaterial
 from node.scene.mesh import MeshBatch
@@ -192,6 +192,10 @@ def test_node_flags_and_render_once_with_a_bad_environment(tmp_path):
     settings = parse_settings(["--msaa", "1", "--environment", "studio.hdr"], {})
     assert settings.shading == ShadingOptions(msaa=1, environment=settings.environment)
     assert parse_settings([], {"TESSERA_MSAA": "2"}).msaa == 2
+    assert parse_settings([], {}).msaa == AUTO_MSAA == parse_settings(["--msaa", "auto"], {}).msaa
+    assert resolve_samples(AUTO_MSAA, "llvmpipe (LLVM 15.0.6, 256 bits)", 4) == 1
+    assert resolve_samples(AUTO_MSAA, "NVIDIA H100 80GB HBM3/PCIe/SSE2", 32) == 4
+    assert resolve_samples(8, "llvmpipe", 4) == 4 and resolve_samples(2, "NVIDIA", 32) == 2
     with pytest.raises(SystemExit):
         parse_settings(["--msaa", "3"], {})
     bad = tmp_path / "bad.hdr"

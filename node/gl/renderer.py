@@ -64,7 +64,7 @@ import numpy as np
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
-from node.gl.shading import FRAGMENT_SHADER, VERTEX_SHADER, ShadingOptions
+from node.gl.shading import VERTEX_SHADER, ShadingOptions, fragment_shader, resolve_samples
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
@@ -173,7 +173,7 @@ class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of
     the scene's batches when already done (None: packed here). ``samples``: the multisample count
-    drawn with, ``shading.msaa`` capped at what the GL implementation offers. Raises
+    drawn with (:func:`node.gl.shading.resolve_samples`). Raises
     CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
     environment file."""
 
@@ -186,25 +186,30 @@ class TileRenderer:
         self.scene = scene
         self.background = background
         self.shading = shading
-        self.samples = max(1, min(shading.msaa, ctx.max_samples))
+        self.samples = resolve_samples(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
         # First: they raise before any GL object of the scene exists to leak.
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.lighting = ImageLighting(ctx, lighting)
-        self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
-        for name, unit in (("u_texture", UNIT_BASE), ("u_floor", UNIT_FLOOR), ("u_ceil", UNIT_CEIL),
-                           ("u_metallic_roughness", UNIT_METALLIC_ROUGHNESS), ("u_normal_texture", UNIT_NORMAL),
-                           ("u_occlusion", UNIT_OCCLUSION), ("u_emissive_texture", UNIT_EMISSIVE),
-                           ("u_specular_map", UNIT_SPECULAR), ("u_brdf_lut", UNIT_LUT)):
-            self.program[name].value = unit
+        #: The programs without and with texture lookups (:func:`node.gl.shading.fragment_shader`).
+        self.programs = tuple(ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=fragment_shader(textured))
+                              for textured in (False, True))
+        for program in self.programs:
+            for name, unit in (("u_texture", UNIT_BASE), ("u_floor", UNIT_FLOOR), ("u_ceil", UNIT_CEIL),
+                               ("u_metallic_roughness", UNIT_METALLIC_ROUGHNESS), ("u_normal_texture", UNIT_NORMAL),
+                               ("u_occlusion", UNIT_OCCLUSION), ("u_emissive_texture", UNIT_EMISSIVE),
+                               ("u_specular_map", UNIT_SPECULAR), ("u_brdf_lut", UNIT_LUT)):
+                if program.get(name, None) is not None:
+                    program[name].value = unit
+        #: Per batch, whether it is drawn by the textured program (index 1 of :attr:`programs`).
+        self.textured = [batch.uvs is not None and (batch.texture is not None or batch.material.textured)
+                         for batch in scene.batches]
         vertices, indices = pack_geometry(scene.batches) if packed is None else packed
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
-        self.vertex_array = ctx.vertex_array(
-            self.program,
-            [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
-            index_buffer=self.index_buffer, index_element_size=4,
-        )
+        self.vertex_arrays = tuple(ctx.vertex_array(
+            program, [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
+            index_buffer=self.index_buffer, index_element_size=4, skip_errors=True) for program in self.programs)
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
@@ -367,7 +372,7 @@ class TileRenderer:
         framebuffer.scissor = gl_box
         framebuffer.use()
         self._use_camera(camera)
-        self.program["u_origin"].value = gl_box[:2]
+        self._set_uniform("u_origin", gl_box[:2])
         bounds = [self.ctx.texture((rect.w, rect.h), 1, dtype="f4") for _ in range(2)]
         for texture, unit in zip(bounds, (UNIT_FLOOR, UNIT_CEIL), strict=True):
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -375,7 +380,7 @@ class TileRenderer:
         depths: list[np.ndarray] = []
         layers: list[np.ndarray] = []
         try:
-            self.program["u_peel"].value = True
+            self._set_uniform("u_peel", True)
             self._blend_func = None
             framebuffer.color_mask = (False, False, False, False)
             floor = np.full(under.shape, -1.0, np.float32)
@@ -399,7 +404,7 @@ class TileRenderer:
                 data = framebuffer.read(viewport=gl_box, components=4, alignment=1)
                 layers.append(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 4)[::-1])
         finally:
-            self.program["u_peel"].value = False
+            self._set_uniform("u_peel", False)
             self._blend_func = BLEND_OVER
             framebuffer.color_mask = (True, True, True, True)
             for texture in bounds:
@@ -447,36 +452,44 @@ class TileRenderer:
         model = None
         for number, first, count in draws:
             self._use_material(framebuffer, number)
+            vertex_array = self.vertex_arrays[self.textured[number]]
             owner = int(pose.owner[number])
             if (key := owner if pose.moved[owner] else -1) != model:
                 model = key
                 self._use_model(pose, model, view_proj)
             if first < 0:
                 for run_first, run_count in whole[number]:
-                    self.vertex_array.render(moderngl.TRIANGLES, vertices=run_count, first=run_first)
+                    vertex_array.render(moderngl.TRIANGLES, vertices=run_count, first=run_first)
             elif self.multi_draw:
-                self.vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
+                vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
                 continue
             for run in range(first, first + count):
-                self.vertex_array.render(moderngl.TRIANGLES, vertices=counts[run], first=firsts[run])
+                vertex_array.render(moderngl.TRIANGLES, vertices=counts[run], first=firsts[run])
         if self._blending:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
 
     def _use_camera(self, camera: Camera) -> None:
         """Set what shading takes from the camera (eye, key light) and bind the environment."""
-        self.program["u_light_direction"].value = headlight_direction(camera)
-        self.program["u_eye"].value = tuple(float(v) for v in camera.eye)
-        self.program["u_key_light"].value = float(self.shading.key_light)
-        self.lighting.use(self.program, UNIT_SPECULAR, UNIT_LUT)
+        self._set_uniform("u_light_direction", headlight_direction(camera))
+        self._set_uniform("u_eye", tuple(float(v) for v in camera.eye))
+        self._set_uniform("u_key_light", float(self.shading.key_light))
+        for program in self.programs:
+            self.lighting.use(program, UNIT_SPECULAR, UNIT_LUT)
+
+    def _set_uniform(self, name: str, value: Any) -> None:
+        """Set uniform ``name`` of both programs."""
+        for program in self.programs:
+            program[name].value = value
 
     def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
         """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
         model = np.identity(4) if owner < 0 else pose.models[owner]
         matrix, normal = (view_proj, np.identity(3)) if owner < 0 else (view_proj @ model, pose.normals[owner])
-        self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
-        self.program["u_model"].write(np.asarray(model).T.astype(np.float32).tobytes())
-        self.program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
+        for program in self.programs:
+            program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
+            program["u_model"].write(np.asarray(model).T.astype(np.float32).tobytes())
+            program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
 
     def _use_material(self, framebuffer: moderngl.Framebuffer, number: int) -> None:
         """Set batch ``number``'s uniforms and texture; the first blended batch turns blending on
@@ -488,12 +501,14 @@ class TileRenderer:
             self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
         material = batch.material
-        program = self.program
+        program = self.programs[self.textured[number]]
         program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
         program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
         program["u_metallic"].value = material.metallic
         program["u_roughness"].value = material.roughness
         program["u_emissive"].value = material.emissive
+        if not self.textured[number]:
+            return
         program["u_normal_scale"].value = material.normal_scale
         program["u_occlusion_strength"].value = material.occlusion_strength
         program["u_normal_mapped"].value = material.normal_texture is not None and batch.uvs is not None
@@ -515,7 +530,7 @@ class TileRenderer:
         self.lighting.release()
         for texture in self.textures.values():
             texture.release()
-        for resource in (self.white, self.vertex_array, self.index_buffer, self.vertex_buffer, self.program):
+        for resource in (self.white, *self.vertex_arrays, self.index_buffer, self.vertex_buffer, *self.programs):
             resource.release()
 
 

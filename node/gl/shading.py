@@ -19,6 +19,10 @@ environment (the white-furnace test). Tone mapping: Khronos PBR Neutral, chosen 
 it keeps base colours' hue and saturation (a product viewer's need: what the file says is what is
 shown) and is linear below 0.76.
 
+Two variants of the fragment shader (:func:`fragment_shader`): one for batches with texture
+coordinates and any texture, one without any texture lookup (scans, most CAD parts): on llvmpipe
+every lookup of a 1×1 stand-in texture costs as much as a real one.
+
 Derivatives are taken in 2×2 pixel quads of the frame-sized framebuffer every tile is drawn into,
 so a tile is still bit-identical to that region of the whole frame.
 """
@@ -28,24 +32,39 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from node.culling.switch import SOFTWARE_RENDERERS
+
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
-#: The default multisample count: see README, Picture quality (measured on llvmpipe).
-DEFAULT_MSAA = 4
-#: Sample counts ``--msaa`` accepts (1: off).
+#: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU, 1 on a software rasterizer, where
+#: 4 samples cost 3.5-4x the frame time (README, Picture quality: measured on llvmpipe).
+AUTO_MSAA = 0
+HARDWARE_MSAA = 4
+#: Sample counts ``--msaa`` accepts besides auto (1: off).
 MSAA_CHOICES = (1, 2, 4, 8)
 
 
 @dataclass(frozen=True, slots=True)
 class ShadingOptions:
-    """How a node shades: ``msaa`` samples per pixel of plain tiles and whole frames (depth layers
+    """How a node shades: ``msaa`` samples per pixel of plain tiles and whole frames (:data:`AUTO_MSAA`:
+    chosen by :func:`resolve_samples`; depth layers
     are always drawn at 1x: sort-last merging needs one exact depth per pixel), ``environment`` a
     Radiance .hdr lighting the scene (None: the generated studio), ``key_light`` the key light's
     radiance (0: image-based light alone)."""
 
-    msaa: int = DEFAULT_MSAA
+    msaa: int = AUTO_MSAA
     environment: Path | None = None
     key_light: float = KEY_LIGHT
+
+
+def resolve_samples(msaa: int, gl_renderer: str, max_samples: int) -> int:
+    """The samples per pixel ``msaa`` draws with on the GL renderer named ``gl_renderer``
+    offering at most ``max_samples``: :data:`AUTO_MSAA` is 1 on a software rasterizer and
+    :data:`HARDWARE_MSAA` otherwise; any count is capped at ``max_samples``."""
+    if msaa == AUTO_MSAA:
+        software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)
+        msaa = 1 if software else HARDWARE_MSAA
+    return max(1, min(msaa, max_samples))
 
 
 VERTEX_SHADER = """
@@ -71,7 +90,6 @@ void main() {
 """
 
 FRAGMENT_SHADER = """
-#version 330
 const float PI = 3.14159265358979;
 uniform vec4 u_base_color;
 uniform float u_metallic;
@@ -174,9 +192,14 @@ void main() {
         if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
             discard;
     }
+#if TEXTURED
     vec4 base = u_base_color * v_color * texture(u_texture, v_uv);
-    if (base.a < u_alpha_cutoff) discard;
     vec4 metal_rough = texture(u_metallic_roughness, v_uv);
+#else
+    vec4 base = u_base_color * v_color;
+    vec4 metal_rough = vec4(1.0);
+#endif
+    if (base.a < u_alpha_cutoff) discard;
     float metallic = clamp(u_metallic * metal_rough.b, 0.0, 1.0);
     float roughness = clamp(u_roughness * metal_rough.g, 0.0, 1.0);
     float alpha = max(roughness * roughness, 1e-3);
@@ -185,10 +208,12 @@ void main() {
     float normal_length = length(v_normal);
     vec3 n = normal_length > 0.0 ? v_normal / normal_length : v;
     if (dot(n, v) < 0.0) n = -n;
+#if TEXTURED
     if (u_normal_mapped) {
         vec3 mapped = texture(u_normal_texture, v_uv).rgb * 2.0 - 1.0;
         n = perturbed_normal(n, normalize(mapped * vec3(u_normal_scale, u_normal_scale, 1.0)));
     }
+#endif
     float n_dot_v = clamp(dot(n, v), 1e-4, 1.0);
     vec3 c_diff = mix(base.rgb, vec3(0.0), metallic);
     vec3 f0 = mix(vec3(0.04), base.rgb, metallic);
@@ -206,8 +231,10 @@ void main() {
     vec3 diffuse_light = irradiance(n);
     vec3 k_d = c_diff * (1.0 - fss_ess - fms_ems);
     vec3 color = fss_ess * specular_light + (fms_ems + k_d) * diffuse_light;
+#if TEXTURED
     float occlusion = texture(u_occlusion, v_uv).r;
     color *= 1.0 + u_occlusion_strength * (occlusion - 1.0);
+#endif
 
     // Key light (punctual, directional).
     vec3 l = u_light_direction;
@@ -221,7 +248,16 @@ void main() {
         color += (f_diffuse + f_specular) * (u_key_light * n_dot_l);
     }
 
+#if TEXTURED
     color += u_emissive * texture(u_emissive_texture, v_uv).rgb;
+#else
+    color += u_emissive;
+#endif
     f_color = vec4(linear_to_srgb(clamp(pbr_neutral(color), 0.0, 1.0)), base.a);
 }
 """
+
+
+def fragment_shader(textured: bool) -> str:
+    """The fragment shader for batches with textures (``textured``) or without any."""
+    return f"#version 330\n#define TEXTURED {int(textured)}\n{FRAGMENT_SHADER}"
