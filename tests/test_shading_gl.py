@@ -216,3 +216,16 @@ def test_a_scan_without_material_is_a_matte_dielectric_and_gltf_defaults_follow_
     truck = load_scene(str(scene_path("gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf")))
     # The truck's materials set metallicFactor 0 and leave roughness out (spec default 1).
     assert all(b.material.metallic == 0.0 and b.material.roughness == 1.0 for b in truck.batches)
+
+
+def test_what_trimesh_drops_of_a_gltf_material_is_read_from_its_json():
+    from node.scene.material import MaterialExtras, material_extras
+
+    gltf = {"materials": [
+        {"name": "lamp", "normalTexture": {"index": 0, "scale": 0.5},
+         "occlusionTexture": {"index": 1, "strength": 0.25},
+         "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 6.0}}},
+        {"name": "plain"}, {"normalTexture": {"scale": 2.0}},
+        {"name": "odd", "normalTexture": {"scale": "big"}, "occlusionTexture": {"strength": -1}}]}
+    assert material_extras(gltf) == {"lamp": MaterialExtras(0.5, 0.25, 6.0), "plain": MaterialExtras(),
+                                     "odd": MaterialExtras()}

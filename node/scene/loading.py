@@ -28,7 +28,7 @@ import numpy as np
 
 from node.scene.builtin import build_builtin_scene
 from node.scene.data import SceneData
-from node.scene.material import DEFAULT_METALLIC, DEFAULT_ROUGHNESS, SurfaceMaterial, emissive_strengths
+from node.scene.material import DEFAULT_METALLIC, DEFAULT_ROUGHNESS, MaterialExtras, SurfaceMaterial, material_extras
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -71,8 +71,8 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
         raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
     report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances, splitting")
     try:
-        objects, owners, animations, strengths = _file_objects(path, loaded)
-        batches = batches_from_trimesh(loaded, owners, strengths)
+        objects, owners, animations, extras_by_name = _file_objects(path, loaded)
+        batches = batches_from_trimesh(loaded, owners, extras_by_name)
     except SceneError as exc:
         raise SceneError(f"{spec}: {exc}") from None
     except Exception as exc:
@@ -81,17 +81,18 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
 
 
 def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...],
-                                                  dict[str, float]]:
+                                                  dict[str, MaterialExtras]]:
     """The objects of the file at ``path`` (loaded as the trimesh ``scene``), each geometry node's
-    owner among them (None: all the first's), the file's animations and its materials' emissive
-    strengths by name."""
+    owner among them (None: all the first's), the file's animations and what trimesh drops of its
+    materials, by name."""
     if path.suffix.lower() in GLTF_SUFFIXES:
         document = read_gltf(path)
         objects, index = gltf_objects(document.json)
-        strengths = emissive_strengths(document.json)
+        extras_by_name = material_extras(document.json)
         if objects:
-            return objects, geometry_owners(scene.graph, objects), file_animations(document, index, objects), strengths
-        return [SceneObject(path.stem)], None, (), strengths
+            owners = geometry_owners(scene.graph, objects)
+            return objects, owners, file_animations(document, index, objects), extras_by_name
+        return [SceneObject(path.stem)], None, (), extras_by_name
     return [SceneObject(path.stem)], None, (), {}
 
 
@@ -101,9 +102,9 @@ def _one_line(exc: BaseException) -> str:
 
 
 def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None,
-                         strengths: Mapping[str, float] | None = None) -> list[MeshBatch]:
+                         extras_by_name: Mapping[str, MaterialExtras] | None = None) -> list[MeshBatch]:
     """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh), owned by
-    object ``owners[graph node]`` (None: object 0); ``strengths``: emissive strengths by material name."""
+    object ``owners[graph node]`` (None: object 0); ``extras_by_name``: :class:`MaterialExtras` by material name."""
     import trimesh
 
     textures: dict[int, np.ndarray] = {}
@@ -115,12 +116,12 @@ def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None,
             continue
         owner = 0 if owners is None else owners[node_name]
         batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures, owner,
-                                        strengths or {}))
+                                        extras_by_name or {}))
     return batches
 
 
 def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray],
-                     owner: int, strengths: Mapping[str, float]) -> MeshBatch:
+                     owner: int, extras_by_name: Mapping[str, MaterialExtras]) -> MeshBatch:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
@@ -141,7 +142,7 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         factor = getattr(material, "baseColorFactor", None)
         base_color = np.ones(4, np.float32) if factor is None else np.asarray(factor, np.float32) / 255.0
         has_uvs = visual.uv is not None and len(visual.uv) == len(vertices)
-        surface = _surface_material(material, converted, has_uvs, textures, strengths)
+        surface = _surface_material(material, converted, has_uvs, textures, extras_by_name)
         image = getattr(material, "baseColorTexture", None)
         if has_uvs and (image is not None or surface.textured):
             uvs = np.asarray(visual.uv, dtype=np.float32)
@@ -193,7 +194,7 @@ def _texture_array(image: Any, textures: dict[int, np.ndarray]) -> np.ndarray:
 
 
 def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: dict[int, np.ndarray],
-                      strengths: Mapping[str, float]) -> SurfaceMaterial:
+                      extras_by_name: Mapping[str, MaterialExtras]) -> SurfaceMaterial:
     """The metallic-roughness part of a trimesh PBR ``material``: factors absent from a glTF file
     take the spec's defaults (metallic 1, roughness 1); a material ``converted`` from OBJ/MTL has
     no metalness (a matte dielectric's defaults). Maps are kept only with texture coordinates."""
@@ -201,8 +202,9 @@ def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: d
     roughness = getattr(material, "roughnessFactor", None)
     default_metallic, default_roughness = (DEFAULT_METALLIC, DEFAULT_ROUGHNESS) if converted else (1.0, 1.0)
     emissive = getattr(material, "emissiveFactor", None)
-    strength = strengths.get(str(getattr(material, "name", None)), 1.0)
-    emissive_rgb = np.zeros(3) if emissive is None else np.asarray(emissive, np.float64).reshape(-1)[:3] * strength
+    extras = extras_by_name.get(str(getattr(material, "name", None)), MaterialExtras())
+    emissive_rgb = (np.zeros(3) if emissive is None
+                    else np.asarray(emissive, np.float64).reshape(-1)[:3] * extras.emissive_strength)
 
     def texture(attribute: str) -> np.ndarray | None:
         image = getattr(material, attribute, None)
@@ -212,6 +214,8 @@ def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: d
         metallic=float(np.clip(default_metallic if metallic is None else metallic, 0.0, 1.0)),
         roughness=float(np.clip(default_roughness if roughness is None else roughness, 0.0, 1.0)),
         emissive=(float(emissive_rgb[0]), float(emissive_rgb[1]), float(emissive_rgb[2])),
+        normal_scale=extras.normal_scale,
+        occlusion_strength=extras.occlusion_strength,
         metallic_roughness_texture=texture("metallicRoughnessTexture"),
         normal_texture=texture("normalTexture"),
         occlusion_texture=texture("occlusionTexture"),

@@ -46,15 +46,33 @@ class SurfaceMaterial:
         return any(texture is not None for texture in self.textures())
 
 
-def emissive_strengths(gltf: dict[str, Any]) -> dict[str, float]:
-    """``KHR_materials_emissive_strength`` of a glTF JSON's materials, by material name (the
-    loader's materials are matched by name: trimesh drops the extension)."""
-    strengths: dict[str, float] = {}
+@dataclass(frozen=True, slots=True)
+class MaterialExtras:
+    """What trimesh drops of a glTF material: ``normal_scale`` (normalTexture.scale),
+    ``occlusion_strength`` (occlusionTexture.strength) and ``emissive_strength``
+    (KHR_materials_emissive_strength)."""
+
+    normal_scale: float = 1.0
+    occlusion_strength: float = 1.0
+    emissive_strength: float = 1.0
+
+
+def material_extras(gltf: dict[str, Any]) -> dict[str, MaterialExtras]:
+    """:class:`MaterialExtras` of a glTF JSON's named materials, by name (the loader's materials
+    are matched by name); values that are not non-negative numbers are ignored."""
+    extras: dict[str, MaterialExtras] = {}
     for material in gltf.get("materials", []):
-        if not isinstance(material, dict):
+        if not isinstance(material, dict) or not isinstance(material.get("name"), str):
             continue
         extension = (material.get("extensions") or {}).get("KHR_materials_emissive_strength")
-        strength = extension.get("emissiveStrength") if isinstance(extension, dict) else None
-        if isinstance(material.get("name"), str) and isinstance(strength, (int, float)) and strength >= 0:
-            strengths[material["name"]] = float(strength)
-    return strengths
+        found = {"normal_scale": _number(material.get("normalTexture"), "scale"),
+                 "occlusion_strength": _number(material.get("occlusionTexture"), "strength"),
+                 "emissive_strength": _number(extension, "emissiveStrength")}
+        extras[material["name"]] = MaterialExtras(**{key: value for key, value in found.items() if value is not None})
+    return extras
+
+
+def _number(holder: Any, key: str) -> float | None:
+    value = holder.get(key) if isinstance(holder, dict) else None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0
+    return float(value) if ok else None
