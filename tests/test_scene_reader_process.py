@@ -39,14 +39,14 @@ def test_a_file_read_in_the_child_is_the_scene_read_here(reader):
     assert there.scene.triangle_count == here.scene.triangle_count > 0
     assert np.array_equal(there.scene.bounds, here.scene.bounds)
     assert all(np.array_equal(a, b) for a, b in zip(there.packed, here.packed, strict=True))
-    assert [m for _, m in progress][0] == "reading bun_zipper.ply" and progress[-1][1].startswith("keeping share 2")
+    assert progress[0][1] == "reading bun_zipper.ply" and progress[-1][1].startswith("keeping share 2")
     assert reader.read(path, "again", 4096, None, lambda f, m: None).scene.triangle_count > 0, "the child serves again"
 
 
 def test_a_broken_file_comes_back_with_its_reason(reader, tmp_path: Path):
     broken = tmp_path / "broken.ply"
     broken.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\nend_header\n\x00\x01")
-    with pytest.raises(SceneError, match="broken.ply: corrupt or unreadable PLY"):
+    with pytest.raises(SceneError, match=r"broken\.ply: corrupt or unreadable PLY"):
         reader.read(str(broken), "broken.ply", 4096, None, lambda f, m: None)
     assert reader.read(str(scene_path(BUNNY)), "b", 4096, None, lambda f, m: None).scene.triangle_count > 0
 
@@ -65,7 +65,8 @@ def test_a_child_killed_mid_read_fails_the_read_and_the_next_read_starts_another
 
 def test_files_over_the_threshold_are_read_in_the_child(tmp_path: Path):
     bunny = scene_path(BUNNY)
-    assert reads_in_process(str(bunny), bunny.stat().st_size) and not reads_in_process(str(bunny), bunny.stat().st_size + 1)
+    size = bunny.stat().st_size
+    assert reads_in_process(str(bunny), size) and not reads_in_process(str(bunny), size + 1)
     assert not reads_in_process("builtin:cluster", 0) and not reads_in_process(str(tmp_path / "missing.ply"), 0)
 
 
