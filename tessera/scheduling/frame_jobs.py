@@ -61,8 +61,8 @@ class FrameJob:
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
     it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
-    sort-first), its tiles then depth tiles; ``ahead``: pushed to nodes busy with their last tile
-    (dispatch ahead), none of its tiles heading a queue.
+    sort-first), its tiles then depth tiles; ``ahead``: started while no node holding its scene was
+    idle, for one ending its last tile (dispatch ahead).
     """
 
     frame_id: int

@@ -519,8 +519,10 @@ class FrameScheduler:
         """The nodes of ``free`` (they want work) a frame of ``session`` may start on: any, for a
         session with no frame in flight; only idle ones for a session with a frame in flight,
         whose next frame would otherwise bind its camera a whole frame early (latency over two
-        of its frame intervals, measured on the virtual clock)."""
-        return free if not session.frames else self.table.idle
+        of its frame intervals, measured on the virtual clock), and for tile rotation, whose
+        tiles go to the first node freed (pulled ahead, a heavy tile could go to a slow node)."""
+        last = session.mode.tiles.last
+        return free if not session.frames and not (last is not None and last.pull) else self.table.idle
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
@@ -530,6 +532,7 @@ class FrameScheduler:
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
         session.charges[job.frame_id] = self.fair.started(session.id)
+        job.ahead = self.table.idle.isdisjoint(session.ready)   # started for a node ending its last tile
         if not job.pull:
             by_node: dict[int, list[int]] = {}
             for tile in job.tiles:
@@ -537,7 +540,6 @@ class FrameScheduler:
                 by_node.setdefault(tile.node_id, []).append(tile.tile_id)
             for node_id, tile_ids in by_node.items():
                 self._push(job, self.nodes[node_id], tile_ids, now)
-            job.ahead = not self.table.heads(job.frame_id)
 
     def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
                      force: bool = False) -> bool:
@@ -563,14 +565,12 @@ class FrameScheduler:
         self._actions.append(RenderTiles(node.node_id, job.render_message(tile_ids, state)))
 
     def _pump_pull(self, now: float) -> None:
-        """Tile rotation (seed 000 §4.3): nodes that want work pull the next tiles (heaviest first),
-        oldest frame first; idle ones before those about to be, and among them the fastest gets
-        the heaviest, then the first freed.
+        """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
+        first; when several are idle at once the fastest gets the heaviest, then the first freed.
         A node pulls only tiles of sessions whose scene it holds."""
-        if not any(job.pull_queue for job in self.in_flight.values()):
+        if not self.table.idle or not any(job.pull_queue for job in self.in_flight.values()):
             return
-        idle = sorted((self.nodes[i] for i in self.table.wanting_work(self.in_flight, now)),
-                      key=lambda n: (bool(n.outstanding), -n.speed, n.idle_since, n.node_id))
+        idle = sorted((self.nodes[i] for i in self.table.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
         for job in self.in_flight.values():
             holders = self.sessions[job.session].ready
             while job.pull_queue and idle:
