@@ -160,7 +160,7 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
     add("--msaa", "auto", "multisample anti-aliasing: samples per pixel of tiles and whole frames, 1 (off), 2, 4 or "
         "8 (capped at what the GL offers; llvmpipe draws 2 as 4), or auto: 4 on a GPU, 1 on llvmpipe (where 4 cost "
-        "3.5-4x the frame time); depth layers (hybrid, sort-last) are drawn at 1", type=parse_msaa, metavar="N")
+        "2.3-3.7x the frame time); depth layers (hybrid, sort-last) are drawn at 1", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")
     return parser

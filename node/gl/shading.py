@@ -37,7 +37,7 @@ from node.culling.switch import SOFTWARE_RENDERERS
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
 #: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU, 1 on a software rasterizer, where
-#: 4 samples cost 3.5-4x the frame time (README, Picture quality: measured on llvmpipe).
+#: 4 samples cost 2.3-3.7x the frame time (README, Picture quality: measured on llvmpipe).
 AUTO_MSAA = 0
 HARDWARE_MSAA = 4
 #: Sample counts ``--msaa`` accepts besides auto (1: off).
