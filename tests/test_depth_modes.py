@@ -62,6 +62,7 @@ def shares_settled(client: httpx.Client, nodes: int) -> bool:
 @pytest.mark.parametrize(("mode", "scene_key", "nodes"), MATRIX)
 def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode, scene_key, nodes):
     scene = str(scene_path(SCENE_FILES[scene_key]))
+    depth_sent = []   # each node's last frame's depth pixels and bytes, after each camera's frame
     with serving(coordinator_factory, mode, scene, nodes, "--local-nodes", str(nodes)) as client:
         for index, camera in enumerate(orbit_cameras(scene_bounds(client), 2)):
             frame_after = client.put("/api/camera", json=camera).raise_for_status().json()["frame"]
@@ -70,12 +71,16 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
             assert_matches_reference(frame, render_once(scene, camera, SIZE, tmp_path, msaa=1),
                                      f"{mode} {scene_key} x{nodes} camera {index}")
             assert frame.std() > 2.0, "the frame is blank"
+            depth_sent += [(n["depth_px"], n["depth_bytes"]) for n in stats(client)["nodes"]]
         found = stats(client)
         assert found["mode"] == mode
         assert found["coordinator_cpu"]["merge_ms"] > 0.0
         nodes_stats = found["nodes"]
         assert all(n["color_px"] >= n["depth_px"] >= 0 for n in nodes_stats), nodes_stats
-        assert sum(n["depth_px"] for n in nodes_stats) > 0 and sum(n["depth_bytes"] for n in nodes_stats) > 0
+        depth_sent += [(n["depth_px"], n["depth_bytes"]) for n in nodes_stats]
+        # a frame whose balanced borders all fall beside the model (a node drawing only background
+        # under load) sends no depth: some frame of the run must
+        assert any(px > 0 and size > 0 for px, size in depth_sent), depth_sent
         assert sum(n["color_bytes"] for n in nodes_stats) > 0, "a narrow tile over empty space may send nothing"
         assert sum(n["triangles"] for n in nodes_stats) > 0
 
