@@ -183,7 +183,7 @@ class FrameScheduler:
     def next_deadline(self, now: float) -> float | None:
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
-        free = self.table.wanting_work(self.in_flight, now)
+        free = self._wanting_work(now)
         if len(self.sessions) == 1:   # one session is always in turn
             times = [at] if (at := self.default.start_due(now, self._free_for(self.default, free))) is not None else []
         else:
@@ -193,7 +193,8 @@ class FrameScheduler:
                      and self.fair.in_turn(s.id, backlogged)]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
-            if (at := self.table.next_wanting_at(self.in_flight, now)) is not None:
+            if any(self._goes_ahead(s) for s in self.sessions.values()) and (
+                    at := self.table.next_wanting_at(self.in_flight, now)) is not None:
                 times.append(at)
         return min(times) if times else None
 
@@ -501,7 +502,7 @@ class FrameScheduler:
         """Hand out pulled tiles, then start every frame that is owed and allowed, the session
         that has had least node time first."""
         self._pump_pull(now)
-        while free := self.table.wanting_work(self.in_flight, now):
+        while free := self._wanting_work(now):
             wanting = [s for s in self.sessions.values() if s.may_start(now, self._free_for(s, free))]
             if len(wanting) > 1 or (wanting and len(self.sessions) > 1):
                 busy = [s.id for s in self.sessions.values() if s.frames]
@@ -515,14 +516,25 @@ class FrameScheduler:
             self._start_frame(session, now, still=kind == STILL)
             self._pump_pull(now)
 
-    def _free_for(self, session: SessionFrames, free: set[int]) -> set[int]:
-        """The nodes of ``free`` (they want work) a frame of ``session`` may start on: any, for a
-        session with no frame in flight; only idle ones for a session with a frame in flight,
-        whose next frame would otherwise bind its camera a whole frame early (latency over two
-        of its frame intervals, measured on the virtual clock), and for tile rotation, whose
-        tiles go to the first node freed (pulled ahead, a heavy tile could go to a slow node)."""
+    @staticmethod
+    def _goes_ahead(session: SessionFrames) -> bool:
+        """A frame of ``session`` may go to a node ending its last tile: it has no frame in flight
+        (its next frame would otherwise bind its camera a whole frame early: latency over two of
+        its frame intervals, measured on the virtual clock) and does not rotate tiles (they go to
+        the first node freed; pulled ahead, a heavy tile could go to a slow node)."""
         last = session.mode.tiles.last
-        return free if not session.frames and not (last is not None and last.pull) else self.table.idle
+        return not session.frames and not (last is not None and last.pull)
+
+    def _wanting_work(self, now: float) -> set[int]:
+        """The nodes that want work: the idle ones, and those ending their last tile when some
+        session may go ahead (per event, so the nodes are looked at only then)."""
+        if any(self._goes_ahead(s) for s in self.sessions.values()):
+            return self.table.wanting_work(self.in_flight, now)
+        return self.table.idle
+
+    def _free_for(self, session: SessionFrames, free: set[int]) -> set[int]:
+        """The nodes of ``free`` (:meth:`_wanting_work`) a frame of ``session`` may start on."""
+        return free if self._goes_ahead(session) else self.table.idle
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
