@@ -134,10 +134,11 @@ def read_glb(data: bytes) -> tuple[dict[str, Any], bytes | None]:
     if not chunks or chunks[0][0] != GLB_JSON:
         raise GltfError("GLB does not start with a JSON chunk")
     binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == GLB_BIN else None
-    return _json(chunks[0][1]), binary
+    return parse_json(chunks[0][1]), binary
 
 
-def _json(data: bytes) -> dict[str, Any]:
+def parse_json(data: bytes) -> dict[str, Any]:
+    """A glTF's JSON object from its bytes; GltfError for invalid JSON or JSON that is not an object."""
     try:
         document = json.loads(data.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
@@ -154,7 +155,7 @@ def read_document(data: bytes, read_uri: Callable[[str], bytes]) -> GltfDocument
     if data[:4] == GLB_MAGIC:
         document, binary = read_glb(data)
     else:
-        document, binary = _json(data), None
+        document, binary = parse_json(data), None
     buffers: list[bytes] = []
     specs: Sequence[Any] = document.get("buffers", [])
     for number, spec in enumerate(specs):

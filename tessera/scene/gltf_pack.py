@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any
 from urllib.parse import unquote
 
-from tessera.scene.gltf import GltfError
+from tessera.scene.gltf import parse_json
 
 #: MIME types of image files by suffix (glTF 2.0 §3.9.4 names PNG and JPEG; the others are extensions').
 IMAGE_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp",
@@ -25,12 +25,7 @@ def self_contained_gltf(data: bytes, read_file: Callable[[str], bytes]) -> bytes
     """The .gltf JSON ``data`` with each external buffer and image read by ``read_file`` (given the
     percent-decoded relative URI; its errors propagate) and put inline; None when nothing refers
     outside (then ``data`` is already self-contained). Raises GltfError for JSON that is not a glTF."""
-    try:
-        document = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise GltfError(f"invalid glTF JSON ({exc})") from None
-    if not isinstance(document, dict):
-        raise GltfError("glTF JSON is not an object")
+    document = parse_json(data)
     references = _references(document)
     if not references:
         return None
