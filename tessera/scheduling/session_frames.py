@@ -56,6 +56,9 @@ class SessionFrames:
         self.frames_cancelled = 0
         #: A display wall's cells (issue 22): each frame's partition is cut at their edges.
         self.wall: WallLayout | None = None
+        #: JPEG quality of interactive tiles while a viewer takes the session as video (issue 21):
+        #: the tiles are the encoder's source, decoded on the coordinator (None: no video viewer).
+        self.video_source_quality: int | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -113,11 +116,14 @@ class SessionFrames:
         return not self.frames and self.owed(float("inf")) is None
 
     def codec(self, still: bool) -> tuple[Codec, int]:
-        """The codec and JPEG quality of a still or an interactive frame."""
+        """The codec and JPEG quality of a still or an interactive frame (interactive tiles that feed
+        a video stream: :attr:`video_source_quality`)."""
         config = self.config
         if still:
             assert config.still_codec is not None
             return config.still_codec, config.still_quality
+        if self.video_source_quality is not None and config.codec is Codec.JPEG:
+            return Codec.JPEG, self.video_source_quality
         return config.codec, config.interactive_quality
 
     def forget_source(self, source: Hashable) -> None:
