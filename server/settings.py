@@ -209,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"JPEG quality of a jpeg still frame (default {defaults.still_quality})")
     parser.add_argument("--still-delay-ms", type=POSITIVE,
                         help=f"quiet time before the still frame, ms (default {defaults.still_delay_ms:g})")
+    parser.add_argument("--still-samples", type=_count,
+                        help="jittered frames the still accumulates once nothing changed (the progressive still; "
+                             f"1: one frame, not shifted; at most 127; default {defaults.still_samples})")
     parser.add_argument("--settle-frames", type=_count,
                         help="at most this many frames more after a change while the balancer's partition "
                              f"still moves (default {defaults.settle_frames})")
