@@ -14,6 +14,7 @@ from server.origins import normalise_origins
 from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
 from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.wire.codec import Codec
 
@@ -136,6 +137,8 @@ class Settings(SchedulerConfig):
     ``max_in_flight``, ``max_fps``, ``tile_timeout_s``, ``mode``, ``depth_strip``, ``background``,
     …; :meth:`scheduler_config` hands them on) and the service's own below."""
 
+    #: The coordinator's still accumulates samples (the scheduler alone renders one still frame).
+    still_samples: int = DEFAULT_STILL_SAMPLES
     host: str = "127.0.0.1"
     port: int = 8000
     scene: str = DEFAULT_SCENE
