@@ -17,6 +17,7 @@ from PIL import Image
 from tessera.balancers.base import Partition, TileTiming
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
+from tessera.scheduling.refinement import jitter
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
@@ -57,7 +58,8 @@ class FrameJob:
     """A frame being rendered: one camera, one scene ``state`` (None: the base pose, a scene whose
     nodes reported no objects), one partition, every tile tracked.
 
-    ``still``: the lossless frame rendered once motion stopped (else an interactive frame);
+    ``still``: the lossless frame rendered once motion stopped (else an interactive frame), sample
+    ``sample`` (0-based) of a progressive still of ``samples`` (:mod:`tessera.scheduling.refinement`);
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
     it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
@@ -86,17 +88,21 @@ class FrameJob:
     tiles_done: int = 0
     sends_done: int = 0
     ahead: bool = False
+    sample: int = 0
+    samples: int = 1
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
                partition: Partition, started_at: float, *, still: bool = False, version: int = 0,
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
                state: SceneState | None = None, depth: DepthRequest | None = None,
-               session: str = DEFAULT_SESSION, scene: str | None = None) -> FrameJob:
+               session: str = DEFAULT_SESSION, scene: str | None = None, sample: int = 0,
+               samples: int = 1) -> FrameJob:
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
-                  inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene)
+                  inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene,
+                  sample=sample, samples=samples)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -104,6 +110,16 @@ class FrameJob:
     @property
     def complete(self) -> bool:
         return self.tiles_done == len(self.tiles)
+
+    @property
+    def jitter(self) -> tuple[float, float] | None:
+        """The sub-pixel offset its tiles are rendered with (a still's sample; None: not shifted)."""
+        return jitter(self.sample, self.samples) if self.still else None
+
+    @property
+    def converged(self) -> bool:
+        """The last sample of a still: the still viewers are told about."""
+        return self.still and self.sample == self.samples - 1
 
     @property
     def timings_complete(self) -> bool:
@@ -116,7 +132,7 @@ class FrameJob:
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
                       tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state,
-                      depth=self.depth, scene=self.scene)
+                      depth=self.depth, scene=self.scene, jitter=self.jitter)
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes,
                depth_tile: DecodedDepthTile | None = None) -> TileJob | None:

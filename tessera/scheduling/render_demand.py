@@ -1,10 +1,13 @@
 """Render on demand (trame's and TurboVNC's habit, DESIGN "Render on demand"): which kind of frame
 the state asks for. A frame is owed when something changed since the newest frame started, while
 an animation plays, for at most ``settle_frames`` more frames after a change while the partition
-still moves, and once, in the still codec, after nothing changed for ``still_delay_s``. Pure: the
-clock comes in as ``now`` (s)."""
+still moves, and, in the still codec, after nothing changed for ``still_delay_s``: the progressive
+still's ``still_samples`` frames one after the other (:mod:`tessera.scheduling.refinement`), each
+once the one before is done. Pure: the clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
+
+from tessera.scheduling.refinement import RefinementPlan
 
 INTERACTIVE = "interactive"
 STILL = "still"
@@ -12,14 +15,17 @@ STILL = "still"
 
 class RenderDemand:
     """Versions of the state: ``version`` rises with every change (at ``changed_at``); the newest
-    version a frame started with, a still frame showed, a published frame showed."""
+    version a frame started with, whose still's every sample started, whose still is being
+    refined (:attr:`refinement`: its samples started), a published frame showed."""
 
-    def __init__(self, settle_frames: int, still_delay_s: float, still_frames: bool) -> None:
+    def __init__(self, settle_frames: int, still_delay_s: float, still_frames: bool, still_samples: int = 1) -> None:
         self.settle_frames, self.still_delay_s, self.still_frames = settle_frames, still_delay_s, still_frames
+        self.refinement = RefinementPlan(still_samples)
         self.version = 0
         self.changed_at = 0.0
         self._started = 0
         self._still = 0
+        self._refining = 0
         self._published = 0
         self._settle_left = 0
 
@@ -28,6 +34,13 @@ class RenderDemand:
         self.version += 1
         self.changed_at = now
         self._settle_left = self.settle_frames
+
+    def still_dropped(self, version: int) -> None:
+        """A still frame of ``version`` was dropped: when nothing changed since (e.g. the nodes'
+        data partition did), that still starts again from its first sample."""
+        if version == self.version:
+            self._still = min(self._still, version - 1)
+            self.refinement.restart()
 
     def owed(self, now: float, animating: bool, partition_moving: bool, frames_in_flight: bool,
              ignore_quiet: bool = False) -> str | None:
@@ -52,14 +65,27 @@ class RenderDemand:
         """When the still frame is due if nothing changes (s)."""
         return self.changed_at + self.still_delay_s
 
-    def started(self, still: bool) -> None:
-        """A frame of the current version started."""
+    def started(self, still: bool) -> int:
+        """A frame of the current version started; returns its sample of the still (0 for an
+        interactive frame)."""
         if still:
-            self._still, self._settle_left = self.version, 0
-            return
+            if self._refining != self.version:
+                self._refining = self.version
+                self.refinement.restart()
+            sample = self.refinement.start()
+            if not self.refinement.owed:
+                self._still = self.version
+            self._settle_left = 0
+            return sample
         if self._started == self.version:
             self._settle_left -= 1
         self._started = self.version
+        return 0
+
+    @property
+    def still_samples(self) -> int:
+        """Samples a still accumulates."""
+        return self.refinement.samples
 
     def published(self, version: int) -> bool:
         """A frame of ``version`` was published; True when it is the first to show that version."""

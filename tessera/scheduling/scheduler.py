@@ -12,8 +12,10 @@ What it decides:
   (camera, scene state, balancer, node set; a playing animation changes the state all the time),
   while the balancer settles (at most
   ``settle_frames`` more frames after a change, and only while the partition still moves), or
-  when the still frame is owed: once nothing changed for ``still_delay_ms``, one frame in the
-  lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality). Otherwise nothing
+  when the still frame is owed: once nothing changed for ``still_delay_ms``, frames in the
+  lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality): the progressive
+  still's ``still_samples`` jittered samples, one frame after the other
+  (:mod:`tessera.scheduling.refinement`; their adapter accumulates them). Otherwise nothing
   renders.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
   newest camera when it starts, and it starts only when a node wants work — it has nothing left
@@ -86,6 +88,7 @@ from tessera.scheduling.actions import (
 from tessera.scheduling.fair_share import FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
+from tessera.scheduling.refinement import MAX_STILL_SAMPLES
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
 from tessera.wire.codec import Codec
@@ -101,13 +104,15 @@ STRAGGLER_CHECK_S = 0.1
 @dataclass(frozen=True, slots=True)
 class SchedulerConfig:
     """What the scheduler is told, with the defaults the coordinator's settings take over
-    (:class:`server.settings.Settings` extends this class; nothing is defined twice).
+    (:class:`server.settings.Settings` extends this class; nothing is defined twice but
+    ``still_samples``: 1 here, one still frame; the coordinator's is measured).
 
     ``size`` (w, h) px; ``codec``/``interactive_quality``: tiles while things change;
     ``still_codec`` (None: no still frame) and ``still_quality`` (JPEG only) once nothing changed
-    for ``still_delay_ms``; ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border
-    strip (px); ``background``: the clear colour, linear RGB in [0, 1] (None: the default), which
-    the depth modes' merge paints where no node drew."""
+    for ``still_delay_ms``, ``still_samples`` jittered frames accumulated into the still;
+    ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border strip (px);
+    ``background``: the clear colour, linear RGB in [0, 1] (None: the default), which the depth
+    modes' merge paints where no node drew."""
 
     size: tuple[int, int] = (1280, 720)
     codec: Codec = Codec.JPEG
@@ -115,6 +120,7 @@ class SchedulerConfig:
     still_codec: Codec | None = Codec.PNG
     still_quality: int = 95
     still_delay_ms: float = 200.0
+    still_samples: int = 1
     settle_frames: int = 2
     max_in_flight: int = 2
     max_fps: float = 60.0
@@ -133,6 +139,8 @@ class SchedulerConfig:
             raise ValueError("max_in_flight must be >= 1")
         if not self.max_fps > 0.0:
             raise ValueError("max_fps must be > 0")
+        if not 1 <= self.still_samples <= MAX_STILL_SAMPLES:
+            raise ValueError(f"still_samples must be 1..{MAX_STILL_SAMPLES}, got {self.still_samples}")
         if self.still_delay_ms < 0.0 or self.settle_frames < 0 or not self.tile_timeout_s > 0.0:
             raise ValueError("still_delay_ms and settle_frames must be >= 0, tile_timeout_s > 0")
         if not (self.backup_factor > 1.0 and self.backup_floor_s >= 0.0 and self.max_tile_failures >= 1):
@@ -492,6 +500,8 @@ class FrameScheduler:
         if session is not None:
             session.frames.pop(job.frame_id, None)
             session.frames_cancelled += 1
+            if job.still:
+                session.demand.still_dropped(job.version)
             self.fair.finished(job.session, session.charges.pop(job.frame_id, 0.0), None, now)
         self.frames_cancelled += 1
         for node in self.nodes.values():

@@ -41,7 +41,8 @@ class SessionFrames:
         self.camera: Camera | None = None
         #: The scene's objects, animations and state log (None: frames show the base pose).
         self.scene: SceneTimeline | None = None
-        self.demand = RenderDemand(config.settle_frames, config.still_delay_s, config.still_codec is not None)
+        self.demand = RenderDemand(config.settle_frames, config.still_delay_s, config.still_codec is not None,
+                                   config.still_samples)
         self.inputs: dict[Hashable, int] = {}
         #: Projected primitive groups for a camera and the frame's scene state (None: the base pose)
         #: (seed 003 DPBP), for balancers that use them.
@@ -89,7 +90,7 @@ class SessionFrames:
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
                     still: bool) -> tuple[FrameJob, str | None]:
-        """Frame ``frame_id`` (a still or interactive one) of the newest camera and scene state,
+        """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
         balancer failed, if it did (the static split was used)."""
         assert self.camera is not None
@@ -101,11 +102,12 @@ class SessionFrames:
             partition = self.wall.cut(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
-        self.demand.started(still)
+        sample = self.demand.started(still)
         job = FrameJob.create(frame_id, camera, self.size, codec, quality, partition, now, still=still,
                               version=self.demand.version, changed_at=self.demand.changed_at,
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
-                              session=self.id, scene=self.scene_key)
+                              session=self.id, scene=self.scene_key, sample=sample,
+                              samples=self.demand.still_samples if still else 1)
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error

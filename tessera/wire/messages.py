@@ -135,6 +135,7 @@ Text = StrictStr
 Number = StrictFloat
 NonNegative = Annotated[StrictFloat, Field(ge=0)]
 Unit = Annotated[StrictFloat, Field(ge=0, le=1)]
+Jitter = Annotated[StrictFloat, Field(ge=-0.5, lt=0.5)]
 Vec3 = tuple[Number, Number, Number]
 #: Axis-aligned world-space box: [[x0, y0, z0], [x1, y1, z1]].
 Bounds = tuple[Vec3, Vec3]
@@ -426,11 +427,14 @@ class Render(Message):
     state: StateJson | None = None
     depth: DepthRequest | None = None
     scene: Text | None = None
+    #: A progressive still's sub-pixel offset (dx, dy) in pixels, x right, y down, each in
+    #: [-0.5, 0.5) (:mod:`tessera.scheduling.refinement`); None: the frame is not shifted.
+    jitter: tuple[Jitter, Jitter] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first, without ``scene`` when None."""
-        return self._without_none(super().to_json(), "state", "depth", "scene")
+        ``depth`` in sort-first, without ``scene`` and ``jitter`` when None."""
+        return self._without_none(super().to_json(), "state", "depth", "scene", "jitter")
 
 
 class Calibrate(Message):

@@ -1,0 +1,178 @@
+"""The progressive still's pure parts (issue 20): Halton jitter, the jitter matrix, the exact
+accumulation, the refinement plan and how render on demand asks for the samples; the scheduler
+asking for them one frame at a time and dropping them on input (pure, no GL)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tessera.geometry import Camera, view_projection
+from tessera.scheduling.actions import RenderTiles
+from tessera.scheduling.refinement import (
+    MAX_STILL_SAMPLES,
+    Accumulator,
+    RefinementPlan,
+    accumulate,
+    jitter,
+    jitter_matrix,
+    radical_inverse,
+)
+from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
+from tests.test_scheduler import camera, cancels, finish, published, renders, scheduler
+
+
+def test_radical_inverse_mirrors_the_digits() -> None:
+    assert [radical_inverse(i, 2) for i in range(1, 5)] == [0.5, 0.25, 0.75, 0.125]
+    assert [radical_inverse(i, 3) for i in range(1, 4)] == pytest.approx([1 / 3, 2 / 3, 1 / 9])
+    assert radical_inverse(0, 2) == 0.0
+    with pytest.raises(ValueError):
+        radical_inverse(-1, 2)
+
+
+def test_jitter_is_halton_2_3_in_the_pixel_and_none_for_one_sample() -> None:
+    """Offsets lie in [-0.5, 0.5)², are distinct, and a prefix of 16 puts one in each 4×4 cell
+    of the pixel in x and fills every row of cells (low discrepancy)."""
+    assert jitter(0, 1) is None
+    offsets = np.array([jitter(k, 16) for k in range(16)])
+    assert offsets[0] == pytest.approx((0.0, 1 / 3 - 0.5))
+    assert np.all(offsets >= -0.5) and np.all(offsets < 0.5)
+    assert len({tuple(o) for o in offsets.tolist()}) == 16
+    columns = np.floor((offsets[:, 0] + 0.5) * 4).astype(int)
+    assert sorted(columns.tolist()) == sorted(list(range(4)) * 4)
+    rows = np.floor((offsets[:, 1] + 0.5) * 4).astype(int)
+    assert set(rows.tolist()) == {0, 1, 2, 3}
+    assert abs(offsets.mean(axis=0)).max() < 0.05
+    with pytest.raises(ValueError):
+        jitter(4, 4)
+
+
+def test_jitter_matrix_moves_projected_points_by_the_offset_in_pixels() -> None:
+    """A world point projected with the jittered matrix lands (dx, dy) pixels away (y down)."""
+    size = (320, 200)
+    camera = Camera(eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fovy_deg=45.0)
+    matrix = view_projection(camera, size, np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    point = np.array([0.3, -0.2, 0.4, 1.0])
+
+    def pixel(m: np.ndarray) -> np.ndarray:
+        clip = m @ point
+        ndc = clip[:2] / clip[3]
+        return np.array([(ndc[0] + 1) / 2 * size[0], (1 - ndc[1]) / 2 * size[1]])
+
+    moved = pixel(jitter_matrix((0.25, -0.375), size) @ matrix) - pixel(matrix)
+    assert moved == pytest.approx((0.25, -0.375))
+    assert np.array_equal(jitter_matrix(None, size), np.identity(4))
+
+
+def test_accumulation_is_the_rounded_mean_whatever_the_tile_order() -> None:
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (6, 8, 3), dtype=np.uint8) for _ in range(5)]
+    expected = np.floor(np.mean(np.stack(frames).astype(np.float64), axis=0) + 0.5).astype(np.uint8)
+    assert np.array_equal(accumulate(frames), expected)
+    tiled = Accumulator((8, 6))
+    for frame in frames:
+        tiled.add(frame[3:, 5:], 5, 3)
+        tiled.add(frame[:, :5])
+        tiled.add(frame[:3, 5:], 5, 0)
+        tiled.finish_sample()
+    assert tiled.count == 5 and np.array_equal(tiled.mean(), expected)
+    assert np.array_equal(tiled.mean(5, 3, 3, 3), expected[3:, 5:])
+    assert np.array_equal(accumulate([frames[0]]), frames[0])
+    with pytest.raises(ValueError):
+        Accumulator((8, 6)).mean()
+
+
+def test_refinement_plan_counts_the_samples_started() -> None:
+    plan = RefinementPlan(3)
+    assert [plan.start() for _ in range(3)] == [0, 1, 2] and not plan.owed
+    with pytest.raises(ValueError):
+        plan.start()
+    plan.restart()
+    assert plan.owed and plan.start() == 0
+    for bad in (0, MAX_STILL_SAMPLES + 1):
+        with pytest.raises(ValueError):
+            RefinementPlan(bad)
+
+
+def test_demand_asks_for_the_still_samples_one_at_a_time_and_a_change_restarts_them() -> None:
+    demand = RenderDemand(settle_frames=0, still_delay_s=0.2, still_frames=True, still_samples=3)
+    assert demand.owed(0.0, False, False, False) is None, "nothing before the first change"
+    demand.changed(1.0)
+    assert demand.owed(1.0, False, False, False) == INTERACTIVE
+    assert demand.started(False) == 0
+    assert demand.owed(1.1, False, False, False) is None, "the still waits for the quiet time"
+    assert demand.owed(1.3, False, False, True) is None, "and for the frame in flight"
+    samples = []
+    while demand.owed(1.3, False, False, False) == STILL:
+        samples.append(demand.started(True))
+        assert demand.owed(1.3, False, False, True) is None, "one sample in flight at a time"
+    assert samples == [0, 1, 2] and demand.owed(9.0, False, False, False) is None
+    demand.changed(10.0)
+    demand.started(False)
+    assert demand.owed(10.3, False, False, False) == STILL and demand.started(True) == 0
+    demand.changed(10.4)   # input during the refinement: an interactive frame, then the still anew
+    assert demand.owed(10.4, False, False, False) == INTERACTIVE
+    demand.started(False)
+    assert [demand.started(True) for _ in range(3)] == [0, 1, 2]
+
+
+def test_a_still_sample_dropped_with_nothing_changed_restarts_the_still() -> None:
+    demand = RenderDemand(settle_frames=0, still_delay_s=0.0, still_frames=True, still_samples=2)
+    demand.changed(0.0)
+    demand.started(False)
+    assert [demand.started(True) for _ in range(2)] == [0, 1]
+    assert demand.owed(1.0, False, False, False) is None
+    demand.still_dropped(demand.version - 1)
+    assert demand.owed(1.0, False, False, False) is None, "a still of an older state is not owed again"
+    demand.still_dropped(demand.version)
+    assert demand.owed(1.0, False, False, False) == STILL and demand.started(True) == 0
+
+
+def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -> None:
+    """At rest the still's samples come one frame at a time, each jittered as its render message
+    says, the last one converged; input during the refinement drops the sample in flight and an
+    interactive frame starts at once; after the last sample nothing renders."""
+    s = scheduler(still_delay_ms=200, still_samples=3)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    finish(s, 1, 0.05)
+    s.tick(0.2)
+    frames = []
+    actions = s.drain()
+    for now in (0.3, 0.4, 0.5):
+        (frame_id,) = s.in_flight
+        job = s.in_flight[frame_id]
+        messages = [a.message for a in actions if isinstance(a, RenderTiles)]
+        assert job.still and {m.jitter for m in messages} == {job.jitter} and job.jitter is not None
+        frames.append((job.sample, job.samples, job.converged))
+        actions = finish(s, frame_id, now)
+        assert published(actions) == [frame_id]
+    assert frames == [(0, 3, False), (1, 3, False), (2, 3, True)]
+    assert s.default.settled and s.next_deadline(0.5) is None
+    for now in (1.0, 10.0):
+        s.tick(now)
+        assert s.drain() == [] and not s.in_flight, "after the last sample nothing renders"
+    s.set_camera(camera(1), 11.0)
+    s.drain()
+    finish(s, max(s.in_flight), 11.05)
+    s.tick(11.3)
+    (sample,) = s.in_flight
+    s.drain()
+    s.set_camera(camera(2), 11.35)
+    actions = s.drain()
+    assert sample in {f for frames in cancels(actions).values() for f in frames}, "the sample is dropped"
+    (interactive,) = s.in_flight
+    assert not s.in_flight[interactive].still and s.in_flight[interactive].jitter is None
+    assert renders(actions), "the interactive frame starts at once"
+
+
+def test_a_one_sample_still_is_not_jittered() -> None:
+    s = scheduler(still_delay_ms=0)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    finish(s, 1, 0.05)
+    s.tick(0.1)
+    (still,) = s.in_flight.values()
+    assert still.still and still.converged and still.jitter is None
+    assert all(a.message.jitter is None and "jitter" not in a.message.to_json()
+               for a in s.drain() if isinstance(a, RenderTiles))
