@@ -207,7 +207,8 @@ class NodeClient:
             await self._draw_depth(action, job.depth, outbox)
             return
         try:
-            rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene)
+            rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
+                                                job.jitter)
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return
@@ -228,7 +229,8 @@ class NodeClient:
         """One tile of a depth ``render``: drawn as a layer, encoded as a depth tile in the encoder thread."""
         job, request, state = action.render, action.tile, action.state
         try:
-            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene)
+            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
+                                                   job.jitter)
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

@@ -3,6 +3,12 @@ reference image every composited frame is checked against. ``--face-limit`` and 
 as on a serving node; neither changes the image. ``--msaa`` and ``--environment`` shade as on a
 serving node (a hybrid or sort-last frame, drawn at one sample, equals ``--msaa 1``).
 
+Without ``--interactive`` the image is the progressive still (issue 20) the live service converges
+to with its defaults: ``--samples N`` whole frames (default the coordinator's ``--still-samples``),
+each shifted by its sample's jitter, accumulated exactly as the coordinator does
+(:meth:`node.gl.renderer.TileRenderer.render_still`). ``--interactive``: the interactive frame, one
+sample, not shifted (what ``--samples 1`` also gives).
+
 The frame shows the scene state (issue 11) at ``--time T`` seconds (default 0): the scene's
 animations sampled at T, then the poses of ``--objects STATE.json``, ``{name: {"translation",
 "rotation", "scale", "visible"}}`` with any subset of those fields per object."""
@@ -11,6 +17,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -73,8 +80,15 @@ def render_once(settings: NodeSettings) -> int:
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
         renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling, shading=settings.shading)
-        frame = renderer.render_frame(camera, settings.size, state)
-        settings.render_once.write_bytes(encode_png(frame.pixels))
+        started = time.perf_counter()
+        if settings.interactive:
+            frame = renderer.render_frame(camera, settings.size, state)
+            pixels, drawn, samples = frame.pixels, f"{frame.triangles} drawn, {frame.cull_path} culling", 1
+        else:
+            pixels, samples = renderer.render_still(camera, settings.size, settings.samples, state), settings.samples
+            drawn = f"{samples} jittered sample{'s' if samples > 1 else ''}"
+        render_ms = (time.perf_counter() - started) * 1e3
+        settings.render_once.write_bytes(encode_png(pixels))
     except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError,
             EnvironmentError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -86,9 +100,9 @@ def render_once(settings: NodeSettings) -> int:
         print(f"error: cannot write {settings.render_once}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     width, height = settings.size
-    print(f"wrote {settings.render_once} ({width}x{height}, {scene.triangle_count} triangles in "
-          f"{scene.chunks.chunk_count} chunks, {frame.triangles} drawn, {frame.cull_path} culling, "
-          f"{renderer.samples}x MSAA, render {frame.render_ms:.1f} ms)")
+    kind = "interactive frame" if settings.interactive else "still"
+    print(f"wrote {settings.render_once} ({kind}, {width}x{height}, {scene.triangle_count} triangles in "
+          f"{scene.chunks.chunk_count} chunks, {drawn}, {renderer.samples}x MSAA, render {render_ms:.1f} ms)")
     return 0
 
 

@@ -17,6 +17,7 @@ from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import number_parser, parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, MAX_STILL_SAMPLES
 from tessera.wire.messages import MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
@@ -56,6 +57,10 @@ class NodeSettings:
     scene_cache_dir: Path = DEFAULT_CACHE_DIR
     msaa: int = AUTO_MSAA
     environment: Path | None = None
+    #: ``--render-once``: the still's samples (the coordinator's default ``--still-samples``).
+    samples: int = DEFAULT_STILL_SAMPLES
+    #: ``--render-once``: the interactive frame (one sample, not shifted) instead of the still.
+    interactive: bool = False
 
     @property
     def shading(self) -> ShadingOptions:
@@ -67,6 +72,17 @@ class NodeSettings:
 parse_time = number_parser(note=" of seconds")
 #: A slowdown factor ≥ 1.
 parse_slowdown = number_parser(1.0)
+
+
+def parse_samples(text: str) -> int:
+    """A still's sample count, 1…:data:`MAX_STILL_SAMPLES`."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= MAX_STILL_SAMPLES:
+        raise argparse.ArgumentTypeError(f"samples must be an integer 1..{MAX_STILL_SAMPLES}, got {text!r}")
+    return value
 
 
 def parse_culling(text: str) -> CullMode:
@@ -163,6 +179,11 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "2.3-3.7x the frame time); depth layers (hybrid, sort-last) are drawn at 1", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")
+    add("--samples", DEFAULT_STILL_SAMPLES, "--render-once renders the still of this many jittered samples "
+        "(default: the coordinator's --still-samples default, so the image is the still it converges to)",
+        type=parse_samples, metavar="N")
+    parser.add_argument("--interactive", action="store_true",
+                        help="--render-once renders the interactive frame (one sample, not shifted), not the still")
     return parser
 
 

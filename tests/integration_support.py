@@ -31,15 +31,18 @@ SCENE_FILES = {
 
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
                 scene_time: float | None = None, objects: dict[str, Any] | None = None,
-                msaa: int | None = None) -> np.ndarray:
+                msaa: int | None = None, still_samples: int | None = None) -> np.ndarray:
     """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
-    ``objects`` poses, ``msaa`` samples: ``--time``, ``--objects``, ``--msaa``); (h, w, 3) uint8."""
+    ``objects`` poses, ``msaa`` samples: ``--time``, ``--objects``, ``--msaa``) of the interactive
+    frame (``--interactive``), or with ``still_samples`` the progressive still of that many
+    samples (``--samples N``); (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))
     out = workdir / f"reference-{index}.png"
     extra = [] if scene_time is None else ["--time", repr(float(scene_time))]
     extra += [] if msaa is None else ["--msaa", str(msaa)]
+    extra += ["--interactive"] if still_samples is None else ["--samples", str(still_samples)]
     if objects is not None:
         objects_file = workdir / f"objects-{index}.json"
         objects_file.write_text(json.dumps(objects))

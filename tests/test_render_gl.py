@@ -158,7 +158,7 @@ def test_render_once_cli_is_deterministic_and_matches_the_renderer(tmp_path, ren
     camera = {"eye": [0.05, 0.16, 0.3], "target": [-0.02, 0.11, 0.0], "fovy_deg": 40}
     (tmp_path / "camera.json").write_text(json.dumps(camera))
     args = ("--scene", bunny, "--camera", str(tmp_path / "camera.json"), "--size", "160x120",
-            "--background", "#1c1f26")
+            "--background", "#1c1f26", "--interactive")
     images = []
     for name in ("a.png", "b.png"):
         result = run_render_once(tmp_path, name, *args)

@@ -48,6 +48,11 @@ limits to the tile) into the single-sample one they are read from. A pixel's sam
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames.
+
+The progressive still (issue 20): a render may shift the whole frame by a sub-pixel ``jitter``, a
+translation applied after the projection (:func:`tessera.scheduling.refinement.jitter_matrix`) —
+tiles, layers and whole frames alike, culling with the same matrix — and
+:meth:`TileRenderer.render_still` accumulates a still's jittered samples as the coordinator does.
 """
 
 from __future__ import annotations
@@ -71,9 +76,13 @@ from node.scene.mesh import MeshBatch
 from node.scene.pose import ScenePose
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
+from tessera.scheduling import refinement
+from tessera.scheduling.refinement import Accumulator, jitter_matrix
 
 GL_SRGB8_ALPHA8 = 0x8C43
 VERTEX_FORMAT = "3f 3f 2f 4f"
+#: A progressive still's sub-pixel offset (dx, dy) px, x right, y down; None: not shifted.
+Jitter = tuple[float, float] | None
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
@@ -270,13 +279,15 @@ class TileRenderer:
         return framebuffer
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
-                    slot: Hashable | None = None, state: SceneState | None = None) -> RenderedTile:
+                    slot: Hashable | None = None, state: SceneState | None = None,
+                    jitter: Jitter = None) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
-        (None: the base pose). ``slot`` names the tile for the hybrid culling switch (default: the
-        rect itself)."""
+        (None: the base pose), the whole frame shifted by ``jitter`` (dx, dy) px (a progressive
+        still's sample; None: not shifted). ``slot`` names the tile for the hybrid culling switch
+        (default: the rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state)
+        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved)
 
@@ -286,26 +297,27 @@ class TileRenderer:
             self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
         return self._pose[1]
 
-    def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect,
-               state: SceneState | None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
+    def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
+               jitter: Jitter = None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
         """What every draw of ``rect`` in scene ``state`` starts from: the pose, the full-frame (4, 4)
-        view-projection of its bounds, and the runs of its moved objects that ``rect`` keeps."""
+        view-projection of its bounds (shifted by ``jitter`` px: :func:`jitter_matrix`, so culling
+        and drawing see the same frustum), and the runs of its moved objects that ``rect`` keeps."""
         pose = self.pose_of(state)
-        matrix = view_projection(camera, size, pose.bounds)
+        matrix = jitter_matrix(jitter, size) @ view_projection(camera, size, pose.bounds)
         moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return pose, matrix, moved
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None, state: SceneState | None = None,
-                     blend_apart: bool = False) -> RenderedTile:
+                     blend_apart: bool = False, jitter: Jitter = None) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
         culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
         what the rect's culling keeps where they are now (``blend_apart``: their blended batches left
-        to :meth:`render_blend`), with its depth read back as well."""
+        to :meth:`render_blend`), with its depth read back as well; ``jitter`` as there."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state)
+        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
@@ -354,7 +366,7 @@ class TileRenderer:
                             self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
-                     under: np.ndarray, state: SceneState | None = None) -> BlendedFragments:
+                     under: np.ndarray, state: SceneState | None = None, jitter: Jitter = None) -> BlendedFragments:
         """Blended chunks ``chunk_ids`` (sorted, unique) in front of the layer :meth:`render_layer`
         has drawn of the same ``rect``, camera, size and ``state``, whose depth is ``under``
         (rect.h, rect.w) float32. Peeling: pass j keeps the fragments between the (j−1)-th depth
@@ -363,9 +375,9 @@ class TileRenderer:
         accumulated in draw order (:data:`BLEND_ACCUMULATE`) into a cleared buffer, as GL blends
         them over whatever the compositor finds behind them. Moved objects' blended batches are drawn
         with them, culled to ``rect`` where they are now (:meth:`render_layer` with ``blend_apart``
-        leaves them out)."""
+        leaves them out); ``jitter`` as the layer's."""
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state)
+        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
         culled = self.culler.listed(chunk_ids)
         framebuffer = self._framebuffer_for(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
@@ -422,9 +434,22 @@ class TileRenderer:
         data = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
         return np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
 
-    def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None) -> RenderedTile:
-        """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose)."""
-        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state)
+    def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None,
+                     jitter: Jitter = None) -> RenderedTile:
+        """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose), shifted by
+        ``jitter`` px (None: not shifted)."""
+        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, jitter=jitter)
+
+    def render_still(self, camera: Camera, size: tuple[int, int], samples: int,
+                     state: SceneState | None = None) -> np.ndarray:
+        """The progressive still of ``samples`` whole frames, each shifted by its sample's jitter,
+        accumulated (:mod:`tessera.scheduling.refinement`): what the coordinator publishes as the
+        still of a rested camera with ``--still-samples samples``; (h, w, 3) uint8."""
+        accumulator = Accumulator(size)
+        for sample in range(samples):
+            accumulator.add(self.render_frame(camera, size, state, refinement.jitter(sample, samples)).pixels)
+            accumulator.finish_sample()
+        return accumulator.mean()
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
               view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None) -> None:
