@@ -21,7 +21,7 @@ import dataclasses
 import logging
 import math
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -102,6 +102,7 @@ class RenderService:
                                         settings.scene)
         self.scheduler.default.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
+        self.still_executor: Executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-still")
         self.default = Session(self, DEFAULT_SESSION, settings.scene)
         self.sessions: dict[str, Session] = {DEFAULT_SESSION: self.default}
         self._watch_keys: dict[str, str] = {self.default.watch_key: DEFAULT_SESSION}
@@ -254,6 +255,7 @@ class RenderService:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self.save_sessions()
         await asyncio.to_thread(self._session_writer.shutdown, wait=True)   # every write asked is done
+        self.still_executor.shutdown(wait=False, cancel_futures=True)
 
     async def _timer(self) -> None:
         """Tick the scheduler at its next deadline (frame-rate cap, still frame, tile timeouts) and
@@ -481,17 +483,54 @@ class RenderService:
         session = self.sessions.get(job.session)
         if session is None:
             return
+        if job.samples > 1:
+            self._refine(session, job)
+            return
+        self._show(session, job, self._frame_tiles(job))
+
+    def _show(self, session: Session, job: FrameJob, tiles: list, samples: int = 0) -> None:
+        """Publish ``job`` to the session's store and viewers with ``tiles``; ``samples``: a
+        progressive still's samples (then it is the still once it holds all of them)."""
         started = time.thread_time()
         state = job.state
-        frame = PublishedFrame(job.frame_id, job.camera, job.size, self._frame_tiles(job), time.monotonic(),
-                               still=job.still, inputs=job.inputs,
+        frame = PublishedFrame(job.frame_id, job.camera, job.size, tiles, time.monotonic(),
+                               still=job.still and (samples == 0 or job.converged), inputs=job.inputs,
                                state_version=None if state is None else state.version,
                                scene_time=None if state is None else state.time,
-                               tile_states=tuple(t.header.state if t.header else 0 for t in job.tiles))
+                               tile_states=tuple(t.header.state if t.header else 0 for t in job.tiles),
+                               samples=samples)
         session.store.add(frame)
         if session.viewers.slots:
             session.viewers.publish_frame(frame)
         self.cpu_ms["publish"] += (time.thread_time() - started) * 1000.0
+
+    def _refine(self, session: Session, job: FrameJob) -> None:
+        """A progressive still's sample (issue 20): accumulated on the still thread
+        (:class:`server.still_refinement.StillRefiner`), the running mean published when it is done
+        unless something changed since (input cancels the refinement at once)."""
+        codec, quality = self.scheduler.sessions[job.session].codec(True)
+        done = session.refiner.submit(job.sample, job.size, self._frame_tiles(job), codec, quality)
+        loop = asyncio.get_running_loop()
+
+        def back_to_the_loop(future: Future) -> None:
+            with contextlib.suppress(RuntimeError):   # the loop closed: the coordinator stopped
+                loop.call_soon_threadsafe(self._refined, session, job, future)
+
+        done.add_done_callback(back_to_the_loop)
+
+    def _refined(self, session: Session, job: FrameJob, done: Future) -> None:
+        session.refiner.taken()
+        if done.cancelled():
+            return
+        if done.exception() is not None:
+            log.error("session %s… still sample %d not accumulated: %s", session.id[:6], job.sample, done.exception())
+            return
+        frames = self.scheduler.sessions.get(job.session)
+        tiles = done.result()
+        if (tiles is None or self.sessions.get(session.id) is not session or frames is None
+                or frames.demand.version != job.version or job.frame_id <= session.store.last_id):
+            return
+        self._show(session, job, tiles, samples=job.sample + 1)
 
     # ----------------------------------------------------------------- reporting
     def describe(self, session: Session | None = None) -> dict[str, Any]:
@@ -513,6 +552,7 @@ class RenderService:
             "frames_in_flight": len(frames.frames),
             "frames_cancelled": frames.frames_cancelled,
             "still": bool(latest and latest.still),
+            "still_samples": {"done": latest.samples if latest else 0, "wanted": frames.demand.still_samples},
             "settled": frames.settled,
             "scene": session.name,
             "scene_state": session.scene_state(),
@@ -522,12 +562,15 @@ class RenderService:
             "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec else "none",
             "viewers": len(session.viewers.slots),
             "viewer_stats": session.viewers.describe(),
+            "stream": self.settings.stream,
+            "video": session.viewers.describe_video(),
             "frame_lock": session.viewers.lock.describe() if session.wall is not None else None,
             "coordinator_cpu": {
                 "frames": stats.frames_published,
                 "receive_ms": round(self.cpu_ms["receive"], 3),
                 "publish_ms": round(self.cpu_ms["publish"], 3),
                 "merge_ms": round(self.cpu_ms["merge"], 3),
+                "still_ms": round(sum(s.refiner.cpu_ms for s in self.sessions.values()), 3),
                 "process_ms": round(time.process_time() * 1000.0, 3),
                 "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
             },

@@ -16,6 +16,8 @@ from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
 from tessera.scheduling.scheduler import SchedulerConfig
+from tessera.video.link_rate import MIN_BITRATE
+from tessera.video.transport import STREAM_MODES
 from tessera.wire.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
@@ -27,6 +29,8 @@ parse_size = size_parser(16, 8192)
 #: Most viewer sockets at once: every viewer gets every frame, about 23 KB at 720p × 60 frames/s
 #: = 1.4 MB/s, so 64 of them fill a gigabit link; a slow viewer only skips frames.
 DEFAULT_MAX_VIEWERS = 64
+#: --max-bitrate: Selkies' default, and what 1080p at 60 fps needs at BITS_PER_PIXEL (6.2 Mbit/s).
+DEFAULT_MAX_BITRATE = 8_000_000
 #: Largest message a viewer may send: it sends camera and latency JSON of a few hundred bytes.
 DEFAULT_MAX_VIEWER_MESSAGE_BYTES = 64 << 10
 #: Messages per second a viewer may send (burst: one second's worth): it sends the camera at most
@@ -68,6 +72,19 @@ def _byte_count(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1 byte, got {text!r}")
     return value
+
+
+def _bitrate(text: str) -> int:
+    """Bits per second, optionally with k or M (powers of 1000): ``8000000``, ``2500k``, ``8M``."""
+    cleaned = text.strip().lower().removesuffix("bit/s").removesuffix("bps")
+    unit = cleaned[-1:] if cleaned[-1:] in ("k", "m") else ""
+    try:
+        value = float(cleaned[:len(cleaned) - len(unit)]) * {"": 1, "k": 1e3, "m": 1e6}[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a bitrate is bits per second, e.g. 8M or 2500k, got {text!r}") from None
+    if not math.isfinite(value) or value < MIN_BITRATE:
+        raise argparse.ArgumentTypeError(f"a bitrate must be at least {MIN_BITRATE} bit/s, got {text!r}")
+    return int(value)
 
 
 def _origins(text: str) -> tuple[str, ...]:
@@ -172,6 +189,11 @@ class Settings(SchedulerConfig):
     session_idle_timeout_s: float = 300.0
     #: The largest frame a session may have (a bigger request is scaled down to fit, aspect kept).
     max_size: tuple[int, int] = (3840, 2160)
+    #: What viewers get while the picture changes (issue 21): ``auto`` (video in the first codec
+    #: the viewer decodes, else tiles), ``h264``, ``vp9`` or ``tiles`` (:data:`STREAM_MODES`).
+    stream: str = "auto"
+    #: The highest bitrate of a session's video stream, bit/s.
+    max_bitrate: int = DEFAULT_MAX_BITRATE
 
     @property
     def node_message_bytes(self) -> int:
@@ -264,6 +286,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--session-idle-timeout-s", type=POSITIVE,
                         help="close a session that no viewer and no API call used for this long, s "
                              f"(default {defaults.session_idle_timeout_s:g}; never the default session)")
+    parser.add_argument("--stream", choices=STREAM_MODES,
+                        help="what viewers get while the picture changes: auto (default: H.264 video where the "
+                             "browser decodes it, else VP9, else tiles), h264 (libx264, GPL), vp9 (libvpx, BSD) "
+                             "or tiles (the nodes' JPEG tiles); still frames are exact images either way")
+    parser.add_argument("--max-bitrate", type=_bitrate,
+                        help="highest bitrate of a session's video, bit/s, k or M allowed (default "
+                             f"{DEFAULT_MAX_BITRATE // 1_000_000}M); the stream follows each viewer's link below it")
     parser.add_argument("--max-size", type=parse_size,
                         help=f"largest frame of a session, WxH (default {defaults.max_size[0]}x{defaults.max_size[1]})")
     return parser

@@ -9,21 +9,33 @@ latency.
 A display wall's hub (issue 22) gives each cell viewer only its cell's tiles, rects relative to
 the cell (the partition is cut at the cell edges: :mod:`tessera.decomposition.wall_cells`), built
 once per cell and frame; whole-wall viewers get the whole frame. It holds the wall's frame lock
-(:class:`FrameLock`): ``present`` goes to the cells once every live cell holds a frame."""
+(:class:`FrameLock`): ``present`` goes to the cells once every live cell holds a frame.
+
+Video (issue 21): a viewer that takes a video codec gets the session's stream in it
+(:class:`server.video_stream.VideoStream`, one per codec, shared) instead of the interactive tiles,
+and still frames as TFRM images. Its encoded frames wait in a queue of their own (a decoder needs
+every frame since the last keyframe): when more than :data:`MAX_VIDEO_QUEUED` wait, the socket
+cannot keep up, so the queue is emptied, the viewer skips to the next keyframe and one is asked for;
+each window the viewers' links set the stream's rate (:mod:`tessera.video.link_rate`)."""
 
 from __future__ import annotations
 
 import asyncio
 import itertools
+import time
 from collections import deque
 from typing import Any, Protocol
 
+from server.video_stream import EncodedFrame, VideoStream
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Rect
 from tessera.scheduling.frame_lock import FrameLock
+from tessera.video.link_rate import LinkReport
 from tessera.wire.codec import Codec
 from tessera.wire.messages import CameraUpdate, Message
-from tessera.wire.protocol import pack_frame
+from tessera.wire.protocol import pack_frame, with_input_seq
+from tessera.wire.stream_messages import StreamBitrate, StreamChoice, StreamReport
+from tessera.wire.video import VideoCodec
 from tessera.wire.wall_messages import PresentFrame
 
 #: How far ahead of now a wall's cells are told to present a frame (s): longer than a present
@@ -32,6 +44,8 @@ from tessera.wire.wall_messages import PresentFrame
 PRESENT_LEAD_S = 0.020
 #: Control messages a viewer may have waiting before it counts as not reading its socket.
 MAX_QUEUED_CONTROL = 256
+#: Encoded video frames a viewer may have waiting for its socket before it skips to a keyframe.
+MAX_VIDEO_QUEUED = 3
 
 
 class ViewerMessages(Protocol):
@@ -69,6 +83,49 @@ class ViewerSlot:
         self.latency: dict[str, float] = {}
         #: Set by :meth:`close`: the close code and reason the sender closes the socket with.
         self.closing: tuple[int, str] | None = None
+        #: The video codec this viewer takes (None: tiles), its encoded frames waiting, whether it
+        #: waits for a keyframe, its last report and this window's figures.
+        self.video_codec: VideoCodec | None = None
+        self.video: deque[bytes] = deque()
+        self.needs_keyframe = False
+        self.report: StreamReport | None = None
+        self._reported_dropped = 0.0
+        self._window = (time.monotonic(), 0, 0, 0)   # start, bytes written, frames dropped, most waiting
+
+    def put_video(self, message: bytes, keyframe: bool) -> bool:
+        """Queue an encoded video frame; True when the viewer lost one (its queue overflowed) and
+        now waits for a keyframe, which the stream is to send."""
+        if self.needs_keyframe and not keyframe:
+            self.frames_dropped += 1
+            return False
+        if keyframe:
+            self.needs_keyframe = False
+        elif len(self.video) >= MAX_VIDEO_QUEUED:
+            lost = len(self.video) + 1
+            self.frames_dropped += lost
+            self.video.clear()
+            self.needs_keyframe = True
+            self._count(dropped=lost)
+            return True
+        self.video.append(message)
+        self._count(waiting=len(self.video))
+        self.ready.set()
+        return False
+
+    def _count(self, written: int = 0, dropped: int = 0, waiting: int = 0) -> None:
+        start, total, lost, most = self._window
+        self._window = (start, total + written, lost + dropped, max(most, waiting))
+
+    def link_report(self, now: float) -> LinkReport:
+        """This viewer's link over the window since the last call (then a new window starts)."""
+        start, written, dropped, most = self._window
+        self._window = (now, 0, 0, len(self.video))
+        viewer_dropped = 0.0
+        if self.report is not None:
+            viewer_dropped = max(0.0, self.report.frames_dropped - self._reported_dropped)
+            self._reported_dropped = self.report.frames_dropped
+        return LinkReport(delivered_bps=written * 8.0 / max(now - start, 1e-3), dropped=dropped + int(viewer_dropped),
+                          decode_queue=self.report.decode_queue if self.report else 0.0, backlog=most)
 
     def put_frame(self, message: bytes) -> None:
         if self.frame is not None:
@@ -95,8 +152,8 @@ class ViewerSlot:
         self.ready.set()
 
     async def next_message(self) -> str | bytes | None:
-        """The next control message if any, else the newest camera, else the newest frame (waits
-        for one); None once :meth:`close` was called."""
+        """The next control message if any, else the newest camera, else the oldest video frame
+        waiting, else the newest frame (waits for one); None once :meth:`close` was called."""
         while True:
             if self.closing is not None:
                 return None
@@ -105,6 +162,11 @@ class ViewerSlot:
             if self.camera is not None:
                 camera, self.camera = self.camera, None
                 return camera
+            if self.video:
+                self.frames_sent += 1
+                video = self.video.popleft()
+                self._count(written=len(video))
+                return video
             if self.frame is not None:
                 frame, self.frame = self.frame, None
                 self.frames_sent += 1
@@ -116,7 +178,9 @@ class ViewerSlot:
         """This viewer in ``/api/stats``: frames sent and skipped, and the input → display latency
         it measured itself (``p50_ms``, ``p90_ms``, ``samples``, ``interval_ms``; empty until it reports)."""
         return {"id": self.viewer_id, "frames_sent": self.frames_sent, "frames_dropped": self.frames_dropped,
-                "input_latency": dict(self.latency), "cell": None if self.cell is None else list(self.cell)}
+                "input_latency": dict(self.latency), "cell": None if self.cell is None else list(self.cell),
+                "transport": self.video_codec.label if self.video_codec else "tiles",
+                "stream_report": self.report.model_dump() if self.report else None}
 
 
 class ViewerHub:
@@ -129,6 +193,8 @@ class ViewerHub:
         self._ids = itertools.count(1)
         self.wall = wall
         self.lock = FrameLock()
+        #: The session's video streams, by codec, while a viewer takes one.
+        self.streams: dict[VideoCodec, VideoStream] = {}
 
     def join(self, cell: tuple[int, int] | None = None, now: float = 0.0) -> ViewerSlot:
         """A new viewer, of wall cell ``cell`` (None: the whole frame); a cell joins the frame lock."""
@@ -141,6 +207,55 @@ class ViewerHub:
     def leave(self, slot: ViewerSlot) -> None:
         self.slots.discard(slot)
         self.lock.leave(slot.viewer_id)
+        self.stop_video(slot)
+
+    def start_video(self, slot: ViewerSlot, codec: VideoCodec, size: tuple[int, int], max_bitrate: float,
+                    max_fps: float) -> StreamChoice:
+        """``slot`` takes the session's stream in ``codec`` (made for frames of ``size`` if none
+        is running) from its next keyframe; the ``stream`` message that tells it so."""
+        self.stop_video(slot)
+        stream = self.streams.get(codec)
+        if stream is None:
+            stream = self.streams[codec] = VideoStream(codec, size, max_bitrate, max_fps, self._deliver)
+        slot.video_codec, slot.needs_keyframe = codec, True
+        stream.request_keyframe()
+        return StreamChoice(transport=codec.label, codec=stream.codec_string)
+
+    def stop_video(self, slot: ViewerSlot) -> None:
+        """``slot`` takes tiles again; a stream no viewer takes stops."""
+        codec, slot.video_codec = slot.video_codec, None
+        slot.video.clear()
+        if codec is not None and not any(s.video_codec is codec for s in self.slots):
+            self.streams.pop(codec).close()
+
+    def request_keyframe(self, slot: ViewerSlot) -> None:
+        """``slot``'s decoder lost a frame: it skips to the next keyframe, which its stream sends."""
+        if slot.video_codec is not None:
+            slot.needs_keyframe = True
+            slot.video.clear()
+            self.streams[slot.video_codec].request_keyframe()
+
+    def _deliver(self, stream: VideoStream, encoded: EncodedFrame) -> None:
+        """Hand ``stream``'s encoded frame to its viewers (each with its input number); a stream
+        whose codec string changed (a new size) tells them first; then the link's window."""
+        takers = [slot for slot in self.slots if slot.video_codec is stream.codec]
+        messages = stream.messages(encoded)
+        if stream.codec_string != stream.announced:
+            stream.announced = stream.codec_string
+            choice = StreamChoice(transport=stream.codec.label, codec=stream.announced)
+            for slot in takers:
+                slot.put_control(choice)
+        inputs = encoded.frame.inputs
+        for slot in takers:
+            for message, keyframe in messages:
+                if slot.put_video(with_input_seq(message, inputs.get(slot.viewer_id, 0)), keyframe):
+                    stream.request_keyframe()
+        self.bytes_published += sum(len(message) for message, _ in messages)
+        now = time.monotonic()
+        if takers and stream.rate.due(now) and stream.rate.update([slot.link_report(now) for slot in takers], now):
+            update = StreamBitrate(bitrate=float(stream.rate.bitrate), max_fps=float(stream.rate.fps))
+            for slot in takers:
+                slot.put_control(update)
 
     def message_for(self, frame: ViewerMessages, slot: ViewerSlot) -> bytes:
         """``frame`` as ``slot`` gets it: its cell's part, or the whole frame with its input number."""
@@ -154,6 +269,8 @@ class ViewerHub:
         length = 0
         parts: dict[tuple[int, int], bytes] = {}
         for slot in self.slots:
+            if slot.video_codec is not None and not frame.still:
+                continue
             if slot.cell is not None and self.wall is not None:
                 if slot.cell not in parts:
                     parts[slot.cell] = cell_message(frame, self.wall, slot.cell)
@@ -163,6 +280,9 @@ class ViewerHub:
                 slot.put_frame(message)
                 length = len(message)
         self.bytes_published += length + sum(len(part) for part in parts.values())
+        if not frame.still:
+            for stream in self.streams.values():
+                stream.submit(frame)
 
     def check_lock(self, now: float, lead_s: float = PRESENT_LEAD_S) -> None:
         """Tell the wall's cells to present the frame every live one holds, if a newer one is due
@@ -189,3 +309,7 @@ class ViewerHub:
 
     def describe(self) -> list[dict[str, Any]]:
         return [slot.describe() for slot in sorted(self.slots, key=lambda s: s.viewer_id)]
+
+    def describe_video(self) -> list[dict[str, Any]]:
+        """The session's video streams in ``/api/stats`` ``video``."""
+        return [stream.describe() for stream in self.streams.values()]

@@ -17,7 +17,12 @@ refused with the reason), and is frame-locked: it says which frame it holds (``h
 on ``present`` at the time it names, and reports when (``presented``, on the coordinator's clock, which ``ping`` →
 ``pong`` lets it estimate). A cell outside the wall, or a cell of a session that is no wall,
 closes the socket with 4422 and the reason. A wall's whole-wall viewer (the driver) steers as any;
-the wall's size is fixed, so its size messages are ignored."""
+the wall's size is fixed, so its size messages are ignored.
+
+Video (issue 21): a viewer gets tiles until it offers the codecs it decodes (``stream_offer``);
+the coordinator answers ``stream`` with the transport ``--stream`` allows (a video codec, or tiles
+with the reason; a wall's cells keep their tiles). A video viewer asks for a keyframe when its
+decoder lost a frame (``keyframe``) and reports its link each second (``stream_report``)."""
 
 from __future__ import annotations
 
@@ -32,8 +37,10 @@ from server.routes.balancer import BALANCERS
 from server.routes.deps import presented_token, token_ok
 from server.service import RenderService
 from server.sessions import fit_size
+from server.video_stream import VIDEO_SOURCE_QUALITY
 from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
 from tessera.decomposition.wall_cells import WallError, parse_cell
+from tessera.video.transport import choose_transport
 from tessera.wire.messages import (
     FROM_VIEWER,
     CameraUpdate,
@@ -44,6 +51,7 @@ from tessera.wire.messages import (
     parse,
 )
 from tessera.wire.protocol import ProtocolError
+from tessera.wire.stream_messages import FROM_STREAM_VIEWER, KeyframeRequest, StreamChoice, StreamOffer, StreamReport
 from tessera.wire.wall_messages import FROM_WALL_VIEWER, ClockPing, ClockPong, FramePresented, HaveFrame, WallHello
 
 router = APIRouter()
@@ -58,7 +66,9 @@ CLOSE_BAD_CELL = 4422
 #: What a wall cell's camera or size message is told.
 CELLS_DO_NOT_STEER = "this viewer is one cell of a wall: it steers nothing (the wall's driver opens ?session=ID)"
 #: What the viewer socket accepts.
-ACCEPTED = FROM_VIEWER + FROM_WALL_VIEWER
+ACCEPTED = FROM_VIEWER + FROM_WALL_VIEWER + FROM_STREAM_VIEWER
+#: What a wall cell's stream offer is told.
+CELLS_TAKE_TILES = "this viewer is one cell of a wall: it gets its cell's tiles, frame-locked"
 #: What a watcher's camera message is told.
 WATCHERS_DO_NOT_STEER = "this viewer watches the session (a watch link): it cannot steer the camera or the size"
 
@@ -74,6 +84,14 @@ async def _send(ws: WebSocket, slot: ViewerSlot) -> None:
             await ws.send_text(message)
         else:
             await ws.send_bytes(message)
+
+
+def _video_source(session) -> None:
+    """While a viewer takes the session as video, its interactive tiles are the encoder's source:
+    near-lossless (:data:`VIDEO_SOURCE_QUALITY`)."""
+    frames = session.service.scheduler.sessions.get(session.id)   # None once the session was closed
+    if frames is not None:
+        frames.video_source_quality = VIDEO_SOURCE_QUALITY if session.viewers.streams else None
 
 
 @router.websocket("/ws/view")
@@ -150,6 +168,22 @@ async def viewer_socket(ws: WebSocket) -> None:
                     session.viewers.lock.report(slot.viewer_id, request.frame, request.at_ms)
                 case CameraUpdate() | ViewerSize() if cell is not None:
                     slot.put_control(ViewerError(message=CELLS_DO_NOT_STEER))
+                case StreamOffer() if cell is not None:
+                    slot.put_control(StreamChoice(transport="tiles", reason=CELLS_TAKE_TILES))
+                case StreamOffer():
+                    codec, reason = choose_transport(settings.stream, request.codecs)
+                    if codec is None:
+                        session.viewers.stop_video(slot)
+                        slot.put_control(StreamChoice(transport="tiles", reason=reason))
+                    else:
+                        choice = session.viewers.start_video(slot, codec, session.size, settings.max_bitrate,
+                                                             settings.max_fps)
+                        slot.put_control(choice.model_copy(update={"reason": reason}))
+                    _video_source(session)
+                case KeyframeRequest():
+                    session.viewers.request_keyframe(slot)
+                case StreamReport():
+                    slot.report = request
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
                 case CameraUpdate() | ViewerSize() if watching:
@@ -166,6 +200,7 @@ async def viewer_socket(ws: WebSocket) -> None:
     finally:
         sender.cancel()
         session.viewers.leave(slot)
+        _video_source(session)
         if cell is not None:   # the cell that held the others back may be this one
             session.viewers.check_lock(time.monotonic())
         session.viewer_left(slot.viewer_id)

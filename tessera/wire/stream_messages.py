@@ -25,7 +25,7 @@ CodecLabel = Annotated[Text, Field(max_length=16)]
 
 
 class StreamOffer(Message):
-    """The codecs (``h264``, ``vp9``, ``vp8``) this viewer decodes, best first."""
+    """The codecs (``h264``, ``vp9``) this viewer decodes, best first."""
 
     kind = "stream_offer"
     codecs: Annotated[tuple[CodecLabel, ...], Field(max_length=MAX_OFFERED)]

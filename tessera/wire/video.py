@@ -6,7 +6,7 @@ header ``<4sBBBBIIII``: magic, version (:data:`PROTOCOL_VERSION`), flags (bit 0
 :data:`VIDEO_KEYFRAME`: the decoder may start here), codec (:class:`VideoCodec`), reserved,
 frame_id, width, height, input_seq (as a TFRM frame's, at the same offset 20, so one viewer's copy is
 made by :func:`tessera.wire.protocol.with_input_seq`); then one access unit: H.264 in Annex B with
-SPS/PPS before every keyframe, VP8/VP9/AV1 as the encoder's packet.
+SPS/PPS before every keyframe, VP9 as the encoder's packet.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ class VideoCodec(enum.IntEnum):
 
     H264 = 0
     VP9 = 1
-    VP8 = 2
 
     @property
     def label(self) -> str:
@@ -55,11 +54,9 @@ _VP9_LEVELS = ((10, 36864, 829440), (20, 122880, 4608000), (30, 313344, 15052800
 
 def codec_string(codec: VideoCodec, size: tuple[int, int], fps: float = 60.0) -> str:
     """The WebCodecs codec string of ``codec`` for frames of ``size`` (w, h px) at up to ``fps``:
-    H.264 Constrained Baseline (``avc1.42c0LL``), VP9 profile 0 8-bit (``vp09.00.LL.08``), ``vp8``;
-    the level is the smallest that holds the size and rate."""
+    H.264 Constrained Baseline (``avc1.42c0LL``), VP9 profile 0 8-bit (``vp09.00.LL.08``); the
+    level is the smallest that holds the size and rate."""
     width, height = size
-    if codec is VideoCodec.VP8:
-        return "vp8"
     if codec is VideoCodec.H264:
         blocks = -(-width // 16) * -(-height // 16)
         level = next((idc for idc, frame, rate in _H264_LEVELS if blocks <= frame and blocks * fps <= rate), 62)

@@ -1,0 +1,74 @@
+"""One video encoder (PyAV: libx264, libvpx-vp9) of a stream (issue 21): yuv420p pictures in, one
+access unit per picture out, at a target bitrate. Low latency: no B-frames, no look-ahead, one
+picture in, its packet out. A new target takes a new encoder (and so a keyframe): neither libx264
+nor libvpx-vp9, as PyAV drives them, follows a bitrate changed on an open encoder (measured: frame
+sizes stayed the same for 20 frames after a tenfold cut).
+
+The target is a rate at the stream's nominal frame rate: pictures are timed ``1/fps`` apart
+whatever the nodes' real rate, so each gets ``bitrate / fps`` bits on average and the link never
+carries more than the target (fewer frames, fewer bits). H.264 is x264 ``ultrafast`` +
+``zerolatency``, Constrained Baseline, constant bitrate under a VBV of :data:`BUFFER_FRAMES`
+pictures (a keyframe too stays near a frame's share), SPS/PPS before every keyframe (Annex B);
+VP9 is libvpx ``realtime`` at the fastest speed. Full-range BT.601 (the pictures of
+:mod:`tessera.video.yuv_frame`) is written in the stream's colour description. libx264 is GPL;
+libvpx (VP9) is BSD-licensed.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import av
+import numpy as np
+
+from tessera.video.yuv_frame import coded_size
+from tessera.wire.video import VideoCodec
+
+_ENCODERS = {VideoCodec.H264: "libx264", VideoCodec.VP9: "libvpx-vp9"}
+_OPTIONS = {
+    VideoCodec.H264: {"preset": "ultrafast", "tune": "zerolatency", "profile": "baseline", "forced-idr": "1"},
+    VideoCodec.VP9: {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "row-mt": "1",
+                     "error-resilient": "0"},
+}
+#: The VBV buffer: this many pictures at the cap (short: a frame's size stays near its share).
+BUFFER_FRAMES = 2.0
+#: Encoder threads (x264 slices, libvpx-vp9 rows).
+THREADS = 2
+
+
+class VideoEncoder:
+    """Encodes pictures of ``size`` (w, h px; the coded size is even) with ``codec`` at a target
+    ``bitrate`` (bit/s at ``fps`` pictures per second)."""
+
+    def __init__(self, codec: VideoCodec, size: tuple[int, int], bitrate: float, fps: float) -> None:
+        self.codec = codec
+        self.size = size
+        width, height = coded_size(size)
+        context = av.CodecContext.create(_ENCODERS[codec], "w")
+        context.width, context.height = width, height
+        context.pix_fmt = "yuv420p"
+        context.color_range = 2   # AVCOL_RANGE_JPEG: full range
+        context.colorspace = 5    # AVCOL_SPC_BT470BG: BT.601
+        context.time_base = Fraction(1, 1000)
+        context.framerate = Fraction(round(fps))
+        context.gop_size = 1 << 30   # keyframes only when asked for
+        context.thread_count = THREADS
+        context.bit_rate = int(bitrate)
+        context.options = {**_OPTIONS[codec], "maxrate": str(int(bitrate)),
+                           "bufsize": str(int(bitrate * BUFFER_FRAMES / fps))}
+        context.open()
+        self._context = context
+        self._interval_ms = 1000.0 / fps
+        self.bitrate = int(bitrate)
+        self.pictures = 0
+
+    def encode(self, planes: np.ndarray, keyframe: bool) -> list[tuple[bytes, bool]]:
+        """``planes``: (H·3/2, W) uint8 yuv420p of the coded size; ``keyframe``: force one. The
+        access units out, each with its keyframe flag."""
+        picture = av.VideoFrame.from_ndarray(planes, format="yuv420p")
+        picture.pts = round(self.pictures * self._interval_ms)
+        picture.color_range = 2
+        if keyframe or self.pictures == 0:
+            picture.pict_type = av.video.frame.PictureType.I
+        self.pictures += 1
+        return [(bytes(packet), bool(packet.is_keyframe)) for packet in self._context.encode(picture)]

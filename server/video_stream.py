@@ -1,0 +1,200 @@
+"""One session's video stream in one codec (issue 21): complete frames in, one encoded access unit
+per frame out to every viewer that takes the stream.
+
+One encoder serves all the stream's viewers. Composing (decoding the tiles) and encoding run on the
+stream's own thread, never on the event loop (Pillow and PyAV release the GIL); a frame that arrives
+while one is encoding waits in a one-frame slot, newest wins, and the frame rate cap of the link's
+rate control (:class:`tessera.video.link_rate.LinkRate`) holds a frame back until its time. A
+keyframe comes when a viewer joins or lost a frame (:meth:`request_keyframe`), and whenever the
+encoder is made anew: a new frame size, or a new target bitrate. Still frames are not encoded:
+viewers get them as images (TFRM) over the video.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import statistics
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from server.video_encoder import VideoEncoder
+from tessera.geometry import Rect
+from tessera.video.link_rate import LinkRate
+from tessera.video.yuv_frame import compose_yuv420
+from tessera.wire.codec import Codec
+from tessera.wire.video import VideoCodec, codec_string, pack_video
+
+#: JPEG quality of the nodes' interactive tiles while a session streams video: they are the
+#: encoder's source, so they are made near-lossless on the LAN (4:2:0, as the video is; q90 and
+#: above switch to 4:4:4, which the video would drop).
+VIDEO_SOURCE_QUALITY = 88
+#: Default target bitrate: bits per pixel of a picture at the nominal frame rate (720p at 60 fps:
+#: 2.8 Mbit/s, 5.8 KB a frame; 1080p: 6.2 Mbit/s), chosen by bench.stream, within --max-bitrate.
+BITS_PER_PIXEL = 0.05
+#: Figures kept for the mean and median encode times.
+TIMINGS_KEPT = 240
+log = logging.getLogger("tessera.server")
+
+
+class VideoFrameSource(Protocol):
+    """A published frame as the stream reads it (``PublishedFrame``)."""
+
+    frame_id: int
+    size: tuple[int, int]
+    still: bool
+    inputs: dict[object, int]
+    tiles: list[tuple[Rect, Codec, int, bytes]]
+
+
+@dataclass
+class EncodedFrame:
+    """One frame's access units (bytes, keyframe) and what they cost (ms, wall clock)."""
+
+    frame: VideoFrameSource
+    units: list[tuple[bytes, bool]]
+    compose_ms: float
+    encode_ms: float
+    new_encoder: bool
+
+
+def default_bitrate(size: tuple[int, int], fps: float, max_bitrate: float) -> float:
+    """The target (bit/s) of frames of ``size`` at ``fps``: :data:`BITS_PER_PIXEL`, within ``max_bitrate``."""
+    return min(max_bitrate, BITS_PER_PIXEL * size[0] * size[1] * fps)
+
+
+class VideoStream:
+    """The video of one session in ``codec``, of frames of ``size`` (w, h px; it follows the
+    frames), up to ``max_bitrate`` (bit/s) at up to ``max_fps``; ``deliver(stream, encoded)``
+    hands each encoded frame to the viewers (on the event loop)."""
+
+    def __init__(self, codec: VideoCodec, size: tuple[int, int], max_bitrate: float, max_fps: float,
+                 deliver: Callable[[VideoStream, EncodedFrame], None]) -> None:
+        self.codec = codec
+        self.size = size
+        self.max_bitrate = max_bitrate
+        self.rate = LinkRate(default_bitrate(size, max_fps, max_bitrate), max_fps)
+        self._deliver = deliver
+        self._loop = asyncio.get_running_loop()
+        self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"video-{codec.label}")
+        self._encoder: VideoEncoder | None = None
+        self._busy = False
+        self._pending: VideoFrameSource | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._keyframe_due = True
+        self._last_start = float("-inf")
+        self._closed = False
+        #: The codec string the stream's viewers were last told (a new size may change its level).
+        self.announced = self.codec_string
+        self.frames_encoded = 0
+        self.keyframes = 0
+        self.bytes = 0
+        self.encoders_made = 0
+        self._encode_ms: deque[float] = deque(maxlen=TIMINGS_KEPT)
+        self._compose_ms: deque[float] = deque(maxlen=TIMINGS_KEPT)
+
+    @property
+    def codec_string(self) -> str:
+        """The WebCodecs codec string of the stream's frames."""
+        return codec_string(self.codec, self.size, self.rate.max_fps)
+
+    def request_keyframe(self) -> None:
+        """The next frame encoded is a keyframe."""
+        self._keyframe_due = True
+
+    def submit(self, frame: VideoFrameSource) -> None:
+        """Encode ``frame`` (an interactive frame) when the thread is free and the frame rate cap allows."""
+        if self._closed:
+            return
+        self._pending = frame
+        self._pump()
+
+    def _pump(self) -> None:
+        if self._busy or self._pending is None or self._closed:
+            return
+        wait = self._last_start + 1.0 / self.rate.fps - time.monotonic()
+        if wait > 0:
+            if self._timer is None:
+                self._timer = self._loop.call_later(wait, self._on_timer)
+            return
+        frame, self._pending = self._pending, None
+        keyframe, self._keyframe_due = self._keyframe_due, False
+        self._busy = True
+        self._last_start = time.monotonic()
+        if frame.size != self.size:
+            self.size = frame.size
+            self.rate.set_ceiling(default_bitrate(frame.size, self.rate.max_fps, self.max_bitrate))
+        task = self._loop.run_in_executor(self._thread, self._encode, frame, keyframe, self.rate.bitrate)
+        task.add_done_callback(self._done)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._pump()
+
+    def _encode(self, frame: VideoFrameSource, keyframe: bool, bitrate: float) -> EncodedFrame:
+        """On the stream's thread: compose ``frame``'s picture and encode it (a new encoder for a
+        new size or bitrate)."""
+        started = time.perf_counter()
+        planes = compose_yuv420(frame.size, frame.tiles)
+        composed = time.perf_counter()
+        encoder = self._encoder
+        new_encoder = encoder is None or encoder.size != frame.size or encoder.bitrate != int(bitrate)
+        if new_encoder:
+            encoder = self._encoder = VideoEncoder(self.codec, frame.size, bitrate, self.rate.max_fps)
+        assert encoder is not None
+        units = encoder.encode(planes, keyframe)
+        return EncodedFrame(frame, units, (composed - started) * 1000.0, (time.perf_counter() - composed) * 1000.0,
+                            new_encoder)
+
+    def _done(self, task: asyncio.Future[EncodedFrame]) -> None:
+        self._busy = False
+        if self._closed or task.cancelled():
+            return
+        if (error := task.exception()) is not None:
+            log.warning("%s stream: a frame could not be encoded (skipped): %s", self.codec.label, error)
+            self._keyframe_due = True
+            self._pump()
+            return
+        encoded = task.result()
+        self.frames_encoded += 1
+        self.encoders_made += encoded.new_encoder
+        self.keyframes += sum(key for _, key in encoded.units)
+        self.bytes += sum(len(unit) for unit, _ in encoded.units)
+        self._compose_ms.append(encoded.compose_ms)
+        self._encode_ms.append(encoded.encode_ms)
+        self._deliver(self, encoded)
+        self._pump()
+
+    def messages(self, encoded: EncodedFrame) -> list[tuple[bytes, bool]]:
+        """``encoded``'s TVID messages (input number 0), each with its keyframe flag."""
+        frame = encoded.frame
+        return [(pack_video(frame.frame_id, frame.size, self.codec, key, unit), key) for unit, key in encoded.units]
+
+    def close(self) -> None:
+        """No viewer takes the stream any more: stop encoding."""
+        self._closed = True
+        if self._timer is not None:
+            self._timer.cancel()
+        self._thread.shutdown(wait=False, cancel_futures=True)
+
+    def describe(self) -> dict[str, Any]:
+        """This stream in ``/api/stats`` ``video``: codec, size, frames encoded, encode and compose
+        times (ms, wall clock on the stream's thread), target bitrate (bit/s) and frame rate cap."""
+        encode, compose = list(self._encode_ms), list(self._compose_ms)
+        return {
+            "codec": self.codec.label,
+            "size": list(self.size),
+            "frames_encoded": self.frames_encoded,
+            "encode_ms_mean": round(statistics.fmean(encode), 3) if encode else None,
+            "encode_ms_p50": round(statistics.median(encode), 3) if encode else None,
+            "compose_ms_mean": round(statistics.fmean(compose), 3) if compose else None,
+            "bitrate": round(self.rate.bitrate),
+            "max_fps": round(self.rate.fps, 2),
+            "keyframes": self.keyframes,
+            "encoders_made": self.encoders_made,
+            "bytes": self.bytes,
+        }
