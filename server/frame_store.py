@@ -27,7 +27,9 @@ class PublishedFrame:
     node slot, payload); ``still``: the lossless frame after motion stopped; ``inputs``: viewer id →
     the newest input sequence number of that viewer the frame accounts for; ``state_version`` and
     ``scene_time`` (s): its scene state (None: the base pose); ``tile_states``: the state each
-    tile's node says it rendered (the tile header's tag)."""
+    tile's node says it rendered (the tile header's tag); ``samples``: the samples a progressive
+    still's frame holds (issue 20; 0: a frame not accumulated), ``still`` then meaning the
+    converged one."""
 
     frame_id: int
     camera: Camera
@@ -39,13 +41,15 @@ class PublishedFrame:
     state_version: int | None = None
     scene_time: float | None = None
     tile_states: tuple[int, ...] = ()
+    samples: int = 0
     _viewer_message: bytes | None = field(default=None, repr=False)
 
     @property
     def viewer_message(self) -> bytes:
         """The TFRM message (input number 0)."""
         if self._viewer_message is None:
-            self._viewer_message = pack_frame(self.frame_id, self.size, self.tiles, still=self.still)
+            self._viewer_message = pack_frame(self.frame_id, self.size, self.tiles, still=self.still,
+                                              samples=self.samples)
         return self._viewer_message
 
     def message_for(self, viewer_id: object) -> bytes:

@@ -12,11 +12,13 @@ from __future__ import annotations
 import contextlib
 import secrets
 import time
+from concurrent.futures import Executor
 from typing import Any, Protocol
 
 import numpy as np
 
 from server.frame_store import FrameStore
+from server.still_refinement import StillRefiner
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.balancers.base import Balancer
@@ -32,6 +34,8 @@ class SessionHost(Protocol):
     """What a session needs of the service that holds it."""
 
     scheduler: FrameScheduler
+    #: The thread that accumulates the sessions' progressive stills.
+    still_executor: Executor
 
     @property
     def settings(self) -> Any: ...
@@ -70,6 +74,8 @@ class Session:
         self.name = name or scene
         self.store = FrameStore()
         self.viewers = ViewerHub(wall)
+        #: The progressive still's accumulation (issue 20).
+        self.refiner = StillRefiner(service.still_executor)
         self.bounds: np.ndarray | None = None
         self.state = "loading"
         self.error: str | None = None
@@ -129,8 +135,9 @@ class Session:
         return self._event(lambda now: self.service.scheduler.resize(size, now, self.id))
 
     def request_frame(self) -> None:
-        """Someone waits for a newer frame: render one if nothing is on its way (render on demand)."""
-        if self.frames.settled:
+        """Someone waits for a newer frame: render one if nothing is on its way (render on demand; a
+        still's last sample being accumulated is on its way)."""
+        if self.frames.settled and not self.refiner.pending:
             self._event(lambda now: self.service.scheduler.invalidate(now, self.id))
 
     def viewer_left(self, viewer_id: int) -> None:

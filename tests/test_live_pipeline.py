@@ -12,6 +12,7 @@ import pytest
 import websockets.sync.client as ws_client
 
 from bench.images import psnr
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
 from tessera.wire.protocol import unpack_frame
 from tests.conftest import seconds
 from tests.integration_support import (
@@ -88,7 +89,7 @@ def test_the_still_frame_equals_render_once_with_the_default_codec(live, tmp_pat
     assert interactive.headers["x-frame-still"] == "0" and interactive.headers["x-tile-codec"] == "jpeg"
     assert still.headers["x-frame-still"] == "1" and still.headers["x-tile-codec"] == "png"
     assert int(still.headers["x-frame-id"]) > int(interactive.headers["x-frame-id"])
-    reference = render_once(SCENE, camera, SIZE, tmp_path)
+    reference = render_once(SCENE, camera, SIZE, tmp_path, still_samples=DEFAULT_STILL_SAMPLES)
     _, still_image = fetch_frame(client, int(still.headers["x-frame-id"]))
     assert_matches_reference(still_image, reference, "the still frame")
     _, moving_image = fetch_frame(client, int(interactive.headers["x-frame-id"]))

@@ -11,8 +11,11 @@ Binary WebSocket messages start with a magic:
   of nodes whose ``hello`` says they can (``capabilities.depth``): the flag extends version 2
   without changing a byte of what older nodes and viewers exchange.
 * ``TFRM`` complete frame, coordinator → viewer: a 24-byte frame header (flags: bit 0 = the
-  still frame; ``input_seq``: the viewer's newest input sequence number the frame accounts for,
-  0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
+  still frame — the converged progressive still; bits 1–7 = the samples a progressive still's
+  frame holds (issue 20: 1…127; 0 = a frame that is not accumulated, as every frame of a
+  coordinator without ``--still-samples``; viewers that read bit 0 alone see a refinement frame
+  as an interactive one); ``input_seq``: the viewer's newest input sequence number the frame
+  accounts for, 0 = none), then one :class:`FrameTileEntry` per tile (``node``: the rendering node's slot, a
   small index reused after a node leaves, u16; :data:`NO_NODE_SLOT` for a tile no one node
   rendered), then the tiles' encoded images in the same order.
 
@@ -50,6 +53,9 @@ _INPUT_SEQ_OFFSET = 20
 STATE_TAG_MASK = 0xFFFF
 #: Frame header flag: the lossless still frame shown once motion stopped.
 FRAME_STILL = 0x01
+#: Frame header flags bits 1–7: the samples a progressive still's frame holds (0: not accumulated).
+FRAME_SAMPLES_SHIFT = 1
+FRAME_SAMPLES_MAX = 0x7F
 #: Tile header codec flag: the payload is a depth tile (:mod:`tessera.wire.depth_tiles`).
 DEPTH_TILE = 0x80
 _FRAME_TILE = struct.Struct("<IIIIBBHI")
@@ -138,14 +144,18 @@ class ViewerFrame:
     still: bool
     input_seq: int
     tiles: list[tuple[FrameTileEntry, bytes]]
+    samples: int = 0
 
 
 def pack_frame(frame_id: int, size: tuple[int, int], tiles: Iterable[tuple[Rect, Codec, int, bytes]], *,
-               still: bool = False, input_seq: int = 0) -> bytes:
+               still: bool = False, input_seq: int = 0, samples: int = 0) -> bytes:
     """Viewer frame message: header, tile table, then the tiles' encoded images (no re-encoding).
-    ``tiles``: (rect, codec, node slot, payload)."""
+    ``tiles``: (rect, codec, node slot, payload); ``samples``: a progressive still's samples (0: none)."""
+    if not 0 <= samples <= FRAME_SAMPLES_MAX:
+        raise ValueError(f"samples must be 0..{FRAME_SAMPLES_MAX}, got {samples}")
     tiles = list(tiles)
-    parts = [_FRAME_HEADER.pack(FRAME_MAGIC, PROTOCOL_VERSION, FRAME_STILL if still else 0, len(tiles), frame_id,
+    flags = (FRAME_STILL if still else 0) | samples << FRAME_SAMPLES_SHIFT
+    parts = [_FRAME_HEADER.pack(FRAME_MAGIC, PROTOCOL_VERSION, flags, len(tiles), frame_id,
                                 size[0], size[1], input_seq)]
     for rect, codec, node, payload in tiles:
         parts.append(_FRAME_TILE.pack(rect.x, rect.y, rect.w, rect.h, int(codec), 0, node, len(payload)))
@@ -187,4 +197,5 @@ def unpack_frame(message: bytes) -> ViewerFrame:
         offset += entry.length
     if offset != len(message):
         raise ProtocolError("frame message length does not match its tile table")
-    return ViewerFrame(frame_id, (width, height), bool(flags & FRAME_STILL), input_seq, out)
+    return ViewerFrame(frame_id, (width, height), bool(flags & FRAME_STILL), input_seq, out,
+                       flags >> FRAME_SAMPLES_SHIFT)

@@ -1,0 +1,109 @@
+"""The progressive still on a real coordinator with real local nodes (issue 20): at rest the
+refinement frames come, each saying its sample count, the last one is the still and equals
+``--render-once`` with the default samples, nothing renders after it, and input during the
+refinement cancels it at once: the next frame is the interactive one."""
+
+from __future__ import annotations
+
+import json
+
+import httpx
+import pytest
+import websockets.sync.client as ws_client
+
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
+from tessera.wire.protocol import unpack_frame
+from tests.conftest import seconds
+from tests.integration_support import (
+    assert_matches_reference,
+    fetch_frame,
+    orbit_cameras,
+    render_once,
+    stats,
+    wait_ready_nodes,
+    wait_until,
+)
+from tests.test_live_pipeline import frame_published_within
+
+pytestmark = [pytest.mark.integration, pytest.mark.gl]
+
+SCENE = "builtin:cluster"
+SIZE = (320, 180)
+
+
+@pytest.fixture
+def start(coordinator_factory):
+    """Start a coordinator with 2 local nodes and ``args``, settled after its first frames; returns
+    it and a client of it (closed at teardown)."""
+    clients: list[httpx.Client] = []
+
+    def factory(*args: str):
+        coordinator = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--local-nodes", "2",
+                                          *args)
+        clients.append(client := httpx.Client(base_url=coordinator.url, timeout=seconds(30)))
+        wait_ready_nodes(client, 2)
+        wait_until(lambda: stats(client)["settled"], seconds(180), "the first frames and the still")
+        return coordinator, client
+
+    yield factory
+    for client in clients:
+        client.close()
+
+
+def test_at_rest_the_refinement_frames_converge_to_render_once_then_nothing_renders(start, tmp_path):
+    coordinator, client = start()
+    at_rest = stats(client)
+    assert at_rest["still"] and at_rest["still_samples"] == {"done": DEFAULT_STILL_SAMPLES,
+                                                             "wanted": DEFAULT_STILL_SAMPLES}
+    camera = orbit_cameras(client.get("/api/camera").json()["bounds"], 2)[1]
+    with ws_client.connect(coordinator.ws_url + "/ws/view", max_size=64 << 20) as ws:
+        assert json.loads(ws.recv(timeout=seconds(30)))["type"] == "hello"
+        joined = unpack_frame(ws.recv(timeout=seconds(30)))
+        assert joined.still and joined.samples == DEFAULT_STILL_SAMPLES, "the newest frame: the still"
+        first = client.put("/api/camera", json=camera).json()["frame"]
+        seen = []
+        while not seen or not seen[-1].still:
+            message = ws.recv(timeout=seconds(60))
+            if isinstance(message, str):   # the camera, as other viewers are told
+                continue
+            frame = unpack_frame(message)
+            if frame.frame_id >= first:
+                seen.append(frame)
+    assert seen[0].frame_id == first and not seen[0].still and seen[0].samples == 0, "the interactive frame"
+    refining = [frame.samples for frame in seen[1:]]
+    assert refining == sorted(set(refining)) and refining[-1] == DEFAULT_STILL_SAMPLES and len(refining) >= 2, \
+        f"the refinement frames say their growing sample counts: {refining}"
+    assert not any(frame.still for frame in seen[1:-1])
+    still = client.get("/api/frame.png", params={"after": first, "still": "true"}, timeout=seconds(120))
+    assert still.headers["x-frame-still"] == "1" and still.headers["x-frame-samples"] == str(DEFAULT_STILL_SAMPLES)
+    assert int(still.headers["x-frame-id"]) == seen[-1].frame_id
+    _, image = fetch_frame(client, seen[-1].frame_id)
+    assert_matches_reference(image, render_once(SCENE, camera, SIZE, tmp_path, still_samples=DEFAULT_STILL_SAMPLES),
+                             "the converged still")
+    settled = wait_until(lambda: (s := stats(client))["settled"] and s, seconds(60), "the still, settled")
+    rendered = [n["tiles_rendered"] for n in settled["nodes"]]
+    assert frame_published_within(coordinator.ws_url, seconds(1.5)) is None, "nothing renders after the still"
+    after = stats(client)
+    assert after["coordinator_cpu"]["frames"] == settled["coordinator_cpu"]["frames"]
+    assert [n["tiles_rendered"] for n in after["nodes"]] == rendered
+    assert after["coordinator_cpu"]["still_ms"] > 0.0
+
+
+def test_input_during_the_refinement_cancels_it_and_the_interactive_frame_comes_next(start):
+    """Slow nodes (×6) keep a refinement frame in flight when the camera moves: it is dropped, the
+    frame that answers the move is the interactive one, and the still that follows is the new
+    camera's, refined from its first sample."""
+    _, client = start("--node-slowdowns", "6,6")
+    cameras = orbit_cameras(client.get("/api/camera").json()["bounds"], 3)
+    client.put("/api/camera", json=cameras[1])
+    wait_until(lambda: (s := stats(client))["still_samples"]["done"] >= 1 and s["frames_in_flight"] == 1
+               and not s["still"], seconds(120), "a refinement under way")
+    cancelled = stats(client)["frames_cancelled"]
+    answer = client.put("/api/camera", json=cameras[2]).json()["frame"]
+    moved = client.get("/api/frame.png", params={"after": answer}, timeout=seconds(120))
+    assert moved.headers["x-frame-id"] == str(answer), "the move's frame was not held back"
+    assert moved.headers["x-frame-still"] == "0" and moved.headers["x-frame-samples"] == "0"
+    assert stats(client)["frames_cancelled"] > cancelled, "the refinement frame in flight was dropped"
+    still = client.get("/api/frame.png", params={"after": answer, "still": "true"}, timeout=seconds(120))
+    assert still.headers["x-frame-samples"] == str(DEFAULT_STILL_SAMPLES)
+    assert int(still.headers["x-frame-id"]) >= answer + DEFAULT_STILL_SAMPLES, "every sample of the new still"
