@@ -62,6 +62,9 @@ export class Compositor {
     this.onHeld = null;
     /** Held decoded frames by id, oldest first: {frame, images}. */
     this.held = new Map();
+    /** null: a decoded frame newer than the last drawn is drawn; else only where drawable(frame) is
+     * true too (the viewer's video path may have painted a newer frame meanwhile). */
+    this.drawable = null;
   }
 
   /** Keep decoded frames until present(frameId) (a wall cell); `onHeld(frame)` after each decode. */
@@ -122,7 +125,7 @@ export class Compositor {
         this.keep(frame, images);
         return;
       }
-      if (seq > this.drawnSeq) {
+      if (seq > this.drawnSeq && (!this.drawable || this.drawable(frame))) {
         this.draw(frame, images);
         this.drawnSeq = seq;
         this.onDrawn(frame);

@@ -1,6 +1,6 @@
 // Side panel: live figures and per-node timing bars from GET /api/stats (polled ~2×/s), the
-// viewer's own input → display latency (shown as it is measured), and the balancer selector
-// backed by GET/PUT /api/balancer.
+// viewer's own input → display latency (shown as it is measured), how frames come (tiles or a
+// video stream, with its bitrate), and the balancer selector backed by GET/PUT /api/balancer.
 
 import { nodeColor } from "./overlay.js";
 
@@ -79,6 +79,14 @@ export function inputLatencyText(latency) {
   return latency.interval_ms > 0 ? `${ms} · ${fixed(latency.p50_ms / latency.interval_ms, 1)} fr` : ms;
 }
 
+/** The transport figure: "tiles", or the codec with the stream's target when known
+ * ("h264 · 2.5 Mbit/s · 60 fps"); "–" before the coordinator said. */
+export function transportText(transport, bitrate) {
+  if (!transport) return "–";
+  if (transport === "tiles" || !bitrate) return transport;
+  return `${transport} · ${fixed(bitrate.bitrate / 1e6, 1)} Mbit/s · ${fixed(bitrate.max_fps, 0)} fps`;
+}
+
 const INPUT_LATENCY_TITLE = "Median time from a camera input in this browser to the frame showing it on screen: " +
   "in ms and in frame intervals (fr, 1 fr = the time between two frames)";
 
@@ -129,6 +137,15 @@ export class Panel {
     figure.textContent = inputLatencyText(latency);
     const p90 = latency ? `\np90 ${fixed(latency.p90_ms, 0)} ms over ${latency.samples} inputs` : "";
     figure.title = `${INPUT_LATENCY_TITLE}${p90}`;
+  }
+
+  /** Show how frames come: `stream` ({transport, codec, reason}, the coordinator's `stream`
+   * message) and the stream's target `bitrate` ({bitrate, max_fps}, its `bitrate` message, or null). */
+  showTransport(stream, bitrate) {
+    const figure = this.figure("transport");
+    figure.textContent = transportText(stream?.transport, bitrate);
+    figure.dataset.transport = stream?.transport ?? "";
+    figure.title = [stream?.codec && `codec ${stream.codec}`, stream?.reason].filter(Boolean).join("\n");
   }
 
   showStats(stats) {

@@ -1,6 +1,6 @@
-// Tessera viewer entry point: wires the WebSocket, the frame compositor, the overlay, the input
-// controls, the input → display latency tracker and the stats panel together, and exposes
-// read-only state as `window.tessera`.
+// Tessera viewer entry point: wires the WebSocket, the frame compositor (tiles), the video stream
+// (WebCodecs), the overlay, the input controls, the input → display latency tracker and the stats
+// panel together, and exposes read-only state as `window.tessera`.
 
 import { AnimationControls } from "./animation.js";
 import { Compositor } from "./compositor.js";
@@ -13,6 +13,8 @@ import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
 import { SessionControls } from "./session_controls.js";
+import { VideoStream, decodableCodecs } from "./video.js";
+import { isVideo, parseVideo } from "./video_protocol.js";
 import { ClockOffset, drawCellOutlines } from "./wall.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
@@ -24,6 +26,8 @@ if (new URLSearchParams(location.search).has("token")) {
 }
 /** How often the viewer reports its input → display latency to the coordinator, while it changes (ms). */
 const LATENCY_REPORT_MS = 1000;
+/** How often a viewer on a video stream sends its `stream_report` (ms). */
+const STREAM_REPORT_MS = 1000;
 
 /** Address relative to the page (so a path prefix in front of the coordinator still works). */
 function address(path, scheme) {
@@ -49,6 +53,10 @@ const state = {
   overlay: false,
   // A display wall's session (issue 22): {wall: {cols, rows, cell, bezel}, cell: [col, row] | null}.
   wall: null,
+  // How frames come (issue 21): "tiles" or the video codec the coordinator chose ("h264", …).
+  transport: "tiles",
+  // The video stream's target: {bitrate: bit/s, max_fps} (the coordinator's `bitrate`), or null.
+  bitrate: null,
 };
 const lastTiles = { width: 0, height: 0, tiles: [] };
 
@@ -63,6 +71,10 @@ Object.defineProperty(window, "tessera", {
       Object.keys(state).map((key) => [key, { get: () => structuredClone(state[key]), enumerable: true }]),
     ),
     framesDropped: { get: () => compositor.dropped, enumerable: true },
+    videoFramesDecoded: { get: () => video.decoded, enumerable: true },
+    videoFramesPainted: { get: () => video.painted, enumerable: true },
+    videoFramesDropped: { get: () => video.dropped, enumerable: true },
+    keyframeRequests: { get: () => video.keyframeRequests, enumerable: true },
     animation: { get: () => structuredClone(animation.state), enumerable: true },
   })),
 });
@@ -132,28 +144,56 @@ function showQuality(still) {
   badge.hidden = false;
 }
 
-const compositor = new Compositor(
-  frameCanvas,
-  (frame) => {
-    state.frameId = frame.frameId;
-    state.framesDrawn += 1;
-    state.still = frame.still;
-    if (latencyTracker.drawn(frame.inputSeq, performance.now()) !== null) {
-      state.inputLatency = latencyTracker.summary();
-      panel.showInputLatency(state.inputLatency);
-    }
-    if (!state.size || state.size[0] !== frame.width || state.size[1] !== frame.height) {
-      setSize(frame.width, frame.height);
-    }
-    lastTiles.width = frame.width;
-    lastTiles.height = frame.height;
-    lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
-    if (state.overlay || wallDriver()) redrawOverlay();
-    $("frame-badge").textContent = `frame ${frame.frameId}`;
-    showQuality(frame.still);
-  },
-  (error) => console.warn("tessera: frame dropped:", error),
-);
+/** A frame is on the canvas: a TFRM frame of tiles, or a decoded video frame (no tiles, not still). */
+function painted(frame) {
+  shownId = frame.frameId;
+  state.frameId = frame.frameId;
+  state.framesDrawn += 1;
+  state.still = frame.still;
+  if (latencyTracker.drawn(frame.inputSeq, performance.now()) !== null) {
+    state.inputLatency = latencyTracker.summary();
+    panel.showInputLatency(state.inputLatency);
+  }
+  if (!state.size || state.size[0] !== frame.width || state.size[1] !== frame.height) {
+    setSize(frame.width, frame.height);
+  }
+  lastTiles.width = frame.width;
+  lastTiles.height = frame.height;
+  lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
+  if (state.overlay || wallDriver()) redrawOverlay();
+  $("frame-badge").textContent = `frame ${frame.frameId}`;
+  showQuality(frame.still);
+}
+
+/** With a video stream, frames come by two paths (video; still frames as tiles): only a frame newer
+ * than the one on the canvas is painted. */
+let shownId = null;
+const newerThanShown = (frameId) => shownId === null || frameId > shownId;
+
+const compositor = new Compositor(frameCanvas, painted, (error) => console.warn("tessera: frame dropped:", error));
+compositor.drawable = (frame) => !video.active || newerThanShown(frame.frameId);
+
+const video = new VideoStream(frameCanvas, {
+  paintable: newerThanShown,
+  onPainted: (frame) => painted({ ...frame, still: false, tiles: [] }),
+  requestKeyframe: () => connection.send({ type: "keyframe" }),
+  onError: (error) => console.warn("tessera: video frame lost:", error),
+});
+
+/** The coordinator's last `stream` message ({transport, codec, reason}), null before one came. */
+let stream = null;
+
+/** Offer the codecs this browser decodes at `width`×`height` (none: tiles), unless a newer hello came. */
+let hellos = 0;
+async function offerStream(width, height) {
+  const hello = hellos;
+  const codecs = await decodableCodecs(width, height);
+  if (hello === hellos) connection.send({ type: "stream_offer", codecs });
+}
+
+function reportStream() {
+  if (video.active) connection.send({ type: "stream_report", ...video.report(performance.now()) });
+}
 
 const controls = new Controls(frameCanvas, {
   camera: () => state.camera,
@@ -173,6 +213,14 @@ function onText(message) {
       if (session.key && !session.watching && !session.cell) setTimeout(sendSize, 0);
       state.viewerId = message.viewer;
       samplesReported = 0;
+      shownId = null;
+      hellos += 1;
+      video.reset();
+      state.transport = video.transport;
+      state.bitrate = null;
+      stream = null;
+      panel.showTransport(null, null);
+      if (!session.cell) offerStream(...message.size);
       setSize(...message.size);
       state.bounds = message.bounds;
       adoptCamera(message.camera);
@@ -202,6 +250,17 @@ function onText(message) {
       }), due === null ? 0 : Math.max(0, due - performance.now()));
       break;
     }
+    case "stream":
+      video.choose(message);
+      stream = message;
+      state.transport = video.transport;
+      if (!video.active) state.bitrate = null;
+      panel.showTransport(stream, state.bitrate);
+      break;
+    case "bitrate":
+      state.bitrate = { bitrate: message.bitrate, max_fps: message.max_fps };
+      panel.showTransport(stream, state.bitrate);
+      break;
     case "pong":
       clock.sample(message.t0, performance.now(), message.clock_ms);
       break;
@@ -215,7 +274,8 @@ function onText(message) {
 
 function onBinary(buffer) {
   try {
-    compositor.submit(parseFrame(buffer));
+    if (isVideo(buffer)) video.submit(parseVideo(buffer));
+    else compositor.submit(parseFrame(buffer));
   } catch (error) {
     console.warn("tessera: bad frame:", error);
   }
@@ -298,3 +358,4 @@ connection.start();
 panel.start();
 sessionControls.start().catch((error) => console.warn("tessera: session controls:", error));
 setInterval(reportLatency, LATENCY_REPORT_MS);
+setInterval(reportStream, STREAM_REPORT_MS);

@@ -89,6 +89,23 @@ test("a newer frame decoded first is not overwritten by an older one", async () 
   assert.ok(decodes[0].bitmap.closed && decodes[1].bitmap.closed, "bitmaps are released either way");
 });
 
+test("a frame that is no longer drawable (the video path painted a newer one) is dropped", async () => {
+  const { compositor, drawn } = setup();
+  let shown = 0;
+  compositor.drawable = (frame) => frame.frameId > shown;
+  compositor.submit(jpegFrame(5));
+  shown = 6;
+  decodes[0].resolve();
+  await settle();
+  assert.deepEqual(drawn, []);
+  assert.equal(compositor.dropped, 1);
+  assert.ok(decodes[0].bitmap.closed);
+  compositor.submit(jpegFrame(7));
+  decodes[1].resolve();
+  await settle();
+  assert.deepEqual(drawn, [7]);
+});
+
 test("at most MAX_DECODING frames decode at once; the waiting slot keeps only the newest", async () => {
   const { compositor, drawn } = setup();
   const total = MAX_DECODING + 3;

@@ -1,10 +1,11 @@
-// web/panel.js: the timing bars' scale and stacked segment widths, node lines, the input latency figure.
+// web/panel.js: the timing bars' scale and stacked segment widths, node lines, the input latency
+// figure, the transport figure.
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import {
   PHASES, PHASE_MEANING, atRest, fpsText, inputLatencyText, niceScale, nodeDetail, nodeDetailTitle,
-  segmentWidths,
+  segmentWidths, transportText,
 } from "../../web/panel.js";
 
 // PHASES against tessera.protocol.NODE_PHASES: tests/test_web_mirror.py reads both and compares them.
@@ -69,4 +70,11 @@ test("a node line's hover text explains its busy time, tiles and speed factor", 
 test("every bar phase has a meaning", () => {
   assert.deepEqual(Object.keys(PHASE_MEANING), PHASES);
   for (const phase of PHASES) assert.ok(PHASE_MEANING[phase].length > 10);
+});
+
+test("the transport figure names tiles, or the codec with the stream's target", () => {
+  assert.equal(transportText(undefined, null), "–");
+  assert.equal(transportText("tiles", null), "tiles");
+  assert.equal(transportText("h264", null), "h264");
+  assert.equal(transportText("h264", { bitrate: 2_500_000, max_fps: 60 }), "h264 · 2.5 Mbit/s · 60 fps");
 });
