@@ -66,6 +66,8 @@ export class VideoStream {
     /** Chunk timestamp → {frameId, width, height, inputSeq} of frames in the decoder. */
     this.inDecoder = new Map();
     this.nextTimestamp = 0;
+    /** The newest video frame id received (null: none yet). */
+    this.received = null;
     this.decoded = 0;
     this.painted = 0;
     this.dropped = 0;
@@ -90,6 +92,7 @@ export class VideoStream {
   /** Back to tiles with no decoder (a new connection). */
   reset() {
     this.choose({ transport: TILES, codec: null });
+    this.received = null;
   }
 
   close() {
@@ -102,6 +105,7 @@ export class VideoStream {
   /** Decode a parsed TVID frame (video_protocol.parseVideo); a delta frame may be dropped. */
   submit(frame) {
     this.window.bytes += VIDEO_HEADER_SIZE + frame.data.byteLength;
+    this.received = frame.frameId;
     if (!frame.keyframe) {
       if (this.awaitingKeyframe) {
         this.dropped++;
@@ -190,7 +194,8 @@ export class VideoStream {
 
   /**
    * The `stream_report` figures since the last call (at `now`, ms): bytes received and frames
-   * decoded per second, frames in the decoder now, frames dropped in all.
+   * decoded per second, frames in the decoder now, frames dropped in all, the newest frame id
+   * received (null: none yet; the coordinator counts what it wrote after it as on its way).
    */
   report(now) {
     const seconds = this.window.start === null ? 0 : (now - this.window.start) / 1000;
@@ -199,6 +204,7 @@ export class VideoStream {
       decoded_fps: seconds > 0 ? this.window.decoded / seconds : 0,
       decode_queue: this.decoder && this.decoder.state !== "closed" ? this.decoder.decodeQueueSize : 0,
       frames_dropped: this.dropped,
+      frame: this.received,
     };
     this.window = { start: now, bytes: 0, decoded: 0 };
     return figures;

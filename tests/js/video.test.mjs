@@ -249,9 +249,10 @@ test("a keyframe of another size reconfigures the decoder; tiles close it", () =
   assert.equal(decoders[0].state, "closed");
 });
 
-test("the report gives bytes and decoded frames per second over its window, the queue and drops", () => {
+test("the report gives bytes and decoded frames per second over its window, the queue, drops, the last frame", () => {
   const { video } = stream();
-  assert.deepEqual(video.report(1000), { bytes_per_s: 0, decoded_fps: 0, decode_queue: 0, frames_dropped: 0 });
+  assert.deepEqual(video.report(1000),
+    { bytes_per_s: 0, decoded_fps: 0, decode_queue: 0, frames_dropped: 0, frame: null });
   video.submit(frame(1, true));
   video.submit(frame(2, false));
   decoders[0].emit(0);
@@ -259,7 +260,7 @@ test("the report gives bytes and decoded frames per second over its window, the 
   video.submit(frame(3, true));
   const report = video.report(1500);
   assert.deepEqual(report, {
-    bytes_per_s: (3 * (VIDEO_HEADER_SIZE + 10)) / 0.5, decoded_fps: 2, decode_queue: 1, frames_dropped: 0,
+    bytes_per_s: (3 * (VIDEO_HEADER_SIZE + 10)) / 0.5, decoded_fps: 2, decode_queue: 1, frames_dropped: 0, frame: 3,
   });
   assert.equal(video.report(2500).bytes_per_s, 0);
 });
