@@ -1,8 +1,9 @@
 """Video to the browser (issue 21): a camera path played through the live service once per transport
-(tiles, H.264, VP9, VP8), each watched by a scripted viewer that decodes what it receives.
+(tiles, then each codec of :class:`tessera.wire.video.VideoCodec`), each watched by a scripted
+viewer that decodes what it receives.
 
 ``python -m bench.stream [--scene S] [--path P] [--size WxH] [--nodes N] [--moving-s 8]
-[--input-hz 60] [--transports tiles,h264,vp9,vp8] [--psnr-frames 8] [--synthetic]
+[--input-hz 60] [--transports tiles,h264,vp9] [--psnr-frames 8] [--synthetic]
 [--server-args "…"] [--json OUT]``
 
 One coordinator (``python -m server --local-nodes N --stream auto``, as :mod:`bench.live` starts
@@ -74,14 +75,17 @@ from node.settings import NodeSettings
 from tessera.cli_values import size_parser
 from tessera.geometry import Camera
 from tessera.wire.protocol import unpack_frame
-from tessera.wire.stream_messages import KeyframeRequest, StreamOffer
-from tessera.wire.video import is_video, unpack_video
+from tessera.wire.stream_messages import KeyframeRequest, StreamOffer, StreamReport
+from tessera.wire.video import VideoCodec, codec_string, is_video, unpack_video
 
-TRANSPORTS = ("tiles", "h264", "vp9", "vp8")
+#: ``tiles`` and every video codec of the protocol
+TRANSPORTS = ("tiles", *(codec.label for codec in VideoCodec))
 #: seconds a viewer waits for the coordinator's ``stream`` answer to its offer
 CHOICE_TIMEOUT_S = 10.0
 #: seconds after the last input the viewer keeps reading (the answers still on their way)
 TAIL_S = 1.0
+#: seconds between two ``stream_report`` s of a video viewer (as web/video.js)
+REPORT_S = 1.0
 SYNTHETIC_SIZE = (1920, 1080)
 SYNTHETIC_NODES = 4
 
@@ -167,6 +171,20 @@ class StreamViewer(ScriptedViewer):
         super().send_camera(camera)
         self.cameras[self.seq] = camera
 
+    def counts(self) -> tuple[float, int, int]:
+        """Now (perf_counter s), bytes received and frames decoded so far."""
+        with self.lock:
+            return time.perf_counter(), sum(f["bytes"] for f in self.decoded), len(self.decoded)
+
+    def report(self, since: tuple[float, int, int]) -> tuple[float, int, int]:
+        """Send ``stream_report`` (as a browser viewer does each second) over the window since
+        ``since`` (:meth:`counts` then); the next window's start."""
+        now = self.counts()
+        seconds = max(now[0] - since[0], 1e-3)
+        self.ws.send(StreamReport(bytes_per_s=(now[1] - since[1]) / seconds, decoded_fps=(now[2] - since[2]) / seconds,
+                                  decode_queue=0, frames_dropped=self.lost).to_text())
+        return now
+
     def _read(self) -> None:
         while not self._stop.is_set():
             try:
@@ -187,7 +205,7 @@ class StreamViewer(ScriptedViewer):
 
     def _on_tiles(self, message: bytes) -> None:
         frame = unpack_frame(message)
-        if frame.still:
+        if frame.still or frame.samples:   # the still and its progressive refinements
             return
         if self.choice is not None:
             self.tfrm_after_choice += 1
@@ -250,8 +268,8 @@ class StreamViewer(ScriptedViewer):
 
 def video_stats(stats: dict[str, Any], transport: str) -> dict[str, Any] | None:
     """The ``/api/stats`` ``video`` entry of the ``transport`` codec's stream, if any."""
-    streams = [s for s in stats.get("video") or [] if str(s.get("codec", "")).lower().startswith(
-        {"h264": ("h264", "avc1"), "vp9": ("vp9", "vp09"), "vp8": ("vp8",)}[transport])]
+    names = (transport, codec_string(VideoCodec.parse(transport), (16, 16)).split(".")[0])
+    streams = [s for s in stats.get("video") or [] if str(s.get("codec", "")).lower().startswith(names)]
     return max(streams, key=lambda s: s.get("frames_encoded", 0)) if streams else None
 
 
@@ -268,10 +286,13 @@ def play(args: argparse.Namespace, url: str, client: httpx.Client, transport: st
             if choice.get("transport") != transport:
                 return {"viewer": viewer, "choice": choice}
             started = next_send = time.perf_counter()
+            window = viewer.counts()
             viewer.sample_every_s = (args.moving_s - 1.0) / args.psnr_frames
             viewer.sample_from = started + 1.0 + viewer.sample_every_s / 2.0
             while (now := time.perf_counter()) < started + args.moving_s:
                 viewer.send_camera(player.at(now - started))
+                if transport != "tiles" and now >= window[0] + REPORT_S:
+                    window = viewer.report(window)
                 next_send += 1.0 / args.input_hz
                 time.sleep(max(0.0, next_send - time.perf_counter()))
             last_input = time.perf_counter()

@@ -27,7 +27,7 @@ def test_path_player_interpolates_between_frames_and_loops():
 @pytest.mark.gl
 def test_stream_bench_end_to_end(tmp_path):
     out = tmp_path / "stream.json"
-    assert main(["--nodes", "1", "--size", "192x108", "--moving-s", "3", "--psnr-frames", "2",
+    assert main(["--nodes", "1", "--size", "192x108", "--moving-s", "4", "--psnr-frames", "2",
                  "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     for transport in TRANSPORTS:
@@ -35,13 +35,13 @@ def test_stream_bench_end_to_end(tmp_path):
         assert row["transport"] == transport, row
         assert all(key in row for key in KEYS), row
         assert row["frames"] > 0 and row["fps"] > 0 and row["bytes_per_frame"] > 0 and row["mbps"] > 0, row
-        assert row["psnr_frames"] == 2 and row["psnr_min"] <= row["psnr_mean"], row
+        assert 1 <= row["psnr_frames"] <= 2 and row["psnr_min"] <= row["psnr_mean"], row
         # a frame of another camera than its input number names would be far below this
         assert row["psnr_min"] > 25.0, row
         assert row["latency_intervals_p50"] > 0 and row["latency_samples"] > 0, row
         assert row["decoded_size"] == [[192, 108]], row
     assert result["tiles"]["encode_ms"] is None and result["tiles"]["psnr_source_mean"] == 100.0
-    for codec in ("h264", "vp9", "vp8"):
+    for codec in TRANSPORTS[1:]:
         row = result[codec]
         assert row["encode_ms"] > 0 and row["frames_encoded"] >= row["frames"], row
         assert row["keyframes"] >= 1 and row["frames_lost"] == 0, row
