@@ -1,7 +1,7 @@
 """Picture quality (issue 20): do materials matter, and how much anti-aliasing buys at what cost.
 
 ``python -m bench.picture [--scene S …] [--size 1280x720] [--frames 2] [--msaa 1,2,4]
-[--material-size 256x256] [--json OUT]``
+[--still-samples 1,2,4,8,16,32] [--material-size 256x256] [--json OUT]``
 
 - Materials: a smooth gold metal sphere (metallic 1, roughness 0.15) and a rough dielectric sphere
   (metallic 0, roughness 0.9) of the same base colour, each alone in the same frame and camera.
@@ -15,6 +15,14 @@
   ``psnr_mean_db`` / ``psnr_min_db`` against that reference, ``off16_fraction`` the pixels off by
   more than 16 levels in any channel, ``frame_ms`` the mean time of a whole frame (draw, resolve,
   read-back; llvmpipe uses the machine's cores, so the load of the machine counts).
+- Progressive still (issue 20): per scene, the same cameras rendered as the still of each
+  ``--still-samples`` count with the node's default shading (``--msaa auto``), against the same
+  reference: ``psnr_mean_db`` / ``psnr_min_db`` / ``off16_fraction`` as above, ``frame_ms`` the mean
+  time of one sample's frame, ``still_ms`` that times the samples (the nodes' time until the still
+  converges on one node). Each count is rendered apart (its samples' texture LOD bias depends on
+  it). Per scene also the
+  coordinator's CPU per sample (:class:`server.still_refinement.StillRefiner`'s work on a whole
+  frame's PNG): ``decode_ms``, ``accumulate_ms`` (add and mean), ``encode_ms``.
 - ``environment_ms``: the environment's prefiltering at start-up (once per process).
 """
 
@@ -25,7 +33,7 @@ import dataclasses
 import platform
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +53,8 @@ from node.scene.loading import load_scene
 from node.scene.material import SurfaceMaterial
 from node.settings import parse_size
 from tessera.geometry import Camera
+from tessera.scheduling.refinement import MAX_STILL_SAMPLES, Accumulator, subsample
+from tessera.wire.codec import Codec, decode, encode
 
 SHARED_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 DEFAULT_SCENES = tuple(str(SHARED_SCENES / name) for name in (
@@ -131,6 +141,59 @@ def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int
     return {"scene": scene_spec, "frames": len(cameras), "rows": rows}
 
 
+def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
+                  sample_counts: Sequence[int]) -> dict[str, Any]:
+    """The progressive still rows of one scene (see the module docstring)."""
+    scene = load_scene(scene_spec)
+    cameras = orbit_cameras(scene, frames)
+    renderer = TileRenderer(ctx, scene)
+    found: dict[int, dict[str, list[float]]] = {n: {"psnr": [], "off": []} for n in sample_counts}
+    frame_ms: list[float] = []
+    coordinator: dict[str, list[float]] = {"decode_ms": [], "accumulate_ms": [], "encode_ms": []}
+    renderer.render_frame(cameras[0], size)
+    for camera in cameras:
+        reference = supersampled(renderer, camera, size)
+        for count in sample_counts:
+            accumulator = Accumulator(size)
+            for sample in range(count):
+                started = time.perf_counter()
+                pixels = renderer.render_frame(camera, size, subsample=subsample(sample, count)).pixels
+                frame_ms.append((time.perf_counter() - started) * 1e3)
+                decoded, spent = cpu_ms(decode, encode(pixels, Codec.PNG), Codec.PNG, size[0], size[1])
+                coordinator["decode_ms"].append(spent)
+                started_cpu = time.thread_time()
+                accumulator.add(decoded)
+                accumulator.finish_sample()
+                still = accumulator.mean()
+                coordinator["accumulate_ms"].append((time.thread_time() - started_cpu) * 1e3)
+                coordinator["encode_ms"].append(cpu_ms(encode, still, Codec.PNG)[1])
+            found[count]["psnr"].append(psnr(still, reference))
+            error = np.abs(still.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
+            found[count]["off"].append(float(np.mean(error > OFF_LEVELS)))
+    sample_ms = float(np.mean(frame_ms))
+    rows = [{"samples": count, "psnr_mean_db": reported_psnr(float(np.mean(found[count]["psnr"]))),
+             "psnr_min_db": reported_psnr(float(np.min(found[count]["psnr"]))),
+             "off16_fraction": float(np.mean(found[count]["off"])), "frame_ms": sample_ms,
+             "still_ms": sample_ms * count} for count in sample_counts]
+    renderer.release()
+    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "rows": rows,
+            "coordinator": {key: float(np.mean(values)) for key, values in coordinator.items()}}
+
+
+def cpu_ms(call: Callable[..., Any], *args: Any) -> tuple[Any, float]:
+    """``call(*args)``'s result and the CPU time of this thread it took, ms."""
+    started = time.thread_time()
+    result = call(*args)
+    return result, (time.thread_time() - started) * 1e3
+
+
+def parse_still_counts(text: str) -> list[int]:
+    counts = sorted({int(part) for part in text.split(",") if part.strip()})
+    if not counts or not all(1 <= count <= MAX_STILL_SAMPLES for count in counts):
+        raise argparse.ArgumentTypeError(f"still sample counts are 1..{MAX_STILL_SAMPLES}, got {text!r}")
+    return counts
+
+
 def parse_counts(text: str) -> list[int]:
     counts = sorted({int(part) for part in text.split(",") if part.strip()})
     if not counts or not all(count in (1, 2, 4, 8) for count in counts):
@@ -149,6 +212,17 @@ def table(result: dict[str, Any]) -> str:
         for row in scene["rows"]:
             lines.append(f"{Path(scene['scene']).name:<40} {row['samples']:>4} {row['psnr_mean_db']:>8.2f} "
                          f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f}")
+    if result.get("stills"):
+        lines.append(f"{'progressive still':<40} {'N':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} "
+                     f"{'still ms':>9}")
+        for scene in result["stills"]:
+            for row in scene["rows"]:
+                lines.append(f"{Path(scene['scene']).name + ' (msaa ' + str(scene['msaa']) + ')':<40} "
+                             f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
+                             f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
+            cost = scene["coordinator"]
+            lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
+                         f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms")
     return "\n".join(lines)
 
 
@@ -158,6 +232,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--frames", type=int, default=2)
     parser.add_argument("--msaa", type=parse_counts, default=[1, 2, 4])
+    parser.add_argument("--still-samples", type=parse_still_counts, default=[1, 2, 4, 8, 16, 32],
+                        help="progressive still sample counts (default 1,2,4,8,16,32)")
     parser.add_argument("--material-size", type=parse_size, default=(256, 256))
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
@@ -172,6 +248,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "environment_ms": environment_ms,
             "materials": material_contrast(ctx, args.material_size),
             "scenes": [measure_antialiasing(ctx, scene, args.size, args.frames, args.msaa)
+                       for scene in (args.scene or DEFAULT_SCENES)],
+            "stills": [measure_still(ctx, scene, args.size, args.frames, args.still_samples)
                        for scene in (args.scene or DEFAULT_SCENES)],
         }
     finally:

@@ -40,6 +40,7 @@ from node.protocol import Draw, Load, Measure, NodeProtocol, Send
 from node.scene.fetch import SceneFetcher
 from node.settings import NodeSettings
 from node.tile_messages import encode_depth_message, encode_tile
+from tessera.scheduling.refinement import Subsample
 from tessera.wire import messages
 
 log = logging.getLogger("tessera.node")
@@ -208,7 +209,7 @@ class NodeClient:
             return
         try:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
-                                                job.jitter)
+                                                Subsample.of(job.jitter, job.lod_bias))
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return
@@ -230,7 +231,7 @@ class NodeClient:
         job, request, state = action.render, action.tile, action.state
         try:
             drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
-                                                   job.jitter)
+                                                   Subsample.of(job.jitter, job.lod_bias))
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

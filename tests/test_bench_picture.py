@@ -17,7 +17,7 @@ def test_picture_benchmark_reports_materials_and_antialiasing(tmp_path) -> None:
     come closer to it; the metal and dielectric spheres differ; times are positive."""
     out = tmp_path / "picture.json"
     argv = ["--scene", "builtin:spheres", "--size", "96x72", "--frames", "1", "--msaa", "1,4",
-            "--material-size", "64x64", "--json", str(out)]
+            "--still-samples", "1,16", "--material-size", "64x64", "--json", str(out)]
     assert main(argv) == 0
     report = json.loads(out.read_text())
     assert report["meta"]["argv"] == argv and report["environment_ms"] > 0.0
@@ -29,3 +29,9 @@ def test_picture_benchmark_reports_materials_and_antialiasing(tmp_path) -> None:
     assert math.isfinite(one["psnr_mean_db"]) and four["psnr_mean_db"] > one["psnr_mean_db"] + 3.0
     assert four["off16_fraction"] < one["off16_fraction"]
     assert all(row["frame_ms"] > 0.0 for row in scene["rows"])
+    (still,) = report["stills"]
+    single, sixteen = still["rows"]
+    assert (single["samples"], sixteen["samples"]) == (1, 16) and still["msaa"] >= 1
+    assert sixteen["psnr_mean_db"] > single["psnr_mean_db"] + 3.0, "the progressive still nears the reference"
+    assert sixteen["still_ms"] == pytest.approx(16 * sixteen["frame_ms"])
+    assert all(still["coordinator"][key] > 0.0 for key in ("decode_ms", "accumulate_ms", "encode_ms"))

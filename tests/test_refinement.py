@@ -13,10 +13,13 @@ from tessera.scheduling.refinement import (
     MAX_STILL_SAMPLES,
     Accumulator,
     RefinementPlan,
+    Subsample,
     accumulate,
     jitter,
     jitter_matrix,
+    lod_bias,
     radical_inverse,
+    subsample,
 )
 from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
 from tests.test_scheduler import camera, cancels, finish, published, renders, scheduler
@@ -82,6 +85,14 @@ def test_accumulation_is_the_rounded_mean_whatever_the_tile_order() -> None:
         Accumulator((8, 6)).mean()
 
 
+def test_subsamples_pair_the_jitter_with_the_lod_bias_of_the_sample_density() -> None:
+    assert subsample(0, 1) is None and lod_bias(1) == 0.0
+    assert subsample(5, 16) == Subsample(jitter(5, 16), -2.0)
+    assert lod_bias(8) == pytest.approx(-1.5)
+    assert Subsample.of(None, None) is None and Subsample.of(None, 0.0) is None
+    assert Subsample.of((0.25, -0.25), None) == Subsample((0.25, -0.25), 0.0)
+
+
 def test_refinement_plan_counts_the_samples_started() -> None:
     plan = RefinementPlan(3)
     assert [plan.start() for _ in range(3)] == [0, 1, 2] and not plan.owed
@@ -143,7 +154,9 @@ def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -
         (frame_id,) = s.in_flight
         job = s.in_flight[frame_id]
         messages = [a.message for a in actions if isinstance(a, RenderTiles)]
-        assert job.still and {m.jitter for m in messages} == {job.jitter} and job.jitter is not None
+        sub = job.subsample
+        assert job.still and sub is not None and sub.lod_bias == pytest.approx(-0.5 * np.log2(3))
+        assert {(m.jitter, m.lod_bias) for m in messages} == {(sub.offset, sub.lod_bias)}
         frames.append((job.sample, job.samples, job.converged))
         actions = finish(s, frame_id, now)
         assert published(actions) == [frame_id]
@@ -162,7 +175,7 @@ def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -
     actions = s.drain()
     assert sample in {f for frames in cancels(actions).values() for f in frames}, "the sample is dropped"
     (interactive,) = s.in_flight
-    assert not s.in_flight[interactive].still and s.in_flight[interactive].jitter is None
+    assert not s.in_flight[interactive].still and s.in_flight[interactive].subsample is None
     assert renders(actions), "the interactive frame starts at once"
 
 
@@ -173,6 +186,7 @@ def test_a_one_sample_still_is_not_jittered() -> None:
     finish(s, 1, 0.05)
     s.tick(0.1)
     (still,) = s.in_flight.values()
-    assert still.still and still.converged and still.jitter is None
-    assert all(a.message.jitter is None and "jitter" not in a.message.to_json()
+    assert still.still and still.converged and still.subsample is None
+    assert all(a.message.jitter is None and a.message.lod_bias is None
+               and not {"jitter", "lod_bias"} & set(a.message.to_json())
                for a in s.drain() if isinstance(a, RenderTiles))

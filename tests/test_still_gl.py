@@ -17,7 +17,7 @@ from bench.picture import supersampled
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from tessera.geometry import Camera, Rect
-from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, accumulate, jitter
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, accumulate, subsample
 from tests.conftest import scene_path
 from tests.test_render_gl import run_render_once
 
@@ -37,18 +37,18 @@ def bunny(ctx):
 
 def test_jittered_tiles_join_into_the_jittered_frame(bunny) -> None:
     camera = Camera.from_json(CAMERA)
-    offset = jitter(3, 8)
-    whole = bunny.render_frame(camera, SIZE, jitter=offset).pixels
+    sample = subsample(3, 8)
+    whole = bunny.render_frame(camera, SIZE, subsample=sample).pixels
     assert not np.array_equal(whole, bunny.render_frame(camera, SIZE).pixels), "the jitter moves the picture"
     for rect in RECTS:
-        tile = bunny.render_tile(camera, SIZE, rect, jitter=offset).pixels
+        tile = bunny.render_tile(camera, SIZE, rect, subsample=sample).pixels
         assert np.array_equal(tile, whole[rect.y:rect.y1, rect.x:rect.x1]), f"tile {rect} differs"
 
 
 def test_the_still_is_the_mean_of_its_jittered_samples_and_nears_the_supersampled_frame(bunny) -> None:
     camera = Camera.from_json(CAMERA)
     samples = 8
-    frames = [bunny.render_frame(camera, SIZE, jitter=jitter(k, samples)).pixels for k in range(samples)]
+    frames = [bunny.render_frame(camera, SIZE, subsample=subsample(k, samples)).pixels for k in range(samples)]
     still = bunny.render_still(camera, SIZE, samples)
     assert np.array_equal(still, accumulate(frames))
     assert np.array_equal(bunny.render_still(camera, SIZE, 1), bunny.render_frame(camera, SIZE).pixels)

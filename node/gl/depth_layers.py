@@ -34,7 +34,7 @@ import numpy as np
 
 from node.culling.bvh import ChunkBVH, cull
 from node.culling.frustum import frustum_planes_from_matrix
-from node.gl.renderer import BlendedFragments, Jitter, RenderedTile, TileRenderer
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
 from node.scene.pose import ScenePose
 from tessera.balancers.projection import project_boxes
@@ -43,6 +43,7 @@ from tessera.decomposition.chunk_ownership import assign_chunks, core_rect, read
 from tessera.decomposition.data_partition import covering_rect
 from tessera.geometry import Camera, Rect, view_projection
 from tessera.scene.state import SceneState
+from tessera.scheduling.refinement import Subsample
 from tessera.wire.messages import DepthRequest
 
 
@@ -139,17 +140,18 @@ def live_plan(chunks: PlanningScene, pose: ScenePose, camera: Camera, size: tupl
 
 
 def render_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], plan: LayerPlan,
-                state: SceneState | None, jitter: Jitter = None) -> tuple[RenderedTile, BlendedFragments | None]:
-    """Draw ``plan`` in scene ``state`` (shifted by ``jitter`` px, a still's sample): its layer
+                state: SceneState | None,
+                subsample: Subsample | None = None) -> tuple[RenderedTile, BlendedFragments | None]:
+    """Draw ``plan`` in scene ``state`` (as ``subsample`` of a still; None: a plain frame): its layer
     (depth read back) and, when it has blended chunks apart, the blended fragments in front of
     that layer (moved objects' blended batches with them; None: no blend pass)."""
     apart = plan.blend_ids is not None
     layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state, blend_apart=apart,
-                                  jitter=jitter)
+                                  subsample=subsample)
     if plan.blend_ids is None:
         return layer, None
     assert layer.depth is not None
-    return layer, renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state, jitter)
+    return layer, renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state, subsample)
 
 
 def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:

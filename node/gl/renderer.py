@@ -49,10 +49,11 @@ it, so a tile is still that region of the whole frame, bit for bit. Depth layers
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames.
 
-The progressive still (issue 20): a render may shift the whole frame by a sub-pixel ``jitter``, a
+The progressive still (issue 20): a render may be a still's ``subsample``
+(:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a
 translation applied after the projection (:func:`tessera.scheduling.refinement.jitter_matrix`) —
-tiles, layers and whole frames alike, culling with the same matrix — and
-:meth:`TileRenderer.render_still` accumulates a still's jittered samples as the coordinator does.
+tiles, layers and whole frames alike, culling with the same matrix — and textures read with its
+LOD bias; :meth:`TileRenderer.render_still` accumulates a still's samples as the coordinator does.
 """
 
 from __future__ import annotations
@@ -77,12 +78,10 @@ from node.scene.pose import ScenePose
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling import refinement
-from tessera.scheduling.refinement import Accumulator, jitter_matrix
+from tessera.scheduling.refinement import Accumulator, Subsample, jitter_matrix
 
 GL_SRGB8_ALPHA8 = 0x8C43
 VERTEX_FORMAT = "3f 3f 2f 4f"
-#: A progressive still's sub-pixel offset (dx, dy) px, x right, y down; None: not shifted.
-Jitter = tuple[float, float] | None
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
@@ -280,16 +279,16 @@ class TileRenderer:
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
                     slot: Hashable | None = None, state: SceneState | None = None,
-                    jitter: Jitter = None) -> RenderedTile:
+                    subsample: Subsample | None = None) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
-        (None: the base pose), the whole frame shifted by ``jitter`` (dx, dy) px (a progressive
-        still's sample; None: not shifted). ``slot`` names the tile for the hybrid culling switch
-        (default: the rect itself)."""
+        (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame).
+        ``slot`` names the tile for the hybrid culling switch (default: the rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
+        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved)
+        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved,
+                            lod_bias=0.0 if subsample is None else subsample.lod_bias)
 
     def pose_of(self, state: SceneState | None) -> ScenePose:
         """The pose of ``state``, kept for the next tiles of the same state."""
@@ -298,40 +297,43 @@ class TileRenderer:
         return self._pose[1]
 
     def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
-               jitter: Jitter = None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
+               subsample: Subsample | None = None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
         """What every draw of ``rect`` in scene ``state`` starts from: the pose, the full-frame (4, 4)
-        view-projection of its bounds (shifted by ``jitter`` px: :func:`jitter_matrix`, so culling
-        and drawing see the same frustum), and the runs of its moved objects that ``rect`` keeps."""
+        view-projection of its bounds (shifted by the ``subsample``'s offset: :func:`jitter_matrix`,
+        so culling and drawing see the same frustum), and the runs of its moved objects that
+        ``rect`` keeps."""
         pose = self.pose_of(state)
-        matrix = jitter_matrix(jitter, size) @ view_projection(camera, size, pose.bounds)
+        offset = None if subsample is None else subsample.offset
+        matrix = jitter_matrix(offset, size) @ view_projection(camera, size, pose.bounds)
         moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return pose, matrix, moved
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None, state: SceneState | None = None,
-                     blend_apart: bool = False, jitter: Jitter = None) -> RenderedTile:
+                     blend_apart: bool = False, subsample: Subsample | None = None) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
         culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
         what the rect's culling keeps where they are now (``blend_apart``: their blended batches left
-        to :meth:`render_blend`), with its depth read back as well; ``jitter`` as there."""
+        to :meth:`render_blend`), with its depth read back as well; ``subsample`` as there."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
+        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
             culled = self.culler.listed(chunk_ids)
         return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
-                            blended_moved=False if blend_apart else None)
+                            blended_moved=False if blend_apart else None,
+                            lod_bias=0.0 if subsample is None else subsample.lod_bias)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
-                blended_moved: bool | None = None) -> RenderedTile:
+                blended_moved: bool | None = None, lod_bias: float = 0.0) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
         began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
-        which ``blended_moved`` picks (:meth:`_draw`)."""
+        which ``blended_moved`` picks (:meth:`_draw`); textures read with ``lod_bias``."""
         width, height = size
         samples = 1 if with_depth else self.samples
         target = self._framebuffer_for((width, height), samples)
@@ -340,7 +342,7 @@ class TileRenderer:
         target.scissor = gl_box
         target.use()
         target.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
-        self._use_camera(camera)
+        self._use_camera(camera, lod_bias)
         self._draw(target, culled, pose, matrix, moved, blended_moved)
         framebuffer = self._framebuffer_for((width, height))
         if samples > 1:
@@ -366,7 +368,8 @@ class TileRenderer:
                             self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
-                     under: np.ndarray, state: SceneState | None = None, jitter: Jitter = None) -> BlendedFragments:
+                     under: np.ndarray, state: SceneState | None = None,
+                     subsample: Subsample | None = None) -> BlendedFragments:
         """Blended chunks ``chunk_ids`` (sorted, unique) in front of the layer :meth:`render_layer`
         has drawn of the same ``rect``, camera, size and ``state``, whose depth is ``under``
         (rect.h, rect.w) float32. Peeling: pass j keeps the fragments between the (j−1)-th depth
@@ -375,15 +378,15 @@ class TileRenderer:
         accumulated in draw order (:data:`BLEND_ACCUMULATE`) into a cleared buffer, as GL blends
         them over whatever the compositor finds behind them. Moved objects' blended batches are drawn
         with them, culled to ``rect`` where they are now (:meth:`render_layer` with ``blend_apart``
-        leaves them out); ``jitter`` as the layer's."""
+        leaves them out); ``subsample`` as the layer's."""
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, jitter)
+        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
         culled = self.culler.listed(chunk_ids)
         framebuffer = self._framebuffer_for(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
         framebuffer.use()
-        self._use_camera(camera)
+        self._use_camera(camera, 0.0 if subsample is None else subsample.lod_bias)
         self._set_uniform("u_origin", gl_box[:2])
         bounds = [self.ctx.texture((rect.w, rect.h), 1, dtype="f4") for _ in range(2)]
         for texture, unit in zip(bounds, (UNIT_FLOOR, UNIT_CEIL), strict=True):
@@ -435,19 +438,19 @@ class TileRenderer:
         return np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
 
     def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None,
-                     jitter: Jitter = None) -> RenderedTile:
-        """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose), shifted by
-        ``jitter`` px (None: not shifted)."""
-        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, jitter=jitter)
+                     subsample: Subsample | None = None) -> RenderedTile:
+        """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose), as
+        ``subsample`` of a still (None: a plain frame)."""
+        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, subsample=subsample)
 
     def render_still(self, camera: Camera, size: tuple[int, int], samples: int,
                      state: SceneState | None = None) -> np.ndarray:
-        """The progressive still of ``samples`` whole frames, each shifted by its sample's jitter,
+        """The progressive still of ``samples`` whole frames, each drawn as its sample's subsample,
         accumulated (:mod:`tessera.scheduling.refinement`): what the coordinator publishes as the
         still of a rested camera with ``--still-samples samples``; (h, w, 3) uint8."""
         accumulator = Accumulator(size)
         for sample in range(samples):
-            accumulator.add(self.render_frame(camera, size, state, refinement.jitter(sample, samples)).pixels)
+            accumulator.add(self.render_frame(camera, size, state, refinement.subsample(sample, samples)).pixels)
             accumulator.finish_sample()
         return accumulator.mean()
 
@@ -494,8 +497,12 @@ class TileRenderer:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
 
-    def _use_camera(self, camera: Camera) -> None:
-        """Set what shading takes from the camera (eye, key light) and bind the environment."""
+    def _use_camera(self, camera: Camera, lod_bias: float = 0.0) -> None:
+        """Set what shading takes from the camera (eye, key light) and the draw (the textures' LOD
+        bias, of textured batches), and bind the environment."""
+        for program in self.programs:
+            if "u_lod_bias" in program:
+                program["u_lod_bias"].value = lod_bias
         self._set_uniform("u_light_direction", headlight_direction(camera))
         self._set_uniform("u_eye", tuple(float(v) for v in camera.eye))
         self._set_uniform("u_key_light", float(self.shading.key_light))

@@ -99,6 +99,7 @@ uniform float u_normal_scale;
 uniform float u_occlusion_strength;
 uniform bool u_normal_mapped;
 uniform float u_alpha_cutoff;
+uniform float u_lod_bias;   // a progressive still's sample reads textures finer (issue 20)
 uniform sampler2D u_texture;
 uniform sampler2D u_metallic_roughness;
 uniform sampler2D u_normal_texture;
@@ -193,8 +194,8 @@ void main() {
             discard;
     }
 #if TEXTURED
-    vec4 base = u_base_color * v_color * texture(u_texture, v_uv);
-    vec4 metal_rough = texture(u_metallic_roughness, v_uv);
+    vec4 base = u_base_color * v_color * texture(u_texture, v_uv, u_lod_bias);
+    vec4 metal_rough = texture(u_metallic_roughness, v_uv, u_lod_bias);
 #else
     vec4 base = u_base_color * v_color;
     vec4 metal_rough = vec4(1.0);
@@ -210,7 +211,7 @@ void main() {
     if (dot(n, v) < 0.0) n = -n;
 #if TEXTURED
     if (u_normal_mapped) {
-        vec3 mapped = texture(u_normal_texture, v_uv).rgb * 2.0 - 1.0;
+        vec3 mapped = texture(u_normal_texture, v_uv, u_lod_bias).rgb * 2.0 - 1.0;
         n = perturbed_normal(n, normalize(mapped * vec3(u_normal_scale, u_normal_scale, 1.0)));
     }
 #endif
@@ -232,7 +233,7 @@ void main() {
     vec3 k_d = c_diff * (1.0 - fss_ess - fms_ems);
     vec3 color = fss_ess * specular_light + (fms_ems + k_d) * diffuse_light;
 #if TEXTURED
-    float occlusion = texture(u_occlusion, v_uv).r;
+    float occlusion = texture(u_occlusion, v_uv, u_lod_bias).r;
     color *= 1.0 + u_occlusion_strength * (occlusion - 1.0);
 #endif
 
@@ -249,7 +250,7 @@ void main() {
     }
 
 #if TEXTURED
-    color += u_emissive * texture(u_emissive_texture, v_uv).rgb;
+    color += u_emissive * texture(u_emissive_texture, v_uv, u_lod_bias).rgb;
 #else
     color += u_emissive;
 #endif

@@ -26,7 +26,7 @@ import moderngl
 from node.culling.switch import CullMode
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
-from node.gl.renderer import BlendedFragments, Jitter, RenderedTile, TileRenderer
+from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
 from node.scene.data import SceneData
@@ -38,6 +38,7 @@ from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.scene.state import SceneState
+from tessera.scheduling.refinement import Subsample
 from tessera.wire.messages import DepthRequest, LoadScene
 
 log = logging.getLogger("tessera.node")
@@ -193,25 +194,27 @@ class GLWorker:
 
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                      state: SceneState | None = None, scene: str | None = None,
-                     jitter: Jitter = None) -> RenderedTile:
+                     subsample: Subsample | None = None) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
-        (None: the base pose), shifted by ``jitter`` px (a still's sample); ``slot`` (the tile id)
+        (None: the base pose), as ``subsample`` of a still (None: a plain frame); ``slot`` (the tile id)
         keys the tile's hybrid culling switch. Raises SceneNotLoadedError for a scene not held."""
-        return await self._call(self._render, camera, size, rect, slot, state, scene, jitter)
+        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
-                state: SceneState | None, scene: str | None, jitter: Jitter) -> RenderedTile:
-        return self._scenes.find(scene).renderer.render_tile(camera, size, rect, slot, state=state, jitter=jitter)
+                state: SceneState | None, scene: str | None, subsample: Subsample | None) -> RenderedTile:
+        return self._scenes.find(scene).renderer.render_tile(camera, size, rect, slot, state=state,
+                                                             subsample=subsample)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                           state: SceneState | None, scene: str | None = None, jitter: Jitter = None) -> DepthRender:
+                           state: SceneState | None, scene: str | None = None,
+                           subsample: Subsample | None = None) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
-        version; ``jitter`` as :meth:`render`'s. Raises SceneNotLoadedError for a scene or share not held."""
-        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, jitter)
+        version; ``subsample`` as :meth:`render`'s. Raises SceneNotLoadedError for a scene or share not held."""
+        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                      state: SceneState | None, scene: str | None, jitter: Jitter) -> DepthRender:
+                      state: SceneState | None, scene: str | None, subsample: Subsample | None) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
         started = time.perf_counter()
@@ -219,7 +222,7 @@ class GLWorker:
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
             return DepthRender(None, None, None, plan_ms, share)
-        layer, blend = render_plan(renderer, camera, size, plan, state, jitter)
+        layer, blend = render_plan(renderer, camera, size, plan, state, subsample)
         return DepthRender(layer, plan.exclusive, blend, plan_ms, share)
 
     def _close(self) -> None:

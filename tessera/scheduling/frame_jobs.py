@@ -17,7 +17,7 @@ from PIL import Image
 from tessera.balancers.base import Partition, TileTiming
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
-from tessera.scheduling.refinement import jitter
+from tessera.scheduling.refinement import Subsample, subsample
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
@@ -112,9 +112,9 @@ class FrameJob:
         return self.tiles_done == len(self.tiles)
 
     @property
-    def jitter(self) -> tuple[float, float] | None:
-        """The sub-pixel offset its tiles are rendered with (a still's sample; None: not shifted)."""
-        return jitter(self.sample, self.samples) if self.still else None
+    def subsample(self) -> Subsample | None:
+        """How its tiles are drawn: a still's sample's jitter and LOD bias (None: a plain frame)."""
+        return subsample(self.sample, self.samples) if self.still else None
 
     @property
     def converged(self) -> bool:
@@ -129,10 +129,12 @@ class FrameJob:
     def render_message(self, tile_ids: list[int], state: SceneState | StateDelta | None = None) -> Render:
         """The ``render`` control message for some of this frame's tiles; ``state`` brings the node
         to this frame's state (the state itself, or a delta on the one the node has)."""
+        sub = self.subsample
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
                       tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state,
-                      depth=self.depth, scene=self.scene, jitter=self.jitter)
+                      depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
+                      lod_bias=None if sub is None else sub.lod_bias)
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes,
                depth_tile: DecodedDepthTile | None = None) -> TileJob | None:

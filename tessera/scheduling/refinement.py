@@ -10,6 +10,11 @@ describes it; this is what a rendering engineer would expect of it:
   is not shifted (that still is the interactive frame's picture, losslessly). Every tile of one
   sample has the same offset: it is a shift of the full-frame projection (:func:`jitter_matrix`),
   so tiles still join without seams.
+* **Texture detail.** N samples in a pixel are as dense as √N × √N supersampling, whose textures
+  are read √N times finer: each sample reads its textures with the LOD bias −½·log₂ N
+  (:func:`lod_bias`; −2 at 16 samples, as a 4×4 supersampled frame). Without it the mean keeps the
+  one-sample frame's mip level and textured scenes stop near 41 dB against the 4×4 supersampled
+  frame (the milk truck), with it they reach 48-51 dB (``python -m bench.picture``).
 * **Accumulation.** The samples' 8-bit pixels are summed as integers (:class:`Accumulator`) and the
   picture shown after ``n`` samples is their mean rounded half up: exact, the same wherever it is
   computed (the coordinator, ``--render-once``), whatever the order the tiles arrive in. The mean
@@ -21,6 +26,9 @@ Pure: numpy arrays in, arrays out.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -52,6 +60,31 @@ def jitter(sample: int, samples: int) -> tuple[float, float] | None:
     if samples == 1:
         return None
     return radical_inverse(sample + 1, 2) - 0.5, radical_inverse(sample + 1, 3) - 0.5
+
+
+def lod_bias(samples: int) -> float:
+    """The texture LOD bias of a still of ``samples`` (−½·log₂ samples; 0 for one sample)."""
+    return -0.5 * math.log2(samples)
+
+
+@dataclass(frozen=True, slots=True)
+class Subsample:
+    """How one sample of a still is drawn: the frame shifted by ``offset`` (dx, dy) px (x right,
+    y down; None: not shifted), textures read with ``lod_bias``."""
+
+    offset: tuple[float, float] | None = None
+    lod_bias: float = 0.0
+
+    @classmethod
+    def of(cls, offset: tuple[float, float] | None, bias: float | None) -> Subsample | None:
+        """The subsample a render message asks for (None: a plain frame)."""
+        return None if offset is None and not bias else cls(offset, bias or 0.0)
+
+
+def subsample(sample: int, samples: int) -> Subsample | None:
+    """How sample ``sample`` of a still of ``samples`` is drawn (None, a plain frame, for one sample)."""
+    offset = jitter(sample, samples)
+    return None if offset is None else Subsample(offset, lod_bias(samples))
 
 
 def jitter_matrix(offset: tuple[float, float] | None, size: tuple[int, int]) -> np.ndarray:

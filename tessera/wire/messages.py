@@ -430,11 +430,13 @@ class Render(Message):
     #: A progressive still's sub-pixel offset (dx, dy) in pixels, x right, y down, each in
     #: [-0.5, 0.5) (:mod:`tessera.scheduling.refinement`); None: the frame is not shifted.
     jitter: tuple[Jitter, Jitter] | None = None
+    #: The texture LOD bias of a progressive still's sample (≤ 0); None: no bias.
+    lod_bias: Annotated[StrictFloat, Field(ge=-8.0, le=0.0)] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first, without ``scene`` and ``jitter`` when None."""
-        return self._without_none(super().to_json(), "state", "depth", "scene", "jitter")
+        ``depth`` in sort-first, without ``scene``, ``jitter`` and ``lod_bias`` when None."""
+        return self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias")
 
 
 class Calibrate(Message):
