@@ -13,10 +13,11 @@ once per cell and frame; whole-wall viewers get the whole frame. It holds the wa
 
 Video (issue 21): a viewer that takes a video codec gets the session's stream in it
 (:class:`server.video_stream.VideoStream`, one per codec, shared) instead of the interactive tiles,
-and still frames as TFRM images. Its encoded frames wait in a queue of their own (a decoder needs
-every frame since the last keyframe): when more than :data:`MAX_VIDEO_QUEUED` wait, the socket
-cannot keep up, so the queue is emptied, the viewer skips to the next keyframe and one is asked for;
-each window the viewers' links set the stream's rate (:mod:`tessera.video.link_rate`)."""
+and still frames (and the progressive still's refinements) as TFRM images. Its encoded frames wait
+in a queue of their own (a decoder needs every frame since the last keyframe): when more than
+:data:`MAX_VIDEO_QUEUED` wait, the socket cannot keep up, so the queue is emptied, the viewer skips
+to the next keyframe and one is asked for; each window the viewers' links (their reports of the
+newest frame received) set the stream's rate (:mod:`tessera.video.link_rate`)."""
 
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ from tessera.wire.codec import Codec
 from tessera.wire.messages import CameraUpdate, Message
 from tessera.wire.protocol import pack_frame, with_input_seq
 from tessera.wire.stream_messages import StreamBitrate, StreamChoice, StreamReport
-from tessera.wire.video import VideoCodec
+from tessera.wire.video import VideoCodec, video_frame_id
 from tessera.wire.wall_messages import PresentFrame
 
 #: How far ahead of now a wall's cells are told to present a frame (s): longer than a present
@@ -53,6 +54,7 @@ class ViewerMessages(Protocol):
 
     frame_id: int
     still: bool
+    samples: int
     tiles: list[tuple[Rect, Codec, int, bytes]]
 
     def message_for(self, viewer_id: object) -> bytes: ...
@@ -91,6 +93,12 @@ class ViewerSlot:
         self.report: StreamReport | None = None
         self._reported_dropped = 0.0
         self._window = (time.monotonic(), 0, 0, 0)   # start, bytes written, frames dropped, most waiting
+        #: Video bytes written to the socket in all, and (frame id, that total once it was written)
+        #: for the frames the viewer has not said it received yet.
+        self.video_written = 0
+        self._written_at: deque[tuple[int, int]] = deque()
+        self._acknowledged = (time.monotonic(), 0)   # when the viewer last said, and the total it had then
+        self._received_bps: float | None = None
 
     def put_video(self, message: bytes, keyframe: bool) -> bool:
         """Queue an encoded video frame; True when the viewer lost one (its queue overflowed) and
@@ -116,16 +124,32 @@ class ViewerSlot:
         start, total, lost, most = self._window
         self._window = (start, total + written, lost + dropped, max(most, waiting))
 
-    def link_report(self, now: float) -> LinkReport:
-        """This viewer's link over the window since the last call (then a new window starts)."""
+    def take_report(self, report: StreamReport, now: float) -> None:
+        """The viewer's report: what it received up to ``report.frame`` is no longer on its way."""
+        self.report = report
+        received = None
+        while self._written_at and report.frame is not None and self._written_at[0][0] <= report.frame:
+            received = self._written_at.popleft()[1]
+        if received is not None:
+            self._received_bps = (received - self._acknowledged[1]) * 8.0 / max(now - self._acknowledged[0], 1e-3)
+            self._acknowledged = (now, received)
+
+    def link_report(self, now: float, bitrate: float) -> LinkReport:
+        """This viewer's link over the window since the last call (then a new window starts), for a
+        stream of ``bitrate`` (bit/s)."""
         start, written, dropped, most = self._window
         self._window = (now, 0, 0, len(self.video))
-        viewer_dropped = 0.0
+        delivered = written * 8.0 / max(now - start, 1e-3)
+        viewer_dropped, in_flight_s = 0.0, 0.0
         if self.report is not None:
             viewer_dropped = max(0.0, self.report.frames_dropped - self._reported_dropped)
             self._reported_dropped = self.report.frames_dropped
-        return LinkReport(delivered_bps=written * 8.0 / max(now - start, 1e-3), dropped=dropped + int(viewer_dropped),
-                          decode_queue=self.report.decode_queue if self.report else 0.0, backlog=most)
+        if self.report is not None and self.report.frame is not None:
+            in_flight_s = (self.video_written - self._acknowledged[1]) * 8.0 / max(bitrate, 1.0)
+            delivered = self._received_bps if self._received_bps is not None else delivered
+        return LinkReport(delivered_bps=delivered, dropped=dropped + int(viewer_dropped),
+                          decode_queue=self.report.decode_queue if self.report else 0.0, backlog=most,
+                          in_flight_s=in_flight_s)
 
     def put_frame(self, message: bytes) -> None:
         if self.frame is not None:
@@ -166,6 +190,8 @@ class ViewerSlot:
                 self.frames_sent += 1
                 video = self.video.popleft()
                 self._count(written=len(video))
+                self.video_written += len(video)
+                self._written_at.append((video_frame_id(video), self.video_written))
                 return video
             if self.frame is not None:
                 frame, self.frame = self.frame, None
@@ -179,7 +205,7 @@ class ViewerSlot:
         it measured itself (``p50_ms``, ``p90_ms``, ``samples``, ``interval_ms``; empty until it reports)."""
         return {"id": self.viewer_id, "frames_sent": self.frames_sent, "frames_dropped": self.frames_dropped,
                 "input_latency": dict(self.latency), "cell": None if self.cell is None else list(self.cell),
-                "transport": self.video_codec.label if self.video_codec else "tiles",
+                "transport": self.video_codec.label if self.video_codec is not None else "tiles",
                 "stream_report": self.report.model_dump() if self.report else None}
 
 
@@ -252,7 +278,8 @@ class ViewerHub:
                     stream.request_keyframe()
         self.bytes_published += sum(len(message) for message, _ in messages)
         now = time.monotonic()
-        if takers and stream.rate.due(now) and stream.rate.update([slot.link_report(now) for slot in takers], now):
+        if takers and stream.rate.due(now) and stream.rate.update(
+                [slot.link_report(now, stream.rate.bitrate) for slot in takers], now):
             update = StreamBitrate(bitrate=float(stream.rate.bitrate), max_fps=float(stream.rate.fps))
             for slot in takers:
                 slot.put_control(update)
@@ -268,8 +295,9 @@ class ViewerHub:
         counts each whole frame once and each cell's part once."""
         length = 0
         parts: dict[tuple[int, int], bytes] = {}
+        image = frame.still or frame.samples > 0   # the still and its refinements stay exact images
         for slot in self.slots:
-            if slot.video_codec is not None and not frame.still:
+            if slot.video_codec is not None and not image:
                 continue
             if slot.cell is not None and self.wall is not None:
                 if slot.cell not in parts:
@@ -280,7 +308,7 @@ class ViewerHub:
                 slot.put_frame(message)
                 length = len(message)
         self.bytes_published += length + sum(len(part) for part in parts.values())
-        if not frame.still:
+        if not image:
             for stream in self.streams.values():
                 stream.submit(frame)
 

@@ -183,7 +183,7 @@ async def viewer_socket(ws: WebSocket) -> None:
                 case KeyframeRequest():
                     session.viewers.request_keyframe(slot)
                 case StreamReport():
-                    slot.report = request
+                    slot.take_report(request, time.monotonic())
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
                 case CameraUpdate() | ViewerSize() if watching:

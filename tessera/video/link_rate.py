@@ -4,8 +4,10 @@ multiplicative decrease, as TCP-friendly senders and Selkies' and Pixel Streamin
 control do. When the link cannot carry even the lowest cap, the frame rate comes down next.
 
 A report window is congested when a viewer dropped frames (its decoder's queue overflowed, or its
-socket held frames back so long the coordinator dropped them), when frames wait in its decoder, or
-when frames waited to be written to its socket. Pure: the clock comes in as ``now`` (s)."""
+socket held frames back so long the coordinator dropped them), when frames wait in its decoder, when
+frames waited to be written to its socket, or when more than :data:`MAX_IN_FLIGHT_S` of the stream
+was written but not yet received (the viewer says which frame it received last: the buffers of a
+slow link fill long before the coordinator's socket does). Pure: the clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
 
@@ -25,24 +27,29 @@ CLEAN_WINDOWS = 3
 MAX_DECODE_QUEUE = 3
 #: Frames waiting for a viewer's socket at once that count as congestion.
 MAX_BACKLOG = 2
+#: Seconds of the stream on their way to a viewer (written, not received) that count as congestion.
+MAX_IN_FLIGHT_S = 0.3
 #: Shortest time (s) between two changes: a report window.
 WINDOW_S = 1.0
 
 
 @dataclass
 class LinkReport:
-    """One viewer's window: ``delivered_bps`` (bit/s written to its socket), ``dropped`` frames
-    (the viewer's and the coordinator's), ``decode_queue`` frames waiting in its decoder (its last
-    report), ``backlog`` the most frames waiting for its socket at once."""
+    """One viewer's window: ``delivered_bps`` (bit/s it received, or written to its socket when
+    it does not say), ``dropped`` frames (the viewer's and the coordinator's), ``decode_queue``
+    frames waiting in its decoder (its last report), ``backlog`` the most frames waiting for its
+    socket at once, ``in_flight_s`` the stream's seconds written but not received (its last report)."""
 
     delivered_bps: float
     dropped: int
     decode_queue: float
     backlog: int
+    in_flight_s: float = 0.0
 
     @property
     def congested(self) -> bool:
-        return self.dropped > 0 or self.decode_queue > MAX_DECODE_QUEUE or self.backlog >= MAX_BACKLOG
+        return (self.dropped > 0 or self.decode_queue > MAX_DECODE_QUEUE or self.backlog >= MAX_BACKLOG
+                or self.in_flight_s > MAX_IN_FLIGHT_S)
 
 
 class LinkRate:

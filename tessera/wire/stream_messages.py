@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, StrictInt
 
 from tessera.wire.messages import Message, NonNegative, Text
 
@@ -47,13 +47,16 @@ class KeyframeRequest(Message):
 
 class StreamReport(Message):
     """Over the viewer's last report window: bytes received per second, frames decoded and
-    painted per second, frames waiting in its decoder now, and frames it dropped in all."""
+    painted per second, frames waiting in its decoder now, frames it dropped in all, and the
+    newest video frame id it received (None: none yet) — what the coordinator wrote after that
+    frame is still on its way."""
 
     kind = "stream_report"
     bytes_per_s: NonNegative
     decoded_fps: NonNegative
     decode_queue: NonNegative
     frames_dropped: NonNegative
+    frame: Annotated[StrictInt, Field(ge=0, le=2**32 - 1)] | None = None
 
 
 class StreamBitrate(Message):

@@ -47,9 +47,10 @@ _H264_LEVELS = ((30, 1620, 40500), (31, 3600, 108000), (32, 5120, 216000), (40, 
                 (42, 8704, 522240), (50, 22080, 589824), (51, 36864, 983040), (52, 36864, 2073600),
                 (60, 139264, 4177920))
 #: VP9 levels (level × 10, largest frame in pixels, pixels per second), the VP9 levels table.
-_VP9_LEVELS = ((10, 36864, 829440), (20, 122880, 4608000), (30, 313344, 15052800), (31, 589824, 26214400),
-               (40, 2228224, 66846720), (41, 2228224, 133693440), (50, 8912896, 267386880),
-               (51, 8912896, 534773760), (52, 8912896, 1069547520), (60, 35651584, 1069547520))
+_VP9_LEVELS = ((10, 36864, 829440), (11, 73728, 2764800), (20, 122880, 4608000), (21, 245760, 9216000),
+               (30, 552960, 20736000), (31, 983040, 36864000), (40, 2228224, 83558400),
+               (41, 2228224, 160432128), (50, 8912896, 311951360), (51, 8912896, 588251136),
+               (52, 8912896, 1176502272), (60, 35651584, 1176502272), (61, 35651584, 2353004544))
 
 
 def codec_string(codec: VideoCodec, size: tuple[int, int], fps: float = 60.0) -> str:
@@ -89,6 +90,11 @@ def pack_video(frame_id: int, size: tuple[int, int], codec: VideoCodec, keyframe
 def is_video(message: bytes) -> bool:
     """The binary viewer message is a ``TVID`` video frame (not a TFRM frame of tiles)."""
     return message[:4] == VIDEO_MAGIC
+
+
+def video_frame_id(message: bytes) -> int:
+    """The frame id of a packed ``TVID`` message (no checks: the coordinator's own messages)."""
+    return int.from_bytes(message[8:12], "little")
 
 
 def unpack_video(message: bytes) -> VideoFrame:

@@ -1,0 +1,141 @@
+"""Video to the browser (issue 21), the pure parts: the TVID message, codec strings, the transport a
+viewer gets, the link's rate control, and the encoder's YUV picture from tiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tessera.geometry import Rect
+from tessera.video.link_rate import CLEAN_WINDOWS, MIN_BITRATE, MIN_FPS, WINDOW_S, LinkRate, LinkReport
+from tessera.video.transport import choose_transport
+from tessera.video.yuv_frame import coded_size, compose_yuv420, tile_ycbcr
+from tessera.wire.codec import Codec, encode
+from tessera.wire.protocol import ProtocolError, with_input_seq
+from tessera.wire.video import VideoCodec, codec_string, is_video, pack_video, unpack_video
+
+
+def test_video_message_round_trip_and_input_number() -> None:
+    message = pack_video(7, (641, 361), VideoCodec.VP9, True, b"\x00\x01unit")
+    assert is_video(message) and not is_video(b"TFRM" + message[4:])
+    frame = unpack_video(with_input_seq(message, 42))
+    assert (frame.frame_id, frame.size, frame.codec, frame.keyframe, frame.input_seq, frame.data) == \
+        (7, (641, 361), VideoCodec.VP9, True, 42, b"\x00\x01unit")
+    assert not unpack_video(pack_video(8, (16, 16), VideoCodec.H264, False, b"x")).keyframe
+
+
+UNIT = pack_video(1, (2, 2), VideoCodec.H264, False, b"x")
+
+
+@pytest.mark.parametrize("message, reason", [
+    (b"TVID", "shorter than its header"),
+    (b"XXXX" + pack_video(1, (2, 2), VideoCodec.H264, False, b"x")[4:], "bad video magic"),
+    (pack_video(1, (2, 2), VideoCodec.H264, False, b""), "without an access unit"),
+    (UNIT[:6] + b"\x09" + UNIT[7:], "unknown video codec 9"),
+])
+def test_malformed_video_messages_say_what_is_wrong(message: bytes, reason: str) -> None:
+    with pytest.raises(ProtocolError, match=reason):
+        unpack_video(message)
+
+
+def test_codec_strings_name_the_smallest_level_that_holds_the_frames() -> None:
+    assert codec_string(VideoCodec.H264, (640, 360), 30) == "avc1.42c01e"      # level 3.0
+    assert codec_string(VideoCodec.H264, (1280, 720), 30) == "avc1.42c01f"     # 3.1
+    assert codec_string(VideoCodec.H264, (1280, 720), 60) == "avc1.42c020"     # 3.2
+    assert codec_string(VideoCodec.H264, (1920, 1080), 60) == "avc1.42c02a"    # 4.2
+    assert codec_string(VideoCodec.H264, (3840, 2160), 30) == "avc1.42c033"    # 5.1
+    assert codec_string(VideoCodec.VP9, (1280, 720), 30) == "vp09.00.31.08"
+    assert codec_string(VideoCodec.VP9, (1920, 1080), 60) == "vp09.00.41.08"
+
+
+@pytest.mark.parametrize("mode, offered, codec, reason", [
+    ("auto", ["h264", "vp9"], VideoCodec.H264, None),
+    ("auto", ["vp9", "h264"], VideoCodec.H264, "the coordinator sends h264 (--stream auto)"),
+    ("auto", ["vp9"], VideoCodec.VP9, None),
+    ("auto", ["av1"], None, "the viewer decodes av1, not h264 or vp9 (--stream auto)"),
+    ("auto", [], None, "the viewer decodes no video (no WebCodecs)"),
+    ("vp9", ["h264", "VP9"], VideoCodec.VP9, "the coordinator sends vp9 (--stream vp9)"),
+    ("h264", ["vp9"], None, "the viewer decodes vp9, not h264 (--stream h264)"),
+    ("tiles", ["h264"], None, "the coordinator sends tiles (--stream tiles)"),
+])
+def test_transport_follows_stream_mode_and_what_the_viewer_decodes(mode, offered, codec, reason) -> None:
+    assert choose_transport(mode, offered) == (codec, reason)
+
+
+def clean(delivered: float = 1e6) -> LinkReport:
+    return LinkReport(delivered_bps=delivered, dropped=0, decode_queue=0.0, backlog=1)
+
+
+def test_congestion_cuts_the_bitrate_then_the_frame_rate_and_clean_windows_restore_them() -> None:
+    rate, now = LinkRate(4e6, 60.0), 0.0
+    assert not rate.update([], now)                      # no viewer reported: nothing to follow
+    assert rate.update([LinkReport(delivered_bps=1e6, dropped=2, decode_queue=0.0, backlog=0)], now)
+    assert rate.bitrate == pytest.approx(0.7e6)          # 0.7 × what got through, not 0.7 × the cap
+    assert not rate.update([LinkReport(delivered_bps=1e5, dropped=2, decode_queue=0.0, backlog=0)], now + 0.5)
+    while rate.bitrate > MIN_BITRATE:
+        now += WINDOW_S
+        rate.update([LinkReport(delivered_bps=1e9, dropped=0, decode_queue=9.0, backlog=0)], now)
+    assert rate.fps == 60.0
+    now += WINDOW_S
+    assert rate.update([LinkReport(delivered_bps=1e9, dropped=0, decode_queue=0.0, backlog=5)], now)
+    assert rate.bitrate == MIN_BITRATE and rate.fps == pytest.approx(42.0)
+    for _ in range(200):
+        now += WINDOW_S
+        rate.update([clean(), LinkReport(delivered_bps=0, dropped=1, decode_queue=0.0, backlog=0)], now)
+    assert rate.fps == MIN_FPS                           # the worst link rules
+    for _ in range(400):
+        now += WINDOW_S
+        rate.update([clean()], now)
+    assert (rate.bitrate, rate.fps) == (4e6, 60.0)
+
+
+def test_a_clean_link_raises_nothing_for_a_few_windows_and_a_new_size_keeps_a_lowered_cap() -> None:
+    rate = LinkRate(4e6, 30.0)
+    rate.update([LinkReport(delivered_bps=1e6, dropped=1, decode_queue=0.0, backlog=0)], 0.0)
+    lowered = rate.bitrate
+    for step in range(1, CLEAN_WINDOWS):
+        assert not rate.update([clean()], step * WINDOW_S)
+    assert rate.update([clean()], CLEAN_WINDOWS * WINDOW_S) and rate.bitrate == pytest.approx(lowered * 1.25)
+    rate.set_ceiling(9e6)
+    assert rate.bitrate == pytest.approx(lowered * 1.25)
+    rate.set_ceiling(1e5)
+    assert rate.bitrate == MIN_BITRATE
+    fresh = LinkRate(4e6, 30.0)
+    fresh.set_ceiling(9e6)
+    assert fresh.bitrate == 9e6
+
+
+def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
+    """Reference JFIF conversion, float."""
+    r, g, b = (rgb[..., i].astype(np.float64) for i in range(3))
+    return np.stack([0.299 * r + 0.587 * g + 0.114 * b,
+                     128 - 0.168736 * r - 0.331264 * g + 0.5 * b,
+                     128 + 0.5 * r - 0.418688 * g - 0.081312 * b], axis=-1)
+
+
+def test_the_picture_from_jpeg_png_and_raw_tiles_is_the_frame_in_ycbcr_420() -> None:
+    width, height = 101, 67                                  # odd: padded to 102x68
+    yy, xx = np.mgrid[0:height, 0:width]
+    rgb = np.stack([(xx * 2) % 256, (yy * 3) % 256, ((xx + yy) * 2) % 256], axis=-1).astype(np.uint8)
+    rects = [Rect(0, 0, 50, 67), Rect(50, 0, 51, 30), Rect(50, 30, 51, 37)]
+    tiles = [(rect, codec, 0, encode(np.ascontiguousarray(rgb[rect.y:rect.y1, rect.x:rect.x1]), codec, 95))
+             for rect, codec in zip(rects, (Codec.JPEG, Codec.PNG, Codec.RAW), strict=True)]
+    planes = compose_yuv420((width, height), tiles)
+    coded_w, coded_h = coded_size((width, height))
+    assert (coded_w, coded_h) == (102, 68) and planes.shape == (coded_h * 3 // 2, coded_w)
+    expected = rgb_to_ycbcr(rgb)
+    luma = planes[:coded_h].astype(np.float64)
+    assert np.abs(luma[:67, 50:101] - expected[:, 50:, 0]).max() <= 1.0     # PNG and raw: exact but rounding
+    assert np.abs(luma[:67, :50] - expected[:, :50, 0]).mean() < 2.0       # JPEG q95: near
+    assert np.array_equal(luma[:, 101], luma[:, 100]) and np.array_equal(luma[67], luma[66])
+    chroma = planes[coded_h:].reshape(-1)
+    cb = chroma[:(coded_h // 2) * (coded_w // 2)].reshape(coded_h // 2, coded_w // 2).astype(np.float64)
+    cr = chroma[(coded_h // 2) * (coded_w // 2):].reshape(coded_h // 2, coded_w // 2).astype(np.float64)
+    assert np.abs(cb[:33, 26:50] - expected[:66:2, 52:100:2, 1]).max() <= 1.0
+    assert np.abs(cr[:33, 26:50] - expected[:66:2, 52:100:2, 2]).max() <= 1.0
+
+
+def test_a_tile_that_is_not_what_its_rect_says_is_refused() -> None:
+    payload = encode(np.zeros((8, 8, 3), np.uint8), Codec.JPEG, 80)
+    with pytest.raises(ValueError, match="expected YCbCr 16x8"):
+        tile_ycbcr(payload, Codec.JPEG, 16, 8)

@@ -1,0 +1,216 @@
+"""Video to the browser (issue 21) end to end: a real coordinator and node, viewers on real
+WebSockets that decode the stream with PyAV — the frames equal ``--render-once`` of their camera
+closely, ``--stream tiles`` keeps tiles, and a viewer behind a throttled link (a loopback proxy)
+keeps a decodable stream while the coordinator brings the bitrate down."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
+from typing import Any
+
+import av
+import httpx
+import numpy as np
+import pytest
+import websockets.sync.client as ws_client
+
+from bench.images import psnr
+from bench.processes import orbit
+from tessera.wire.codec import Codec, decode, encode
+from tessera.wire.protocol import unpack_frame
+from tessera.wire.video import is_video, unpack_video
+from tests.conftest import seconds
+from tests.integration_support import render_once, stats, wait_rendering, wait_until
+
+pytestmark = [pytest.mark.integration, pytest.mark.gl]
+
+SIZE = (480, 270)
+
+
+class VideoViewer:
+    """A viewer socket that offers ``codecs`` after hello and decodes what comes: ``choices`` the
+    ``stream`` messages, ``video`` (frame id, keyframe, input number, decoded (h, w, 3)) and
+    ``tiles`` (frame id, still) in order of arrival."""
+
+    def __init__(self, ws: ws_client.ClientConnection, codecs: list[str]) -> None:
+        self.ws = ws
+        hello = json.loads(self.ws.recv(timeout=seconds(30)))
+        self.camera: dict[str, Any] = hello["camera"]
+        self.ws.send(json.dumps({"type": "stream_offer", "codecs": codecs}))
+        self.decoders: dict[int, Any] = {}
+        self.choices: list[dict[str, Any]] = []
+        self.video: list[tuple[int, bool, int, np.ndarray]] = []
+        self.tiles: list[tuple[int, bool]] = []
+        self.seq = 0
+        self.reported_at = time.monotonic()
+
+    def move(self, angle: float) -> None:
+        self.seq += 1
+        self.camera = orbit(self.camera, angle)
+        self.ws.send(json.dumps({"type": "camera", "camera": self.camera, "seq": self.seq}))
+
+    def read(self, seconds_: float) -> None:
+        """Take what comes for ``seconds_``, reporting the newest video frame each second, as the
+        browser's viewer does."""
+        deadline = time.monotonic() + seconds_
+        while (left := deadline - time.monotonic()) > 0:
+            if time.monotonic() - self.reported_at >= 1.0 and self.video:
+                self.reported_at = time.monotonic()
+                self.ws.send(json.dumps({"type": "stream_report", "bytes_per_s": 0, "decoded_fps": 0, "decode_queue": 0,
+                                         "frames_dropped": 0, "frame": self.video[-1][0]}))
+            try:
+                message = self.ws.recv(timeout=min(left, 0.05))
+            except TimeoutError:
+                continue
+            self.take(message)
+
+    def take(self, message: str | bytes) -> None:
+        if isinstance(message, str):
+            data = json.loads(message)
+            if data["type"] == "stream":
+                self.choices.append(data)
+            return
+        if is_video(message):
+            frame = unpack_video(message)
+            decoder = self.decoders.setdefault(frame.codec, av.CodecContext.create(frame.codec.label, "r"))
+            pictures = decoder.decode(av.Packet(frame.data))
+            assert len(pictures) == 1, f"frame {frame.frame_id} did not decode to one picture"
+            width, height = frame.size
+            self.video.append((frame.frame_id, frame.keyframe, frame.input_seq,
+                               pictures[0].to_ndarray(format="rgb24")[:height, :width]))
+        else:
+            tiles = unpack_frame(message)
+            self.tiles.append((tiles.frame_id, tiles.still))
+
+
+
+@contextmanager
+def video_viewer(url: str, codecs: list[str]) -> Iterator[VideoViewer]:
+    with ws_client.connect(url, max_size=None, open_timeout=seconds(30)) as ws:
+        yield VideoViewer(ws, codecs)
+
+
+@contextmanager
+def started(coordinator_factory, *args: str) -> Iterator[tuple[Any, httpx.Client]]:
+    """A coordinator with one local node, rendering, and an API client of it."""
+    coordinator = coordinator_factory("--size", f"{SIZE[0]}x{SIZE[1]}", "--local-nodes", "1", *args)
+    with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
+        wait_rendering(client, 1)
+        yield coordinator, client
+
+
+def test_a_video_viewer_sees_render_once_and_a_late_viewer_starts_on_a_keyframe(coordinator_factory, tmp_path):
+    with started(coordinator_factory) as (coordinator, client):
+        cameras: dict[int, dict[str, Any]] = {}
+        with video_viewer(f"{coordinator.ws_url}/ws/view", ["h264", "vp9"]) as viewer:
+            for _ in range(12):
+                viewer.move(0.04)
+                cameras[viewer.seq] = viewer.camera
+                viewer.read(0.15)
+            with video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"]) as late:
+                for _ in range(6):
+                    viewer.move(0.04)
+                    cameras[viewer.seq] = viewer.camera
+                    viewer.read(0.15)
+                    late.read(0.05)
+                wait_until(lambda: viewer.read(0.2) or (viewer.tiles and viewer.tiles[-1][1]), seconds(60),
+                           "the still frame")
+                late.read(0.5)
+            assert stats(client)["video"], "the stream runs while a viewer takes it"
+        assert viewer.choices[0]["transport"] == "h264" and viewer.choices[0]["codec"].startswith("avc1.42c0")
+        assert len(viewer.video) >= 5, viewer.video
+        assert viewer.video[0][1], "the first video frame is a keyframe"
+        assert sum(key for _, key, _, _ in viewer.video) < len(viewer.video) / 2
+        assert late.choices[0]["transport"] == "h264" and late.video and late.video[0][1]
+        assert viewer.tiles[-1][1], "at rest the still frame comes as an image"
+        _, _, seq, picture = viewer.video[-1]
+        reference = render_once("builtin:cluster", cameras[seq], SIZE, tmp_path)
+        tiles = decode(encode(reference, Codec.JPEG, 60), Codec.JPEG, *SIZE)       # today's interactive tiles
+        assert psnr(picture, reference) >= psnr(tiles, reference) - 3.0
+        wait_until(lambda: not stats(client)["video"], seconds(10), "the stream stops with its last viewer")
+
+
+def test_stream_tiles_keeps_tiles_and_says_why(coordinator_factory):
+    with started(coordinator_factory, "--stream", "tiles") as (coordinator, client):
+        with video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"]) as viewer:
+            for _ in range(5):
+                viewer.move(0.05)
+                viewer.read(0.2)
+        assert viewer.choices == [{"type": "stream", "transport": "tiles", "codec": None,
+                                   "reason": "the coordinator sends tiles (--stream tiles)"}]
+        assert not viewer.video and len(viewer.tiles) >= 3
+        assert stats(client)["video"] == []
+
+
+@contextmanager
+def throttled_proxy(port: int, bytes_per_s: float) -> Iterator[int]:
+    """A loopback TCP proxy to ``port`` that passes what the coordinator sends at ``bytes_per_s``
+    (reading its side in small pieces into a small receive buffer, so the coordinator's socket
+    fills); yields the proxy's port."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def pump(source: socket.socket, sink: socket.socket, rate: float | None) -> None:
+        try:
+            while not stop.is_set():
+                data = source.recv(2048)
+                if not data:
+                    break
+                sink.sendall(data)
+                if rate:
+                    time.sleep(len(data) / rate)
+        except OSError:
+            pass
+        finally:
+            for end in (source, sink):
+                with suppress(OSError):
+                    end.shutdown(socket.SHUT_RDWR)
+                end.close()
+
+    def serve() -> None:
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                client, _ = listener.accept()
+            except TimeoutError:
+                continue
+            upstream = socket.socket()
+            upstream.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8192)
+            upstream.connect(("127.0.0.1", port))
+            threading.Thread(target=pump, args=(client, upstream, None), daemon=True).start()
+            threading.Thread(target=pump, args=(upstream, client, bytes_per_s), daemon=True).start()
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    try:
+        yield listener.getsockname()[1]
+    finally:
+        stop.set()
+        server.join(timeout=5)
+        listener.close()
+
+
+def test_a_throttled_viewer_gets_a_lower_bitrate_and_a_stream_that_still_decodes(coordinator_factory):
+    with started(coordinator_factory, "--max-bitrate", "2M") as (coordinator, client):
+        port = int(coordinator.url.rsplit(":", 1)[1])
+        bitrates: list[int] = []
+        with throttled_proxy(port, 2_000) as proxy_port, \
+                video_viewer(f"ws://127.0.0.1:{proxy_port}/ws/view", ["h264"]) as viewer:
+            deadline = time.monotonic() + seconds(60)
+            while time.monotonic() < deadline and not (bitrates and min(bitrates) < bitrates[0]):
+                viewer.move(0.05)
+                viewer.read(0.2)
+                bitrates.extend(stream["bitrate"] for stream in stats(client)["video"])
+            lowered = len(viewer.video)
+            for _ in range(15):
+                viewer.move(0.05)
+                viewer.read(0.2)
+            streams = stats(client)["video"]
+    assert bitrates and min(bitrates) < bitrates[0], bitrates
+    assert viewer.video[0][1] and len(viewer.video) > lowered, "frames keep coming, and decode, after the cut"
+    assert streams[0]["encoders_made"] >= 2 and streams[0]["keyframes"] >= 2, "a new bitrate, a new encoder"
