@@ -89,7 +89,8 @@ def camera_key(camera: dict[str, Any]) -> tuple[float, ...]:
 
 @dataclass
 class References:
-    """``python -m node --render-once`` of a few cameras: every frame must equal one of them."""
+    """``python -m node --render-once --interactive`` of a few cameras: every frame must equal one of
+    them (the coordinator runs ``--still-samples 1``: its still is that frame too)."""
 
     cameras: list[dict[str, Any]]
     images: list[np.ndarray]
@@ -102,7 +103,7 @@ class References:
         base = {"eye": eye.tolist(), "target": center.tolist(), "up": [0.0, 1.0, 0.0], "fovy_deg": 45.0}
         cameras = [orbit(base, 2.0 * math.pi * i / count) for i in range(count)]
         with ThreadPoolExecutor(count) as pool:
-            images = list(pool.map(lambda camera: render_once(scene, camera, size), cameras))
+            images = list(pool.map(lambda camera: render_once(scene, camera, size, "--interactive"), cameras))
         return cls(cameras, images)
 
     def image_for(self, camera: dict[str, Any]) -> np.ndarray | None:
@@ -533,7 +534,7 @@ def main(argv: list[str] | None = None) -> int:
         log_dir = args.log_dir or Path(tmp)
         log_dir.mkdir(parents=True, exist_ok=True)
         server_args = ["--scene", args.scene, "--size", f"{args.size[0]}x{args.size[1]}", "--codec", "png",
-                       "--local-nodes", str(args.nodes)] + (["--token", token] if token else [])
+                       "--still-samples", "1", "--local-nodes", str(args.nodes)] + (["--token", token] if token else [])
         coordinator, url = start_coordinator(server_args, log_path=log_dir / "coordinator.log")
         try:
             headers = {"Authorization": f"Bearer {token}"} if token else {}

@@ -109,12 +109,14 @@ def latencies(frames: list[dict[str, Any]], sent: dict[int, float]) -> list[floa
     return out
 
 
-def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int]) -> np.ndarray:
+def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], *flags: str) -> np.ndarray:
+    """``python -m node --render-once`` of ``camera`` with ``flags`` (default: the still the
+    coordinator converges to with its defaults); (h, w, 3) uint8."""
     with tempfile.TemporaryDirectory() as tmp:
         camera_file, out = Path(tmp) / "camera.json", Path(tmp) / "reference.png"
         camera_file.write_text(json.dumps(camera))
         subprocess.run([sys.executable, "-m", "node", "--render-once", str(out), "--scene", scene, "--camera",
-                        str(camera_file), "--size", f"{size[0]}x{size[1]}"], cwd=REPO, check=True,
+                        str(camera_file), "--size", f"{size[0]}x{size[1]}", *flags], cwd=REPO, check=True,
                        capture_output=True, timeout=300)
         return np.asarray(Image.open(io.BytesIO(out.read_bytes())).convert("RGB"))
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
 from tests.browser_support import chromium_context
 from tests.conftest import seconds
 from tests.integration_support import assert_matches_reference, orbit_cameras, render_once, wait_until
@@ -78,7 +79,7 @@ def test_four_pages_show_a_2x2_wall_frame_locked_and_a_reopened_cell_rejoins(coo
                                timeout=seconds(120)).raise_for_status()
             still_id = int(still.headers["x-frame-id"])
             all_show(still_id)
-            reference = render_once(SCENE, cameras[0], WALL_SIZE, tmp_path)
+            reference = render_once(SCENE, cameras[0], WALL_SIZE, tmp_path, still_samples=DEFAULT_STILL_SAMPLES)
             for (col, row), page in pages.items():
                 assert shown_frame(page) == still_id, "every cell presents the same frame"
                 x, y = col * (CELL[0] + 8), row * (CELL[1] + 6)

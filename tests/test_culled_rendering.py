@@ -152,7 +152,7 @@ def render_once(tmp_path, name: str, *args: str) -> np.ndarray:
 def test_render_once_is_the_same_image_with_any_culling(tmp_path, bunny_spec, renderers):
     camera = {"eye": [0.02, 0.14, 0.16], "target": [-0.03, 0.11, 0.0], "fovy_deg": 40}   # close: much is culled
     (tmp_path / "camera.json").write_text(json.dumps(camera))
-    args = ("--scene", bunny_spec, "--camera", str(tmp_path / "camera.json"), "--size", "160x120")
+    args = ("--scene", bunny_spec, "--camera", str(tmp_path / "camera.json"), "--size", "160x120", "--interactive")
     reference = render_once(tmp_path, "off.png", *args, "--culling", "off", "--face-limit", str(UNSPLIT))
     assert (reference != reference[0, 0]).any(axis=2).mean() > 0.2
     for mode in ("hybrid", "cpu", "gpu"):

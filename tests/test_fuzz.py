@@ -28,7 +28,7 @@ MESSAGES = int(os.environ.get("TESSERA_FUZZ_MESSAGES", "10000"))
 
 def test_ten_thousand_hostile_messages_leave_the_coordinator_serving_exact_frames(coordinator_factory):
     coordinator = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--codec", "png",
-                                      "--local-nodes", str(NODES), "--token", TOKEN)
+                                      "--still-samples", "1", "--local-nodes", str(NODES), "--token", TOKEN)
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30),
                       headers={"Authorization": f"Bearer {TOKEN}"}) as client:
         wait_ready_nodes(client, NODES, timeout_s=90)

@@ -122,9 +122,11 @@ def _alive(pid: int) -> bool:
 
 def test_frames_keep_one_camera_while_it_moves(coordinator_factory, tmp_path):
     """Cameras change faster than frames complete: every published frame still matches exactly one
-    camera, up to the still frame the coordinator ends with."""
+    camera, up to the still frame the coordinator ends with (one sample: a progressive still's
+    refinement frames are means of jittered frames, of no one camera's frame)."""
     scene = str(scene_path(SCENE_FILES["bunny"]))
-    coordinator = coordinator_factory("--scene", scene, "--size", "160x120", "--codec", "png", "--local-nodes", "3")
+    coordinator = coordinator_factory("--scene", scene, "--size", "160x120", "--codec", "png", "--local-nodes", "3",
+                                      "--still-samples", "1")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_ready_nodes(client, 3)
         cameras = orbit_cameras(scene_bounds(client), 3)
