@@ -11,8 +11,9 @@ it) serves every transport in turn: per transport a new viewer on ``/ws/view`` s
 ``stream_offer`` with only that codec (tiles: none) and checks the ``stream`` answer, then sends
 cameras with input numbers at ``--input-hz`` for ``--moving-s``: the camera path ``--path`` (a
 ``bench/paths/*.json`` file, or a kind of :func:`bench.paths.make_path` made for the scene's
-bounds from the viewer's ``hello``) played at its own ``dt_ms``, cameras between two of its frames
-interpolated, looping. The viewer's reader thread decodes every interactive frame as it comes:
+bounds, loaded here; synthetic nodes': their box) played at its own ``dt_ms``, cameras between two
+of its frames interpolated, looping. A video viewer sends ``stream_report`` each second, as
+``web/video.js`` does. The viewer's reader thread decodes every interactive frame as it comes:
 TFRM tiles with :func:`bench.images.viewer_frame_image`, TVID access units with PyAV
 (``av.CodecContext.create(codec, "r")``, one ``av.Packet`` each; a unit that fails to decode, or
 any unit after one until a keyframe, is lost, and the viewer then sends ``keyframe``).
@@ -20,16 +21,21 @@ any unit after one until a keyframe, is lost, and the viewer then sends ``keyfra
 Figures per transport, over the moving window (its first second left out):
 
 * ``fps``: interactive frames decoded per second; ``bytes_per_frame``: mean message size on the
-  socket (header included); ``mbps``: ``bytes_per_frame`` × 8 × ``fps``;
+  socket (header included); ``mbps``: ``bytes_per_frame`` × 8 × ``fps``; ``mbps_at_60fps``: at
+  60 frames/s (the encoder gives each frame the target / the nominal 60 fps whatever the real
+  rate, so this is what the link would carry at 60); ``viewer_decode_ms``: this viewer's CPU per
+  frame decoding it (tiles: JPEG to RGB; video: PyAV, to YUV);
 * ``psnr_mean``, ``psnr_min`` (dB, 100 = identical): ``--psnr-frames`` decoded frames sampled
   evenly in time against the reference of the camera their header's input number names: the
   node's own renderer in this process (:class:`node.gl.renderer.TileRenderer` with a node's default
-  settings, as ``python -m node --render-once``), after the service stopped. ``psnr_source_*``: the
+  settings: the interactive frame, as ``python -m node --render-once --interactive``), after the
+  service stopped. ``psnr_source_*``: the
   same frames against the coordinator's lossless composite of the same frame id
   (``GET /api/frame.png?after=ID``, the video encoder's source: the tiles as received), i.e. the
   video codec's own loss (tiles: identical);
-* ``encode_ms``, ``compose_ms``: the coordinator's CPU per encoded frame from ``/api/stats``
-  ``video`` (null for tiles); ``keyframes``; ``frames_lost``;
+* ``encode_ms``, ``compose_ms``: the coordinator's time per encoded frame on its stream's thread
+  (wall clock), from ``/api/stats`` ``video`` (null for tiles; the mean of its last 240 frames),
+  with ``target_bitrate`` (bit/s) there at the end; ``keyframes``; ``frames_lost``;
 * ``latency_intervals_p50``: input → decoded frame, p50, in mean intervals between decoded frames
   (and ``latency_p50_ms``), for the first decoded frame answering each input, as
   :func:`bench.live.latencies`.
@@ -142,6 +148,7 @@ class StreamViewer(ScriptedViewer):
         self.sample_inputs: dict[int, int] = {}
         self.sources: dict[int, np.ndarray] = {}
         self.cameras: dict[int, dict[str, Any]] = {}
+        self.newest_video: int | None = None
         self.sample_from = math.inf
         self.sample_every_s = math.inf
         self._decoder: Any = None
@@ -182,7 +189,7 @@ class StreamViewer(ScriptedViewer):
         now = self.counts()
         seconds = max(now[0] - since[0], 1e-3)
         self.ws.send(StreamReport(bytes_per_s=(now[1] - since[1]) / seconds, decoded_fps=(now[2] - since[2]) / seconds,
-                                  decode_queue=0, frames_dropped=self.lost).to_text())
+                                  decode_queue=0, frames_dropped=self.lost, frame=self.newest_video).to_text())
         return now
 
     def _read(self) -> None:
@@ -209,11 +216,14 @@ class StreamViewer(ScriptedViewer):
             return
         if self.choice is not None:
             self.tfrm_after_choice += 1
+        started = time.thread_time()
         image = viewer_frame_image(message)
-        self._record(frame.frame_id, len(message), frame.input_seq, False, image)
+        decode_ms = (time.thread_time() - started) * 1000.0
+        self._record(frame.frame_id, len(message), frame.input_seq, False, image, decode_ms)
 
     def _on_video(self, message: bytes) -> None:
         frame = unpack_video(message)
+        self.newest_video = frame.frame_id
         self.keyframes += frame.keyframe
         assert self._decoder is not None, "a video frame before the offer"
         if self._waiting_for_key and not frame.keyframe:
@@ -221,10 +231,12 @@ class StreamViewer(ScriptedViewer):
             return
         packet = av.Packet(frame.data)
         packet.pts = frame.frame_id
+        started = time.thread_time()
         try:
             pictures = self._decoder.decode(packet)
         except av.error.FFmpegError:
             pictures = []
+        decode_ms = (time.thread_time() - started) * 1000.0
         if not pictures:
             self.lost += 1
             self._waiting_for_key = True
@@ -232,14 +244,16 @@ class StreamViewer(ScriptedViewer):
             return
         self._waiting_for_key = False
         for picture in pictures:
-            self._record(frame.frame_id, len(message), frame.input_seq, frame.keyframe, picture)
+            self._record(frame.frame_id, len(message), frame.input_seq, frame.keyframe, picture, decode_ms)
 
-    def _record(self, frame_id: int, size: int, input_seq: int, keyframe: bool, image: Any) -> None:
-        """Note a decoded frame; keep its pixels (an ndarray or an ``av.VideoFrame``) when sampled."""
+    def _record(self, frame_id: int, size: int, input_seq: int, keyframe: bool, image: Any,
+                decode_ms: float) -> None:
+        """Note a decoded frame (``decode_ms``: this thread's CPU decoding it); keep its pixels (an
+        ndarray or an ``av.VideoFrame``) when sampled."""
         now = time.perf_counter()
         with self.lock:
             self.decoded.append({"at": now, "id": frame_id, "bytes": size, "input": input_seq,
-                                 "keyframe": keyframe})
+                                 "keyframe": keyframe, "decode_ms": decode_ms})
         if now >= self.sample_from:
             self.sample_from += self.sample_every_s
             pixels = image if isinstance(image, np.ndarray) else image.to_ndarray(format="rgb24")
@@ -370,6 +384,8 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
     out.update({
         "frames": len(window), "fps": round(fps, 2), "bytes_per_frame": round(bytes_per_frame, 1),
         "mbps": round(bytes_per_frame * 8.0 * fps / 1e6, 3),
+        "mbps_at_60fps": round(bytes_per_frame * 8.0 * 60.0 / 1e6, 3),
+        "viewer_decode_ms": round(float(np.mean([f["decode_ms"] for f in window])), 2) if window else None,
         **psnr_figures(against_render if references else against_source, "psnr"),
         **psnr_figures(against_source, "psnr_source"),
         "psnr_reference": "render-once" if references else "frame.png",
@@ -430,15 +446,19 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def cell(value: float | None, width: int, places: int) -> str:
+    """``value`` right-aligned in ``width`` with ``places`` decimals; '-' for None or NaN."""
+    return f"{'-':>{width}}" if value is None or math.isnan(value) else f"{value:>{width}.{places}f}"
+
+
 def report(result: dict[str, Any]) -> str:
     run = result["run"]
     lines = [f"Tessera stream benchmark: {run['scene']} at {run['size'][0]}x{run['size'][1]}, {run['nodes']} "
              f"{'synthetic' if run['synthetic'] else 'local'} nodes ({run['renderer']}), path {run['path']} "
              f"with input at {run['input_hz']:g} Hz for {run['moving_s']:g} s per transport"
              + (f", server args {run['server_args']!r}" if run["server_args"] else ""),
-             f"{'transport':<10}{'KB/frame':>9}{'Mbit/s':>8}{'fps':>7}{'PSNR mean':>10}{'min':>7}{'vs src':>8}"
-             f"{'enc ms':>8}{'comp ms':>8}{'latency p50':>20}{'keys':>6}{'lost':>6}"]
-    number = "{:>{w}.{p}f}"
+             f"{'transport':<10}{'KB/frame':>9}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}{'min':>7}"
+             f"{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'dec ms':>8}{'latency p50':>19}{'keys':>5}{'lost':>5}"]
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is None:
@@ -447,20 +467,17 @@ def report(result: dict[str, Any]) -> str:
             lines.append(f"{transport:<10}not streamed: the coordinator chose {row['transport']} "
                          f"({row['reason'] or 'no reason given'})")
             continue
-
-        def cell(value: Any, width: int, places: int) -> str:
-            return f"{'-':>{width}}" if value is None else number.format(value, w=width, p=places)
-
-        lines.append(f"{transport:<10}{row['bytes_per_frame'] / 1000:>9.1f}{row['mbps']:>8.2f}{row['fps']:>7.1f}"
-                     f"{cell(row['psnr_mean'], 10, 2)}{cell(row['psnr_min'], 7, 2)}"
-                     f"{cell(row['psnr_source_mean'], 8, 2)}{cell(row['encode_ms'], 8, 2)}"
-                     f"{cell(row['compose_ms'], 8, 2)}"
-                     f"{row['latency_intervals_p50']:>8.2f} ({row['latency_p50_ms']:>5.0f} ms)"
-                     f"{row['keyframes']:>6}{row['frames_lost']:>6}")
+        lines.append(f"{transport:<10}{cell(row['bytes_per_frame'] / 1000, 9, 1)}{cell(row['mbps'], 8, 2)}"
+                     f"{cell(row['mbps_at_60fps'], 8, 2)}{cell(row['fps'], 6, 1)}{cell(row['psnr_mean'], 10, 2)}"
+                     f"{cell(row['psnr_min'], 7, 2)}{cell(row['psnr_source_mean'], 8, 2)}"
+                     f"{cell(row['encode_ms'], 8, 2)}{cell(row['compose_ms'], 8, 2)}"
+                     f"{cell(row['viewer_decode_ms'], 8, 2)}{cell(row['latency_intervals_p50'], 8, 2)} "
+                     f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}")
     reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
                  else "the coordinator's composite of the same frame (GET /api/frame.png)")
     lines.append(f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
-                 "(the encoder's source); latency: input to decoded frame, in frame intervals (ms)")
+                 "(the encoder's source); enc/comp ms: the coordinator's stream thread per frame; dec ms: this "
+                 "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms)")
     return "\n".join(lines)
 
 
