@@ -356,6 +356,8 @@ class RenderService:
                 for session in self._showing(message.scene):
                     if session.state != "ready":
                         session.state, session.error = "error", link.scene_message
+                    self.scheduler.scene_failed(link.node_id, session.id)
+                self.apply()
             case TileSent():
                 if link.last_tile != (message.frame, message.tile):
                     raise ProtocolError(f"tile_sent for tile {message.tile} of frame {message.frame}, which is not "

@@ -63,6 +63,23 @@ def test_a_new_session_has_every_node_load_its_scene_and_a_node_joining_loads_ev
         s.add_session("b", CONFIG, StaticBalancer(), None, 0.0)
 
 
+def test_a_new_sessions_scene_is_loaded_by_one_node_after_the_other_fastest_first():
+    s = cluster(3, {})
+    s.set_speed(2, 2.0)
+    s.add_session("big", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    assert s.drain() == [LoadScene(2, None, "library/scan.ply")]      # the others keep rendering
+    s.node_ready(2, 1.0, session_id="big")
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(1, None, "library/scan.ply")]
+    s.scene_failed(1, "big")                                           # node 1 could not: node 3 tries
+    assert s.drain() == [LoadScene(3, None, "library/scan.ply")]
+    s.add_session("other", CONFIG, StaticBalancer(), "library/other.ply", 2.0)
+    assert s.drain() == [LoadScene(2, None, "library/other.ply")]
+    s.remove_node(2, 3.0)                                              # it was loading: the next one loads
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(1, None, "library/other.ply")]
+    s.remove_node(3, 4.0)
+    assert not [a for a in s.drain() if isinstance(a, LoadScene)] and s.sessions["big"].loads_waiting == []
+
+
 def test_each_sessions_frames_have_its_size_scene_and_camera_and_only_nodes_holding_its_scene():
     s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
     s.add_session("b", SchedulerConfig(size=(40, 30), max_fps=1e6, settle_frames=0, still_codec=None),

@@ -59,10 +59,10 @@ def test_two_sessions_with_their_own_scenes_and_sizes_each_equal_render_once(coo
             _, frame = fetch_frame(client, first)
             assert_matches_reference(frame, render_once(str(bunny), mine, SIZE, tmp_path), f"default session {index}")
             session_image = session_frame(client, session_id, session_first)
+            summaries = {s["id"]: s for s in stats(client)["sessions"]}   # within the share's window of its frame
             assert session_image.shape == (SESSION_SIZE[1], SESSION_SIZE[0], 3)
             assert_matches_reference(session_image, render_once(str(engine), theirs, SESSION_SIZE, tmp_path),
                                      f"engine session {index}")
-        summaries = {s["id"]: s for s in stats(client)["sessions"]}
         assert summaries[session_id]["size"] == list(SESSION_SIZE) and summaries[session_id]["node_share"] > 0.0
 
         cameras = orbit_cameras(engine_bounds, 3)

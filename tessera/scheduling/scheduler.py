@@ -307,6 +307,7 @@ class FrameScheduler:
             self.table.touch(node, state_changed=True)
         session.ready.add(node_id)
         session.mode.share_loaded(node_id, share)
+        self._load_next(session)
         self._changed(session, now, supersede=False)
 
     def set_speed(self, node_id: int, speed: float) -> None:
@@ -322,6 +323,10 @@ class FrameScheduler:
         for session in list(self.sessions.values()):
             held = node_id in session.ready
             session.ready.discard(node_id)
+            if node_id in session.loads_waiting:
+                session.loads_waiting.remove(node_id)
+            elif not held:   # it was loading the scene (or had failed to): the next node loads it
+                self._load_next(session)
             if self._repartition(session, now):
                 self._changed(session, now, supersede=False)
                 continue
@@ -571,13 +576,30 @@ class FrameScheduler:
         node, with ``force``) is told to load the session's scene."""
         loads = session.mode.nodes_changed({n.node_id: n.speed for n in self.nodes.values()})
         if loads is None:
-            targets = list(self.nodes) if force else [] if joined is None else [joined]
-            self._actions.extend(LoadScene(node_id, None, session.scene_key) for node_id in targets)
+            if force:   # one node after the other: the others keep serving the sessions on screen
+                session.loads_waiting = sorted(self.nodes, key=lambda i: (-self.nodes[i].speed, i))
+                self._load_next(session)
+            elif joined is not None:
+                self._actions.append(LoadScene(joined, None, session.scene_key))
             return False
         for job in list(session.frames.values()):
             self._cancel(job, now)
         self._actions.extend(LoadScene(node_id, share, session.scene_key) for node_id, share in loads.items())
         return True
+
+    def _load_next(self, session: SessionFrames) -> None:
+        """Tell the next node of ``session.loads_waiting`` to load the session's scene. A new
+        session's scene is loaded by one node at a time (:meth:`add_session`): a large scene's parse
+        and upload then hold up one node's tiles of the other sessions, not every node's at once, and
+        its first node is ready sooner than when all parse it side by side on shared cores."""
+        if session.loads_waiting:
+            self._actions.append(LoadScene(session.loads_waiting.pop(0), None, session.scene_key))
+
+    def scene_failed(self, node_id: int, session_id: str) -> None:
+        """The node could not load the session's scene: the next node waiting tries."""
+        session = self.sessions.get(session_id)
+        if session is not None:
+            self._load_next(session)
 
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
         for tile_id in tile_ids:

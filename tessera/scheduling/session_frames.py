@@ -54,6 +54,8 @@ class SessionFrames:
         self.awaiting_send: dict[int, FrameJob] = {}
         self.next_start_at = 0.0
         self.ready: set[int] = set()
+        #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
+        self.loads_waiting: list[int] = []
         self.frames_cancelled = 0
         #: A display wall's cells (issue 22): each frame's partition is cut at their edges.
         self.wall: WallLayout | None = None
