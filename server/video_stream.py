@@ -30,8 +30,11 @@ from tessera.wire.codec import Codec
 from tessera.wire.video import VideoCodec, codec_string, pack_video
 
 #: JPEG quality of the nodes' interactive tiles while a session streams video: they are the
-#: encoder's source, so they are made near-lossless on the LAN (4:2:0, as the video is; q90 and
-#: above switch to 4:4:4, which the video would drop).
+#: encoder's source (4:2:0, as the video is; q90 and above switch to 4:4:4, which the video drops).
+#: Measured at 720p, three tiles a frame, H.264 at the default bitrate, PSNR against the render:
+#: q80 29.6 KB a frame on the LAN, compose 7.0 ms, 41.1 dB; q88 34.0 KB, 7.5 ms, 42.2 dB; q95
+#: (4:4:4) 61.6 KB, 6.8 ms, 42.6 dB; PNG 74.0 KB, 64 ms, 43.0 dB. q88 loses 0.8 dB to lossless
+#: tiles at half their bytes and a ninth of their decoding.
 VIDEO_SOURCE_QUALITY = 88
 #: Default target bitrate: bits per pixel of a picture at the nominal frame rate, within
 #: --max-bitrate (720p at 60 fps: 4.4 Mbit/s, 9.2 KB a frame at most; 1080p60: the 8 Mbit/s
