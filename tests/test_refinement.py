@@ -1,13 +1,17 @@
-"""The progressive still's pure parts (issue 20): Halton jitter, the jitter matrix, the exact
-accumulation, the refinement plan and how render on demand asks for the samples; the scheduler
-asking for them one frame at a time and dropping them on input (pure, no GL)."""
+"""The progressive still's parts without GL (issue 20): Halton jitter, the jitter matrix, the LOD
+bias, the exact accumulation, the refinement plan and how render on demand asks for the samples;
+the scheduler asking for them one frame at a time and dropping them on input; the frame header's
+sample count; the coordinator's refiner."""
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
-from tessera.geometry import Camera, view_projection
+from server.still_refinement import StillRefiner
+from tessera.geometry import Camera, Rect, view_projection
 from tessera.scheduling.actions import RenderTiles
 from tessera.scheduling.refinement import (
     MAX_STILL_SAMPLES,
@@ -22,6 +26,8 @@ from tessera.scheduling.refinement import (
     subsample,
 )
 from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
+from tessera.wire.codec import Codec, decode, encode
+from tessera.wire.protocol import pack_frame, unpack_frame
 from tests.test_scheduler import camera, cancels, finish, published, renders, scheduler
 
 
@@ -190,3 +196,38 @@ def test_a_one_sample_still_is_not_jittered() -> None:
     assert all(a.message.jitter is None and a.message.lod_bias is None
                and not {"jitter", "lod_bias"} & set(a.message.to_json())
                for a in s.drain() if isinstance(a, RenderTiles))
+
+
+def test_a_refinement_frame_says_its_samples_in_the_frame_header_and_old_frames_are_unchanged() -> None:
+    tiles = [(Rect(0, 0, 2, 1), Codec.RAW, 3, bytes(6))]
+    plain = pack_frame(9, (2, 1), tiles, still=True, input_seq=4)
+    assert plain == pack_frame(9, (2, 1), tiles, still=True, input_seq=4, samples=0)
+    assert unpack_frame(plain).samples == 0 and unpack_frame(plain).still
+    refining = unpack_frame(pack_frame(9, (2, 1), tiles, samples=5))
+    assert refining.samples == 5 and not refining.still
+    final = unpack_frame(pack_frame(9, (2, 1), tiles, still=True, samples=MAX_STILL_SAMPLES))
+    assert final.samples == MAX_STILL_SAMPLES and final.still and final.input_seq == 0
+    with pytest.raises(ValueError):
+        pack_frame(9, (2, 1), tiles, samples=MAX_STILL_SAMPLES + 1)
+
+
+def test_the_coordinator_refiner_publishes_the_running_mean_and_skips_a_sample_out_of_turn() -> None:
+    """Samples come as tiles (two rects); the mean's tiles are the exact mean of the samples so far,
+    encoded in the still codec; a sample whose predecessor is missing is not added."""
+    rng = np.random.default_rng(5)
+    frames = [rng.integers(0, 256, (4, 6, 3), dtype=np.uint8) for _ in range(3)]
+    rects = [Rect(0, 0, 4, 4), Rect(4, 0, 2, 4)]
+
+    def tiles(frame: np.ndarray) -> list:
+        return [(r, Codec.PNG, i, encode(frame[r.y:r.y1, r.x:r.x1], Codec.PNG)) for i, r in enumerate(rects)]
+
+    with ThreadPoolExecutor(1) as pool:
+        refiner = StillRefiner(pool)
+        for sample in range(3):
+            out = refiner.submit(sample, (6, 4), tiles(frames[sample]), Codec.PNG, 95).result()
+            assert out is not None and [t[0] for t in out] == rects and [t[2] for t in out] == [0, 1]
+            expected = accumulate(frames[:sample + 1])
+            got = np.concatenate([decode(t[3], Codec.PNG, t[0].w, t[0].h) for t in out], axis=1)
+            assert np.array_equal(got, expected)
+        assert refiner.submit(5, (6, 4), tiles(frames[0]), Codec.PNG, 95).result() is None
+        assert refiner.pending == 4 and refiner.cpu_ms > 0.0
