@@ -43,7 +43,9 @@ Figures per transport, over the moving window (its first second left out):
 ``--synthetic``: no local nodes but ``--nodes`` synthetic ones (:mod:`bench.synthetic_nodes`,
 default 4, 1920x1080, a fixed noisy gradient cut into every tile): for "1080p60 fits in 8 Mbit/s at
 ≥ 35 dB". Their pictures have no render-once reference, so there ``psnr_*`` is measured against the
-coordinator's composite (``psnr_source_*``, the tiles the encoder was given).
+coordinator's composite (``psnr_source_*``, the tiles the encoder was given). The coordinator gets
+``--still-samples 1`` (unless ``--server-args`` names it): synthetic nodes ignore the jitter of a
+progressive still's samples, so its samples would only be more frames of the same picture.
 
 Everything shares this machine's cores (the viewer's decoding too).
 """
@@ -415,6 +417,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size",
                        f"{args.size[0]}x{args.size[1]}"]
     extra = shlex.split(args.server_args)
+    if args.synthetic and "--still-samples" not in extra:
+        server_args += ["--still-samples", "1"]
     if "--stream" not in extra and any(t != "tiles" for t in args.transports):
         server_args += ["--stream", "auto"]
     player = PathPlayer(load_path(args.path, bounds, positions))
