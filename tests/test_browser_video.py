@@ -27,6 +27,7 @@ from tests.integration_support import (
     wait_until,
 )
 from tests.test_browser import INPUT_LATENCY_SHOWN_JS, STILL_SHOWN_JS
+from tests.test_browser_sessions import CANVAS_SIZE_JS
 from tests.test_browser_walls import canvas_image
 
 pytestmark = [pytest.mark.browser, pytest.mark.integration, pytest.mark.gl]
@@ -173,4 +174,30 @@ def test_stream_tiles_keeps_tile_frames(coordinator_factory, tmp_path):
         wait_js(page, STILL_SHOWN_JS)
         assert page.evaluate("window.tessera.transport") == "tiles"
         assert page.evaluate("window.tessera.videoFramesDecoded") == 0
+        assert errors == [], f"errors in the page: {errors}"
+
+
+def test_a_new_frame_size_reopens_the_stream_and_the_decoder_follows(coordinator_factory, tmp_path):
+    """A session's driver sizes its frames to the window: a new size reopens the stream (a new
+    ``stream`` message, then a keyframe of the new size), and the page decodes it at that size."""
+    coordinator = coordinator_factory("--scene", SCENE, "--size", "160x120", "--local-nodes", "1",
+                                      "--still-samples", "1")   # the frames not still are video frames
+    errors: list[str] = []
+    with (httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client,
+          chromium_context(tmp_path / "profile", viewport={"width": 700, "height": 500}) as context):
+        created = client.post("/api/sessions", json={"scene": SCENE, "size": [100, 50]}).raise_for_status().json()
+        session = f"/api/sessions/{created['id']}"
+        page = open_viewer(context, created["viewer_url"], errors)
+        for viewport in ({"width": 700, "height": 500}, {"width": 520, "height": 640}):
+            page.set_viewport_size(viewport)
+            wanted = page.evaluate(CANVAS_SIZE_JS)
+            wait_until(lambda wanted=wanted: client.get(session).json()["size"] == wanted, seconds(30),
+                       f"the session to take {wanted}")
+            wait_js(page, "() => window.tessera.transport === 'h264'")
+            painted = page.evaluate("window.tessera.videoFramesPainted")
+            drag(page)
+            wait_js(page, f"""() => window.tessera.videoFramesPainted > {painted} &&
+                                   window.tessera.size[0] === {wanted[0]} && window.tessera.size[1] === {wanted[1]} &&
+                                   !window.tessera.still""")
+            wait_js(page, f"() => ({DRAWN_FRACTION_JS})() > 0.02")
         assert errors == [], f"errors in the page: {errors}"
