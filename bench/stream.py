@@ -321,8 +321,9 @@ def play(args: argparse.Namespace, url: str, client: httpx.Client, transport: st
 
 
 class References:
-    """Reference frames of cameras: the scene rendered whole by a node's renderer with a node's
-    default settings (as ``python -m node --render-once``), in this process."""
+    """Reference frames of cameras: the interactive frame (one sample, not shifted) rendered whole
+    by a node's renderer with a node's default settings, as ``python -m node --render-once
+    --interactive`` renders it, in this process."""
 
     def __init__(self, scene: SceneData, size: tuple[int, int]) -> None:
         settings = NodeSettings(scene="", size=size)
