@@ -132,6 +132,7 @@ def test_video_frames_near_render_once_then_the_lossless_still(coordinator_facto
         viewer = wait_until(lambda: next((v for v in client.get("/api/stats").json()["viewer_stats"]
                                           if v["id"] == viewer_id and v["stream_report"]), None),
                             seconds(30), f"viewer {viewer_id}'s stream_report in GET /api/stats")
+        assert viewer["transport"] == codec
         assert {"bytes_per_s", "decoded_fps", "decode_queue", "frames_dropped"} <= set(viewer["stream_report"])
         streams = client.get("/api/stats").json()["video"]
         assert [s["codec"] for s in streams] == [codec], streams
