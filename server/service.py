@@ -561,7 +561,7 @@ class RenderService:
             "session": session.id if session is not self.default else DEFAULT_SESSION,
             "codec": self.settings.codec.name.lower(),
             "interactive_quality": self.settings.interactive_quality,
-            "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec else "none",
+            "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec is not None else "none",
             "viewers": len(session.viewers.slots),
             "viewer_stats": session.viewers.describe(),
             "stream": self.settings.stream,

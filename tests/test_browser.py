@@ -76,10 +76,15 @@ OVERLAY_COLOUR_COUNTS_JS = """(palette) => {
 # The panel shows the viewer's own input → display latency as a number ("48 ms · 1.3 fr").
 INPUT_LATENCY_SHOWN_JS = """() => /^\\d+ ms/.test(document.getElementById("fig-input-latency").textContent)"""
 
-# The frame on screen is the still frame, in the badge and in window.tessera.
-STILL_SHOWN_JS = """() =>
-  document.getElementById("quality-badge").dataset.quality === "still" &&
-  document.getElementById("quality-badge").textContent === "still" && window.tessera.still === true"""
+# The frame on screen is the converged still frame, in the badge (with its samples, as many as the
+# hello said the coordinator accumulates; a one-sample still is not accumulated: 0) and in window.tessera.
+STILL_SHOWN_JS = """() => {
+  const badge = document.getElementById("quality-badge");
+  const samples = window.tessera.samples;
+  return badge.dataset.quality === "still" && window.tessera.still === true &&
+    badge.textContent === (samples > 1 ? `still · ${samples} samples` : "still") &&
+    samples === (window.tessera.stillSamples > 1 ? window.tessera.stillSamples : 0);
+}"""
 
 # Every node's timing bar shows its render segment and no bar is still animating.
 BARS_SETTLED_JS = """() =>

@@ -1,5 +1,6 @@
 // Viewer frame format TFRM, mirroring tessera/wire/protocol.py (same constant names and layouts).
-// Header `<4sBBHIIII`: magic, version, flags (bit 0 = FRAME_STILL), tile_count, frame_id, width,
+// Header `<4sBBHIIII`: magic, version, flags (bit 0 = FRAME_STILL, bits 1-7 = the samples of a
+// progressive still's frame, 0 for a frame not accumulated), tile_count, frame_id, width,
 // height, input_seq (the newest input sequence number of this viewer the frame accounts for, 0 = none).
 // Tile entry `<IIIIBBHI`: x, y, w, h, codec, reserved, node (the rendering node's slot, NO_NODE_SLOT
 // for none), length.
@@ -11,6 +12,8 @@ export const FRAME_HEADER_SIZE = 24;
 export const FRAME_TILE_SIZE = 24;
 /** Frame header flag: the lossless still frame shown once motion stopped. */
 export const FRAME_STILL = 0x01;
+/** Frame header flags bits 1-7: the samples a progressive still's frame holds (0: not accumulated). */
+export const FRAME_SAMPLES_SHIFT = 1;
 /** A tile entry's `node` when no one node rendered the tile (a sort-last frame merged by the
  * coordinator, or a node that has left since). */
 export const NO_NODE_SLOT = 0xffff;
@@ -30,7 +33,7 @@ export class ProtocolError extends Error {
 /**
  * Parse one binary frame message.
  * @param {ArrayBuffer} buffer
- * @returns {{frameId: number, width: number, height: number, still: boolean, inputSeq: number,
+ * @returns {{frameId: number, width: number, height: number, still: boolean, samples: number, inputSeq: number,
  *   tiles: {x: number, y: number, w: number, h: number, codec: number, node: number,
  *   bytes: Uint8Array}[]}} tile bytes are views into `buffer`, rects in pixels from the top-left
  */
@@ -45,6 +48,7 @@ export function parseFrame(buffer) {
     throw new ProtocolError(`bad frame magic/version ${JSON.stringify(magic)}/${version}`);
   }
   const still = (view.getUint8(5) & FRAME_STILL) !== 0;
+  const samples = view.getUint8(5) >> FRAME_SAMPLES_SHIFT;
   const count = view.getUint16(6, true);
   const frameId = view.getUint32(8, true);
   const width = view.getUint32(12, true);
@@ -80,5 +84,5 @@ export function parseFrame(buffer) {
   if (offset !== buffer.byteLength) {
     throw new ProtocolError("frame message length does not match its tile table");
   }
-  return { frameId, width, height, still, inputSeq, tiles };
+  return { frameId, width, height, still, samples, inputSeq, tiles };
 }

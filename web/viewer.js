@@ -44,6 +44,10 @@ const state = {
   frameId: null,
   viewerId: null,
   still: false,
+  // The samples of the progressive still on the canvas (0: an interactive frame), and how many the
+  // coordinator accumulates (hello's still_samples).
+  samples: 0,
+  stillSamples: null,
   inputLatency: null,
   camera: null,
   framesDrawn: 0,
@@ -136,11 +140,21 @@ function reportLatency() {
   if (connection.send({ type: "latency", ...state.inputLatency })) samplesReported = latencyTracker.total;
 }
 
-function showQuality(still) {
+/** The badge: the converged still (with its samples), a progressive still refining (k of N
+ * samples), or an interactive frame. */
+function showQuality(frame) {
   const badge = $("quality-badge");
-  const quality = still ? "still" : "interactive";
-  badge.dataset.quality = quality;
-  badge.textContent = quality;
+  const samples = frame.samples ?? 0;
+  if (frame.still) {
+    badge.dataset.quality = "still";
+    badge.textContent = samples > 1 ? `still · ${samples} samples` : "still";
+  } else if (samples > 0) {
+    badge.dataset.quality = "refining";
+    badge.textContent = `refining ${samples}/${state.stillSamples ?? "?"}`;
+  } else {
+    badge.dataset.quality = "interactive";
+    badge.textContent = "interactive";
+  }
   badge.hidden = false;
 }
 
@@ -162,7 +176,8 @@ function painted(frame) {
   lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
   if (state.overlay || wallDriver()) redrawOverlay();
   $("frame-badge").textContent = `frame ${frame.frameId}`;
-  showQuality(frame.still);
+  state.samples = frame.samples ?? 0;
+  showQuality(frame);
 }
 
 /** With a video stream, frames come by two paths (video; still frames as tiles): only a frame newer
@@ -212,6 +227,7 @@ function onText(message) {
       sizeSent = null;
       if (session.key && !session.watching && !session.cell) setTimeout(sendSize, 0);
       state.viewerId = message.viewer;
+      state.stillSamples = message.still_samples ?? null;
       samplesReported = 0;
       shownId = null;
       hellos += 1;

@@ -464,7 +464,8 @@ class Cancel(Message):
 
 class ViewerHello(Message):
     """A viewer's first message: frame size, its id, the newest camera and the scene's bounds (null
-    until known), the balancer and those available, the last published frame id."""
+    until known), the balancer and those available, the last published frame id, and the samples
+    the still frame accumulates (issue 20's progressive still; None: no still frame)."""
 
     kind = "hello"
     size: tuple[Int, Int]
@@ -474,6 +475,7 @@ class ViewerHello(Message):
     balancer: Text
     balancers: tuple[Text, ...]
     frame: Int
+    still_samples: Int | None = None
 
 
 class CameraUpdate(Message):

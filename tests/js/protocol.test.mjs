@@ -5,7 +5,8 @@ import { test } from "node:test";
 
 import { rgbToRgba } from "../../web/compositor.js";
 import {
-  Codec, FRAME_HEADER_SIZE, FRAME_MAGIC, FRAME_STILL, FRAME_TILE_SIZE, PROTOCOL_VERSION, ProtocolError,
+  Codec, FRAME_HEADER_SIZE, FRAME_MAGIC, FRAME_SAMPLES_SHIFT, FRAME_STILL, FRAME_TILE_SIZE, PROTOCOL_VERSION,
+  ProtocolError,
   parseFrame,
 } from "../../web/protocol.js";
 
@@ -28,6 +29,7 @@ test("constants are the wire values", () => {
   assert.equal(FRAME_HEADER_SIZE, 24); // struct "<4sBBHIIII"
   assert.equal(FRAME_TILE_SIZE, 24); // struct "<IIIIBBHI"
   assert.equal(FRAME_STILL, 1);
+  assert.equal(FRAME_SAMPLES_SHIFT, 1);
   assert.deepEqual({ ...Codec }, { RAW: 0, JPEG: 1, PNG: 2 });
 });
 
@@ -79,4 +81,14 @@ test("raw tiles expand to RGBA with opaque alpha", () => {
   const rgba = rgbToRgba(Uint8Array.from([1, 2, 3, 4, 5, 6]), 2, 1);
   assert.deepEqual([...rgba], [1, 2, 3, 255, 4, 5, 6, 255]);
   assert.throws(() => rgbToRgba(new Uint8Array(5), 2, 1), ProtocolError);
+});
+
+test("a progressive still's frames say their samples in flags bits 1-7", () => {
+  const refining = golden();
+  new DataView(refining).setUint8(5, 5 << FRAME_SAMPLES_SHIFT);
+  assert.deepEqual([parseFrame(refining).samples, parseFrame(refining).still], [5, false]);
+  const converged = golden();
+  new DataView(converged).setUint8(5, (8 << FRAME_SAMPLES_SHIFT) | FRAME_STILL);
+  assert.deepEqual([parseFrame(converged).samples, parseFrame(converged).still], [8, true]);
+  assert.equal(parseFrame(golden()).samples, 0);
 });
