@@ -86,6 +86,15 @@ STILL_SHOWN_JS = """() => {
     samples === (window.tessera.stillSamples > 1 ? window.tessera.stillSamples : 0);
 }"""
 
+# From now on, every text the quality badge shows, in order, in window.badgesShown.
+RECORD_BADGES_JS = """() => {
+  const badge = document.getElementById("quality-badge");
+  window.badgesShown = [];
+  new MutationObserver(() => {
+    if (window.badgesShown.at(-1) !== badge.textContent) window.badgesShown.push(badge.textContent);
+  }).observe(badge, { childList: true, characterData: true, subtree: true });
+}"""
+
 # Every node's timing bar shows its render segment and no bar is still animating.
 BARS_SETTLED_JS = """() =>
   [...document.querySelectorAll("#nodes .seg.render")].every((seg) => seg.offsetWidth > 0) &&
@@ -131,6 +140,7 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
         before = get_json(base_url, "/api/camera")["camera"]
         frame_before = page.evaluate("window.tessera.frameId")
         page.evaluate(SNAPSHOT_JS)
+        page.evaluate(RECORD_BADGES_JS)
         box = page.locator("#frame").bounding_box()
         x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
         page.mouse.move(x, y)
@@ -149,6 +159,14 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
         page.wait_for_function(INPUT_LATENCY_SHOWN_JS, timeout=wait_ms, polling=100)
         assert page.evaluate("window.tessera.inputLatency.samples") > 0
         page.wait_for_function(STILL_SHOWN_JS, timeout=wait_ms, polling=100)
+        shown = page.evaluate("window.badgesShown")
+        assert "interactive" in shown, shown
+        badges = shown[len(shown) - shown[::-1].index("interactive"):]   # since the last interactive frame
+        wanted = page.evaluate("window.tessera.stillSamples")
+        refining = [int(text.split()[1].split("/")[0]) for text in badges if text.startswith("refining")]
+        assert wanted > 1 and refining and refining == sorted(refining) and max(refining) < wanted, badges
+        assert all(text.endswith(f"/{wanted}") for text in badges if text.startswith("refining")), badges
+        assert badges[-1] == f"still · {wanted} samples", badges
         viewer_id = page.evaluate("window.tessera.viewerId")
         wait_until(lambda: viewer_input_latency(base_url, viewer_id).get("samples", 0) > 0, seconds(30),
                    f"GET /api/stats to show viewer {viewer_id}'s input → display latency")
