@@ -3,7 +3,7 @@ one session of the same total size.
 
 ``python -m bench.wall --cols 2 --rows 2 --cell 640x360 [--bezel 0x0] [--nodes 3]
 [--scene builtin:cluster] [--input-hz 30] [--moving-s 8] [--turn-s 8] [--chromium]
-[--server-args "…"] [--json OUT]``
+[--server-args "…"] [--present-log LOG] [--json OUT]``
 
 Phase 1, the wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the
 drive link that turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each
@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import websockets.sync.client as ws_client
 
 from bench.live import ScriptedViewer, wait_ready
@@ -101,18 +102,49 @@ class ScriptedCell:
 
 
 @contextlib.contextmanager
-def chromium_cells(urls: list[str]) -> Iterator[None]:
-    """A headless Chromium page of the viewer at each of ``urls``, open until the block ends."""
+def chromium_cells(urls: list[str]) -> Iterator[list[Any]]:
+    """A headless Chromium page of the viewer at each of ``urls`` (the pages), open until the block ends."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         try:
-            for url in urls:
-                browser.new_page(viewport={"width": 480, "height": 320}).goto(url)
-            yield
+            pages = [browser.new_page(viewport={"width": 480, "height": 320}) for _ in urls]
+            for page, url in zip(pages, urls, strict=True):
+                page.goto(url)
+            yield pages
         finally:
             browser.close()
+
+
+def percentiles(values: list[float]) -> dict[str, float | None]:
+    """p50, p99 and max of ``values`` (ms), None when there are none."""
+    if not values:
+        return {"p50": None, "p99": None, "max": None}
+    array = np.asarray(values, dtype=np.float64)
+    return {"p50": round(float(np.percentile(array, 50)), 2), "p99": round(float(np.percentile(array, 99)), 2),
+            "max": round(float(array.max()), 2)}
+
+
+def present_timing(logs: list[list[dict[str, Any]]], frames: set[int]) -> dict[str, Any]:
+    """What the Chromium cells' Presenter logs (web/wall.js, one list per cell) say about the
+    ``frames`` every cell presented, in ms: how long before its due time the present reached the
+    page (negative: after it), the timestamp of the animation frame it was drawn in after the due
+    time and how long after that timestamp the page's callback ran; per frame, the spread of the
+    cells' timestamps on the coordinator's clock (the skew they report)."""
+    by_cell = [{e["frame"]: e for e in log if e["frame"] in frames and e.get("due") is not None} for log in logs]
+    common = set.intersection(*(set(cell) for cell in by_cell)) if by_cell else set()
+    figures: dict[str, list[float]] = {"received_before_due": [], "ts_after_due": [], "callback_after_ts": []}
+    for cell in by_cell:
+        for entry in cell.values():
+            figures["received_before_due"].append(entry["due"] - entry["received"])
+            figures["ts_after_due"].append(entry["ts"] - entry["due"])
+            figures["callback_after_ts"].append(entry["callback"] - entry["ts"])
+    spread = []
+    for frame in common:
+        times = [cell[frame]["ts"] + cell[frame]["offset"] for cell in by_cell]
+        spread.append(max(times) - min(times))
+    return {"frames": len(common), **{k: percentiles(v) for k, v in figures.items()}, "ts_spread": percentiles(spread)}
 
 
 def lock_figures(client: httpx.Client, session_id: str) -> dict[str, Any]:
@@ -134,8 +166,9 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> d
     wait_session_ready(client, session_id)
     cells = [f"{col},{row}" for row in range(args.rows) for col in range(args.cols)]
     with contextlib.ExitStack() as stack:
+        pages: list[Any] = []
         if args.chromium:
-            stack.enter_context(chromium_cells([f"{body['viewer_url']}&cell={cell}" for cell in cells]))
+            pages = stack.enter_context(chromium_cells([f"{body['viewer_url']}&cell={cell}" for cell in cells]))
             scripted: list[ScriptedCell] = []
         else:
             scripted = [ScriptedCell(stack.enter_context(ws_client.connect(
@@ -157,13 +190,18 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> d
         mover.join()
         after, window_end = lock_figures(client, session_id), time.perf_counter()
         driver_fps = received_fps(driver, window_start, window_end)
+        logs = [page.evaluate("() => window.tesseraWall ? window.tesseraWall.presents() : []") for page in pages]
+        if args.present_log is not None and logs:
+            args.present_log.write_text(json.dumps(logs))
         driver.stop()
         for cell in scripted:
             cell.stop()
     client.delete(f"/api/sessions/{session_id}")
     presented_fps = (after["presents"] - before["presents"]) / (window_end - window_start)
+    timing = present_timing(logs, set(range(before["presented"] + 1, after["presented"] + 1))) if logs else None
     return {"size": body["size"], "presented_fps": presented_fps, "driver_fps": driver_fps,
-            **{key: after[key] for key in ("skew_p50_ms", "skew_p99_ms", "skew_samples")}}
+            **{key: after[key] for key in ("skew_p50_ms", "skew_p99_ms", "skew_samples", "lead_ms")},
+            "present_timing": timing}
 
 
 def single_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, size: list[int]) -> dict[str, Any]:
@@ -207,15 +245,21 @@ def report(result: dict[str, Any]) -> str:
     wall, single = result["wall"], result["single"]
     skew = ("no skew measured" if wall["skew_p50_ms"] is None else
             f"present skew between cells p50 {wall['skew_p50_ms']:.2f} ms, p99 {wall['skew_p99_ms']:.2f} ms "
-            f"({wall['skew_samples']} frames)")
-    return "\n".join([
+            f"({wall['skew_samples']} frames), presents told {wall['lead_ms']:.0f} ms ahead at the end")
+    lines = [
         f"{result['cols']}x{result['rows']} wall of {result['cell'][0]}x{result['cell'][1]} cells (bezel "
         f"{result['bezel'][0]}x{result['bezel'][1]}), {wall['size'][0]}x{wall['size'][1]} in all, "
         f"{result['nodes']} local nodes, {result['cells_are']} cells, driver at {result['input_hz']:g} Hz",
         f"wall:   {wall['presented_fps']:6.1f} frames presented/s (driver received {wall['driver_fps']:.1f}/s); {skew}",
         f"single: {single['fps']:6.1f} frames/s, one viewer of {single['size'][0]}x{single['size'][1]}",
         f"wall / single throughput {result['fps_ratio']:.3f}",
-    ])
+    ]
+    timing = wall.get("present_timing")
+    if timing:
+        lines.append(f"the pages' presents ({timing['frames']} frames every cell presented; p50/p99/max ms):")
+        lines += [f"  {name:<18} {figures['p50']} / {figures['p99']} / {figures['max']}"
+                  for name, figures in timing.items() if isinstance(figures, dict)]
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -231,6 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--turn-s", type=float, default=8.0)
     parser.add_argument("--chromium", action="store_true", help="cells are headless Chromium pages of the viewer")
     parser.add_argument("--server-args", default="", help="more flags for python -m server")
+    parser.add_argument("--present-log", type=Path, help="with --chromium: write the pages' present logs here (JSON)")
     parser.add_argument("--json", type=Path)
     return parser
 

@@ -39,10 +39,6 @@ from tessera.wire.stream_messages import StreamBitrate, StreamChoice, StreamRepo
 from tessera.wire.video import VideoCodec, video_frame_id
 from tessera.wire.wall_messages import PresentFrame
 
-#: How far ahead of now a wall's cells are told to present a frame (s): longer than a present
-#: message takes to reach every cell on a LAN (and through a busy page's event loop); the
-#: latency a wall adds, about one display refresh.
-PRESENT_LEAD_S = 0.020
 #: Control messages a viewer may have waiting before it counts as not reading its socket.
 MAX_QUEUED_CONTROL = 256
 #: Encoded video frames a viewer may have waiting for its socket before it skips to a keyframe.
@@ -312,10 +308,11 @@ class ViewerHub:
             for stream in self.streams.values():
                 stream.submit(frame)
 
-    def check_lock(self, now: float, lead_s: float = PRESENT_LEAD_S) -> None:
+    def check_lock(self, now: float) -> None:
         """Tell the wall's cells to present the frame every live one holds, if a newer one is due
-        (or a cell that joined since the frame presented last, once it holds it), ``lead_s`` from
-        ``now`` (s, the coordinator's monotonic clock): time for the message to reach every cell."""
+        (or a cell that joined since the frame presented last, once it holds it), at the lock's
+        time for it (a lead ahead of ``now``, s, the coordinator's monotonic clock: time for the
+        message to reach every cell)."""
         due = self.lock.due(now)
         if not due:
             return
@@ -324,7 +321,7 @@ class ViewerHub:
             frame_id = due.get(slot.viewer_id)
             if frame_id is not None:
                 if frame_id not in messages:
-                    message = PresentFrame(frame=frame_id, at_ms=(now + lead_s) * 1000.0)
+                    message = PresentFrame(frame=frame_id, at_ms=self.lock.at_ms)
                     messages[frame_id] = (message, message.to_text())
                 slot.put_control(*messages[frame_id])
 

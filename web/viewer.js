@@ -15,7 +15,7 @@ import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "
 import { SessionControls } from "./session_controls.js";
 import { VideoStream, decodableCodecs } from "./video.js";
 import { isVideo, parseVideo } from "./video_protocol.js";
-import { ClockOffset, drawCellOutlines } from "./wall.js";
+import { ClockOffset, Presenter, drawCellOutlines } from "./wall.js";
 
 // Opened with `?token=`, the page has set the token as a cookie (HttpOnly) that the viewer's sockets
 // and API calls carry: take it out of the address bar (and so out of history and shared links).
@@ -256,16 +256,9 @@ function onText(message) {
       if (message.cell) startCell();
       else redrawOverlay();
       break;
-    case "present": {
-      // the first animation frame at or after the coordinator's at_ms: every cell on the same refresh
-      const due = clock.toLocal(message.at_ms);
-      setTimeout(() => requestAnimationFrame((at) => {
-        const frame = compositor.present(message.frame);
-        const atMs = frame && clock.toCoordinator(at);
-        if (atMs !== null && atMs >= 0) connection.send({ type: "presented", frame: frame.frameId, at_ms: atMs });
-      }), due === null ? 0 : Math.max(0, due - performance.now()));
+    case "present":
+      presenter.present(message);
       break;
-    }
     case "stream":
       video.choose(message);
       stream = message;
@@ -331,11 +324,15 @@ const PING_MS = 1000;
 /** Pings sent at once when a cell (re)joins, for a first clock estimate. */
 const FIRST_PINGS = 4;
 const clock = new ClockOffset();
+const presenter = new Presenter(clock, (frameId) => compositor.present(frameId),
+  (frameId, atMs) => connection.send({ type: "presented", frame: frameId, at_ms: atMs }),
+  { now: () => performance.now(), requestFrame: (cb) => requestAnimationFrame(cb) });
 let pinging = null;
 const ping = () => connection.send({ type: "ping", t0: performance.now() });
 /** This page is one cell of a wall: full screen, frames held until the coordinator says present. */
 function startCell() {
   document.body.dataset.wallCell = "true";
+  window.tesseraWall = { presents: () => structuredClone(presenter.log) };
   compositor.hold((frame) => connection.send({ type: "have", frame: frame.frameId }));
   for (let i = 0; i < FIRST_PINGS; i++) setTimeout(ping, i * 50);
   if (pinging === null) pinging = setInterval(ping, PING_MS);

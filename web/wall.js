@@ -1,6 +1,6 @@
 // A display wall (issue 22): the clock offset a cell estimates to the coordinator (ping → pong),
-// the cells' rects in the whole wall's frame, and the cell outlines the wall's driver draws over
-// the whole wall scaled down.
+// when a cell presents the frame the coordinator names (Presenter), the cells' rects in the whole
+// wall's frame, and the cell outlines the wall's driver draws over the whole wall scaled down.
 
 import { fitFrame } from "./overlay.js";
 
@@ -38,6 +38,86 @@ export class ClockOffset {
   toLocal(clockMs) {
     const offset = this.offset;
     return offset === null ? null : clockMs - offset;
+  }
+}
+
+/** Presents kept in a Presenter's log (for bench.wall). */
+export const PRESENT_LOG = 600;
+/** The display refresh interval assumed until two animation frames have been seen (ms). */
+export const DEFAULT_REFRESH_MS = 1000 / 60;
+/** Animation frame intervals the refresh interval is estimated from (the shortest wins). */
+const REFRESH_SAMPLES = 8;
+
+/**
+ * A wall cell's presents. On the coordinator's `present` ({frame, at_ms}) it runs an animation
+ * frame loop and draws the held frame in the animation frame whose timestamp is nearest the due
+ * time (at_ms on this page's estimate of the coordinator's clock): the first whose timestamp is
+ * at least half a refresh before it. A timestamp is when the frame began, the same on every page
+ * driven by the same display, however late the page's callback for it runs; so cells pick the same
+ * refresh, where "the first callback after a timer at the due time" lands a refresh apart when a
+ * callback of the frame has run on one page and not yet on another. The frame's timestamp on the
+ * coordinator's clock is reported. `log` keeps each present's times (this page's ms): received,
+ * due, the animation frame's timestamp, when its callback ran, drawn, and the clock offset then.
+ */
+export class Presenter {
+  /**
+   * @param {ClockOffset} clock
+   * @param {(frameId: number) => object | null} present  draws the held frame (Compositor.present)
+   * @param {(frameId: number, atMs: number) => void} report  the frame is on screen at atMs (coordinator ms)
+   * @param {{now: () => number, requestFrame: (cb: (ts: number) => void) => void}} timing
+   */
+  constructor(clock, present, report, timing) {
+    this.clock = clock;
+    this.draw = present;
+    this.report = report;
+    this.timing = timing;
+    this.log = [];
+    /** The present waiting for its animation frame (a newer one replaces it), null: none. */
+    this.pending = null;
+    this.looping = false;
+    this.lastTs = null;
+    this.intervals = [];
+  }
+
+  /** The display's refresh interval (ms): the shortest of the last animation frame intervals. */
+  get refreshMs() {
+    return this.intervals.length ? Math.min(...this.intervals) : DEFAULT_REFRESH_MS;
+  }
+
+  /** The coordinator's `present` message. */
+  present(message) {
+    const received = this.timing.now();
+    this.pending = { frame: message.frame, atMs: message.at_ms, received, due: this.clock.toLocal(message.at_ms) };
+    if (!this.looping) {
+      this.looping = true;
+      this.timing.requestFrame((ts) => this.onFrame(ts));
+    }
+  }
+
+  onFrame(ts) {
+    if (this.lastTs !== null && ts > this.lastTs) {
+      this.intervals.push(ts - this.lastTs);
+      if (this.intervals.length > REFRESH_SAMPLES) this.intervals.shift();
+    }
+    this.lastTs = ts;
+    const entry = this.pending;
+    if (entry !== null && (entry.due === null || ts >= entry.due - this.refreshMs / 2)) {
+      this.pending = null;
+      const callback = this.timing.now();
+      const frame = this.draw(entry.frame);
+      Object.assign(entry, { ts, callback, drawn: this.timing.now(), offset: this.clock.offset });
+      const atMs = frame && this.clock.toCoordinator(ts);
+      if (atMs !== null && atMs >= 0) this.report(frame.frameId, atMs);
+      this.log.push(entry);
+      if (this.log.length > PRESENT_LOG) this.log.shift();
+    }
+    // one animation frame more after a present (an interval sample); then the loop stops till the next
+    if (entry === null) {
+      this.looping = false;
+      this.lastTs = null;
+    } else {
+      this.timing.requestFrame((next) => this.onFrame(next));
+    }
   }
 }
 

@@ -1,11 +1,12 @@
 // web/wall.js and the compositor's held mode (issue 22): a wall cell's clock offset from ping →
-// pong, the cells' rects, and decoded frames held until the coordinator says present.
+// pong, the animation frame a cell presents in, the cells' rects, and decoded frames held until
+// the coordinator says present.
 import assert from "node:assert/strict";
 import { afterEach, beforeEach, test } from "node:test";
 
 import { Compositor, MAX_HELD } from "../../web/compositor.js";
 import { Codec } from "../../web/protocol.js";
-import { CLOCK_SAMPLES, ClockOffset, cellRects } from "../../web/wall.js";
+import { CLOCK_SAMPLES, ClockOffset, DEFAULT_REFRESH_MS, Presenter, cellRects } from "../../web/wall.js";
 
 test("the clock offset is the shortest round trip's, halfway through it", () => {
   const clock = new ClockOffset();
@@ -19,6 +20,68 @@ test("the clock offset is the shortest round trip's, halfway through it", () => 
   assert.equal(clock.toLocal(5899), 1000);
   for (let i = 0; i < CLOCK_SAMPLES; i++) clock.sample(1000 + i, 1030 + i, 7015 + i);
   assert.equal(clock.offset, 6000, "old samples leave the window");
+});
+
+/** A Presenter on a virtual clock: `frame(ts)` runs the pending animation frame callback at ts. */
+function presenterAt(offset) {
+  const clock = new ClockOffset();
+  clock.sample(0, 0, offset);   // the coordinator's clock = this page's + offset
+  const state = { now: 0, callbacks: [], drawn: [], reported: [] };
+  const presenter = new Presenter(clock, (frameId) => {
+    state.drawn.push(frameId);
+    return { frameId };
+  }, (frameId, atMs) => state.reported.push([frameId, atMs]), {
+    now: () => state.now,
+    requestFrame: (cb) => state.callbacks.push(cb),
+  });
+  const frame = (ts, callbackAt = ts) => {
+    state.now = callbackAt;
+    const callbacks = state.callbacks.splice(0);
+    for (const cb of callbacks) cb(ts);
+  };
+  return { presenter, state, frame };
+}
+
+test("a cell presents in the animation frame whose timestamp is nearest the due time", () => {
+  const { presenter, state, frame } = presenterAt(1000);
+  state.now = 10;
+  presenter.present({ frame: 7, at_ms: 1100 });   // due at 100 on this page's clock
+  for (const ts of [16, 32, 48, 64, 80]) frame(ts, ts + 5);
+  assert.deepEqual(state.drawn, [], "not before half a refresh ahead of the due time");
+  frame(96, 110);   // 4 ms before the due time; its callback runs after it
+  assert.deepEqual(state.drawn, [7]);
+  assert.deepEqual(state.reported, [[7, 1096]], "the frame's timestamp on the coordinator's clock");
+  assert.equal(presenter.refreshMs, 16);
+  frame(112);
+  assert.equal(state.callbacks.length, 0, "the loop stops once nothing is pending");
+  assert.equal(presenter.log.length, 1);
+  assert.equal(presenter.log[0].ts, 96);
+});
+
+test("two cells whose callbacks run at different times present on the same refresh", () => {
+  const fast = presenterAt(0);
+  const slow = presenterAt(0);
+  for (const cell of [fast, slow]) {
+    cell.state.now = 0;
+    cell.presenter.present({ frame: 3, at_ms: 50 });
+  }
+  // the refresh at 33.3 ms is 16.7 ms early; 50 is the one: one page's callback runs at once, the other's late
+  for (const ts of [0, 16.7, 33.3, 50, 66.7]) {
+    fast.frame(ts, ts + 1);
+    slow.frame(ts, ts + 15);
+  }
+  assert.deepEqual(fast.state.reported, [[3, 50]]);
+  assert.deepEqual(slow.state.reported, [[3, 50]]);
+});
+
+test("a present that comes late, or a newer one, is drawn on the next animation frame", () => {
+  const { presenter, state, frame } = presenterAt(0);
+  state.now = 40;
+  presenter.present({ frame: 1, at_ms: 20 });   // due before it came
+  presenter.present({ frame: 2, at_ms: 30 });   // a newer present replaces it
+  frame(48);
+  assert.deepEqual(state.drawn, [2]);
+  assert.equal(presenter.refreshMs, DEFAULT_REFRESH_MS, "no interval seen yet");
 });
 
 test("cells are laid out row by row with the bezels between them", () => {
