@@ -2,18 +2,22 @@
 one session of the same total size.
 
 ``python -m bench.wall --cols 2 --rows 2 --cell 640x360 [--bezel 0x0] [--nodes 3]
-[--scene builtin:cluster] [--input-hz 30] [--moving-s 8] [--turn-s 8] [--chromium]
+[--scene builtin:cluster] [--input-hz 30] [--moving-s 8] [--turn-s 8] [--chromium] [--rounds 1]
 [--server-args "…"] [--present-log LOG] [--json OUT]``
 
-Phase 1, the wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the
-drive link that turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each
-that says ``have`` for every frame, presents on ``present`` and reports when, on the
+The wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the drive link
+that turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each that says
+``have`` for every frame, presents on ``present`` at its time and reports when, on the
 coordinator's clock estimated by ping → pong), or with ``--chromium`` headless Chromium pages of
-the real viewer, which present on their next animation frame. Over the window (its first second
-left out): frames the lock presented per second, frames the driver received per second, and the
-present skew between cells (p50, p99 in ms, from ``/api/sessions/{id}/stats``). Phase 2, one
-session of the wall's whole size moved the same way by one viewer: frames per second. Their ratio
-is what the wall costs in throughput.
+the real viewer (their present logs, web/wall.js, say when each present came and which animation
+frame it was drawn in). Over the window (its first second left out): frames the lock presented
+per second, frames the driver received per second, the present skew between cells (p50, p99 in
+ms, from ``/api/sessions/{id}/stats``), the lead presents were told with. The single session: one
+session of the wall's whole size moved the same way by one viewer (with ``--chromium``, a
+Chromium page watches it too): frames per second. Their ratio is what the wall costs in
+throughput; ``--rounds`` alternates the two and takes medians. Each window says how many cores
+were busy: the coordinator and its nodes, the scripted viewers, the browser, and other work on
+the machine.
 
 Everything shares this machine's cores: on 2 cores, N nodes, the cells and the coordinator take turns.
 """
@@ -24,6 +28,7 @@ import argparse
 import contextlib
 import json
 import math
+import os
 import shlex
 import threading
 import time
@@ -36,7 +41,7 @@ import numpy as np
 import websockets.sync.client as ws_client
 
 from bench.live import ScriptedViewer, wait_ready
-from bench.processes import show_result, start_coordinator
+from bench.processes import CLOCK_TICKS, cpu_seconds, process_tree, show_result, start_coordinator
 from bench.sessions import move, wait_session_ready
 from tessera.cli_values import size_parser
 from tessera.wire.protocol import unpack_frame
@@ -102,19 +107,66 @@ class ScriptedCell:
 
 
 @contextlib.contextmanager
-def chromium_cells(urls: list[str]) -> Iterator[list[Any]]:
-    """A headless Chromium page of the viewer at each of ``urls`` (the pages), open until the block ends."""
+def chromium() -> Iterator[Any]:
+    """A headless Chromium browser (Playwright), open until the block ends."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         try:
-            pages = [browser.new_page(viewport={"width": 480, "height": 320}) for _ in urls]
-            for page, url in zip(pages, urls, strict=True):
-                page.goto(url)
-            yield pages
+            yield browser
         finally:
             browser.close()
+
+
+@contextlib.contextmanager
+def pages_at(browser: Any, urls: list[str]) -> Iterator[list[Any]]:
+    """A page of the viewer at each of ``urls`` in ``browser`` (the pages), closed when the block ends."""
+    pages = [browser.new_page(viewport={"width": 480, "height": 320}) for _ in urls]
+    try:
+        for page, url in zip(pages, urls, strict=True):
+            page.goto(url)
+        yield pages
+    finally:
+        for page in pages:
+            page.close()
+
+
+def machine_busy_s() -> tuple[float, float]:
+    """This machine's CPU seconds busy (all cores, /proc/stat: not idle, not waiting) and its
+    monotonic clock (s)."""
+    with open("/proc/stat") as stat:
+        fields = [int(v) for v in stat.readline().split()[1:]]
+    return (sum(fields) - fields[3] - fields[4]) / CLOCK_TICKS, time.monotonic()
+
+
+class CpuUse:
+    """CPU seconds from here on: the coordinator (``service_pid``) and its nodes (the rest of its
+    tree), this process (scripted cells and viewers), the rest of this process's tree (Playwright
+    and Chromium), and the whole machine (everything else is other work on it)."""
+
+    def __init__(self, service_pid: int) -> None:
+        self.service_pid = service_pid
+        self.start = self._read()
+
+    def _read(self) -> dict[str, float]:
+        service = process_tree(self.service_pid)
+        ours = process_tree(os.getpid())
+        busy, now = machine_busy_s()
+        coordinator = cpu_seconds([self.service_pid])
+        return {"coordinator": coordinator, "nodes": cpu_seconds(service) - coordinator,
+                "bench": cpu_seconds([os.getpid()]),
+                "browser": cpu_seconds([pid for pid in ours if pid not in service and pid != os.getpid()]),
+                "machine": busy, "at": now}
+
+    def cores(self) -> dict[str, float]:
+        """Cores busy on average since this was made, by whom."""
+        end = self._read()
+        seconds = end["at"] - self.start["at"]
+        keys = ("coordinator", "nodes", "bench", "browser")
+        used = {key: (end[key] - self.start[key]) / seconds for key in (*keys, "machine")}
+        used["other"] = used["machine"] - sum(used[key] for key in keys)
+        return {key: round(value, 2) for key, value in used.items()}
 
 
 def percentiles(values: list[float]) -> dict[str, float | None]:
@@ -157,7 +209,8 @@ def received_fps(viewer: ScriptedViewer, start: float, end: float) -> float:
         return sum(start <= f["at"] <= end and not f["still"] for f in viewer.frames) / (end - start)
 
 
-def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> dict[str, Any]:
+def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, service_pid: int,
+               browser: Any) -> dict[str, Any]:
     wall = {"cols": args.cols, "rows": args.rows, "cell": list(args.cell), "bezel": list(args.bezel)}
     created = client.post("/api/sessions", json={"scene": args.scene, "wall": wall})
     created.raise_for_status()
@@ -167,8 +220,8 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> d
     cells = [f"{col},{row}" for row in range(args.rows) for col in range(args.cols)]
     with contextlib.ExitStack() as stack:
         pages: list[Any] = []
-        if args.chromium:
-            pages = stack.enter_context(chromium_cells([f"{body['viewer_url']}&cell={cell}" for cell in cells]))
+        if browser is not None:
+            pages = stack.enter_context(pages_at(browser, [f"{body['viewer_url']}&cell={cell}" for cell in cells]))
             scripted: list[ScriptedCell] = []
         else:
             scripted = [ScriptedCell(stack.enter_context(ws_client.connect(
@@ -186,9 +239,9 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> d
                                                     stop))
         mover.start()
         time.sleep(1.0)
-        before, window_start = lock_figures(client, session_id), time.perf_counter()
+        before, window_start, cpu = lock_figures(client, session_id), time.perf_counter(), CpuUse(service_pid)
         mover.join()
-        after, window_end = lock_figures(client, session_id), time.perf_counter()
+        after, window_end, cores = lock_figures(client, session_id), time.perf_counter(), cpu.cores()
         driver_fps = received_fps(driver, window_start, window_end)
         logs = [page.evaluate("() => window.tesseraWall ? window.tesseraWall.presents() : []") for page in pages]
         if args.present_log is not None and logs:
@@ -199,66 +252,99 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str) -> d
     client.delete(f"/api/sessions/{session_id}")
     presented_fps = (after["presents"] - before["presents"]) / (window_end - window_start)
     timing = present_timing(logs, set(range(before["presented"] + 1, after["presented"] + 1))) if logs else None
-    return {"size": body["size"], "presented_fps": presented_fps, "driver_fps": driver_fps,
+    return {"size": body["size"], "presented_fps": presented_fps, "driver_fps": driver_fps, "cores": cores,
             **{key: after[key] for key in ("skew_p50_ms", "skew_p99_ms", "skew_samples", "lead_ms")},
             "present_timing": timing}
 
 
-def single_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, size: list[int]) -> dict[str, Any]:
+def single_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, size: list[int], service_pid: int,
+                 browser: Any) -> dict[str, Any]:
+    """One session of ``size`` turned by a scripted viewer (and shown by a Chromium page watching
+    it, when ``browser``: the same pixels decoded and drawn in a browser as the wall's cells)."""
     created = client.post("/api/sessions", json={"scene": args.scene, "size": size})
     created.raise_for_status()
-    session_id = created.json()["id"]
-    wait_session_ready(client, session_id)
-    with ws_client.connect(f"{ws_url}/ws/view?session={session_id}", max_size=256 << 20) as ws:
-        viewer = ScriptedViewer(ws)
+    body = created.json()
+    wait_session_ready(client, body["id"])
+    with contextlib.ExitStack() as stack:
+        if browser is not None:
+            stack.enter_context(pages_at(browser, [body["watch_url"]]))
+        viewer = ScriptedViewer(stack.enter_context(ws_client.connect(f"{ws_url}/ws/view?session={body['id']}",
+                                                                      max_size=256 << 20)))
         started = time.perf_counter()
-        move([viewer], started + args.moving_s, args.input_hz, args.turn_s, threading.Event())
-        fps = received_fps(viewer, started + 1.0, time.perf_counter())
+        mover = threading.Thread(target=move, args=([viewer], started + args.moving_s, args.input_hz, args.turn_s,
+                                                    threading.Event()))
+        mover.start()
+        time.sleep(1.0)
+        window_start, cpu = time.perf_counter(), CpuUse(service_pid)
+        mover.join()
+        fps, cores = received_fps(viewer, window_start, time.perf_counter()), cpu.cores()
         viewer.stop()
-    client.delete(f"/api/sessions/{session_id}")
-    return {"size": size, "fps": fps}
+    client.delete(f"/api/sessions/{body['id']}")
+    return {"size": size, "fps": fps, "cores": cores}
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """``--rounds`` rounds of the wall and the single session, in turns (the wall first in odd rounds, the
+    single session in even ones), so load that comes and goes on the machine falls on both."""
     (w, h), (bx, by) = args.cell, args.bezel
     size = [args.cols * w + (args.cols - 1) * bx, args.rows * h + (args.rows - 1) * by]
-    server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", "64x48",
+    server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", "64x48", "--stream", "tiles",
                    "--max-size", f"{size[0]}x{size[1]}", *shlex.split(args.server_args)]   # fits the single session
     coordinator, url = start_coordinator(server_args, log_level="warning")
     ws_url = url.replace("http://", "ws://")
     result: dict[str, Any] = {"cols": args.cols, "rows": args.rows, "cell": list(args.cell), "bezel": list(args.bezel),
                               "nodes": args.nodes, "scene": args.scene, "input_hz": args.input_hz,
-                              "cells_are": "chromium" if args.chromium else "scripted", "server_args": args.server_args}
+                              "cells_are": "chromium" if args.chromium else "scripted", "server_args": args.server_args,
+                              "rounds": []}
     try:
-        with httpx.Client(base_url=url, timeout=120) as client:
+        with httpx.Client(base_url=url, timeout=120) as client, contextlib.ExitStack() as stack:
+            browser = stack.enter_context(chromium()) if args.chromium else None
             wait_ready(client, args.nodes)
-            result["wall"] = wall_phase(args, client, ws_url)
-            result["single"] = single_phase(args, client, ws_url, size)
+            for index in range(args.rounds):
+                phases = {}
+                for phase in (("wall", "single") if index % 2 == 0 else ("single", "wall")):
+                    phases[phase] = (wall_phase(args, client, ws_url, coordinator.pid, browser) if phase == "wall" else
+                                     single_phase(args, client, ws_url, size, coordinator.pid, browser))
+                single_fps = phases["single"]["fps"]
+                phases["fps_ratio"] = phases["wall"]["presented_fps"] / single_fps if single_fps else math.nan
+                result["rounds"].append(phases)
     finally:
         coordinator.stop(timeout=30.0)
-    single_fps = result["single"]["fps"]
-    result["fps_ratio"] = result["wall"]["presented_fps"] / single_fps if single_fps else math.nan
+    rounds = result["rounds"]
+    result["fps_ratio"] = float(np.median([r["fps_ratio"] for r in rounds]))
+    result["wall_fps"] = float(np.median([r["wall"]["presented_fps"] for r in rounds]))
+    result["single_fps"] = float(np.median([r["single"]["fps"] for r in rounds]))
     return result
 
 
 def report(result: dict[str, Any]) -> str:
-    wall, single = result["wall"], result["single"]
-    skew = ("no skew measured" if wall["skew_p50_ms"] is None else
-            f"present skew between cells p50 {wall['skew_p50_ms']:.2f} ms, p99 {wall['skew_p99_ms']:.2f} ms "
-            f"({wall['skew_samples']} frames), presents told {wall['lead_ms']:.0f} ms ahead at the end")
+    first = result["rounds"][0]["wall"]
     lines = [
         f"{result['cols']}x{result['rows']} wall of {result['cell'][0]}x{result['cell'][1]} cells (bezel "
-        f"{result['bezel'][0]}x{result['bezel'][1]}), {wall['size'][0]}x{wall['size'][1]} in all, "
+        f"{result['bezel'][0]}x{result['bezel'][1]}), {first['size'][0]}x{first['size'][1]} in all, "
         f"{result['nodes']} local nodes, {result['cells_are']} cells, driver at {result['input_hz']:g} Hz",
-        f"wall:   {wall['presented_fps']:6.1f} frames presented/s (driver received {wall['driver_fps']:.1f}/s); {skew}",
-        f"single: {single['fps']:6.1f} frames/s, one viewer of {single['size'][0]}x{single['size'][1]}",
-        f"wall / single throughput {result['fps_ratio']:.3f}",
     ]
-    timing = wall.get("present_timing")
-    if timing:
-        lines.append(f"the pages' presents ({timing['frames']} frames every cell presented; p50/p99/max ms):")
-        lines += [f"  {name:<18} {figures['p50']} / {figures['p99']} / {figures['max']}"
-                  for name, figures in timing.items() if isinstance(figures, dict)]
+    for number, phases in enumerate(result["rounds"], start=1):
+        wall, single = phases["wall"], phases["single"]
+        skew = ("no skew measured" if wall["skew_p50_ms"] is None else
+                f"skew p50 {wall['skew_p50_ms']:.2f} ms, p99 {wall['skew_p99_ms']:.2f} ms ({wall['skew_samples']} "
+                f"frames), lead {wall['lead_ms']:.0f} ms")
+        cores = " | ".join(f"{name} {' '.join(f'{k} {v:.2f}' for k, v in phase['cores'].items())}"
+                           for name, phase in (("wall", wall), ("single", single)))
+        per_frame = " | ".join(
+            f"{name} coordinator {1000 * phase['cores']['coordinator'] / fps:.0f}, nodes "
+            f"{1000 * phase['cores']['nodes'] / fps:.0f}"
+            for name, phase, fps in (("wall", wall, wall["driver_fps"]), ("single", single, single["fps"])) if fps)
+        lines += [f"round {number}: wall {wall['presented_fps']:5.1f} presented/s (driver {wall['driver_fps']:.1f}/s), "
+                  f"single {single['fps']:5.1f}/s, ratio {phases['fps_ratio']:.3f}; {skew}",
+                  f"  cores busy: {cores}", f"  CPU ms per frame made: {per_frame}"]
+        timing = wall.get("present_timing")
+        if timing:
+            lines.append(f"  the pages' presents ({timing['frames']} frames every cell presented; p50/p99/max ms): " +
+                         "; ".join(f"{name} {f['p50']}/{f['p99']}/{f['max']}"
+                                   for name, f in timing.items() if isinstance(f, dict)))
+    lines.append(f"median over {len(result['rounds'])} rounds: wall {result['wall_fps']:.1f} presented/s, single "
+                 f"{result['single_fps']:.1f}/s, wall / single throughput {result['fps_ratio']:.3f}")
     return "\n".join(lines)
 
 
@@ -273,7 +359,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input-hz", type=float, default=30.0)
     parser.add_argument("--moving-s", type=float, default=8.0)
     parser.add_argument("--turn-s", type=float, default=8.0)
-    parser.add_argument("--chromium", action="store_true", help="cells are headless Chromium pages of the viewer")
+    parser.add_argument("--chromium", action="store_true",
+                        help="cells are headless Chromium pages of the viewer (and a page watches the single session)")
+    parser.add_argument("--rounds", type=int, default=1, help="rounds of wall and single session, in turns")
     parser.add_argument("--server-args", default="", help="more flags for python -m server")
     parser.add_argument("--present-log", type=Path, help="with --chromium: write the pages' present logs here (JSON)")
     parser.add_argument("--json", type=Path)
@@ -282,8 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.cols < 1 or args.rows < 1 or args.nodes < 1 or args.moving_s <= 2.0:
-        raise SystemExit("--cols, --rows and --nodes must be >= 1, --moving-s > 2")
+    if args.cols < 1 or args.rows < 1 or args.nodes < 1 or args.rounds < 1 or args.moving_s <= 2.0:
+        raise SystemExit("--cols, --rows, --nodes and --rounds must be >= 1, --moving-s > 2")
     result = measure(args)
     show_result(report(result), result, args.json, argv)
     return 0

@@ -320,9 +320,9 @@ const connection = new Connection(address(viewSocketPath(session), location.prot
 new ResizeObserver(() => (state.overlay || wallDriver()) && redrawOverlay()).observe(overlayCanvas);
 
 /** A wall cell pings the coordinator this often, to estimate its clock and to count as live (ms). */
-const PING_MS = 1000;
+const PING_MS = 500;
 /** Pings sent at once when a cell (re)joins, for a first clock estimate. */
-const FIRST_PINGS = 4;
+const FIRST_PINGS = 8;
 const clock = new ClockOffset();
 const presenter = new Presenter(clock, (frameId) => compositor.present(frameId),
   (frameId, atMs) => connection.send({ type: "presented", frame: frameId, at_ms: atMs }),
@@ -368,7 +368,7 @@ const sessionControls = new SessionControls(document, (path, init) => fetch(addr
   (message) => { $("panel-message").textContent = message; }, (url) => location.assign(url));
 
 connection.start();
-panel.start();
+if (!session.cell) panel.start();   // a wall cell shows no panel: it polls no stats
 sessionControls.start().catch((error) => console.warn("tessera: session controls:", error));
 setInterval(reportLatency, LATENCY_REPORT_MS);
 setInterval(reportStream, STREAM_REPORT_MS);

@@ -4,8 +4,13 @@
 
 import { fitFrame } from "./overlay.js";
 
-/** Pong samples the clock offset is taken from (the one with the shortest round trip wins). */
-export const CLOCK_SAMPLES = 8;
+/**
+ * Pong samples the clock offset is taken from (the one with the shortest round trip wins): with a
+ * ping each 500 ms, the last 8 s. Under load most round trips are long and lopsided (bench.wall
+ * saw the estimate jump by up to 30 ms with 8 samples); a longer window holds a short one more
+ * often, and clocks of two machines drift apart by under 1 ms in it (100 ppm).
+ */
+export const CLOCK_SAMPLES = 16;
 
 /** The coordinator's clock (ms) minus this page's performance.now(), from ping → pong round trips. */
 export class ClockOffset {

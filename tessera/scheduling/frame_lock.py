@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 #: A cell that reported nothing for this long no longer holds the others back (s); cells ping
-#: every second (web/viewer.js), so a live one is never this quiet.
+#: every half second (web/viewer.js), so a live one is never this quiet.
 STALE_S = 2.5
 #: Present skews kept for the percentiles (frames).
 SKEW_WINDOW = 600
