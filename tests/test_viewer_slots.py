@@ -11,7 +11,10 @@ from tessera.wire.messages import CameraUpdate, ViewerError
 
 
 class Frame:
-    """A published frame whose message is the same bytes for every viewer."""
+    """A published interactive frame whose message is the same bytes for every viewer."""
+
+    still = False
+    samples = 0
 
     def __init__(self, body: bytes) -> None:
         self.body = body
@@ -171,6 +174,8 @@ def test_hub_publishes_to_every_slot_and_broadcasts_with_exclusion():
 
 def test_each_viewer_gets_its_own_copy_and_its_latency_report_in_the_stats():
     class Tagged:
+        still, samples = False, 0
+
         def message_for(self, viewer_id: object) -> bytes:
             return b"for %d" % viewer_id
 

@@ -1,4 +1,6 @@
-"""Dependencies shared by the routers: the service and the token check.
+"""Dependencies shared by the routers: the service and the token check. They are coroutines: FastAPI
+runs a plain function dependency on a worker thread (AnyIO's, which come and go with an idle
+timeout), a thread hop per request for what is a dictionary look-up.
 
 A token is presented as ``Authorization: Bearer …``, ``X-Tessera-Token``, ``?token=`` or the
 ``tessera_token`` cookie that the viewer page sets once it was opened with the right ``?token=``
@@ -14,11 +16,11 @@ from server.service import RenderService
 from server.sessions import Session
 
 
-def get_service(request: Request) -> RenderService:
+async def get_service(request: Request) -> RenderService:
     return request.app.state.service
 
 
-def get_session(request: Request) -> Session:
+async def get_session(request: Request) -> Session:
     """The session a route acts on: ``/api/sessions/{session_id}/…``'s, else the default one; 404
     for an unknown id. Using a session keeps it from being closed as idle."""
     service: RenderService = request.app.state.service
@@ -47,7 +49,7 @@ def presented_token(request: Request | WebSocket) -> str | None:
             or request.cookies.get(TOKEN_COOKIE))
 
 
-def require_token(request: Request) -> None:
+async def require_token(request: Request) -> None:
     """REST calls under /api present the token when one is set."""
     if not token_ok(request.app.state.settings.token, presented_token(request)):
         raise HTTPException(status_code=401, detail="missing or wrong token")

@@ -67,7 +67,7 @@ class UploadChecks:
             check.exception()  # retrieved: a check that outlived its request has no one to tell
 
 
-def get_library(request: Request) -> SceneLibrary:
+async def get_library(request: Request) -> SceneLibrary:
     return request.app.state.scenes
 
 
