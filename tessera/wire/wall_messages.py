@@ -4,9 +4,8 @@ clock exchange it is measured with.
 
 coordinator → viewer: ``wall`` :class:`WallHello` (after ``hello``: the wall's layout and the cell
 the viewer shows, null for a whole-wall viewer), ``present`` :class:`PresentFrame` (every cell
-holds frame K: show it on the first animation frame at or after ``at_ms``, the coordinator's
-clock), ``pong`` :class:`ClockPong` (the answer to a
-ping, with the coordinator's clock).
+holds frame K: show it in the animation frame whose time is nearest ``at_ms``, the coordinator's
+clock), ``pong`` :class:`ClockPong` (the answer to a ping, with the coordinator's clock).
 
 viewer → coordinator: ``ping`` :class:`ClockPing` (the viewer's clock when sent), ``have``
 :class:`HaveFrame` (a cell decoded frame K and holds it), ``presented`` :class:`FramePresented`
@@ -39,8 +38,9 @@ class WallHello(Message):
 
 
 class PresentFrame(Message):
-    """Show frame ``frame`` on the first animation frame at or after ``at_ms`` (the coordinator's
-    clock): every cell swaps on the same display refresh, however late the message reached it."""
+    """Show frame ``frame`` in the animation frame whose time is nearest ``at_ms`` (the
+    coordinator's clock): every cell swaps on the same display refresh, however late the message
+    reached it (before ``at_ms``)."""
 
     kind = "present"
     frame: FrameId
