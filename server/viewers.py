@@ -43,6 +43,8 @@ from tessera.wire.wall_messages import PresentFrame
 MAX_QUEUED_CONTROL = 256
 #: Encoded video frames a viewer may have waiting for its socket before it skips to a keyframe.
 MAX_VIDEO_QUEUED = 3
+#: Frames written to a video viewer whose receipt is remembered until it reports them (minutes at 60 fps).
+MAX_UNACKNOWLEDGED = 8192
 
 
 class ViewerMessages(Protocol):
@@ -90,9 +92,10 @@ class ViewerSlot:
         self._reported_dropped = 0.0
         self._window = (time.monotonic(), 0, 0, 0)   # start, bytes written, frames dropped, most waiting
         #: Video bytes written to the socket in all, and (frame id, that total once it was written)
-        #: for the frames the viewer has not said it received yet.
+        #: for the newest frames the viewer has not said it received yet (bounded: a viewer that
+        #: never reports must not grow it frame after frame).
         self.video_written = 0
-        self._written_at: deque[tuple[int, int]] = deque()
+        self._written_at: deque[tuple[int, int]] = deque(maxlen=MAX_UNACKNOWLEDGED)
         self._acknowledged = (time.monotonic(), 0)   # when the viewer last said, and the total it had then
         self._received_bps: float | None = None
 

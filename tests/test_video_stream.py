@@ -18,12 +18,12 @@ from node.scene.loading import load_scene
 from server.frame_store import PublishedFrame
 from server.video_encoder import VideoEncoder
 from server.video_stream import VIDEO_SOURCE_QUALITY, default_bitrate
-from server.viewers import MAX_VIDEO_QUEUED, ViewerHub, ViewerSlot
+from server.viewers import MAX_UNACKNOWLEDGED, MAX_VIDEO_QUEUED, ViewerHub, ViewerSlot
 from tessera.geometry import Camera, Rect, default_camera
 from tessera.video.yuv_frame import compose_yuv420
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import unpack_frame
-from tessera.wire.video import VideoCodec, is_video, unpack_video
+from tessera.wire.video import VideoCodec, is_video, pack_video, unpack_video
 
 SIZE = (321, 181)
 DECODERS = {VideoCodec.H264: "h264", VideoCodec.VP9: "vp9"}
@@ -146,5 +146,19 @@ def test_viewers_of_one_stream_keyframes_skips_and_stills(renders) -> None:
         assert VideoCodec.H264 in hub.streams
         hub.leave(second)
         assert not hub.streams
+
+    asyncio.run(scenario())
+
+
+def test_a_video_viewer_that_never_reports_does_not_grow_the_coordinators_memory() -> None:
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        slot.video_codec = VideoCodec.H264
+        message = pack_video(1, SIZE, VideoCodec.H264, True, b"unit")
+        for _ in range(MAX_UNACKNOWLEDGED + 50):
+            slot.put_video(message, True)
+            assert await slot.next_message() == message
+        assert slot.video_written == len(message) * (MAX_UNACKNOWLEDGED + 50)
+        assert len(slot._written_at) == MAX_UNACKNOWLEDGED
 
     asyncio.run(scenario())
