@@ -39,7 +39,7 @@ from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, Send
 from node.scene.fetch import SceneFetcher
 from node.settings import NodeSettings
-from node.tile_messages import encode_depth_message, encode_tile
+from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
 from tessera.scheduling.refinement import Subsample
 from tessera.wire import messages
 
@@ -202,7 +202,8 @@ class NodeClient:
         work.set()
 
     async def _draw(self, action: Draw, outbox: Outbox) -> None:
-        """One tile: drawn on the GL thread, encoded in the encoder thread, queued to send in order."""
+        """One tile (or a wall tile's pieces, drawn as one): drawn on the GL thread, encoded in the
+        encoder thread (each piece on its own), queued to send in order."""
         job, request, state = action.render, action.tile, action.state
         if job.depth is not None:
             await self._draw_depth(action, job.depth, outbox)
@@ -211,12 +212,15 @@ class NodeClient:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
                                                 Subsample.of(job.jitter, job.lod_bias))
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
-            outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
+            for tile in action.sent:
+                outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
             return
         render_ms = await self._slow_down(rendered.render_ms)
-        packed = asyncio.get_running_loop().run_in_executor(
-            self._encoder, encode_tile, job.frame, request, rendered, render_ms, job.codec, job.jpeg_quality, state)
-        outbox.put_nowait(PendingTile(job.frame, request.tile, packed, rendered.stats()))
+        loop = asyncio.get_running_loop()
+        for tile, (piece, piece_ms) in zip(action.sent, cut_pieces(rendered, render_ms, action.sent), strict=True):
+            packed = loop.run_in_executor(self._encoder, encode_tile, job.frame, tile, piece, piece_ms, job.codec,
+                                          job.jpeg_quality, state)
+            outbox.put_nowait(PendingTile(job.frame, tile.tile, packed, piece.stats()))
 
     async def _slow_down(self, render_ms: float) -> float:
         """Sleep the emulated slowdown's extra time for a render of ``render_ms``; its time as reported."""

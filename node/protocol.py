@@ -19,7 +19,8 @@ holds several scenes (issue 19), so the rest is:
   scene of the newest ``load_scene`` received, else whatever the node loaded last). A job waits
   while a load of its scene received before it is under way, and later jobs pass it by, except
   those of the same scene; a load that fails fails the jobs waiting for it with the reason. A
-  ``render``'s tiles are handed out one at a time, each once the one before is done, so a
+  ``render``'s tiles are handed out one at a time (the pieces of a display wall's tile together,
+  drawn as one: :class:`Draw`), each once the one before is done, so a
   ``cancel`` received meanwhile drops the tiles not begun, reported together in a
   ``tiles_dropped`` after the frame's last tile (a cancelled frame waits for no load);
 - a message that names one of these kinds but is malformed is refused in its turn, as far as it
@@ -31,11 +32,11 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from node.scene.data import SceneData
+from tessera.geometry import Rect
 from tessera.scene.state import SceneState, SceneStateError, StateReplica
 from tessera.wire import messages
 from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
@@ -61,12 +62,20 @@ class Load:
 class Draw:
     """Draw ``tile`` of the frame ``render`` asks for (a depth tile when it has a depth request) of
     ``scene`` (a spec; None: the scene loaded last) in scene ``state`` (None: the base pose);
-    report a failure with :meth:`NodeProtocol.tile_failed`."""
+    report a failure with :meth:`NodeProtocol.tile_failed`. ``pieces``: the tiles of the render
+    cut from a display wall's tile (``part_of``), which ``tile`` then covers exactly: drawn once as
+    ``tile`` (its id the first piece's), each piece sent as its own tile; empty: ``tile`` is sent."""
 
     render: messages.Render
     tile: messages.RenderTile
     state: SceneState | None
     scene: str | None = None
+    pieces: tuple[messages.RenderTile, ...] = ()
+
+    @property
+    def sent(self) -> tuple[messages.RenderTile, ...]:
+        """The tiles this draw sends (or fails) in order."""
+        return self.pieces or (self.tile,)
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +134,7 @@ class _FrameTiles:
 
     job: _SceneJob
     render: messages.Render
-    tiles: Iterator[messages.RenderTile]
+    tiles: deque[messages.RenderTile]
     dropped: list[int] = field(default_factory=list)
 
 
@@ -258,16 +267,18 @@ class NodeProtocol:
                 if job.state_error is not None:
                     self._fail_tiles(render.frame, [t.tile for t in render.tiles], job.state_error)
                 else:
-                    self._frame = _FrameTiles(job, render, iter(render.tiles))
+                    self._frame = _FrameTiles(job, render, deque(render.tiles))
 
     def _next_tile(self, frame: _FrameTiles) -> None:
-        """Hand out ``frame``'s next tile unless its frame is cancelled; after the last, the dropped."""
+        """Hand out ``frame``'s next tile (or a wall tile's pieces, together) unless its frame is
+        cancelled; after the last, the dropped."""
         render = frame.render
-        for tile in frame.tiles:
+        while frame.tiles:
+            draw = _next_draw(frame.tiles, render, frame.job)
             if render.frame not in self._cancelled:
-                self._ready.append(Draw(render, tile, frame.job.state, frame.job.scene))
+                self._ready.append(draw)
                 return
-            frame.dropped.append(tile.tile)
+            frame.dropped.extend(tile.tile for tile in draw.sent)
         self._frame = None
         if frame.dropped:
             self.tiles_dropped += len(frame.dropped)
@@ -344,6 +355,24 @@ class NodeProtocol:
         """The ``render_error`` of a calibration whose renders raised ``error``."""
         log.warning("calibration failed: %s", error)
         return messages.RenderError(frame=0, tile=0, message=f"calibration failed: {one_line(error)}")
+
+
+def _next_draw(tiles: deque[messages.RenderTile], render: messages.Render, job: _SceneJob) -> Draw:
+    """The next draw of ``tiles`` (taken from them): the next tile, with the pieces of its wall tile
+    that follow it when they cover one rect exactly (a plain render's only: depth tiles are drawn
+    each as its own)."""
+    first = tiles.popleft()
+    part = first.part_of
+    pieces = [first]
+    while part is not None and render.depth is None and tiles and tiles[0].part_of == part:
+        pieces.append(tiles.popleft())
+    rects = [piece.rect for piece in pieces]
+    x0, y0 = min(r.x for r in rects), min(r.y for r in rects)
+    drawn = Rect(x0, y0, max(r.x1 for r in rects) - x0, max(r.y1 for r in rects) - y0)
+    if len(pieces) > 1 and sum(r.area for r in rects) == drawn.area:
+        return Draw(render, messages.RenderTile(tile=first.tile, rect=drawn), job.state, job.scene, tuple(pieces))
+    tiles.extendleft(reversed(pieces[1:]))
+    return Draw(render, first, job.state, job.scene)
 
 
 def one_line(error: Exception) -> str:

@@ -102,6 +102,10 @@ def test_a_wall_sessions_frame_is_the_whole_wall_and_its_size_is_fixed(client):
             rect = Rect(*tile["rect"])
             touching = [c for c in cells if c.intersection_area(rect) > 0]
             assert not touching or touching[0].intersection_area(rect) == rect.area
+        # one node's tile, the whole wall, cut into 9 pieces that name it (a node draws it once;
+        # this fake node draws each piece, as a node of before did, and the frame is the same)
+        assert {tuple(t["part_of"]) for t in wall_renders[-1]["tiles"]} == {(0, 0, 84, 62)}
+        assert len(wall_renders[-1]["tiles"]) == 9
         frame = frame_png(client, f"/api/sessions/{body['id']}/frame.png", first)
         assert (frame == position_image(84, 62)).all()
 
@@ -192,6 +196,9 @@ def test_cells_are_frame_locked_and_their_skew_is_in_the_stats(client):
 
 @pytest.mark.parametrize(("wall", "why"), [
     ({"cols": 0, "rows": 2, "cell": [40, 30]}, "at least one cell"),
+    ({"cols": 2, "rows": 0, "cell": [40, 30]}, "at least one cell"),
+    ({"cols": 2, "rows": 2, "cell": [0, 30]}, "at least 1x1"),
+    ({"cols": 2, "rows": 2, "cell": [40, 300]}, "--max-size"),
     ({"cols": 2, "rows": 2, "cell": [300, 30]}, "--max-size"),
     ({"cols": 8, "rows": 8, "cell": [200, 100]}, "pixel budget"),
     ({"cols": 2, "rows": 2, "cell": [40, 30], "bezel": [-1, 0]}, "at least 0 px"),
@@ -212,6 +219,8 @@ def test_bad_cells_close_the_socket_with_the_reason(client):
     body = open_wall(client)
     plain = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()
     for query, why in ((f"session={body['id']}&cell=2,0", "outside the wall"),
+                       (f"session={body['id']}&cell=0,2", "outside the wall"),
+                       (f"session={body['id']}&cell=-1,0", "COL,ROW"),
                        (f"session={body['id']}&cell=x", "COL,ROW"),
                        (f"session={plain['id']}&cell=0,0", "not a wall")):
         with client.websocket_connect(f"/ws/view?{query}") as ws:

@@ -6,7 +6,8 @@ behind the mullions are part of the frustum and are never shown).
 The partition a session's balancer makes over the whole wall is cut at the cell edges
 (:meth:`WallLayout.cut`), so every tile lies inside one cell or inside the bezel: a cell's viewer
 gets the tiles of its cell as the nodes encoded them, with no decode or re-encode on the
-coordinator. Pure: rects and partitions in, rects and partitions out.
+coordinator. The pieces of one tile name it (:meth:`WallLayout.pieces`), so a node draws the
+tile once and encodes each piece on its own. Pure: rects and partitions in, rects and partitions out.
 """
 
 from __future__ import annotations
@@ -114,20 +115,29 @@ class WallLayout:
         """``partition`` with every tile cut at the cell edges: each piece lies inside one cell or
         inside the bezel, keeps its tile's node, and pieces of one tile follow each other (a pull
         list keeps its order); still an exact cover of the wall."""
+        return self.pieces(partition)[0]
+
+    def pieces(self, partition: Partition) -> tuple[Partition, tuple[Rect | None, ...]]:
+        """:meth:`cut` of ``partition``, and for each of its tiles the rect of the tile of
+        ``partition`` it is a piece of (None: a tile no cell edge crosses, kept whole). A node draws
+        the pieces of one tile as that one rect and sends each piece on its own."""
         xs = self._edges(self.cols, self.cell[0], self.bezel[0])
         ys = self._edges(self.rows, self.cell[1], self.bezel[1])
         tiles: list[Tile] = []
+        parts: list[Rect | None] = []
         for tile in partition.tiles:
             r = tile.rect
             cuts_x = [r.x, *(x for x in xs if r.x < x < r.x1), r.x1]
             cuts_y = [r.y, *(y for y in ys if r.y < y < r.y1), r.y1]
             if len(cuts_x) == 2 and len(cuts_y) == 2:
                 tiles.append(tile)
+                parts.append(None)
                 continue
             for y0, y1 in pairwise(cuts_y):
                 for x0, x1 in pairwise(cuts_x):
                     tiles.append(Tile(Rect(x0, y0, x1 - x0, y1 - y0), tile.node_id))
-        return Partition(tuple(tiles), partition.pull)
+                    parts.append(r)
+        return Partition(tuple(tiles), partition.pull), tuple(parts)
 
     def in_cell(self, rects: Sequence[Rect], col: int, row: int) -> list[tuple[int, Rect]]:
         """The rects (of a :meth:`cut` partition) inside cell (``col``, ``row``): each one's index

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from PIL import Image
@@ -35,7 +36,9 @@ class TileJob:
     """One tile of a frame: assigned node (None while waiting to be pulled), result when back.
     ``earlier``: nodes it was assigned to before a backup copy went to ``node_id``; the first copy
     back wins. ``depth_tile``: a depth tile's decoded layers, set by the coordinator when it
-    accepts one (the payload then holds its bytes)."""
+    accepts one (the payload then holds its bytes). ``part_of``: the balancer's tile this one is a
+    piece of (a display wall's cut, :meth:`tessera.decomposition.wall_cells.WallLayout.pieces`;
+    None: a whole tile)."""
 
     tile_id: int
     rect: Rect
@@ -47,10 +50,16 @@ class TileJob:
     send_ms: float | None = None
     counters: dict[str, float | str] = field(default_factory=dict)
     depth_tile: DecodedDepthTile | None = None
+    part_of: Rect | None = None
 
     @property
     def done(self) -> bool:
         return self.payload is not None
+
+    @property
+    def drawn(self) -> Rect:
+        """What a node draws for this tile: the tile it is a piece of, with the pieces sent beside it."""
+        return self.rect if self.part_of is None else self.part_of
 
 
 @dataclass
@@ -97,8 +106,11 @@ class FrameJob:
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
                state: SceneState | None = None, depth: DepthRequest | None = None,
                session: str = DEFAULT_SESSION, scene: str | None = None, sample: int = 0,
-               samples: int = 1) -> FrameJob:
-        tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id) for i, t in enumerate(partition.tiles)]
+               samples: int = 1, parts: Sequence[Rect | None] = ()) -> FrameJob:
+        """``parts``: for each tile of ``partition``, the tile it is a piece of (empty: none is)."""
+        parts = parts or [None] * len(partition.tiles)
+        tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id, part_of=part)
+                 for i, (t, part) in enumerate(zip(partition.tiles, parts, strict=True))]
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
                   inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene,
@@ -132,9 +144,28 @@ class FrameJob:
         sub = self.subsample
         return Render(frame=self.frame_id, camera=self.camera, size=self.size, codec=self.codec,
                       jpeg_quality=self.jpeg_quality,
-                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect) for i in tile_ids), state=state,
+                      tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect, part_of=self.tiles[i].part_of)
+                                  for i in tile_ids), state=state,
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
                       lod_bias=None if sub is None else sub.lod_bias)
+
+    def pull_next(self) -> list[int]:
+        """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the
+        same tile right after it (a node draws them as one)."""
+        first = self.pull_queue.popleft()
+        part = self.tiles[first].part_of
+        pulled = [first]
+        while part is not None and self.pull_queue and self.tiles[self.pull_queue[0]].part_of == part:
+            pulled.append(self.pull_queue.popleft())
+        return pulled
+
+    def busy_ms(self, tile_id: int, header: TileHeader) -> float:
+        """How long the node that sent tile ``tile_id`` (``header``) worked before it could: its
+        phases, and for a piece of a tile the rest of the tile's drawing too (the pieces' render and
+        read-back are the tile's in proportion to area; the node drew them before sending the first)."""
+        tile = self.tiles[tile_id]
+        drawn = header.render_ms + header.readback_ms
+        return drawn * tile.drawn.area / tile.rect.area + header.encode_ms
 
     def accept(self, node_id: int, header: TileHeader, payload: bytes,
                depth_tile: DecodedDepthTile | None = None) -> TileJob | None:

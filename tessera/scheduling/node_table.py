@@ -178,8 +178,9 @@ class NodeTable:
     def overdue(self, in_flight: Mapping[int, FrameJob], factor: float, floor_s: float,
                 now: float) -> list[NodeSchedule]:
         """Nodes not yet suspect whose current tile is ``factor`` times later than expected (their
-        last frame's busy ms per pixel × its pixels, or for a node that has not finished a frame,
-        the slowest rate any node has shown), at least ``floor_s`` late."""
+        last frame's busy ms per pixel × the pixels it draws, a wall's piece drawn with its whole
+        tile; or for a node that has not finished a frame, the slowest rate any node has shown),
+        at least ``floor_s`` late."""
         slowest_known = max((n.ms_per_px for n in self.nodes.values() if n.ms_per_px is not None), default=None)
         out = []
         for node in self.nodes.values():
@@ -189,7 +190,7 @@ class NodeTable:
             head = next(((in_flight[f], t) for f, t in node.outstanding if f in in_flight), None)
             if head is None:
                 continue
-            expected_s = rate * head[0].tiles[head[1]].rect.area / 1000.0
+            expected_s = rate * head[0].tiles[head[1]].drawn.area / 1000.0
             if now - node.head_since > max(floor_s, factor * expected_s):
                 out.append(node)
         return out

@@ -370,7 +370,7 @@ class FrameScheduler:
             self._advance(now)
             return None
         tile = job.accept(node_id, header, payload, depth_tile)
-        self.table.answered(node, key, now, header.render_ms + header.readback_ms + header.encode_ms)
+        self.table.answered(node, key, now, job.busy_ms(header.tile_id, header))
         if tile is None:
             self._advance(now)
             return None
@@ -622,7 +622,7 @@ class FrameScheduler:
                 if node is None:
                     break
                 idle.remove(node)
-                self._push(job, node, [job.pull_queue.popleft()], now)
+                self._push(job, node, job.pull_next(), now)
 
     def _complete(self, job: FrameJob, now: float) -> None:
         session = self.sessions[job.session]

@@ -16,7 +16,7 @@ from tessera.compositing.layers import background_pixel
 from tessera.decomposition.mode import DecompositionMode
 from tessera.decomposition.modes import create_mode
 from tessera.decomposition.wall_cells import WallLayout
-from tessera.geometry import DEFAULT_BACKGROUND, Camera
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.frame_jobs import FrameJob
@@ -57,7 +57,8 @@ class SessionFrames:
         #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
         self.loads_waiting: list[int] = []
         self.frames_cancelled = 0
-        #: A display wall's cells (issue 22): each frame's partition is cut at their edges.
+        #: A display wall's cells (issue 22): each frame's partition is cut at their edges (the
+        #: pieces of a tile name it: a node draws it once).
         self.wall: WallLayout | None = None
         #: JPEG quality of interactive tiles while a viewer takes the session as video (issue 21):
         #: the tiles are the encoder's source, decoded on the coordinator (None: no video viewer).
@@ -100,8 +101,9 @@ class SessionFrames:
         groups_for = self.groups_for
         partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
                                         lambda: groups_for(camera, state) if groups_for else None)
+        parts: tuple[Rect | None, ...] = ()
         if self.wall is not None:
-            partition = self.wall.cut(partition)
+            partition, parts = self.wall.pieces(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
         sample = self.demand.started(still)
@@ -109,7 +111,7 @@ class SessionFrames:
                               version=self.demand.version, changed_at=self.demand.changed_at,
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
-                              samples=self.demand.still_samples if still else 1)
+                              samples=self.demand.still_samples if still else 1, parts=parts)
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error

@@ -35,7 +35,8 @@ coordinator → node
 * ``render`` :class:`Render` — tiles of the ``scene`` named (None: the scene loaded last) are
   rendered in list order, each sent as soon as done, in the message's scene ``state`` (a full
   state, or a delta on the one the node was sent last); with ``depth`` (:class:`DepthRequest`,
-  issue 10) as depth tiles of the hybrid or sort-last mode
+  issue 10) as depth tiles of the hybrid or sort-last mode; pieces of one tile cut at a display
+  wall's cell edges (:class:`RenderTile` ``part_of``) drawn as one
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), of a ``scene`` likewise, in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
 
@@ -389,9 +390,23 @@ class LoadScene(Message):
 
 
 class RenderTile(BaseModel):
+    """Tile ``tile`` of the frame, ``rect``. ``part_of``: the rect of the balancer's tile a display
+    wall cut at its cell edges into this piece and others (issue 22); a node draws the pieces of one
+    such tile that follow each other in a ``render`` as one rect and sends each piece as its own
+    tile (an older node, which ignores the field, draws each piece). None: a whole tile."""
+
     model_config = _FIELDS
     tile: Int
     rect: RectJson
+    part_of: RectJson | None = None
+
+    @model_validator(mode="after")
+    def _inside_its_tile(self) -> Self:
+        part, rect = self.part_of, self.rect
+        if part is not None and not (part.x <= rect.x and rect.x1 <= part.x1 and part.y <= rect.y
+                                     and rect.y1 <= part.y1):
+            raise ValueError(f"rect {rect.as_list()} is not inside part_of {part.as_list()}")
+        return self
 
 
 class DepthRequest(BaseModel):
@@ -435,8 +450,13 @@ class Render(Message):
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first, without ``scene``, ``jitter`` and ``lod_bias`` when None."""
-        return self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias")
+        ``depth`` in sort-first, without ``scene``, ``jitter`` and ``lod_bias`` when None, without
+        a tile's ``part_of`` when None."""
+        data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias")
+        for tile in data["tiles"]:
+            if tile["part_of"] is None:
+                del tile["part_of"]
+        return data
 
 
 class Calibrate(Message):
