@@ -33,9 +33,10 @@ Figures per transport, over the moving window (its first second left out):
   same frames against the coordinator's lossless composite of the same frame id
   (``GET /api/frame.png?after=ID``, the video encoder's source: the tiles as received), i.e. the
   video codec's own loss (tiles: identical);
-* ``encode_ms``, ``compose_ms``: the coordinator's time per encoded frame on its stream's thread
-  (wall clock), from ``/api/stats`` ``video`` (null for tiles; the mean of its last 240 frames),
-  with ``target_bitrate`` (bit/s) there at the end; ``keyframes``; ``frames_lost``;
+* ``encode_ms``, ``compose_ms``: the coordinator's CPU per encoded frame (ms of its stream thread's
+  CPU, where the encoder and the tile decoding run alone), ``encode_wall_ms``, ``compose_wall_ms``:
+  the same on the wall clock, from ``/api/stats`` ``video`` (null for tiles; means of its last 240
+  frames), with ``target_bitrate`` (bit/s) there at the end; ``keyframes``; ``frames_lost``;
 * ``latency_intervals_p50``: input → decoded frame, p50, in mean intervals between decoded frames
   (and ``latency_p50_ms``), for the first decoded frame answering each input, as
   :func:`bench.live.latencies`.
@@ -393,8 +394,9 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
         **psnr_figures(against_source, "psnr_source"),
         "psnr_reference": "render-once" if references else "frame.png",
         "decoded_size": [list(s) for s in sorted(sizes)],
-        "encode_ms": stream.get("encode_ms_mean") if run["stream"] else None,
-        "encode_ms_p50": stream.get("encode_ms_p50"), "compose_ms": stream.get("compose_ms_mean"),
+        "encode_ms": stream.get("encode_cpu_ms_mean") if run["stream"] else None,
+        "encode_ms_p50": stream.get("encode_cpu_ms_p50"), "compose_ms": stream.get("compose_cpu_ms_mean"),
+        "encode_wall_ms": stream.get("encode_ms_mean"), "compose_wall_ms": stream.get("compose_ms_mean"),
         "frames_encoded": stream.get("frames_encoded"), "target_bitrate": stream.get("bitrate"),
         "keyframes": viewer.keyframes, "frames_lost": viewer.lost, "tile_frames_after_choice":
         viewer.tfrm_after_choice if choice.get("transport") != "tiles" else None,
@@ -456,6 +458,11 @@ def cell(value: float | None, width: int, places: int) -> str:
     return f"{'-':>{width}}" if value is None or math.isnan(value) else f"{value:>{width}.{places}f}"
 
 
+def _sum(*values: float | None) -> float | None:
+    """The sum of ``values``, None when one is missing."""
+    return None if any(v is None for v in values) else sum(v for v in values if v is not None)
+
+
 def report(result: dict[str, Any]) -> str:
     run = result["run"]
     lines = [f"Tessera stream benchmark: {run['scene']} at {run['size'][0]}x{run['size'][1]}, {run['nodes']} "
@@ -463,7 +470,8 @@ def report(result: dict[str, Any]) -> str:
              f"with input at {run['input_hz']:g} Hz for {run['moving_s']:g} s per transport"
              + (f", server args {run['server_args']!r}" if run["server_args"] else ""),
              f"{'transport':<10}{'KB/frame':>9}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}{'min':>7}"
-             f"{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'dec ms':>8}{'latency p50':>19}{'keys':>5}{'lost':>5}"]
+             f"{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
+             f"{'keys':>5}{'lost':>5}"]
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is None:
@@ -476,12 +484,14 @@ def report(result: dict[str, Any]) -> str:
                      f"{cell(row['mbps_at_60fps'], 8, 2)}{cell(row['fps'], 6, 1)}{cell(row['psnr_mean'], 10, 2)}"
                      f"{cell(row['psnr_min'], 7, 2)}{cell(row['psnr_source_mean'], 8, 2)}"
                      f"{cell(row['encode_ms'], 8, 2)}{cell(row['compose_ms'], 8, 2)}"
+                     f"{cell(_sum(row.get('encode_wall_ms'), row.get('compose_wall_ms')), 6, 1)}"
                      f"{cell(row['viewer_decode_ms'], 8, 2)}{cell(row['latency_intervals_p50'], 8, 2)} "
                      f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}")
     reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
                  else "the coordinator's composite of the same frame (GET /api/frame.png)")
     lines.append(f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
-                 "(the encoder's source); enc/comp ms: the coordinator's stream thread per frame; dec ms: this "
+                 "(the encoder's source); enc/comp ms: the coordinator's CPU per frame (its stream thread), "
+                 "wall: both on the wall clock; dec ms: this "
                  "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms)")
     return "\n".join(lines)
 

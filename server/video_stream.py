@@ -32,16 +32,18 @@ from tessera.wire.video import VideoCodec, codec_string, pack_video
 #: JPEG quality of the nodes' interactive tiles while a session streams video: they are the
 #: encoder's source (4:2:0, as the video is; q90 and above switch to 4:4:4, which the video drops).
 #: Measured at 720p, three tiles a frame, H.264 at the default bitrate, PSNR against the render:
-#: q80 29.6 KB a frame on the LAN, compose 7.0 ms, 41.1 dB; q88 34.0 KB, 7.5 ms, 42.2 dB; q95
-#: (4:4:4) 61.6 KB, 6.8 ms, 42.6 dB; PNG 74.0 KB, 64 ms, 43.0 dB. q88 loses 0.8 dB to lossless
-#: tiles at half their bytes and a ninth of their decoding.
+#: q80 29.6 KB a frame on the LAN, 41.1 dB; q88 34.0 KB, 42.2 dB; q95 (4:4:4) 61.6 KB, 42.6 dB;
+#: PNG 74.0 KB, 43.0 dB (and 64 ms to decode). q88 loses 0.8 dB to lossless tiles at half their bytes.
 VIDEO_SOURCE_QUALITY = 88
-#: Default target bitrate: bits per pixel of a picture at the nominal frame rate, within
-#: --max-bitrate (720p at 60 fps: 4.4 Mbit/s, 9.2 KB a frame at most; 1080p60: the 8 Mbit/s
-#: cap). Measured on the default scene at 720p, the camera turning 1.5° a frame, H.264 against the
-#: render: 0.05 → 4.6 KB, 39.6 dB; 0.08 → 7.5 KB, 42.0 dB; 0.12 → 11.4 KB, 43.0 dB; JPEG q60 tiles
-#: 23.3 KB, 40.7 dB. 0.08 is the least that beats the tiles' PSNR at a third of their bytes.
-BITS_PER_PIXEL = 0.08
+#: Default target bitrate per codec: bits per pixel of a picture at the nominal frame rate, within
+#: --max-bitrate (720p at 60 fps: H.264 5.0 Mbit/s, 10.4 KB a frame at most; 1080p60: the 8 Mbit/s
+#: cap). Both encoders stay under their target (x264 by ~30 %, libvpx-vp9 by ~45 %). Measured on the
+#: default scene at 720p, frames of an orbit 18° apart (bench.stream's ~10 fps), PSNR against the
+#: render, JPEG q60 tiles 24.3 KB 40.75 dB: H.264 0.08 → 6.6 KB 41.2 dB, **0.09 → 7.4 KB 41.7 dB**,
+#: 0.10 → 8.4 KB 42.0 dB; VP9 0.10 → 6.9 KB 41.6 dB, **0.11 → 7.5 KB 41.8 dB**, 0.12 → 8.0 KB
+#: 42.0 dB (6° apart: 0.4–0.7 dB more at the same bytes). The rates chosen keep a dB above the
+#: tiles' PSNR at under a third of their bytes.
+BITS_PER_PIXEL = {VideoCodec.H264: 0.09, VideoCodec.VP9: 0.11}
 #: Figures kept for the mean and median encode times.
 TIMINGS_KEPT = 240
 log = logging.getLogger("tessera.server")
@@ -59,18 +61,22 @@ class VideoFrameSource(Protocol):
 
 @dataclass
 class EncodedFrame:
-    """One frame's access units (bytes, keyframe) and what they cost (ms, wall clock)."""
+    """One frame's access units (bytes, keyframe) and what they cost: ms of the stream thread's
+    CPU (``*_cpu_ms``: all of it, as the decoders and encoders run on that thread alone) and of
+    the wall clock."""
 
     frame: VideoFrameSource
     units: list[tuple[bytes, bool]]
     compose_ms: float
     encode_ms: float
+    compose_cpu_ms: float
+    encode_cpu_ms: float
     new_encoder: bool
 
 
-def default_bitrate(size: tuple[int, int], fps: float, max_bitrate: float) -> float:
-    """The target (bit/s) of frames of ``size`` at ``fps``: :data:`BITS_PER_PIXEL`, within ``max_bitrate``."""
-    return min(max_bitrate, BITS_PER_PIXEL * size[0] * size[1] * fps)
+def default_bitrate(codec: VideoCodec, size: tuple[int, int], fps: float, max_bitrate: float) -> float:
+    """The target (bit/s) of ``codec`` frames of ``size`` at ``fps``: :data:`BITS_PER_PIXEL`, within ``max_bitrate``."""
+    return min(max_bitrate, BITS_PER_PIXEL[codec] * size[0] * size[1] * fps)
 
 
 class VideoStream:
@@ -83,7 +89,7 @@ class VideoStream:
         self.codec = codec
         self.size = size
         self.max_bitrate = max_bitrate
-        self.rate = LinkRate(default_bitrate(size, max_fps, max_bitrate), max_fps)
+        self.rate = LinkRate(default_bitrate(codec, size, max_fps, max_bitrate), max_fps)
         self._deliver = deliver
         self._loop = asyncio.get_running_loop()
         self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"video-{codec.label}")
@@ -100,8 +106,8 @@ class VideoStream:
         self.keyframes = 0
         self.bytes = 0
         self.encoders_made = 0
-        self._encode_ms: deque[float] = deque(maxlen=TIMINGS_KEPT)
-        self._compose_ms: deque[float] = deque(maxlen=TIMINGS_KEPT)
+        #: Per frame: (compose, encode) ms of the wall clock, and of the stream thread's CPU.
+        self._timings: deque[tuple[float, float, float, float]] = deque(maxlen=TIMINGS_KEPT)
 
     @property
     def codec_string(self) -> str:
@@ -133,7 +139,7 @@ class VideoStream:
         self._last_start = time.monotonic()
         if frame.size != self.size:
             self.size = frame.size
-            self.rate.set_ceiling(default_bitrate(frame.size, self.rate.max_fps, self.max_bitrate))
+            self.rate.set_ceiling(default_bitrate(self.codec, frame.size, self.rate.max_fps, self.max_bitrate))
         task = self._loop.run_in_executor(self._thread, self._encode, frame, keyframe, self.rate.bitrate)
         task.add_done_callback(self._done)
 
@@ -144,9 +150,9 @@ class VideoStream:
     def _encode(self, frame: VideoFrameSource, keyframe: bool, bitrate: float) -> EncodedFrame:
         """On the stream's thread: compose ``frame``'s picture and encode it (a new encoder for a
         new size or bitrate)."""
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), time.thread_time()
         planes = compose_yuv420(frame.size, frame.tiles)
-        composed = time.perf_counter()
+        composed, composed_cpu = time.perf_counter(), time.thread_time()
         encoder = self._encoder
         new_encoder = encoder is None or encoder.size != frame.size or encoder.bitrate != int(bitrate)
         if new_encoder:
@@ -154,6 +160,7 @@ class VideoStream:
         assert encoder is not None
         units = encoder.encode(planes, keyframe)
         return EncodedFrame(frame, units, (composed - started) * 1000.0, (time.perf_counter() - composed) * 1000.0,
+                            (composed_cpu - started_cpu) * 1000.0, (time.thread_time() - composed_cpu) * 1000.0,
                             new_encoder)
 
     def _done(self, task: asyncio.Future[EncodedFrame]) -> None:
@@ -170,8 +177,7 @@ class VideoStream:
         self.encoders_made += encoded.new_encoder
         self.keyframes += sum(key for _, key in encoded.units)
         self.bytes += sum(len(unit) for unit, _ in encoded.units)
-        self._compose_ms.append(encoded.compose_ms)
-        self._encode_ms.append(encoded.encode_ms)
+        self._timings.append((encoded.compose_ms, encoded.encode_ms, encoded.compose_cpu_ms, encoded.encode_cpu_ms))
         self._deliver(self, encoded)
         self._pump()
 
@@ -189,15 +195,23 @@ class VideoStream:
 
     def describe(self) -> dict[str, Any]:
         """This stream in ``/api/stats`` ``video``: codec, size, frames encoded, encode and compose
-        times (ms, wall clock on the stream's thread), target bitrate (bit/s) and frame rate cap."""
-        encode, compose = list(self._encode_ms), list(self._compose_ms)
+        times per frame (ms of the stream thread's CPU, ``*_cpu_ms_*``, and of the wall clock, over
+        the last :data:`TIMINGS_KEPT` frames), target bitrate (bit/s) and frame rate cap."""
+        compose, encode, compose_cpu, encode_cpu = ([timing[i] for timing in self._timings] for i in range(4))
+
+        def mean(values: list[float]) -> float | None:
+            return round(statistics.fmean(values), 3) if values else None
+
         return {
             "codec": self.codec.label,
             "size": list(self.size),
             "frames_encoded": self.frames_encoded,
-            "encode_ms_mean": round(statistics.fmean(encode), 3) if encode else None,
+            "encode_cpu_ms_mean": mean(encode_cpu),
+            "encode_cpu_ms_p50": round(statistics.median(encode_cpu), 3) if encode_cpu else None,
+            "compose_cpu_ms_mean": mean(compose_cpu),
+            "encode_ms_mean": mean(encode),
             "encode_ms_p50": round(statistics.median(encode), 3) if encode else None,
-            "compose_ms_mean": round(statistics.fmean(compose), 3) if compose else None,
+            "compose_ms_mean": mean(compose),
             "bitrate": round(self.rate.bitrate),
             "max_fps": round(self.rate.fps, 2),
             "keyframes": self.keyframes,

@@ -58,7 +58,7 @@ def tiles_of(pixels: np.ndarray) -> list[tuple[Rect, Codec, int, bytes]]:
 @pytest.mark.gl
 @pytest.mark.parametrize("codec", list(VideoCodec))
 def test_encoded_renders_decode_to_the_renders(renders, codec: VideoCodec) -> None:
-    encoder = VideoEncoder(codec, SIZE, default_bitrate(SIZE, 30.0, 8e6) * 4, 30.0)
+    encoder = VideoEncoder(codec, SIZE, default_bitrate(codec, SIZE, 30.0, 8e6) * 4, 30.0)
     decoder = av.CodecContext.create(DECODERS[codec], "r")
     keys, quality = [], []
     for index, pixels in enumerate(renders):
