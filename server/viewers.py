@@ -95,6 +95,9 @@ class ViewerSlot:
         #: for the newest frames the viewer has not said it received yet (bounded: a viewer that
         #: never reports must not grow it frame after frame).
         self.video_written = 0
+        #: Video frames written to the socket in all, and the newest one's frame id (None: none yet).
+        self.video_frames_written = 0
+        self.newest_video_written: int | None = None
         self._written_at: deque[tuple[int, int]] = deque(maxlen=MAX_UNACKNOWLEDGED)
         self._acknowledged = (time.monotonic(), 0)   # when the viewer last said, and the total it had then
         self._received_bps: float | None = None
@@ -190,7 +193,9 @@ class ViewerSlot:
                 video = self.video.popleft()
                 self._count(written=len(video))
                 self.video_written += len(video)
-                self._written_at.append((video_frame_id(video), self.video_written))
+                self.video_frames_written += 1
+                self.newest_video_written = video_frame_id(video)
+                self._written_at.append((self.newest_video_written, self.video_written))
                 return video
             if self.frame is not None:
                 frame, self.frame = self.frame, None

@@ -10,11 +10,13 @@ import pytest
 from PIL import Image
 
 from tessera.geometry import Rect
+from tessera.video.feedback import KEYFRAME_BURST, MAX_MALFORMED, FeedbackGuard
 from tessera.video.link_rate import CLEAN_WINDOWS, MIN_BITRATE, MIN_FPS, WINDOW_S, LinkRate, LinkReport
 from tessera.video.transport import choose_transport
 from tessera.video.yuv_frame import coded_size, compose_yuv420, tile_planes
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import ProtocolError, with_input_seq
+from tessera.wire.stream_messages import StreamReport
 from tessera.wire.video import VideoCodec, codec_string, is_video, pack_video, unpack_video
 
 
@@ -175,3 +177,29 @@ def test_a_tile_that_is_not_what_its_rect_says_is_refused() -> None:
         tile_planes(payload, Codec.JPEG, 16, 8)
     with pytest.raises(ValueError, match="JPEG tile does not decode"):
         tile_planes(b"not a jpeg", Codec.JPEG, 16, 8)
+
+
+def report(decode_queue: float = 0.0, dropped: float = 0.0, frame: int | None = None) -> StreamReport:
+    return StreamReport(bytes_per_s=1e5, decoded_fps=30.0, decode_queue=decode_queue, frames_dropped=dropped,
+                        frame=frame)
+
+
+def test_feedback_no_page_sends_is_refused_with_the_reason() -> None:
+    guard = FeedbackGuard(0.0)
+    assert guard.report(report(), frames_sent=0, newest_sent=None) is None
+    assert guard.report(report(dropped=5.0, frame=41), frames_sent=10, newest_sent=41) is None
+    assert "went down, from 5 to 4" in guard.report(report(dropped=4.0), 10, 41)
+    assert "is more than the 10 video frames" in FeedbackGuard(0.0).report(report(dropped=11.0), 10, 41)
+    assert "longer than any decoder's" in FeedbackGuard(0.0).report(report(decode_queue=1e9), 10, 41)
+    assert "frame 42 was never sent" in FeedbackGuard(0.0).report(report(frame=42), 10, 41)
+    assert "frame 0 was never sent to this viewer (newest sent: None)" in FeedbackGuard(0.0).report(
+        report(frame=0), 0, None)
+
+
+def test_a_keyframe_flood_and_malformed_feedback_again_and_again_are_refused() -> None:
+    guard = FeedbackGuard(0.0)
+    assert all(guard.keyframe(0.0) is None for _ in range(KEYFRAME_BURST))
+    assert "keyframe requests faster than" in guard.keyframe(0.0)
+    assert guard.keyframe(1.0) is None                       # a second later: KEYFRAME_RATE more
+    assert [guard.malformed_message() for _ in range(MAX_MALFORMED)][-1] == f"{MAX_MALFORMED} malformed messages"
+    assert FeedbackGuard(0.0).malformed_message() is None

@@ -18,6 +18,7 @@ import httpx
 import numpy as np
 import pytest
 import websockets.sync.client as ws_client
+from websockets.exceptions import ConnectionClosed
 
 from bench.images import psnr
 from bench.processes import orbit
@@ -214,3 +215,49 @@ def test_a_throttled_viewer_gets_a_lower_bitrate_and_a_stream_that_still_decodes
     assert bitrates and min(bitrates) < bitrates[0], bitrates
     assert viewer.video[0][1] and len(viewer.video) > lowered, "frames keep coming, and decode, after the cut"
     assert streams[0]["encoders_made"] >= 2 and streams[0]["keyframes"] >= 2, "a new bitrate, a new encoder"
+
+
+#: Feedback no page sends, what each is, and what the coordinator's close reason says.
+GARBAGE = [
+    ("an absurd report", [json.dumps({"type": "stream_report", "bytes_per_s": 0.0, "decoded_fps": 0.0,
+                                      "decode_queue": 1e9, "frames_dropped": 0.0})], "decode_queue"),
+    ("a keyframe flood", [json.dumps({"type": "keyframe"})] * 20, "keyframe requests faster than"),
+    ("malformed reports", ['{"type": "stream_report", "bytes_per_s": NaN, "decoded_fps": 0, "decode_queue": 0, '
+                           '"frames_dropped": 0}'] * 3, "3 malformed messages"),
+]
+
+
+def read_until_closed(ws: ws_client.ClientConnection) -> None:
+    """Read ``ws`` until the coordinator closes it (ConnectionClosed; TimeoutError after 10 s of nothing)."""
+    while True:
+        ws.recv(timeout=seconds(10))
+
+
+def test_a_viewer_sending_garbage_feedback_is_closed_and_the_others_keep_their_frames_and_bitrate(
+        coordinator_factory):
+    with started(coordinator_factory) as (coordinator, client), \
+            video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"]) as good:
+        while not good.video:
+            good.move(0.05)
+            good.read(0.2)
+        before = stats(client)["video"][0]
+        for name, messages, reason in GARBAGE:
+            with ws_client.connect(f"{coordinator.ws_url}/ws/view", max_size=None, open_timeout=seconds(30)) as ws:
+                bad = VideoViewer(ws, ["h264"])
+                while not bad.video:
+                    good.move(0.05)
+                    good.read(0.1)
+                    bad.read(0.1)
+                for message in messages:
+                    ws.send(message)
+                with pytest.raises(ConnectionClosed):
+                    read_until_closed(ws)
+                code, text = ws.close_code, ws.close_reason
+            assert code == 1008 and reason in (text or ""), (name, code, text)
+            frames = len(good.video)
+            for _ in range(4):
+                good.move(0.05)
+                good.read(0.2)
+            assert len(good.video) > frames, f"the other viewer's frames keep coming after {name}"
+        after = stats(client)["video"][0]
+    assert (after["bitrate"], after["encoders_made"]) == (before["bitrate"], before["encoders_made"]), (before, after)

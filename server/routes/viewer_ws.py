@@ -22,7 +22,10 @@ the wall's size is fixed, so its size messages are ignored.
 Video (issue 21): a viewer gets tiles until it offers the codecs it decodes (``stream_offer``);
 the coordinator answers ``stream`` with the transport ``--stream`` allows (a video codec, or tiles
 with the reason; a wall's cells keep their tiles). A video viewer asks for a keyframe when its
-decoder lost a frame (``keyframe``) and reports its link each second (``stream_report``)."""
+decoder lost a frame (``keyframe``) and reports its link each second (``stream_report``). Feedback
+no page sends (:mod:`tessera.video.feedback`: absurd reports, a keyframe flood, malformed messages
+again and again from a video viewer) closes the socket with 1008 and the reason before it reaches
+the stream the session's other viewers share."""
 
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ from server.sessions import fit_size
 from server.video_stream import VIDEO_SOURCE_QUALITY
 from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
 from tessera.decomposition.wall_cells import WallError, parse_cell
+from tessera.video.feedback import FeedbackGuard
 from tessera.video.transport import choose_transport
 from tessera.wire.messages import (
     FROM_VIEWER,
@@ -84,6 +88,12 @@ async def _send(ws: WebSocket, slot: ViewerSlot) -> None:
             await ws.send_text(message)
         else:
             await ws.send_bytes(message)
+
+
+async def _refuse_feedback(ws: WebSocket, slot: ViewerSlot, reason: str) -> None:
+    """Close a viewer whose feedback would steer its stream wrongly (:mod:`tessera.video.feedback`)."""
+    log.warning("viewer %d closed: %s", slot.viewer_id, reason)
+    await guards.close(ws, 1008, reason)
 
 
 def _video_source(session) -> None:
@@ -138,6 +148,7 @@ async def viewer_socket(ws: WebSocket) -> None:
     if session.store.latest is not None:
         slot.put_frame(session.viewers.message_for(session.store.latest, slot))
     sender = asyncio.create_task(_send(ws, slot))
+    feedback = FeedbackGuard(time.monotonic())
     try:
         while True:
             message = await guards.receive(ws, limits, f"viewer {slot.viewer_id}")
@@ -153,6 +164,9 @@ async def viewer_socket(ws: WebSocket) -> None:
                 if slot.behind:
                     log.warning("viewer %d closed: %s", slot.viewer_id, NOT_READING)
                     await guards.close(ws, 1008, NOT_READING)
+                    break
+                if slot.video_codec is not None and (refused := feedback.malformed_message()) is not None:
+                    await _refuse_feedback(ws, slot, refused)
                     break
                 continue
             match request:
@@ -182,8 +196,15 @@ async def viewer_socket(ws: WebSocket) -> None:
                         slot.put_control(choice.model_copy(update={"reason": reason}))
                     _video_source(session)
                 case KeyframeRequest():
+                    if (refused := feedback.keyframe(time.monotonic())) is not None:
+                        await _refuse_feedback(ws, slot, refused)
+                        break
                     session.viewers.request_keyframe(slot)
                 case StreamReport():
+                    refused = feedback.report(request, slot.video_frames_written, slot.newest_video_written)
+                    if refused is not None:
+                        await _refuse_feedback(ws, slot, refused)
+                        break
                     slot.take_report(request, time.monotonic())
                 case LatencyReport():
                     slot.latency = {name: round(value, 3) for name, value in request.model_dump().items()}
