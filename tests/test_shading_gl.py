@@ -11,7 +11,7 @@ import pytest
 
 from bench.picture import SPHERE_CAMERA, luma, material_contrast, sphere_scene
 from node.gl.environment import EnvironmentError, read_hdr, studio_environment, write_hdr
-from node.gl.image_lighting import LEVELS, brdf_lut, ggx_convolve, irradiance_sh, sh_basis
+from node.gl.image_lighting import LEVELS, brdf_lut, ggx_convolve, irradiance_polynomial, irradiance_sh, sh_basis
 from node.gl.renderer import TileRenderer
 from node.gl.shading import AUTO_MSAA, ShadingOptions, resolve_samples
 from node.scene.data import SceneData
@@ -184,6 +184,11 @@ def test_prefiltering_keeps_energy_and_the_brdf_table_is_bounded():
     sh = irradiance_sh(uniform)
     directions = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, -0.6, 0.8]])
     assert np.allclose(sh_basis(directions) @ sh, 0.7, atol=0.015)  # an 8x16 map's quadrature error
+    studio = irradiance_sh(studio_environment(16))
+    n = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    x, y, z = n.T
+    monomials = np.stack([np.ones_like(x), y, z, x, x * y, y * z, z * z, x * z, x * x - y * y], axis=1)
+    assert np.allclose(monomials @ irradiance_polynomial(studio), sh_basis(n) @ studio, atol=1e-5)
     lut = brdf_lut(16, 128)
     assert (lut.sum(axis=-1) <= 1.0 + 1e-3).all() and lut[0, -1, 0] > 0.95 and LEVELS >= 5
 

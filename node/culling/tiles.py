@@ -4,8 +4,8 @@ per tile slot, because the coordinator hands a node the same tile slot frame aft
 switch needs one tile's timings over consecutive frames. The tree over the scene's chunks
 (:func:`node.culling.bvh.build_chunk_bvh`) is built here, when the renderer makes its culler.
 
-- CPU: :func:`node.culling.bvh.cull` over the chunk tree; the kept chunk ranges become index runs
-  cut per batch (:meth:`node.scene.chunks.SceneChunks.runs`), written as indirect draw commands.
+- CPU: :func:`node.culling.bvh.cull` over the chunk tree; the kept chunks become index runs per
+  batch, nearest first (:func:`node.culling.order.front_to_back`), written as indirect draw commands.
   Its time (tree test + runs, perf_counter) is what the hybrid switch reads as the CPU culling time.
 - GPU: a :class:`node.culling.gpu.GpuCuller` per tile slot writes one indirect command per chunk;
   its cull time is the CPU-side time of the two dispatches (on llvmpipe the compute shaders run
@@ -46,6 +46,7 @@ from node.culling.bvh import build_chunk_bvh, cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.gpu import GpuBvh, GpuCuller
 from node.culling.objects import MovedCuller
+from node.culling.order import ChunkGroups, front_to_back
 from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
 from node.scene.chunks import DrawRuns, SceneChunks
 from tessera.geometry import Rect
@@ -102,6 +103,7 @@ class TileCuller:
                                           f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")
         self.chunks, self.mode, self.params = chunks, mode, params
         self.bvh = build_chunk_bvh(chunks.boxes)
+        self.groups = ChunkGroups.of(chunks)
         #: Moved objects' batches, culled on the CPU in every mode but off (:mod:`node.culling.objects`).
         self.moved = MovedCuller(chunks)
         self._slots: dict[Hashable, _Slot] = {}
@@ -126,7 +128,7 @@ class TileCuller:
             state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
         if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
             return self._cull_gpu(state, planes)
-        return self._cull_cpu(state, planes)
+        return self._cull_cpu(state, planes, view_proj)
 
     def cull_moved(self, view_proj: np.ndarray, size: tuple[int, int], rect: Rect, batches: Sequence[int],
                    models: np.ndarray) -> DrawRuns:
@@ -150,10 +152,10 @@ class TileCuller:
         assert self.gpu_bvh is not None
         return GpuCuller(self.gpu_bvh)
 
-    def _cull_cpu(self, state: _Slot, planes: np.ndarray) -> TileCull:
+    def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray) -> TileCull:
         started = time.perf_counter()
         result = cull(self.bvh, planes)
-        runs = self.chunks.runs(result.visible_first, result.visible_end)
+        runs = front_to_back(self.chunks, self.groups, result.visible_first, result.visible_end, view_proj)
         elapsed = time.perf_counter() - started
         if self.mode is CullMode.HYBRID and self.gpu_bvh is not None:
             state.switch = state.switch.step(elapsed)

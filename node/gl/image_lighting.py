@@ -5,7 +5,8 @@ numpy at start-up and cached per process, then uploaded per renderer:
   perceptual roughness k / (LEVELS − 1) (n = v = r, weights D(h)·(n·l)·dω summed exactly over the
   texels of the environment at 64x32; level 0 is the environment itself at 256x128, a mirror);
 - diffuse irradiance: the environment's 9 spherical-harmonic coefficients convolved with the
-  cosine lobe (Ramamoorthi & Hanrahan 2001), divided by π: the shader's Σ c·Y(n) is E(n)/π;
+  cosine lobe (Ramamoorthi & Hanrahan 2001), divided by π, handed to the shaders as the quadratic
+  polynomial in n they make (:func:`irradiance_polynomial`), evaluated per vertex;
 - the split-sum BRDF table: (n·v, roughness) → (A, B), the scale and bias of F0, by GGX
   importance sampling with the height-correlated Smith visibility of the glTF spec (Appendix B).
 """
@@ -32,6 +33,8 @@ LUT_SIZE, LUT_SAMPLES = 32, 256
 SH_BAND_SCALE = (1.0, 2.0 / 3.0, 1.0 / 4.0)
 #: Output rows convolved at once (bounds the weight matrix's memory).
 ROWS_PER_PASS = 1024
+#: The real SH basis' constants: Y_00, Y_1m, Y_2-2/Y_2-1/Y_21, Y_20 (× (3z² − 1)), Y_22 (× (x² − y²)).
+SH_Y00, SH_Y1, SH_Y2, SH_Y20, SH_Y22 = 0.282095, 0.488603, 1.092548, 0.315392, 0.546274
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,9 +88,18 @@ def sh_basis(d: np.ndarray) -> np.ndarray:
     """(..., 9) real SH basis Y_00, Y_1-1, Y_10, Y_11, Y_2-2, Y_2-1, Y_20, Y_21, Y_22 of unit
     directions ``d`` (..., 3) (the shader evaluates the same polynomial)."""
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([np.full_like(x, 0.282095), 0.488603 * y, 0.488603 * z, 0.488603 * x,
-                     1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0),
-                     1.092548 * x * z, 0.546274 * (x * x - y * y)], axis=-1)
+    return np.stack([np.full_like(x, SH_Y00), SH_Y1 * y, SH_Y1 * z, SH_Y1 * x, SH_Y2 * x * y, SH_Y2 * y * z,
+                     SH_Y20 * (3.0 * z * z - 1.0), SH_Y2 * x * z, SH_Y22 * (x * x - y * y)], axis=-1)
+
+
+def irradiance_polynomial(sh: np.ndarray) -> np.ndarray:
+    """(9, 3) float32 k with Σ c_i·Y_i(n) = k_0 + k_1·y + k_2·z + k_3·x + k_4·xy + k_5·yz + k_6·z² +
+    k_7·xz + k_8·(x² − y²) for unit n = (x, y, z) and the (9, 3) coefficients ``sh`` (the basis'
+    constants folded in: what :data:`node.gl.shading.IRRADIANCE` evaluates)."""
+    c = sh.astype(np.float64)
+    k = c * np.array([SH_Y00, SH_Y1, SH_Y1, SH_Y1, SH_Y2, SH_Y2, 3.0 * SH_Y20, SH_Y2, SH_Y22])[:, None]
+    k[0] -= SH_Y20 * c[6]
+    return k.astype(np.float32)
 
 
 def irradiance_sh(image: np.ndarray) -> np.ndarray:
@@ -145,17 +157,25 @@ def prefiltered_environment(path: Path | None) -> PrefilteredEnvironment:
     return PrefilteredEnvironment(tuple(levels), sh, lut, (time.perf_counter() - started) * 1e3)
 
 
+def half_rgba(image: np.ndarray) -> bytes:
+    """(h, w, 3) float radiance as RGBA half floats (alpha 1), the specular map's texel format."""
+    rgba = np.concatenate([image, np.ones((*image.shape[:2], 1), image.dtype)], axis=2)
+    return np.ascontiguousarray(rgba, np.float16).tobytes()
+
+
 class ImageLighting:
-    """The GL textures of a :class:`PrefilteredEnvironment` on ``ctx``: the specular mip chain and
-    the BRDF table; :meth:`use` binds them and sets the irradiance coefficients."""
+    """The GL textures of a :class:`PrefilteredEnvironment` on ``ctx``: the specular mip chain (RGBA
+    half floats: llvmpipe samples them faster than RGB float32, to 3 significant digits) and the
+    BRDF table; :meth:`use` binds them and sets the irradiance polynomial."""
 
     def __init__(self, ctx: moderngl.Context, lighting: PrefilteredEnvironment) -> None:
         self.lighting = lighting
+        self.polynomial = irradiance_polynomial(lighting.sh)
         base = lighting.levels[0]
-        self.specular = ctx.texture((base.shape[1], base.shape[0]), 3, base.tobytes(), dtype="f4")
+        self.specular = ctx.texture((base.shape[1], base.shape[0]), 4, half_rgba(base), dtype="f2")
         self.specular.build_mipmaps(0, LEVELS - 1)
         for level, image in enumerate(lighting.levels[1:], start=1):
-            self.specular.write(np.ascontiguousarray(image).tobytes(), level=level)
+            self.specular.write(half_rgba(image), level=level)
         self.specular.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         self.specular.repeat_y = False
         self.lut = ctx.texture((LUT_SIZE, LUT_SIZE), 2, lighting.lut.tobytes(), dtype="f4")
@@ -163,10 +183,11 @@ class ImageLighting:
         self.lut.repeat_x = self.lut.repeat_y = False
 
     def use(self, program: moderngl.Program, specular_unit: int, lut_unit: int) -> None:
-        """Bind the textures to the units and set ``u_sh`` and ``u_specular_levels`` of ``program``."""
+        """Bind the textures to the units and set ``u_sh`` (the irradiance polynomial) and
+        ``u_specular_levels`` of ``program``."""
         self.specular.use(specular_unit)
         self.lut.use(lut_unit)
-        program["u_sh"].write(self.lighting.sh.tobytes())
+        program["u_sh"].write(self.polynomial.tobytes())
         program["u_specular_levels"].value = float(LEVELS - 1)
 
     def release(self) -> None:

@@ -199,9 +199,11 @@ class TileRenderer:
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.lighting = ImageLighting(ctx, lighting)
-        #: The programs without and with texture lookups (:func:`node.gl.shading.fragment_shader`).
-        self.programs = tuple(ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=fragment_shader(textured))
-                              for textured in (False, True))
+        #: The programs by :meth:`_program_index`: without and with texture lookups, then the same two
+        #: with fragment discards (:func:`node.gl.shading.fragment_shader`).
+        self.programs = tuple(ctx.program(vertex_shader=VERTEX_SHADER,
+                                          fragment_shader=fragment_shader(textured, discards))
+                              for discards in (False, True) for textured in (False, True))
         for program in self.programs:
             for name, unit in (("u_texture", UNIT_BASE), ("u_floor", UNIT_FLOOR), ("u_ceil", UNIT_CEIL),
                                ("u_metallic_roughness", UNIT_METALLIC_ROUGHNESS), ("u_normal_texture", UNIT_NORMAL),
@@ -225,6 +227,8 @@ class TileRenderer:
         self._framebuffer: moderngl.Framebuffer | None = None
         self._multisampled: moderngl.Framebuffer | None = None
         self._blending = False
+        #: Whether blended fragments are being peeled (:meth:`render_blend`: drawn with discards).
+        self._peeling = False
         #: How blended batches are drawn (None: into depth only, as if opaque, colour writes off).
         self._blend_func: tuple[int, ...] | None = BLEND_OVER
         self._base_pose = ScenePose.of(scene, None)
@@ -395,6 +399,7 @@ class TileRenderer:
         depths: list[np.ndarray] = []
         layers: list[np.ndarray] = []
         try:
+            self._peeling = True
             self._set_uniform("u_peel", True)
             self._blend_func = None
             framebuffer.color_mask = (False, False, False, False)
@@ -419,6 +424,7 @@ class TileRenderer:
                 data = framebuffer.read(viewport=gl_box, components=4, alignment=1)
                 layers.append(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 4)[::-1])
         finally:
+            self._peeling = False
             self._set_uniform("u_peel", False)
             self._blend_func = BLEND_OVER
             framebuffer.color_mask = (True, True, True, True)
@@ -480,7 +486,7 @@ class TileRenderer:
         model = None
         for number, first, count in draws:
             self._use_material(framebuffer, number)
-            vertex_array = self.vertex_arrays[self.textured[number]]
+            vertex_array = self.vertex_arrays[self._program_index(number)]
             owner = int(pose.owner[number])
             if (key := owner if pose.moved[owner] else -1) != model:
                 model = key
@@ -510,9 +516,17 @@ class TileRenderer:
             self.lighting.use(program, UNIT_SPECULAR, UNIT_LUT)
 
     def _set_uniform(self, name: str, value: Any) -> None:
-        """Set uniform ``name`` of both programs."""
+        """Set uniform ``name`` of the programs that have it."""
         for program in self.programs:
-            program[name].value = value
+            if name in program:
+                program[name].value = value
+
+    def _program_index(self, number: int) -> int:
+        """Batch ``number``'s program: textured or not, with discards when it is alpha-masked or
+        peeled. Without discards the depth test runs before the shader, so fragments behind what is
+        drawn are not shaded (chunks come nearest first: :mod:`node.culling.order`)."""
+        discards = self._peeling or self.scene.batches[number].alpha_mode == "MASK"
+        return self.textured[number] + 2 * discards
 
     def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
         """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
@@ -533,9 +547,10 @@ class TileRenderer:
             self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
         material = batch.material
-        program = self.programs[self.textured[number]]
+        program = self.programs[self._program_index(number)]
         program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
-        program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
+        if "u_alpha_cutoff" in program:
+            program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
         program["u_metallic"].value = material.metallic
         program["u_roughness"].value = material.roughness
         program["u_emissive"].value = material.emissive

@@ -19,9 +19,15 @@ environment (the white-furnace test). Tone mapping: Khronos PBR Neutral, chosen 
 it keeps base colours' hue and saturation (a product viewer's need: what the file says is what is
 shown) and is linear below 0.76.
 
-Two variants of the fragment shader (:func:`fragment_shader`): one for batches with texture
-coordinates and any texture, one without any texture lookup (scans, most CAD parts): on llvmpipe
-every lookup of a 1×1 stand-in texture costs as much as a real one.
+Cost on llvmpipe (README, Picture quality: ``python -m bench.shading``), where every texture lookup
+and every varying costs: four variants of the fragment shader (:func:`fragment_shader`), with texture
+lookups for batches with texture coordinates and any texture or without any (scans, most CAD parts: a
+1×1 stand-in texture costs as much as a real one), and with the discards of alpha masks and depth
+peeling or without (opaque and blended batches: the depth test then runs before the shader, and with
+chunks drawn nearest first, :mod:`node.culling.order`, hidden fragments are not shaded). Diffuse
+image light is evaluated per vertex (a quadratic in the normal, so interpolating it changes a
+dense mesh's picture by well under a level), except under a normal map; sRGB encoding by three
+square roots instead of a pow; the specular map in half floats.
 
 Derivatives are taken in 2×2 pixel quads of the frame-sized framebuffer every tile is drawn into,
 so a tile is still bit-identical to that region of the whole frame.
@@ -67,11 +73,25 @@ def resolve_samples(msaa: int, gl_renderer: str, max_samples: int) -> int:
     return max(1, min(msaa, max_samples))
 
 
+#: The irradiance polynomial E(n)/π = Σ k_i·m_i(n) of :func:`node.gl.image_lighting.irradiance_polynomial`,
+#: split into its even part (bands 0 and 2: E(−n) keeps it) and its odd part (band 1: E(−n) negates it).
+IRRADIANCE = """
+uniform vec3 u_sh[9];
+vec3 irradiance_even(vec3 n) {
+    return u_sh[0] + u_sh[4] * (n.x * n.y) + u_sh[5] * (n.y * n.z) + u_sh[6] * (n.z * n.z)
+        + u_sh[7] * (n.x * n.z) + u_sh[8] * (n.x * n.x - n.y * n.y);
+}
+vec3 irradiance_odd(vec3 n) {
+    return u_sh[1] * n.y + u_sh[2] * n.z + u_sh[3] * n.x;
+}
+"""
+
 VERTEX_SHADER = """
 #version 330
 uniform mat4 u_view_projection;
 uniform mat4 u_model;
 uniform mat3 u_normal_matrix;
+uniform vec3 u_eye;
 in vec3 in_position;
 in vec3 in_normal;
 in vec2 in_uv;
@@ -80,9 +100,16 @@ out vec3 v_position;
 out vec3 v_normal;
 out vec2 v_uv;
 out vec4 v_color;
+out vec3 v_irradiance_even;
+out vec3 v_irradiance_odd;
+""" + IRRADIANCE + """
 void main() {
     v_position = (u_model * vec4(in_position, 1.0)).xyz;
     v_normal = u_normal_matrix * in_normal;
+    float normal_length = length(v_normal);
+    vec3 n = normal_length > 0.0 ? v_normal / normal_length : normalize(u_eye - v_position);
+    v_irradiance_even = irradiance_even(n);
+    v_irradiance_odd = irradiance_odd(n);
     v_uv = in_uv;
     v_color = in_color;
     gl_Position = u_view_projection * vec4(in_position, 1.0);
@@ -107,7 +134,6 @@ uniform sampler2D u_occlusion;
 uniform sampler2D u_emissive_texture;
 uniform sampler2D u_specular_map;
 uniform sampler2D u_brdf_lut;
-uniform vec3 u_sh[9];
 uniform float u_specular_levels;
 uniform vec3 u_eye;
 uniform vec3 u_light_direction;
@@ -120,10 +146,18 @@ in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
 in vec4 v_color;
+in vec3 v_irradiance_even;
+in vec3 v_irradiance_odd;
 out vec4 f_color;
-
+""" + IRRADIANCE + """
+// sRGB encoding: 1.055·c^(1/2.4) − 0.055 fitted by c, √c, c^(1/4), c^(1/8) (least squares on
+// [0.0031308, 1], within 0.015 of an 8-bit level: three square roots cost less than a pow on llvmpipe).
 vec3 linear_to_srgb(vec3 c) {
-    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+    vec3 s1 = sqrt(c);
+    vec3 s2 = sqrt(s1);
+    vec3 s3 = sqrt(s2);
+    vec3 encoded = 0.64456019 * s1 + 0.70994624 * s2 - 0.33605189 * s3 - 0.01848584 * c;
+    return mix(c * 12.92, encoded, step(0.0031308, c));
 }
 
 // Khronos PBR Neutral tone mapping (https://github.com/KhronosGroup/ToneMapping).
@@ -146,28 +180,23 @@ vec2 equirect(vec3 d) {
     return vec2(atan(d.x, -d.z) * (0.5 / PI) + 0.5, acos(clamp(d.y, -1.0, 1.0)) / PI);
 }
 
-vec3 irradiance(vec3 n) {
-    return max(u_sh[0] * 0.282095
-        + u_sh[1] * (0.488603 * n.y) + u_sh[2] * (0.488603 * n.z) + u_sh[3] * (0.488603 * n.x)
-        + u_sh[4] * (1.092548 * n.x * n.y) + u_sh[5] * (1.092548 * n.y * n.z)
-        + u_sh[6] * (0.315392 * (3.0 * n.z * n.z - 1.0)) + u_sh[7] * (1.092548 * n.x * n.z)
-        + u_sh[8] * (0.546274 * (n.x * n.x - n.y * n.y)), vec3(0.0));
+float pow5(float x) {
+    float x2 = x * x;
+    return x2 * x2 * x;
 }
 
 vec3 fresnel_schlick(vec3 f0, float v_dot_h) {
-    return f0 + (1.0 - f0) * pow(clamp(1.0 - v_dot_h, 0.0, 1.0), 5.0);
+    return f0 + (1.0 - f0) * pow5(clamp(1.0 - v_dot_h, 0.0, 1.0));
 }
 
-float visibility_ggx(float n_dot_l, float n_dot_v, float alpha) {
-    float a2 = alpha * alpha;
+float visibility_ggx(float n_dot_l, float n_dot_v, float a2) {
     float ggxv = n_dot_l * sqrt(n_dot_v * n_dot_v * (1.0 - a2) + a2);
     float ggxl = n_dot_v * sqrt(n_dot_l * n_dot_l * (1.0 - a2) + a2);
     float ggx = ggxv + ggxl;
     return ggx > 0.0 ? 0.5 / ggx : 0.0;
 }
 
-float distribution_ggx(float n_dot_h, float alpha) {
-    float a2 = alpha * alpha;
+float distribution_ggx(float n_dot_h, float a2) {
     float f = n_dot_h * n_dot_h * (a2 - 1.0) + 1.0;
     return a2 / (PI * f * f);
 }
@@ -188,48 +217,57 @@ vec3 perturbed_normal(vec3 n, vec3 tangent_normal) {
 }
 
 void main() {
+#if DISCARDS
     if (u_peel) {
         ivec2 texel = ivec2(gl_FragCoord.xy) - u_origin;
         if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
             discard;
     }
+#endif
 #if TEXTURED
     vec4 base = u_base_color * v_color * texture(u_texture, v_uv, u_lod_bias);
     vec4 metal_rough = texture(u_metallic_roughness, v_uv, u_lod_bias);
-#else
-    vec4 base = u_base_color * v_color;
-    vec4 metal_rough = vec4(1.0);
-#endif
-    if (base.a < u_alpha_cutoff) discard;
     float metallic = clamp(u_metallic * metal_rough.b, 0.0, 1.0);
     float roughness = clamp(u_roughness * metal_rough.g, 0.0, 1.0);
+#else
+    vec4 base = u_base_color * v_color;
+    float metallic = clamp(u_metallic, 0.0, 1.0);
+    float roughness = clamp(u_roughness, 0.0, 1.0);
+#endif
+#if DISCARDS
+    if (base.a < u_alpha_cutoff) discard;
+#endif
     float alpha = max(roughness * roughness, 1e-3);
+    float a2 = alpha * alpha;
 
     vec3 v = normalize(u_eye - v_position);
     float normal_length = length(v_normal);
     vec3 n = normal_length > 0.0 ? v_normal / normal_length : v;
-    if (dot(n, v) < 0.0) n = -n;
+    // Two-sided: a normal facing away is flipped, and E(−n) is the even part less the odd one.
+    float side = dot(n, v) < 0.0 ? -1.0 : 1.0;
+    n *= side;
+    vec3 diffuse_light = max(v_irradiance_even + side * v_irradiance_odd, vec3(0.0));
 #if TEXTURED
     if (u_normal_mapped) {
         vec3 mapped = texture(u_normal_texture, v_uv, u_lod_bias).rgb * 2.0 - 1.0;
         n = perturbed_normal(n, normalize(mapped * vec3(u_normal_scale, u_normal_scale, 1.0)));
+        diffuse_light = max(irradiance_even(n) + irradiance_odd(n), vec3(0.0));
     }
 #endif
     float n_dot_v = clamp(dot(n, v), 1e-4, 1.0);
-    vec3 c_diff = mix(base.rgb, vec3(0.0), metallic);
+    vec3 c_diff = base.rgb * (1.0 - metallic);
     vec3 f0 = mix(vec3(0.04), base.rgb, metallic);
 
     // Image-based light (split sum, multiple scattering after Fdez-Agüera).
     vec2 ab = texture(u_brdf_lut, vec2(n_dot_v, roughness)).rg;
     vec3 fr = max(vec3(1.0 - roughness), f0) - f0;
-    vec3 k_s = f0 + fr * pow(1.0 - n_dot_v, 5.0);
+    vec3 k_s = f0 + fr * pow5(1.0 - n_dot_v);
     vec3 fss_ess = k_s * ab.x + ab.y;
     float ems = 1.0 - (ab.x + ab.y);
     vec3 f_avg = f0 + (1.0 - f0) / 21.0;
     vec3 fms_ems = ems * fss_ess * f_avg / (1.0 - f_avg * ems);
     vec3 reflected = reflect(-v, n);
     vec3 specular_light = textureLod(u_specular_map, equirect(reflected), roughness * u_specular_levels).rgb;
-    vec3 diffuse_light = irradiance(n);
     vec3 k_d = c_diff * (1.0 - fss_ess - fms_ems);
     vec3 color = fss_ess * specular_light + (fms_ems + k_d) * diffuse_light;
 #if TEXTURED
@@ -244,8 +282,7 @@ void main() {
         vec3 h = normalize(l + v);
         vec3 f = fresnel_schlick(f0, clamp(dot(v, h), 0.0, 1.0));
         vec3 f_diffuse = (1.0 - f) * c_diff / PI;
-        vec3 f_specular = f * distribution_ggx(clamp(dot(n, h), 0.0, 1.0), alpha)
-            * visibility_ggx(n_dot_l, n_dot_v, alpha);
+        vec3 f_specular = f * (distribution_ggx(clamp(dot(n, h), 0.0, 1.0), a2) * visibility_ggx(n_dot_l, n_dot_v, a2));
         color += (f_diffuse + f_specular) * (u_key_light * n_dot_l);
     }
 
@@ -259,6 +296,7 @@ void main() {
 """
 
 
-def fragment_shader(textured: bool) -> str:
-    """The fragment shader for batches with textures (``textured``) or without any."""
-    return f"#version 330\n#define TEXTURED {int(textured)}\n{FRAGMENT_SHADER}"
+def fragment_shader(textured: bool, discards: bool) -> str:
+    """The fragment shader for batches with textures (``textured``) or without any, and with the
+    fragment discards of alpha masks and depth peeling (``discards``) or without."""
+    return f"#version 330\n#define TEXTURED {int(textured)}\n#define DISCARDS {int(discards)}\n{FRAGMENT_SHADER}"
