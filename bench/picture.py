@@ -1,6 +1,6 @@
 """Picture quality (issue 20): do materials matter, and how much anti-aliasing buys at what cost.
 
-``python -m bench.picture [--scene S …] [--size 1280x720] [--frames 2] [--msaa 1,2,4]
+``python -m bench.picture [--scene S …] [--size 1280x720] [--frames 2] [--msaa auto,1,4]
 [--still-samples 1,2,4,8,16,32] [--material-size 256x256] [--json OUT]``
 
 - Materials: a smooth gold metal sphere (metallic 1, roughness 0.15) and a rough dielectric sphere
@@ -9,12 +9,17 @@
   Rec. 709 luma over the sphere's pixels) over the larger (1: alike; the metal reflects its
   environment, so its spread is wider); ``colour_distance``: the mean Euclidean RGB distance
   between the two pictures over the sphere's pixels, 8-bit levels.
-- Anti-aliasing: per scene, ``--frames`` cameras of an orbit rendered whole at each ``--msaa``
-  sample count and, as the reference, at 4×4 the size with one sample, box-filtered down to the
-  size (the sRGB-encoded values averaged, as the MSAA resolve averages them). Per setting:
-  ``psnr_mean_db`` / ``psnr_min_db`` against that reference, ``off16_fraction`` the pixels off by
-  more than 16 levels in any channel, ``frame_ms`` the mean time of a whole frame (draw, resolve,
-  read-back; llvmpipe uses the machine's cores, so the load of the machine counts).
+- Anti-aliasing: per scene (default the diorama, truck and engine and the four scans), ``--frames``
+  cameras of an orbit rendered whole at each ``--msaa`` setting (``auto``: the node's default, on
+  llvmpipe one sample and :mod:`tessera.antialiasing`'s resolve filter; ``msaa`` 0 in the JSON) and,
+  as the reference, at 4×4 the size with one sample, box-filtered down to the size (the
+  sRGB-encoded values averaged, as the MSAA resolve averages them). Per setting: ``samples`` drawn,
+  ``filtered``, ``psnr_mean_db`` / ``psnr_min_db`` against that reference, ``off16_fraction`` the
+  pixels off by more than 16 levels in any channel, ``frame_ms`` the mean wall time of a whole frame
+  (draw, resolve, read-back, filter; llvmpipe uses the machine's cores, so the load of the machine
+  counts) and ``frame_cpu_ms`` the CPU time of the process meanwhile (every llvmpipe thread; less
+  sensitive to other work on the machine). The settings of a scene take turns frame by frame, so
+  that a change of load touches them alike.
 - Progressive still (issue 20): per scene, the same cameras rendered as the still of each
   ``--still-samples`` count with the node's default shading (``--msaa auto``), against the same
   reference: ``psnr_mean_db`` / ``psnr_min_db`` / ``off16_fraction`` as above, ``frame_ms`` the mean
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import platform
 import sys
 import time
@@ -46,7 +52,7 @@ from bench.processes import show_result
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.image_lighting import prefiltered_environment
 from node.gl.renderer import TileRenderer
-from node.gl.shading import ShadingOptions
+from node.gl.shading import AUTO_MSAA, MSAA_CHOICES, ShadingOptions
 from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
@@ -59,7 +65,10 @@ from tessera.wire.codec import Codec, decode, encode
 SHARED_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 DEFAULT_SCENES = tuple(str(SHARED_SCENES / name) for name in (
     "multi_object/sd_macross_city_diorama.glb", "gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf",
-    "gltf_small/2CylinderEngine.glb"))
+    "gltf_small/2CylinderEngine.glb", "bunny/bun_zipper.ply", "large_scan/stanford_dragon_vrip_res2_202k.ply",
+    "large_scan/stanford_lucy_240k.ply", "large_scan/threedscans_pan_990k.ply"))
+#: ``--still-samples`` scenes by default (each count is rendered apart: the scans would take long).
+STILL_SCENES = DEFAULT_SCENES[:3]
 #: Gold (the glTF spec's metal F0 table), linear.
 GOLD = (1.0, 0.766, 0.336)
 SMOOTH_METAL = SurfaceMaterial(metallic=1.0, roughness=0.15)
@@ -81,10 +90,11 @@ def luma(pixels: np.ndarray) -> np.ndarray:
     return pixels.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
 
 
-def material_contrast(ctx: moderngl.Context, size: tuple[int, int], shading: ShadingOptions = ShadingOptions(),
+def material_contrast(ctx: moderngl.Context, size: tuple[int, int], shading: ShadingOptions = ShadingOptions(msaa=1),
                       background: Sequence[float] = (0.0, 0.0, 0.0)) -> dict[str, float]:
     """The smooth metal and rough dielectric spheres compared: spread_ratio, colour_distance and
-    each one's ``spread`` (luma levels)."""
+    each one's ``spread`` (luma levels); one sample per pixel by default, as anti-aliasing would
+    mix the silhouettes' pixels with the background's."""
     images = []
     for material in (SMOOTH_METAL, ROUGH_DIELECTRIC):
         renderer = TileRenderer(ctx, sphere_scene(material), background, shading=shading)
@@ -100,13 +110,13 @@ def material_contrast(ctx: moderngl.Context, size: tuple[int, int], shading: Sha
 def supersampled(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
                  factor: int = SUPERSAMPLING) -> np.ndarray:
     """(h, w, 3) uint8: ``camera`` rendered at ``factor``× the size with one sample per pixel (the
-    renderer's own count is put aside), each factor×factor block averaged."""
-    samples = renderer.samples
-    renderer.samples = 1
+    renderer's own count and resolve filter are put aside), each factor×factor block averaged."""
+    samples, filtered = renderer.samples, renderer.filtered
+    renderer.samples, renderer.filtered = 1, False
     try:
         large = renderer.render_frame(camera, (size[0] * factor, size[1] * factor)).pixels.astype(np.float64)
     finally:
-        renderer.samples = samples
+        renderer.samples, renderer.filtered = samples, filtered
     blocks = large.reshape(size[1], factor, size[0], factor, 3).mean(axis=(1, 3))
     return np.rint(blocks).astype(np.uint8)
 
@@ -117,26 +127,34 @@ def orbit_cameras(scene: SceneData, frames: int) -> list[Camera]:
 
 
 def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
-                         sample_counts: Sequence[int]) -> dict[str, Any]:
-    """The ``--msaa`` rows of one scene (see the module docstring)."""
+                         settings: Sequence[int], repeats: int = 3) -> dict[str, Any]:
+    """The ``--msaa`` rows of one scene (see the module docstring); each frame is timed ``repeats``
+    times, the settings in turn."""
     scene = load_scene(scene_spec)
     cameras = orbit_cameras(scene, frames)
-    renderers = {count: TileRenderer(ctx, scene, shading=ShadingOptions(msaa=count)) for count in sample_counts}
-    references = [supersampled(renderers[sample_counts[0]], camera, size) for camera in cameras]
-    rows = []
-    for count, renderer in renderers.items():
+    renderers = {msaa: TileRenderer(ctx, scene, shading=ShadingOptions(msaa=msaa)) for msaa in settings}
+    references = [supersampled(renderers[settings[0]], camera, size) for camera in cameras]
+    found: dict[int, dict[str, list[float]]] = {msaa: {"psnr": [], "off": [], "wall": [], "cpu": []}
+                                                for msaa in settings}
+    for renderer in renderers.values():
         renderer.render_frame(cameras[0], size)
-        scores, off, times = [], [], []
-        for camera, reference in zip(cameras, references, strict=True):
-            started = time.perf_counter()
-            pixels = renderer.render_frame(camera, size).pixels
-            times.append((time.perf_counter() - started) * 1e3)
-            scores.append(psnr(pixels, reference))
+    for camera, reference in zip(cameras, references, strict=True):
+        for _ in range(repeats):
+            for msaa, renderer in renderers.items():
+                started, started_cpu = time.perf_counter(), time.process_time()
+                pixels = renderer.render_frame(camera, size).pixels
+                found[msaa]["wall"].append((time.perf_counter() - started) * 1e3)
+                found[msaa]["cpu"].append((time.process_time() - started_cpu) * 1e3)
+        for msaa, renderer in renderers.items():
+            found[msaa]["psnr"].append(psnr(pixels := renderer.render_frame(camera, size).pixels, reference))
             error = np.abs(pixels.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
-            off.append(float(np.mean(error > OFF_LEVELS)))
-        rows.append({"msaa": count, "samples": renderer.samples, "psnr_mean_db": reported_psnr(float(np.mean(scores))),
-                     "psnr_min_db": reported_psnr(float(np.min(scores))), "off16_fraction": float(np.mean(off)),
-                     "frame_ms": float(np.mean(times))})
+            found[msaa]["off"].append(float(np.mean(error > OFF_LEVELS)))
+    rows = [{"msaa": msaa, "samples": renderer.samples, "filtered": renderer.filtered,
+             "psnr_mean_db": reported_psnr(float(np.mean(found[msaa]["psnr"]))),
+             "psnr_min_db": reported_psnr(float(np.min(found[msaa]["psnr"]))),
+             "off16_fraction": float(np.mean(found[msaa]["off"])), "frame_ms": float(np.median(found[msaa]["wall"])),
+             "frame_cpu_ms": float(np.median(found[msaa]["cpu"]))} for msaa, renderer in renderers.items()]
+    for renderer in renderers.values():
         renderer.release()
     return {"scene": scene_spec, "frames": len(cameras), "rows": rows}
 
@@ -195,10 +213,23 @@ def parse_still_counts(text: str) -> list[int]:
 
 
 def parse_counts(text: str) -> list[int]:
-    counts = sorted({int(part) for part in text.split(",") if part.strip()})
-    if not counts or not all(count in (1, 2, 4, 8) for count in counts):
-        raise argparse.ArgumentTypeError(f"sample counts are 1, 2, 4 or 8, got {text!r}")
+    """``--msaa`` settings: auto (:data:`node.gl.shading.AUTO_MSAA`), 1, 2, 4 or 8, in the order given."""
+    counts: list[int] = []
+    for part in (part.strip().lower() for part in text.split(",") if part.strip()):
+        count = AUTO_MSAA if part == "auto" else int(part) if part.isdigit() else -1
+        if count not in (AUTO_MSAA, *MSAA_CHOICES):
+            raise argparse.ArgumentTypeError(f"msaa settings are auto, 1, 2, 4 or 8, got {text!r}")
+        if count not in counts:
+            counts.append(count)
+    if not counts:
+        raise argparse.ArgumentTypeError("no msaa setting given")
     return counts
+
+
+def setting_name(row: dict[str, Any]) -> str:
+    """A ``--msaa`` row's setting as the table shows it: '1', '4', 'auto 1+f' (one sample, filtered)."""
+    drawn = f"{row['samples']}{'+f' if row.get('filtered') else ''}"
+    return f"auto {drawn}" if row["msaa"] == AUTO_MSAA else drawn
 
 
 def table(result: dict[str, Any]) -> str:
@@ -207,11 +238,12 @@ def table(result: dict[str, Any]) -> str:
              f"{materials['colour_distance']:.1f} levels (metal spread {materials['metal_spread']:.1f}, "
              f"dielectric {materials['dielectric_spread']:.1f}); environment prefiltered in "
              f"{result['environment_ms']:.0f} ms",
-             f"{'scene':<40} {'msaa':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9}"]
+             f"{'scene':<40} {'msaa':>8} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} {'CPU ms':>7}"]
     for scene in result["scenes"]:
         for row in scene["rows"]:
-            lines.append(f"{Path(scene['scene']).name:<40} {row['samples']:>4} {row['psnr_mean_db']:>8.2f} "
-                         f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f}")
+            lines.append(f"{Path(scene['scene']).name:<40} {setting_name(row):>8} {row['psnr_mean_db']:>8.2f} "
+                         f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} "
+                         f"{row.get('frame_cpu_ms', math.nan):>7.1f}")
     if result.get("stills"):
         lines.append(f"{'progressive still':<40} {'N':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} "
                      f"{'still ms':>9}")
@@ -228,10 +260,13 @@ def table(result: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.picture", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", action="append", help="scene (repeatable; default diorama, truck, engine)")
+    parser.add_argument("--scene", action="append",
+                        help="scene (repeatable; default diorama, truck, engine and the four scans; the still rows "
+                             "of the first three)")
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--frames", type=int, default=2)
-    parser.add_argument("--msaa", type=parse_counts, default=[1, 2, 4])
+    parser.add_argument("--msaa", type=parse_counts, default=[AUTO_MSAA, 1, 4],
+                        help="settings compared, of auto, 1, 2, 4, 8 (default auto,1,4)")
     parser.add_argument("--still-samples", type=parse_still_counts, default=[1, 2, 4, 8, 16, 32],
                         help="progressive still sample counts (default 1,2,4,8,16,32)")
     parser.add_argument("--material-size", type=parse_size, default=(256, 256))
@@ -250,7 +285,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "scenes": [measure_antialiasing(ctx, scene, args.size, args.frames, args.msaa)
                        for scene in (args.scene or DEFAULT_SCENES)],
             "stills": [measure_still(ctx, scene, args.size, args.frames, args.still_samples)
-                       for scene in (args.scene or DEFAULT_SCENES)],
+                       for scene in (args.scene or STILL_SCENES)],
         }
     finally:
         ctx.release()

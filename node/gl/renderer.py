@@ -47,7 +47,11 @@ multisampled framebuffer, scissored to the tile, and resolved (a blit, which the
 limits to the tile) into the single-sample one they are read from. A pixel's samples never leave
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
-(a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames.
+(a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. Where
+``--msaa auto`` draws one sample (llvmpipe, where 4 samples cost 3-4x the frame), plain tiles and
+whole frames are resolved by the 3×3 filter of :mod:`tessera.antialiasing` instead, drawn with a
+guard band of one pixel (clipped to the frame) so that the filtered tile is still that region of
+the filtered whole frame, and with its texture LOD bias.
 
 The progressive still (issue 20): a render may be a still's ``subsample``
 (:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a
@@ -58,6 +62,7 @@ LOD bias; :meth:`TileRenderer.render_still` accumulates a still's samples as the
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import time
 from collections.abc import Hashable, Sequence
@@ -70,11 +75,12 @@ import numpy as np
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
-from node.gl.shading import VERTEX_SHADER, ShadingOptions, fragment_shader, resolve_samples
+from node.gl.shading import AUTO_MSAA, VERTEX_SHADER, ShadingOptions, fragment_shader, resolve_samples
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
 from node.scene.pose import ScenePose
+from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling import refinement
@@ -181,7 +187,9 @@ class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of
     the scene's batches when already done (None: packed here). ``samples``: the multisample count
-    drawn with (:func:`node.gl.shading.resolve_samples`). Raises
+    drawn with (:func:`node.gl.shading.resolve_samples`); ``filtered``: plain tiles and whole frames
+    at one sample are resolved by :func:`tessera.antialiasing.resolve_filter` (``--msaa auto`` where
+    it draws one sample). Raises
     CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
     environment file."""
 
@@ -195,6 +203,7 @@ class TileRenderer:
         self.background = background
         self.shading = shading
         self.samples = resolve_samples(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
+        self.filtered = shading.msaa == AUTO_MSAA and self.samples == 1
         # First: they raise before any GL object of the scene exists to leak.
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
@@ -285,14 +294,24 @@ class TileRenderer:
                     slot: Hashable | None = None, state: SceneState | None = None,
                     subsample: Subsample | None = None) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
-        (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame).
+        (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame, resolved
+        by the filter when :attr:`filtered`: drawn, culled and read with its guard band).
         ``slot`` names the tile for the hybrid culling switch (default: the rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
-        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=False, pose=pose, moved=moved,
-                            lod_bias=0.0 if subsample is None else subsample.lod_bias)
+        filtered = self.filtered and subsample is None
+        drawn = guarded(rect, size) if filtered else rect
+        lod_bias = subsample.lod_bias if subsample is not None else FILTERED_LOD_BIAS if filtered else 0.0
+        pose, matrix, moved = self._posed(camera, size, drawn, state, subsample)
+        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn)
+        tile = self._render(camera, size, drawn, matrix, culled, started, with_depth=False, pose=pose, moved=moved,
+                            lod_bias=lod_bias)
+        if not filtered:
+            return tile
+        filtering = time.perf_counter()
+        pixels = resolve_filter(tile.pixels, rect, drawn)
+        return dataclasses.replace(tile, rect=rect, pixels=pixels,
+                                   render_ms=tile.render_ms + (time.perf_counter() - filtering) * 1e3)
 
     def pose_of(self, state: SceneState | None) -> ScenePose:
         """The pose of ``state``, kept for the next tiles of the same state."""
