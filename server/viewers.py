@@ -98,9 +98,12 @@ class ViewerSlot:
         #: Video frames written to the socket in all, and the newest one's frame id (None: none yet).
         self.video_frames_written = 0
         self.newest_video_written: int | None = None
-        self._written_at: deque[tuple[int, int]] = deque(maxlen=MAX_UNACKNOWLEDGED)
+        self._written_at: deque[tuple[int, int, float]] = deque(maxlen=MAX_UNACKNOWLEDGED)   # and when (s)
         self._acknowledged = (time.monotonic(), 0)   # when the viewer last said, and the total it had then
         self._received_bps: float | None = None
+        #: At the viewer's last report, how long the oldest frame written and not received yet had
+        #: been on its way (s): the link's queue delay.
+        self._queue_s = 0.0
 
     def put_video(self, message: bytes, keyframe: bool) -> bool:
         """Queue an encoded video frame; True when the viewer lost one (its queue overflowed) and
@@ -127,18 +130,19 @@ class ViewerSlot:
         self._window = (start, total + written, lost + dropped, max(most, waiting))
 
     def take_report(self, report: StreamReport, now: float) -> None:
-        """The viewer's report: what it received up to ``report.frame`` is no longer on its way."""
+        """The viewer's report at ``now``: what it received up to ``report.frame`` is no longer on its
+        way; the oldest frame written after it has been on its way since it was written."""
         self.report = report
         received = None
         while self._written_at and report.frame is not None and self._written_at[0][0] <= report.frame:
             received = self._written_at.popleft()[1]
+        self._queue_s = now - self._written_at[0][2] if self._written_at and report.frame is not None else 0.0
         if received is not None:
             self._received_bps = (received - self._acknowledged[1]) * 8.0 / max(now - self._acknowledged[0], 1e-3)
             self._acknowledged = (now, received)
 
-    def link_report(self, now: float, bitrate: float) -> LinkReport:
-        """This viewer's link over the window since the last call (then a new window starts), for a
-        stream of ``bitrate`` (bit/s)."""
+    def link_report(self, now: float) -> LinkReport:
+        """This viewer's link over the window since the last call (then a new window starts)."""
         start, written, dropped, most = self._window
         self._window = (now, 0, 0, len(self.video))
         delivered = written * 8.0 / max(now - start, 1e-3)
@@ -147,7 +151,7 @@ class ViewerSlot:
             viewer_dropped = max(0.0, self.report.frames_dropped - self._reported_dropped)
             self._reported_dropped = self.report.frames_dropped
         if self.report is not None and self.report.frame is not None:
-            in_flight_s = (self.video_written - self._acknowledged[1]) * 8.0 / max(bitrate, 1.0)
+            in_flight_s = self._queue_s
             delivered = self._received_bps if self._received_bps is not None else delivered
         return LinkReport(delivered_bps=delivered, dropped=dropped + int(viewer_dropped),
                           decode_queue=self.report.decode_queue if self.report else 0.0, backlog=most,
@@ -195,7 +199,7 @@ class ViewerSlot:
                 self.video_written += len(video)
                 self.video_frames_written += 1
                 self.newest_video_written = video_frame_id(video)
-                self._written_at.append((self.newest_video_written, self.video_written))
+                self._written_at.append((self.newest_video_written, self.video_written, time.monotonic()))
                 return video
             if self.frame is not None:
                 frame, self.frame = self.frame, None
@@ -283,7 +287,7 @@ class ViewerHub:
         self.bytes_published += sum(len(message) for message, _ in messages)
         now = time.monotonic()
         if takers and stream.rate.due(now) and stream.rate.update(
-                [slot.link_report(now, stream.rate.bitrate) for slot in takers], now):
+                [slot.link_report(now) for slot in takers], now):
             update = StreamBitrate(bitrate=float(stream.rate.bitrate), max_fps=float(stream.rate.fps))
             for slot in takers:
                 slot.put_control(update)

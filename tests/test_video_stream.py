@@ -23,6 +23,7 @@ from tessera.geometry import Camera, Rect, default_camera
 from tessera.video.yuv_frame import compose_yuv420
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import unpack_frame
+from tessera.wire.stream_messages import StreamReport
 from tessera.wire.video import VideoCodec, is_video, pack_video, unpack_video
 
 SIZE = (321, 181)
@@ -160,5 +161,26 @@ def test_a_video_viewer_that_never_reports_does_not_grow_the_coordinators_memory
             assert await slot.next_message() == message
         assert slot.video_written == len(message) * (MAX_UNACKNOWLEDGED + 50)
         assert len(slot._written_at) == MAX_UNACKNOWLEDGED
+
+    asyncio.run(scenario())
+
+
+def test_a_video_viewers_queue_delay_is_how_long_its_oldest_frame_not_received_has_been_on_its_way() -> None:
+    async def scenario() -> None:
+        slot = ViewerSlot()
+        slot.video_codec = VideoCodec.H264
+        for frame_id in (1, 2, 3):
+            slot.put_video(pack_video(frame_id, SIZE, VideoCodec.H264, frame_id == 1, b"unit"), frame_id == 1)
+            await slot.next_message()
+        written = time.monotonic()
+
+        def report(frame: int) -> StreamReport:
+            return StreamReport(bytes_per_s=0.0, decoded_fps=0.0, decode_queue=0.0, frames_dropped=0.0, frame=frame)
+
+        slot.take_report(report(1), written + 0.5)          # frames 2 and 3 are still on their way
+        link = slot.link_report(written + 0.9)
+        assert 0.5 <= link.in_flight_s < 5.0 and link.congested
+        slot.take_report(report(3), written + 1.0)
+        assert slot.link_report(written + 1.1).in_flight_s == 0.0
 
     asyncio.run(scenario())

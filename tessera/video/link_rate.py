@@ -5,9 +5,10 @@ control do. When the link cannot carry even the lowest cap, the frame rate comes
 
 A report window is congested when a viewer dropped frames (its decoder's queue overflowed, or its
 socket held frames back so long the coordinator dropped them), when frames wait in its decoder, when
-frames waited to be written to its socket, or when more than :data:`MAX_IN_FLIGHT_S` of the stream
-was written but not yet received (the viewer says which frame it received last: the buffers of a
-slow link fill long before the coordinator's socket does). Pure: the clock comes in as ``now`` (s)."""
+frames waited to be written to its socket, or when a frame written but not yet received had been
+on its way more than :data:`MAX_IN_FLIGHT_S` (the viewer says which frame it received last: the
+buffers of a slow link fill, and delay every frame, long before the coordinator's socket does).
+Pure: the clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ CLEAN_WINDOWS = 3
 MAX_DECODE_QUEUE = 3
 #: Frames waiting for a viewer's socket at once that count as congestion.
 MAX_BACKLOG = 2
-#: Seconds of the stream on their way to a viewer (written, not received) that count as congestion.
+#: Seconds a frame has been on its way to a viewer (written, not received) that count as congestion.
 MAX_IN_FLIGHT_S = 0.3
 #: Shortest time (s) between two changes: a report window.
 WINDOW_S = 1.0
@@ -38,7 +39,8 @@ class LinkReport:
     """One viewer's window: ``delivered_bps`` (bit/s it received, or written to its socket when
     it does not say), ``dropped`` frames (the viewer's and the coordinator's), ``decode_queue``
     frames waiting in its decoder (its last report), ``backlog`` the most frames waiting for its
-    socket at once, ``in_flight_s`` the stream's seconds written but not received (its last report)."""
+    socket at once, ``in_flight_s`` how long the oldest frame written but not received had been on its
+    way at its last report (s: the link's queue delay)."""
 
     delivered_bps: float
     dropped: int
