@@ -4,7 +4,7 @@ viewer that decodes what it receives.
 
 ``python -m bench.stream [--scene S] [--path P] [--size WxH] [--nodes N] [--moving-s 8]
 [--input-hz 60] [--transports tiles,h264,vp9] [--psnr-frames 8] [--synthetic]
-[--server-args "…"] [--json OUT]``
+[--throttle-mbps R] [--rest-s S] [--resume-s 3] [--server-args "…"] [--json OUT]``
 
 One coordinator (``python -m server --local-nodes N --stream auto``, as :mod:`bench.live` starts
 it) serves every transport in turn: per transport a new viewer on ``/ws/view`` sends
@@ -13,10 +13,11 @@ cameras with input numbers at ``--input-hz`` for ``--moving-s``: the camera path
 ``bench/paths/*.json`` file, or a kind of :func:`bench.paths.make_path` made for the scene's
 bounds, loaded here; synthetic nodes': their box) played at its own ``dt_ms``, cameras between two
 of its frames interpolated, looping. A video viewer sends ``stream_report`` each second, as
-``web/video.js`` does. The viewer's reader thread decodes every interactive frame as it comes:
-TFRM tiles with :func:`bench.images.viewer_frame_image`, TVID access units with PyAV
-(``av.CodecContext.create(codec, "r")``, one ``av.Packet`` each; a unit that fails to decode, or
-any unit after one until a keyframe, is lost, and the viewer then sends ``keyframe``).
+``web/video.js`` does. The viewer (:mod:`bench.stream_viewer`) decodes every interactive frame
+as it comes. ``--throttle-mbps R``: each viewer connects through a loopback proxy whose
+coordinator → viewer direction carries R Mbit/s (:mod:`bench.throttle`). ``--rest-s S``: after the
+moving window the camera rests until the still answering the last input comes (at most S s),
+then moves on along the path for ``--resume-s``.
 
 Figures per transport, over the moving window (its first second left out):
 
@@ -39,7 +40,12 @@ Figures per transport, over the moving window (its first second left out):
   frames), with ``target_bitrate`` (bit/s) there at the end; ``keyframes``; ``frames_lost``;
 * ``latency_intervals_p50``: input → decoded frame, p50, in mean intervals between decoded frames
   (and ``latency_p50_ms``), for the first decoded frame answering each input, as
-  :func:`bench.live.latencies`.
+  :func:`bench.live.latencies`;
+* with ``--rest-s``: ``still_s`` (the still's arrival after the last input; null: it did not come),
+  ``still_kb``, ``refinements_kb`` (the progressive still's frames that came before it),
+  ``still_exact`` (equal to the coordinator's still of that frame, ``/api/frame.png?still=true``),
+  ``still_psnr`` (against ``--render-once``'s still of the same camera, 100 = identical; null with
+  synthetic nodes), ``resume_ms`` (moving again: the first answer's delay) and ``fps_resumed``.
 
 ``--synthetic``: no local nodes but ``--nodes`` synthetic ones (:mod:`bench.synthetic_nodes`,
 default 4, 1920x1080, a fixed noisy gradient cut into every tile): for "1080p60 fits in 8 Mbit/s at
@@ -54,28 +60,28 @@ Everything shares this machine's cores (the viewer's decoding too).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import math
-import queue
 import shlex
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
-import av
 import httpx
 import numpy as np
 import websockets.sync.client as ws_client
 from PIL import Image
 
 from bench.images import psnr, reported_psnr, viewer_frame_image
-from bench.live import ScriptedViewer, latencies, wait_ready
+from bench.live import latencies, wait_ready
 from bench.paths import KINDS, make_path, surface_focus
 from bench.processes import PYTHON, LoggedProcess, show_result, start_coordinator
+from bench.stream_viewer import StreamViewer
 from bench.synthetic_nodes import SCENE_BOUNDS
+from bench.throttle import throttled_proxy
 from node.gl.context import create_gl_context
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
@@ -83,18 +89,12 @@ from node.scene.loading import load_scene
 from node.settings import NodeSettings
 from tessera.cli_values import size_parser
 from tessera.geometry import Camera
-from tessera.wire.protocol import unpack_frame
-from tessera.wire.stream_messages import KeyframeRequest, StreamOffer, StreamReport
-from tessera.wire.video import VideoCodec, codec_string, is_video, unpack_video
+from tessera.wire.video import VideoCodec, codec_string
 
 #: ``tiles`` and every video codec of the protocol
 TRANSPORTS = ("tiles", *(codec.label for codec in VideoCodec))
-#: seconds a viewer waits for the coordinator's ``stream`` answer to its offer
-CHOICE_TIMEOUT_S = 10.0
 #: seconds after the last input the viewer keeps reading (the answers still on their way)
 TAIL_S = 1.0
-#: seconds between two ``stream_report`` s of a video viewer (as web/video.js)
-REPORT_S = 1.0
 SYNTHETIC_SIZE = (1920, 1080)
 SYNTHETIC_NODES = 4
 
@@ -130,159 +130,6 @@ def load_path(spec: str, bounds: np.ndarray, positions: np.ndarray | None) -> di
     return make_path(spec, bounds, focus=focus)
 
 
-class StreamViewer(ScriptedViewer):
-    """A :class:`bench.live.ScriptedViewer` that offers ``transport`` and decodes what it gets.
-
-    ``decoded``: per interactive frame decoded, its time (perf_counter s), frame id, message bytes,
-    input number and keyframe flag; ``lost``: video frames that did not decode; ``samples``: the
-    decoded images (h, w, 3) of frames taken for PSNR (one each ``sample_every_s`` from
-    ``sample_from`` on), keyed by frame id, with their input numbers in ``sample_inputs``;
-    ``sources``: those frames' composites from ``/api/frame.png`` when ``http`` is given."""
-
-    def __init__(self, ws: ws_client.ClientConnection, transport: str, http_url: str | None) -> None:
-        self.transport = transport
-        self.choice: dict[str, Any] | None = None
-        self._chosen = threading.Event()
-        self.decoded: list[dict[str, Any]] = []
-        self.lost = 0
-        self.keyframes = 0
-        self.tfrm_after_choice = 0
-        self.samples: dict[int, np.ndarray] = {}
-        self.sample_inputs: dict[int, int] = {}
-        self.sources: dict[int, np.ndarray] = {}
-        self.cameras: dict[int, dict[str, Any]] = {}
-        self.newest_video: int | None = None
-        self.sample_from = math.inf
-        self.sample_every_s = math.inf
-        self._decoder: Any = None
-        self._waiting_for_key = True
-        self._fetches: queue.Queue[int | None] = queue.Queue()
-        self._fetcher = threading.Thread(target=self._fetch_sources, args=(http_url,), daemon=True) \
-            if http_url is not None else None
-        super().__init__(ws)
-        if self._fetcher is not None:
-            self._fetcher.start()
-
-    def offer(self) -> dict[str, Any]:
-        """Send ``stream_offer`` with this viewer's codec (tiles: none) and wait for the answer
-        (tiles: up to :data:`CHOICE_TIMEOUT_S`, then go on with tiles without one)."""
-        codecs = () if self.transport == "tiles" else (self.transport,)
-        if self.transport != "tiles":
-            self._decoder = av.CodecContext.create(self.transport, "r")
-        self.ws.send(StreamOffer(codecs=codecs).to_text())
-        if not self._chosen.wait(CHOICE_TIMEOUT_S):
-            if self.transport == "tiles":   # a coordinator without video streams sends tiles anyway
-                return {"type": "stream", "transport": "tiles", "reason": "no answer to the offer"}
-            raise RuntimeError(f"no 'stream' answer to the offer of {list(codecs)} within {CHOICE_TIMEOUT_S:.0f} s")
-        assert self.choice is not None
-        return self.choice
-
-    def send_camera(self, camera: dict[str, Any]) -> None:
-        super().send_camera(camera)
-        self.cameras[self.seq] = camera
-
-    def counts(self) -> tuple[float, int, int]:
-        """Now (perf_counter s), bytes received and frames decoded so far."""
-        with self.lock:
-            return time.perf_counter(), sum(f["bytes"] for f in self.decoded), len(self.decoded)
-
-    def report(self, since: tuple[float, int, int]) -> tuple[float, int, int]:
-        """Send ``stream_report`` (as a browser viewer does each second) over the window since
-        ``since`` (:meth:`counts` then); the next window's start."""
-        now = self.counts()
-        seconds = max(now[0] - since[0], 1e-3)
-        self.ws.send(StreamReport(bytes_per_s=(now[1] - since[1]) / seconds, decoded_fps=(now[2] - since[2]) / seconds,
-                                  decode_queue=0, frames_dropped=self.lost, frame=self.newest_video).to_text())
-        return now
-
-    def _read(self) -> None:
-        while not self._stop.is_set():
-            try:
-                message = self.ws.recv(timeout=0.2)
-            except TimeoutError:
-                continue
-            except Exception:
-                return
-            if isinstance(message, str):
-                control = json.loads(message)
-                if control.get("type") == "stream":
-                    self.choice = control
-                    self._chosen.set()
-            elif is_video(message):
-                self._on_video(message)
-            else:
-                self._on_tiles(message)
-
-    def _on_tiles(self, message: bytes) -> None:
-        frame = unpack_frame(message)
-        if frame.still or frame.samples:   # the still and its progressive refinements
-            return
-        if self.choice is not None:
-            self.tfrm_after_choice += 1
-        started = time.thread_time()
-        image = viewer_frame_image(message)
-        decode_ms = (time.thread_time() - started) * 1000.0
-        self._record(frame.frame_id, len(message), frame.input_seq, False, image, decode_ms)
-
-    def _on_video(self, message: bytes) -> None:
-        frame = unpack_video(message)
-        self.newest_video = frame.frame_id
-        self.keyframes += frame.keyframe
-        assert self._decoder is not None, "a video frame before the offer"
-        if self._waiting_for_key and not frame.keyframe:
-            self.lost += 1
-            return
-        packet = av.Packet(frame.data)
-        packet.pts = frame.frame_id
-        started = time.thread_time()
-        try:
-            pictures = self._decoder.decode(packet)
-        except av.error.FFmpegError:
-            pictures = []
-        decode_ms = (time.thread_time() - started) * 1000.0
-        if not pictures:
-            self.lost += 1
-            self._waiting_for_key = True
-            self.ws.send(KeyframeRequest().to_text())
-            return
-        self._waiting_for_key = False
-        for picture in pictures:
-            self._record(frame.frame_id, len(message), frame.input_seq, frame.keyframe, picture, decode_ms)
-
-    def _record(self, frame_id: int, size: int, input_seq: int, keyframe: bool, image: Any,
-                decode_ms: float) -> None:
-        """Note a decoded frame (``decode_ms``: this thread's CPU decoding it); keep its pixels (an
-        ndarray or an ``av.VideoFrame``) when sampled."""
-        now = time.perf_counter()
-        with self.lock:
-            self.decoded.append({"at": now, "id": frame_id, "bytes": size, "input": input_seq,
-                                 "keyframe": keyframe, "decode_ms": decode_ms})
-        if now >= self.sample_from:
-            self.sample_from += self.sample_every_s
-            pixels = image if isinstance(image, np.ndarray) else image.to_ndarray(format="rgb24")
-            with self.lock:
-                self.samples[frame_id] = pixels
-                self.sample_inputs[frame_id] = input_seq
-            self._fetches.put(frame_id)
-
-    def _fetch_sources(self, url: str) -> None:
-        """The composites of the sampled frames, fetched as they are sampled (the coordinator keeps
-        its newest 16 frames): a frame it no longer holds is left out."""
-        with httpx.Client(base_url=url, timeout=30) as client:
-            while (frame_id := self._fetches.get()) is not None:
-                response = client.get("/api/frame.png", params={"after": frame_id, "timeout": 5})
-                if response.status_code == 200 and int(response.headers["x-frame-id"]) == frame_id:
-                    image = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
-                    with self.lock:
-                        self.sources[frame_id] = image
-
-    def stop(self) -> None:
-        super().stop()
-        if self._fetcher is not None:
-            self._fetches.put(None)
-            self._fetcher.join(timeout=30)
-
-
 def video_stats(stats: dict[str, Any], transport: str) -> dict[str, Any] | None:
     """The ``/api/stats`` ``video`` entry of the ``transport`` codec's stream, if any."""
     names = (transport, codec_string(VideoCodec.parse(transport), (16, 16)).split(".")[0])
@@ -290,35 +137,69 @@ def video_stats(stats: dict[str, Any], transport: str) -> dict[str, Any] | None:
     return max(streams, key=lambda s: s.get("frames_encoded", 0)) if streams else None
 
 
+def _move(viewer: StreamViewer, player: PathPlayer, input_hz: float, path_start: float, until: float) -> None:
+    """Send the path's cameras at ``input_hz`` (the path's time counted from ``path_start``,
+    perf_counter s) until ``until``; a video viewer reports each :data:`REPORT_S`."""
+    next_send = time.perf_counter()
+    while (now := time.perf_counter()) < until:
+        viewer.send_camera(player.at(now - path_start))
+        viewer.report_due(now)
+        next_send += 1.0 / input_hz
+        time.sleep(max(0.0, next_send - time.perf_counter()))
+
+
+def _rest(args: argparse.Namespace, viewer: StreamViewer, client: httpx.Client, last_input: float) -> dict[str, Any]:
+    """The camera rests from ``last_input``: wait (at most ``--rest-s``) for the still answering
+    the last input and fetch the coordinator's still of that frame (``/api/frame.png``)."""
+    still, source = None, None
+    while time.perf_counter() < last_input + args.rest_s and still is None:
+        time.sleep(0.02)
+        viewer.report_due(time.perf_counter())
+        with viewer.lock:
+            still = next((s for s in viewer.stills if s[0] > last_input and s[2] == viewer.seq), None)
+    if still is not None:
+        response = client.get("/api/frame.png", params={"after": still[1], "still": "true", "timeout": 10})
+        if response.status_code == 200 and int(response.headers["x-frame-id"]) == still[1]:
+            source = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
+    return {"still": still, "still_source": source, "last_input": last_input, "camera": viewer.camera}
+
+
 def play(args: argparse.Namespace, url: str, client: httpx.Client, transport: str,
          player: PathPlayer) -> dict[str, Any]:
-    """One transport: a viewer offers it, plays the path for ``--moving-s`` and reads on for
-    :data:`TAIL_S`; the stopped viewer, the coordinator's answer, the window (perf_counter s: from
-    1 s after the first input to the last) and the stream's ``video`` stats at the end."""
-    ws_url = url.replace("http://", "ws://") + "/ws/view"
-    with ws_client.connect(ws_url, max_size=256 << 20) as ws:
-        viewer = StreamViewer(ws, transport, url)
+    """One transport: a viewer offers it (through a link of ``--throttle-mbps``, if given), plays
+    the path for ``--moving-s`` and reads on for :data:`TAIL_S`; with ``--rest-s``, then rests
+    until the still comes and plays on for ``--resume-s``. The stopped viewer, the coordinator's
+    answer, the window (perf_counter s: from 1 s after the first input to the last), the stream's
+    ``video`` stats at its end, and the rest's still and window (:func:`_rest`)."""
+    with contextlib.ExitStack() as stack:
+        ws_url = url.replace("http://", "ws://") + "/ws/view"
+        if args.throttle_mbps:
+            port = stack.enter_context(throttled_proxy(int(url.rsplit(":", 1)[1]), args.throttle_mbps * 1e6))
+            ws_url = f"ws://127.0.0.1:{port}/ws/view"
+        viewer = StreamViewer(stack.enter_context(ws_client.connect(ws_url, max_size=256 << 20)), transport, url)
         try:
             choice = viewer.offer()
             if choice.get("transport") != transport:
                 return {"viewer": viewer, "choice": choice}
-            started = next_send = time.perf_counter()
-            window = viewer.counts()
+            started = time.perf_counter()
             viewer.sample_every_s = (args.moving_s - 1.0) / args.psnr_frames
             viewer.sample_from = started + 1.0 + viewer.sample_every_s / 2.0
-            while (now := time.perf_counter()) < started + args.moving_s:
-                viewer.send_camera(player.at(now - started))
-                if transport != "tiles" and now >= window[0] + REPORT_S:
-                    window = viewer.report(window)
-                next_send += 1.0 / args.input_hz
-                time.sleep(max(0.0, next_send - time.perf_counter()))
+            _move(viewer, player, args.input_hz, started, started + args.moving_s)
             last_input = time.perf_counter()
             viewer.sample_from = math.inf
             time.sleep(TAIL_S)
             stream = video_stats(client.get("/api/stats").json(), transport) if transport != "tiles" else None
+            rest = None
+            if args.rest_s:
+                rest = _rest(args, viewer, client, last_input)
+                rest["resumed"], rest["resume_seq"] = time.perf_counter(), viewer.seq
+                _move(viewer, player, args.input_hz, started, rest["resumed"] + args.resume_s)
+                rest["resume_end"] = time.perf_counter()
+                time.sleep(TAIL_S)
         finally:
             viewer.stop()
-    return {"viewer": viewer, "choice": choice, "start": started + 1.0, "end": last_input, "stream": stream}
+    return {"viewer": viewer, "choice": choice, "start": started + 1.0, "end": last_input, "stream": stream,
+            "rest": rest}
 
 
 class References:
@@ -338,6 +219,10 @@ class References:
         """(h, w, 3) uint8."""
         return self.renderer.render_frame(Camera.from_json(camera), self.size, self.state).pixels
 
+    def still(self, camera: dict[str, Any], samples: int) -> np.ndarray:
+        """The converged still of ``samples`` samples (``--render-once``), (h, w, 3) uint8."""
+        return self.renderer.render_still(Camera.from_json(camera), self.size, samples, self.state)
+
     def release(self) -> None:
         self.renderer.release()
         self.ctx.release()
@@ -356,6 +241,31 @@ def psnr_figures(values: list[float], prefix: str) -> dict[str, Any]:
     reported = [reported_psnr(v) for v in values]
     return {f"{prefix}_mean": round(float(np.mean(reported)), 2) if reported else None,
             f"{prefix}_min": min(reported) if reported else None, f"{prefix}_frames": len(reported)}
+
+
+def rest_figures(run: dict[str, Any], references: References | None, samples: int) -> dict[str, Any]:
+    """The rest's figures (``--rest-s``): the still's arrival after the last input (s), its size
+    (KB) and the refinements' before it, whether it equals the coordinator's still of that frame
+    (``/api/frame.png``) and its PSNR against render-once's still of ``samples`` samples; then,
+    moving again, the first answer's delay (ms) and the frames decoded per second."""
+    rest, viewer = run["rest"], run["viewer"]
+    still = rest["still"]
+    arrived = still[0] if still is not None else rest["resumed"]
+    with viewer.lock:
+        refinements = sum(size for at, size in viewer.refinements if rest["last_input"] < at <= arrived)
+        decoded = [f for f in viewer.decoded if rest["resumed"] <= f["at"] <= rest["resume_end"]]
+        answers = [f["at"] for f in viewer.decoded if f["at"] >= rest["resumed"] and f["input"] > rest["resume_seq"]]
+    out: dict[str, Any] = {"still_s": None, "still_kb": None, "still_exact": None, "still_psnr": None,
+                           "refinements_kb": round(refinements / 1000, 1)}
+    if still is not None:
+        image = viewer_frame_image(still[3])
+        out.update({"still_s": round(still[0] - rest["last_input"], 3), "still_kb": round(len(still[3]) / 1000, 1),
+                    "still_exact": rest["still_source"] is not None and np.array_equal(image, rest["still_source"])})
+        if references is not None:
+            out["still_psnr"] = reported_psnr(compare(image, references.still(rest["camera"], samples)))
+    out["resume_ms"] = round((answers[0] - rest["resumed"]) * 1000.0, 1) if answers else None
+    out["fps_resumed"] = round(len(decoded) / (rest["resume_end"] - rest["resumed"]), 2)
+    return out
 
 
 def figures(run: dict[str, Any], references: References | None) -> dict[str, Any]:
@@ -434,6 +344,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                                        url.replace("http://", "ws://", 1) + "/ws/node", "--nodes", str(args.nodes)])
         with httpx.Client(base_url=url, timeout=120) as client:
             stats = wait_ready(client, args.nodes)
+            still_samples = int((stats.get("still_samples") or {}).get("wanted") or 1)
             for transport in args.transports:
                 runs[transport] = play(args, url, client, transport, player)
     finally:
@@ -443,12 +354,17 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     references = References(scene, args.size) if scene is not None else None
     try:
         result: dict[str, Any] = {t: figures(run, references) for t, run in runs.items()}
+        for transport, run in runs.items():
+            if run.get("rest") is not None:
+                result[transport].update(rest_figures(run, references, still_samples))
     finally:
         if references is not None:
             references.release()
     result["run"] = {"scene": "synthetic" if args.synthetic else args.scene, "path": args.path,
                      "size": list(args.size), "nodes": args.nodes, "synthetic": args.synthetic,
                      "input_hz": args.input_hz, "moving_s": args.moving_s, "server_args": args.server_args,
+                     "throttle_mbps": args.throttle_mbps, "rest_s": args.rest_s, "resume_s": args.resume_s,
+                     "still_samples": still_samples,
                      "renderer": stats["nodes"][0]["renderer"]}
     return result
 
@@ -468,7 +384,8 @@ def report(result: dict[str, Any]) -> str:
     lines = [f"Tessera stream benchmark: {run['scene']} at {run['size'][0]}x{run['size'][1]}, {run['nodes']} "
              f"{'synthetic' if run['synthetic'] else 'local'} nodes ({run['renderer']}), path {run['path']} "
              f"with input at {run['input_hz']:g} Hz for {run['moving_s']:g} s per transport"
-             + (f", server args {run['server_args']!r}" if run["server_args"] else ""),
+             + (f", server args {run['server_args']!r}" if run["server_args"] else "")
+             + (f", link {run['throttle_mbps']:g} Mbit/s" if run["throttle_mbps"] else ""),
              f"{'transport':<10}{'KB/frame':>9}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}{'min':>7}"
              f"{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
              f"{'keys':>5}{'lost':>5}"]
@@ -487,6 +404,14 @@ def report(result: dict[str, Any]) -> str:
                      f"{cell(_sum(row.get('encode_wall_ms'), row.get('compose_wall_ms')), 6, 1)}"
                      f"{cell(row['viewer_decode_ms'], 8, 2)}{cell(row['latency_intervals_p50'], 8, 2)} "
                      f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}")
+    for transport in TRANSPORTS:
+        row = result.get(transport)
+        if row is not None and "still_s" in row:
+            lines.append(f"{transport:<10}rest: still after {cell(row['still_s'], 5, 2)} s "
+                         f"({cell(row['still_kb'], 6, 1)} KB, refinements before it {row['refinements_kb']:.1f} KB), "
+                         f"exact: {row['still_exact']}, "
+                         f"PSNR vs render-once still {cell(row['still_psnr'], 6, 2)}; moving again: first answer "
+                         f"{cell(row['resume_ms'], 6, 0)} ms, {cell(row['fps_resumed'], 5, 1)} fps")
     reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
                  else "the coordinator's composite of the same frame (GET /api/frame.png)")
     lines.append(f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
@@ -520,6 +445,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="synthetic nodes (bench.synthetic_nodes) instead of local ones; PSNR against the "
                              "coordinator's composite")
     parser.add_argument("--server-args", default="", help="more flags for python -m server")
+    parser.add_argument("--throttle-mbps", type=float,
+                        help="each viewer's link: a loopback proxy passing the coordinator's bytes at this Mbit/s")
+    parser.add_argument("--rest-s", type=float, default=0.0,
+                        help="after the moving window, rest up to this long for the still, then move again")
+    parser.add_argument("--resume-s", type=float, default=3.0, help="seconds of motion after the rest (default 3)")
     parser.add_argument("--json", type=Path, help="write the figures here")
     return parser
 

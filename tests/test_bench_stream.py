@@ -1,6 +1,6 @@
 """``python -m bench.stream`` end to end on a small run (a real coordinator and node, a viewer that
-decodes tiles and video with PyAV); speeds are reported, never asserted: only that the figures
-exist and make sense."""
+decodes tiles and video with PyAV, through a throttled loopback link, resting for the still);
+speeds are reported, never asserted: only that the figures exist and make sense."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def test_path_player_interpolates_between_frames_and_loops():
 def test_stream_bench_end_to_end(tmp_path):
     out = tmp_path / "stream.json"
     assert main(["--nodes", "1", "--size", "192x108", "--moving-s", "4", "--psnr-frames", "2",
-                 "--json", str(out)]) == 0
+                 "--throttle-mbps", "2", "--rest-s", "20", "--resume-s", "1", "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     for transport in TRANSPORTS:
         row = result[transport]
@@ -40,6 +40,9 @@ def test_stream_bench_end_to_end(tmp_path):
         assert row["psnr_min"] > 25.0, row
         assert row["latency_intervals_p50"] > 0 and row["latency_samples"] > 0, row
         assert row["decoded_size"] == [[192, 108]], row
+        # through the throttled link the still arrives, equal to the coordinator's and to render-once's
+        assert row["still_exact"] is True and row["still_psnr"] == 100.0 and row["still_s"] > 0, row
+        assert row["fps_resumed"] > 0 and row["resume_ms"] > 0, row
     assert result["tiles"]["encode_ms"] is None and result["tiles"]["psnr_source_mean"] == 100.0
     for codec in TRANSPORTS[1:]:
         row = result[codec]

@@ -1,16 +1,15 @@
 """Video to the browser (issue 21) end to end: a real coordinator and node, viewers on real
 WebSockets that decode the stream with PyAV — the frames equal ``--render-once`` of their camera
 closely, ``--stream tiles`` keeps tiles, and a viewer behind a throttled link (a loopback proxy)
-keeps a decodable stream while the coordinator brings the bitrate down."""
+keeps a decodable stream while the coordinator brings the bitrate down (:mod:`bench.throttle`), and
+a viewer sending feedback no page sends is closed while the others keep their stream."""
 
 from __future__ import annotations
 
 import json
-import socket
-import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from typing import Any
 
 import av
@@ -22,6 +21,7 @@ from websockets.exceptions import ConnectionClosed
 
 from bench.images import psnr
 from bench.processes import orbit
+from bench.throttle import throttled_proxy
 from tessera.wire.codec import Codec, decode, encode
 from tessera.wire.protocol import unpack_frame
 from tessera.wire.video import is_video, unpack_video
@@ -148,59 +148,11 @@ def test_stream_tiles_keeps_tiles_and_says_why(coordinator_factory):
         assert stats(client)["video"] == []
 
 
-@contextmanager
-def throttled_proxy(port: int, bytes_per_s: float) -> Iterator[int]:
-    """A loopback TCP proxy to ``port`` that passes what the coordinator sends at ``bytes_per_s``
-    (reading its side in small pieces into a small receive buffer, so the coordinator's socket
-    fills); yields the proxy's port."""
-    listener = socket.create_server(("127.0.0.1", 0))
-    stop = threading.Event()
-
-    def pump(source: socket.socket, sink: socket.socket, rate: float | None) -> None:
-        try:
-            while not stop.is_set():
-                data = source.recv(2048)
-                if not data:
-                    break
-                sink.sendall(data)
-                if rate:
-                    time.sleep(len(data) / rate)
-        except OSError:
-            pass
-        finally:
-            for end in (source, sink):
-                with suppress(OSError):
-                    end.shutdown(socket.SHUT_RDWR)
-                end.close()
-
-    def serve() -> None:
-        listener.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                client, _ = listener.accept()
-            except TimeoutError:
-                continue
-            upstream = socket.socket()
-            upstream.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8192)
-            upstream.connect(("127.0.0.1", port))
-            threading.Thread(target=pump, args=(client, upstream, None), daemon=True).start()
-            threading.Thread(target=pump, args=(upstream, client, bytes_per_s), daemon=True).start()
-
-    server = threading.Thread(target=serve, daemon=True)
-    server.start()
-    try:
-        yield listener.getsockname()[1]
-    finally:
-        stop.set()
-        server.join(timeout=5)
-        listener.close()
-
-
 def test_a_throttled_viewer_gets_a_lower_bitrate_and_a_stream_that_still_decodes(coordinator_factory):
     with started(coordinator_factory, "--max-bitrate", "2M") as (coordinator, client):
         port = int(coordinator.url.rsplit(":", 1)[1])
         bitrates: list[int] = []
-        with throttled_proxy(port, 2_000) as proxy_port, \
+        with throttled_proxy(port, 16_000) as proxy_port, \
                 video_viewer(f"ws://127.0.0.1:{proxy_port}/ws/view", ["h264"]) as viewer:
             deadline = time.monotonic() + seconds(60)
             while time.monotonic() < deadline and not (bitrates and min(bitrates) < bitrates[0]):
