@@ -1,18 +1,19 @@
 """Shading cost (issue 20): the frame time of this tree's shader against another tree's, on the scans.
 
-``python -m bench.shading [--baseline REV …] [--scene S …] [--size 1280x720] [--frames 7] [--rounds 2]
-[--json OUT]``
+``python -m bench.shading [--tree REV] [--baseline REV …] [--scene S …] [--size 1280x720] [--frames 7]
+[--rounds 2] [--json OUT]``
 
-Each tree — this working tree and each ``--baseline`` revision (default :data:`LAMBERT_REVISION`,
-the tree before physically based shading, whose shader was one headlight with Lambert diffuse),
-its ``node`` and ``tessera`` packages taken out with ``git archive`` — renders every scene in a
-process of its own: the scene loaded, a :class:`node.gl.renderer.TileRenderer` with its defaults,
-the scene's default camera (:func:`tessera.geometry.default_camera`), the whole frame drawn and read
-back ``--frames`` times after one warm-up frame. The trees take turns ``--rounds`` times (so a change
-in the machine's load falls on both). Per scene and tree: ``wall_ms`` and ``cpu_ms`` (the process's
-CPU time, llvmpipe's threads included: it spreads a frame over the cores, so CPU exceeds wall), the
-medians over all rounds' frames; ``ratio_wall``/``ratio_cpu`` this tree's over the first baseline's;
-``psnr_db`` this tree's last frame against the baseline's (how much the picture differs).
+Each tree — this working tree (or the ``--tree`` revision) and each ``--baseline`` revision (default
+:data:`LAMBERT_REVISION`, the tree before physically based shading, whose shader was one headlight
+with Lambert diffuse), a revision's ``node`` and ``tessera`` packages taken out with ``git archive``
+— renders every scene in a process of its own: the scene loaded, a
+:class:`node.gl.renderer.TileRenderer` with its defaults, the scene's default camera
+(:func:`tessera.geometry.default_camera`), the whole frame drawn and read back ``--frames`` times
+after one warm-up frame. The trees take turns ``--rounds`` times (so a change in the machine's load
+falls on both). Per scene and tree: ``wall_ms`` and ``cpu_ms`` (the process's CPU time, llvmpipe's
+threads included: it spreads a frame over the cores, so CPU exceeds wall), the medians over all
+rounds' frames; ``ratio_wall``/``ratio_cpu`` this tree's over the first baseline's; ``psnr_db`` this
+tree's last frame against the baseline's (how much the picture differs).
 """
 
 from __future__ import annotations
@@ -144,6 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from node.settings import parse_size
 
     parser = argparse.ArgumentParser(prog="python -m bench.shading", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tree", help="a git revision measured instead of the working tree")
     parser.add_argument("--baseline", action="append",
                         help=f"a git revision to compare with (repeatable; default {LAMBERT_REVISION[:12]}, Lambert)")
     parser.add_argument("--scene", action="append", help="scene (repeatable; default the four scans)")
@@ -155,7 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Workers run in the trees' directories: file paths made absolute.
     scenes = [str(Path(spec).resolve()) if Path(spec).exists() else spec for spec in args.scene or DEFAULT_SCENES]
     with tempfile.TemporaryDirectory(prefix="tessera-shading-") as scratch:
-        trees = {THIS_TREE: REPO}
+        trees = {THIS_TREE: REPO if args.tree is None else extract_tree(args.tree, Path(scratch) / "tree")}
         for number, revision in enumerate(args.baseline or [LAMBERT_REVISION]):
             trees[revision] = extract_tree(revision, Path(scratch) / f"tree-{number}")
         result = measure(trees, scenes, args.size, args.frames, args.rounds, Path(scratch))
