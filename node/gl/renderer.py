@@ -75,7 +75,8 @@ import numpy as np
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
-from node.gl.shading import AUTO_MSAA, VERTEX_SHADER, ShadingOptions, fragment_shader, resolve_samples
+from node.gl.programs import ShaderPrograms
+from node.gl.shading import AUTO_MSAA, ShaderVariant, ShadingOptions, resolve_samples
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
@@ -96,6 +97,10 @@ HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
 UNIT_BASE, UNIT_FLOOR, UNIT_CEIL = 0, 1, 2
 UNIT_METALLIC_ROUGHNESS, UNIT_NORMAL, UNIT_OCCLUSION, UNIT_EMISSIVE = 3, 4, 5, 6
 UNIT_SPECULAR, UNIT_LUT = 7, 8
+SAMPLER_UNITS = {"u_texture": UNIT_BASE, "u_floor": UNIT_FLOOR, "u_ceil": UNIT_CEIL,
+                 "u_metallic_roughness": UNIT_METALLIC_ROUGHNESS, "u_normal_texture": UNIT_NORMAL,
+                 "u_occlusion": UNIT_OCCLUSION, "u_emissive_texture": UNIT_EMISSIVE, "u_specular_map": UNIT_SPECULAR,
+                 "u_brdf_lut": UNIT_LUT}
 
 
 #: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
@@ -208,27 +213,13 @@ class TileRenderer:
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.lighting = ImageLighting(ctx, lighting)
-        #: The programs by :meth:`_program_index`: without and with texture lookups, then the same two
-        #: with fragment discards (:func:`node.gl.shading.fragment_shader`).
-        self.programs = tuple(ctx.program(vertex_shader=VERTEX_SHADER,
-                                          fragment_shader=fragment_shader(textured, discards))
-                              for discards in (False, True) for textured in (False, True))
-        for program in self.programs:
-            for name, unit in (("u_texture", UNIT_BASE), ("u_floor", UNIT_FLOOR), ("u_ceil", UNIT_CEIL),
-                               ("u_metallic_roughness", UNIT_METALLIC_ROUGHNESS), ("u_normal_texture", UNIT_NORMAL),
-                               ("u_occlusion", UNIT_OCCLUSION), ("u_emissive_texture", UNIT_EMISSIVE),
-                               ("u_specular_map", UNIT_SPECULAR), ("u_brdf_lut", UNIT_LUT)):
-                if program.get(name, None) is not None:
-                    program[name].value = unit
-        #: Per batch, whether it is drawn by the textured program (index 1 of :attr:`programs`).
-        self.textured = [batch.uvs is not None and (batch.texture is not None or batch.material.textured)
-                         for batch in scene.batches]
         vertices, indices = pack_geometry(scene.batches) if packed is None else packed
         self.vertex_buffer = ctx.buffer(vertices)
         self.index_buffer = ctx.buffer(indices)
-        self.vertex_arrays = tuple(ctx.vertex_array(
-            program, [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
-            index_buffer=self.index_buffer, index_element_size=4, skip_errors=True) for program in self.programs)
+        #: The programs of the batches' shader variants, without and with discards (:meth:`_program_key`).
+        self.shaders = ShaderPrograms(
+            ctx, scene.batches, [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
+            self.index_buffer, SAMPLER_UNITS)
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
@@ -505,7 +496,7 @@ class TileRenderer:
         model = None
         for number, first, count in draws:
             self._use_material(framebuffer, number)
-            vertex_array = self.vertex_arrays[self._program_index(number)]
+            vertex_array = self.shaders.vertex_arrays[self._program_key(number)]
             owner = int(pose.owner[number])
             if (key := owner if pose.moved[owner] else -1) != model:
                 model = key
@@ -525,33 +516,28 @@ class TileRenderer:
     def _use_camera(self, camera: Camera, lod_bias: float = 0.0) -> None:
         """Set what shading takes from the camera (eye, key light) and the draw (the textures' LOD
         bias, of textured batches), and bind the environment."""
-        for program in self.programs:
-            if "u_lod_bias" in program:
-                program["u_lod_bias"].value = lod_bias
+        self._set_uniform("u_lod_bias", lod_bias)
         self._set_uniform("u_light_direction", headlight_direction(camera))
         self._set_uniform("u_eye", tuple(float(v) for v in camera.eye))
         self._set_uniform("u_key_light", float(self.shading.key_light))
-        for program in self.programs:
+        for program in self.shaders.programs.values():
             self.lighting.use(program, UNIT_SPECULAR, UNIT_LUT)
 
     def _set_uniform(self, name: str, value: Any) -> None:
         """Set uniform ``name`` of the programs that have it."""
-        for program in self.programs:
-            if name in program:
-                program[name].value = value
+        self.shaders.set(name, value)
 
-    def _program_index(self, number: int) -> int:
-        """Batch ``number``'s program: textured or not, with discards when it is alpha-masked or
+    def _program_key(self, number: int) -> tuple[ShaderVariant, bool]:
+        """Batch ``number``'s program: its shader variant, with discards when it is alpha-masked or
         peeled. Without discards the depth test runs before the shader, so fragments behind what is
         drawn are not shaded (chunks come nearest first: :mod:`node.culling.order`)."""
-        discards = self._peeling or self.scene.batches[number].alpha_mode == "MASK"
-        return self.textured[number] + 2 * discards
+        return self.shaders.key(number, self._peeling or self.scene.batches[number].alpha_mode == "MASK")
 
     def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
         """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
         model = np.identity(4) if owner < 0 else pose.models[owner]
         matrix, normal = (view_proj, np.identity(3)) if owner < 0 else (view_proj @ model, pose.normals[owner])
-        for program in self.programs:
+        for program in self.shaders.programs.values():
             program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
             program["u_model"].write(np.asarray(model).T.astype(np.float32).tobytes())
             program["u_normal_matrix"].write(normal.T.astype(np.float32).tobytes())
@@ -566,18 +552,21 @@ class TileRenderer:
             self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
         material = batch.material
-        program = self.programs[self._program_index(number)]
+        key = self._program_key(number)
+        variant, program = key[0], self.shaders.programs[key]
         program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
         if "u_alpha_cutoff" in program:
             program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
         program["u_metallic"].value = material.metallic
         program["u_roughness"].value = material.roughness
         program["u_emissive"].value = material.emissive
-        if not self.textured[number]:
+        if not variant.textured:
             return
-        program["u_normal_scale"].value = material.normal_scale
+        if variant.normal_map:
+            program["u_normal_scale"].value = material.normal_scale
+        if variant.uv_transform:
+            self.shaders.use_uv_transforms(program, batch)
         program["u_occlusion_strength"].value = material.occlusion_strength
-        program["u_normal_mapped"].value = material.normal_texture is not None and batch.uvs is not None
         for image, srgb, unit in ((batch.texture, True, UNIT_BASE),
                                   (material.metallic_roughness_texture, False, UNIT_METALLIC_ROUGHNESS),
                                   (material.normal_texture, False, UNIT_NORMAL),
@@ -596,7 +585,8 @@ class TileRenderer:
         self.lighting.release()
         for texture in self.textures.values():
             texture.release()
-        for resource in (self.white, *self.vertex_arrays, self.index_buffer, self.vertex_buffer, *self.programs):
+        self.shaders.release()
+        for resource in (self.white, self.index_buffer, self.vertex_buffer):
             resource.release()
 
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from node.culling.switch import SOFTWARE_RENDERERS
+from node.scene.mesh import MeshBatch
 
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
@@ -87,7 +88,6 @@ vec3 irradiance_odd(vec3 n) {
 """
 
 VERTEX_SHADER = """
-#version 330
 uniform mat4 u_view_projection;
 uniform mat4 u_model;
 uniform mat3 u_normal_matrix;
@@ -100,16 +100,35 @@ out vec3 v_position;
 out vec3 v_normal;
 out vec2 v_uv;
 out vec4 v_color;
+#if !NORMAL_MAP
 out vec3 v_irradiance_even;
 out vec3 v_irradiance_odd;
+#endif
+#if TANGENTS
+in vec4 in_tangent;
+out vec4 v_tangent;
+#endif
+#if UV1
+in vec2 in_uv1;
+out vec2 v_uv1;
+#endif
 """ + IRRADIANCE + """
 void main() {
     v_position = (u_model * vec4(in_position, 1.0)).xyz;
     v_normal = u_normal_matrix * in_normal;
+#if !NORMAL_MAP
     float normal_length = length(v_normal);
     vec3 n = normal_length > 0.0 ? v_normal / normal_length : normalize(u_eye - v_position);
     v_irradiance_even = irradiance_even(n);
     v_irradiance_odd = irradiance_odd(n);
+#endif
+#if TANGENTS
+    // A mirroring model matrix turns the bitangent round (the normal matrix has its determinant's sign).
+    v_tangent = vec4(mat3(u_model) * in_tangent.xyz, in_tangent.w * sign(determinant(u_normal_matrix)));
+#endif
+#if UV1
+    v_uv1 = in_uv1;
+#endif
     v_uv = in_uv;
     v_color = in_color;
     gl_Position = u_view_projection * vec4(in_position, 1.0);
@@ -124,7 +143,6 @@ uniform float u_roughness;
 uniform vec3 u_emissive;
 uniform float u_normal_scale;
 uniform float u_occlusion_strength;
-uniform bool u_normal_mapped;
 uniform float u_alpha_cutoff;
 uniform float u_lod_bias;   // a progressive still's sample reads textures finer (issue 20)
 uniform sampler2D u_texture;
@@ -146,10 +164,34 @@ in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
 in vec4 v_color;
+#if !NORMAL_MAP
 in vec3 v_irradiance_even;
 in vec3 v_irradiance_odd;
+#endif
+#if TANGENTS
+in vec4 v_tangent;
+#endif
+#if UV1
+in vec2 v_uv1;
+#endif
 out vec4 f_color;
 """ + IRRADIANCE + """
+#if UV_TRANSFORM
+// Per texture slot (base colour, metallic-roughness, normal, occlusion, emissive): its coordinate
+// set and KHR_texture_transform (node.scene.material.UvTransform).
+uniform mat3x2 u_uv_matrix[5];
+uniform int u_uv_set[5];
+#endif
+
+vec2 slot_uv(int slot) {
+#if UV_TRANSFORM && UV1
+    return u_uv_matrix[slot] * vec3(u_uv_set[slot] == 1 ? v_uv1 : v_uv, 1.0);
+#elif UV_TRANSFORM
+    return u_uv_matrix[slot] * vec3(v_uv, 1.0);
+#else
+    return v_uv;
+#endif
+}
 // sRGB encoding: 1.055·c^(1/2.4) − 0.055 fitted by c, √c, c^(1/4), c^(1/8) (least squares on
 // [0.0031308, 1], within 0.015 of an 8-bit level: three square roots cost less than a pow on llvmpipe).
 vec3 linear_to_srgb(vec3 c) {
@@ -201,11 +243,13 @@ float distribution_ggx(float n_dot_h, float a2) {
     return a2 / (PI * f * f);
 }
 
-vec3 perturbed_normal(vec3 n, vec3 tangent_normal) {
+// The tangent frame from the screen-space derivatives of position and the normal map's coordinates
+// ``uv`` (Schüler 2006), for meshes without tangents.
+vec3 perturbed_normal(vec3 n, vec3 tangent_normal, vec2 uv) {
     vec3 dp1 = dFdx(v_position);
     vec3 dp2 = dFdy(v_position);
-    vec2 duv1 = dFdx(v_uv);
-    vec2 duv2 = dFdy(v_uv);
+    vec2 duv1 = dFdx(uv);
+    vec2 duv2 = dFdy(uv);
     vec3 dp2perp = cross(dp2, n);
     vec3 dp1perp = cross(n, dp1);
     vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
@@ -225,8 +269,8 @@ void main() {
     }
 #endif
 #if TEXTURED
-    vec4 base = u_base_color * v_color * texture(u_texture, v_uv, u_lod_bias);
-    vec4 metal_rough = texture(u_metallic_roughness, v_uv, u_lod_bias);
+    vec4 base = u_base_color * v_color * texture(u_texture, slot_uv(0), u_lod_bias);
+    vec4 metal_rough = texture(u_metallic_roughness, slot_uv(1), u_lod_bias);
     float metallic = clamp(u_metallic * metal_rough.b, 0.0, 1.0);
     float roughness = clamp(u_roughness * metal_rough.g, 0.0, 1.0);
 #else
@@ -242,17 +286,32 @@ void main() {
 
     vec3 v = normalize(u_eye - v_position);
     float normal_length = length(v_normal);
-    vec3 n = normal_length > 0.0 ? v_normal / normal_length : v;
-    // Two-sided: a normal facing away is flipped, and E(−n) is the even part less the odd one.
-    float side = dot(n, v) < 0.0 ? -1.0 : 1.0;
-    n *= side;
-    vec3 diffuse_light = max(v_irradiance_even + side * v_irradiance_odd, vec3(0.0));
-#if TEXTURED
-    if (u_normal_mapped) {
-        vec3 mapped = texture(u_normal_texture, v_uv, u_lod_bias).rgb * 2.0 - 1.0;
-        n = perturbed_normal(n, normalize(mapped * vec3(u_normal_scale, u_normal_scale, 1.0)));
-        diffuse_light = max(irradiance_even(n) + irradiance_odd(n), vec3(0.0));
+    vec3 geometric = normal_length > 0.0 ? v_normal / normal_length : v;
+    // Two-sided: a normal facing away is flipped (its tangent frame with it), and E(−n) is the
+    // even part less the odd one.
+    float side = dot(geometric, v) < 0.0 ? -1.0 : 1.0;
+    vec3 n = geometric * side;
+#if NORMAL_MAP
+    vec2 normal_uv = slot_uv(2);
+    vec3 mapped = texture(u_normal_texture, normal_uv, u_lod_bias).rgb * 2.0 - 1.0;
+    mapped = normalize(mapped * vec3(u_normal_scale, u_normal_scale, 1.0));
+#if TANGENTS
+    // The file's tangent, made orthogonal to the normal; bitangent = cross(normal, tangent) · w.
+    vec3 t = v_tangent.xyz - geometric * dot(geometric, v_tangent.xyz);
+    float t_length2 = dot(t, t);
+    if (t_length2 > 0.0) {
+        t *= inversesqrt(t_length2);
+        vec3 b = cross(geometric, t) * (v_tangent.w < 0.0 ? -1.0 : 1.0);
+        n = side * normalize(mat3(t, b, geometric) * mapped);
+    } else {
+        n = perturbed_normal(n, mapped, normal_uv);
     }
+#else
+    n = perturbed_normal(n, mapped, normal_uv);
+#endif
+    vec3 diffuse_light = max(irradiance_even(n) + irradiance_odd(n), vec3(0.0));
+#else
+    vec3 diffuse_light = max(v_irradiance_even + side * v_irradiance_odd, vec3(0.0));
 #endif
     float n_dot_v = clamp(dot(n, v), 1e-4, 1.0);
     vec3 c_diff = base.rgb * (1.0 - metallic);
@@ -271,7 +330,7 @@ void main() {
     vec3 k_d = c_diff * (1.0 - fss_ess - fms_ems);
     vec3 color = fss_ess * specular_light + (fms_ems + k_d) * diffuse_light;
 #if TEXTURED
-    float occlusion = texture(u_occlusion, v_uv, u_lod_bias).r;
+    float occlusion = texture(u_occlusion, slot_uv(3), u_lod_bias).r;
     color *= 1.0 + u_occlusion_strength * (occlusion - 1.0);
 #endif
 
@@ -287,7 +346,7 @@ void main() {
     }
 
 #if TEXTURED
-    color += u_emissive * texture(u_emissive_texture, v_uv, u_lod_bias).rgb;
+    color += u_emissive * texture(u_emissive_texture, slot_uv(4), u_lod_bias).rgb;
 #else
     color += u_emissive;
 #endif
@@ -296,7 +355,44 @@ void main() {
 """
 
 
-def fragment_shader(textured: bool, discards: bool) -> str:
-    """The fragment shader for batches with textures (``textured``) or without any, and with the
-    fragment discards of alpha masks and depth peeling (``discards``) or without."""
-    return f"#version 330\n#define TEXTURED {int(textured)}\n#define DISCARDS {int(discards)}\n{FRAGMENT_SHADER}"
+@dataclass(frozen=True, order=True, slots=True)
+class ShaderVariant:
+    """What a batch's shaders do beyond the plain path (each a ``#define``, so what a batch lacks
+    costs nothing): ``textured``, texture lookups (a batch with texture coordinates and any
+    texture); ``normal_map``, a tangent-space normal map (diffuse image light then per pixel);
+    ``tangents``, the file's tangents under it (else the frame derived per pixel); ``uv_transform``,
+    a texture reads a transformed or second coordinate set (``KHR_texture_transform``,
+    ``texCoord``); ``uv1``, the second set."""
+
+    textured: bool = False
+    normal_map: bool = False
+    tangents: bool = False
+    uv_transform: bool = False
+    uv1: bool = False
+
+    @classmethod
+    def of(cls, batch: MeshBatch) -> ShaderVariant:
+        material = batch.material
+        if batch.uvs is None or (batch.texture is None and not material.textured):
+            return cls()
+        normal_map = material.normal_texture is not None
+        return cls(True, normal_map, normal_map and batch.tangents is not None, material.uv_transformed,
+                   material.uv_transformed and batch.uvs1 is not None)
+
+    def source(self, body: str, discards: bool = False) -> str:
+        """``body`` (:data:`VERTEX_SHADER` or :data:`FRAGMENT_SHADER`) with this variant's defines and
+        ``DISCARDS`` (the fragment discards of alpha masks and depth peeling)."""
+        flags = {"TEXTURED": self.textured, "NORMAL_MAP": self.normal_map, "TANGENTS": self.tangents,
+                 "UV_TRANSFORM": self.uv_transform, "UV1": self.uv1, "DISCARDS": discards}
+        return "#version 330\n" + "".join(f"#define {name} {int(on)}\n" for name, on in flags.items()) + body
+
+
+def vertex_shader(variant: ShaderVariant) -> str:
+    """The vertex shader of ``variant``."""
+    return variant.source(VERTEX_SHADER)
+
+
+def fragment_shader(variant: ShaderVariant, discards: bool) -> str:
+    """The fragment shader of ``variant``, with the fragment discards of alpha masks and depth
+    peeling (``discards``) or without."""
+    return variant.source(FRAGMENT_SHADER, discards)

@@ -171,8 +171,4 @@ def _vertices_in_first_use_order(batch: MeshBatch) -> MeshBatch:
                             np.setdiff1d(np.arange(batch.vertex_count), used, assume_unique=True)])
     new_index = np.empty_like(order)
     new_index[order] = np.arange(order.size)
-    return dataclasses.replace(
-        batch, positions=batch.positions[order], normals=batch.normals[order],
-        uvs=None if batch.uvs is None else batch.uvs[order],
-        colors=None if batch.colors is None else batch.colors[order],
-        faces=new_index[batch.faces].astype(np.uint32))
+    return batch.with_vertices(order, new_index[batch.faces])

@@ -74,10 +74,11 @@ class SceneData:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of its batches' arrays (positions, normals, faces, uvs, colours, textures), an
-        array batches share (a texture) once."""
+        """Bytes of its batches' arrays (positions, normals, faces, uvs, colours, textures, tangents,
+        second uvs), an array batches share (a texture) once."""
         arrays = {id(a): a for b in self.batches
-                  for a in (b.positions, b.normals, b.faces, b.uvs, b.colors, b.texture) if a is not None}
+                  for a in (b.positions, b.normals, b.faces, b.uvs, b.colors, b.texture, b.tangents, b.uvs1)
+                  if a is not None}
         return sum(a.nbytes for a in arrays.values())
 
     def state_at(self, time: float, overrides: Mapping[str, ObjectPatch] | None = None) -> SceneState:

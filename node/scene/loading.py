@@ -28,6 +28,7 @@ import numpy as np
 
 from node.scene.builtin import build_builtin_scene
 from node.scene.data import SceneData
+from node.scene.gltf_vertices import VertexExtras, position_key, vertex_extras
 from node.scene.material import DEFAULT_METALLIC, DEFAULT_ROUGHNESS, MaterialExtras, SurfaceMaterial, material_extras
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
@@ -71,8 +72,8 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
         raise SceneError(f"{spec}: corrupt or unreadable {suffix[1:].upper()} ({_one_line(exc)})") from None
     report(0.5, f"read {path.name} in {time.perf_counter() - started:.1f} s; baking instances, splitting")
     try:
-        objects, owners, animations, extras_by_name = _file_objects(path, loaded)
-        batches = batches_from_trimesh(loaded, owners, extras_by_name)
+        objects, owners, animations, extras_by_name, vertices_by_key = _file_objects(path, loaded)
+        batches = batches_from_trimesh(loaded, owners, extras_by_name, vertices_by_key)
     except SceneError as exc:
         raise SceneError(f"{spec}: {exc}") from None
     except Exception as exc:
@@ -81,19 +82,20 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
 
 
 def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...],
-                                                  dict[str, MaterialExtras]]:
+                                                  dict[str, MaterialExtras], dict[bytes, VertexExtras]]:
     """The objects of the file at ``path`` (loaded as the trimesh ``scene``), each geometry node's
     owner among them (None: all the first's), the file's animations and what trimesh drops of its
-    materials, by name."""
+    materials, by name, and of its vertices, by :func:`node.scene.gltf_vertices.position_key`."""
     if path.suffix.lower() in GLTF_SUFFIXES:
         document = read_gltf(path)
         objects, index = gltf_objects(document.json)
         extras_by_name = material_extras(document.json)
+        vertices_by_key = vertex_extras(document)
         if objects:
             owners = geometry_owners(scene.graph, objects)
-            return objects, owners, file_animations(document, index, objects), extras_by_name
-        return [SceneObject(path.stem)], None, (), extras_by_name
-    return [SceneObject(path.stem)], None, (), {}
+            return objects, owners, file_animations(document, index, objects), extras_by_name, vertices_by_key
+        return [SceneObject(path.stem)], None, (), extras_by_name, vertices_by_key
+    return [SceneObject(path.stem)], None, (), {}, {}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -102,9 +104,11 @@ def _one_line(exc: BaseException) -> str:
 
 
 def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None,
-                         extras_by_name: Mapping[str, MaterialExtras] | None = None) -> list[MeshBatch]:
+                         extras_by_name: Mapping[str, MaterialExtras] | None = None,
+                         vertices_by_key: Mapping[bytes, VertexExtras] | None = None) -> list[MeshBatch]:
     """World-space batches of a ``trimesh.Scene``: one per (graph node, triangle mesh), owned by
-    object ``owners[graph node]`` (None: object 0); ``extras_by_name``: :class:`MaterialExtras` by material name."""
+    object ``owners[graph node]`` (None: object 0); ``extras_by_name``: :class:`MaterialExtras` by
+    material name; ``vertices_by_key``: tangents and second uvs by the meshes' positions."""
     import trimesh
 
     textures: dict[int, np.ndarray] = {}
@@ -116,12 +120,13 @@ def batches_from_trimesh(scene: Any, owners: Mapping[str, int] | None = None,
             continue
         owner = 0 if owners is None else owners[node_name]
         batches.append(_batch_from_mesh(f"{node_name}/{geometry_name}", mesh, transform, textures, owner,
-                                        extras_by_name or {}))
+                                        extras_by_name or {}, vertices_by_key or {}))
     return batches
 
 
 def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict[int, np.ndarray],
-                     owner: int, extras_by_name: Mapping[str, MaterialExtras]) -> MeshBatch:
+                     owner: int, extras_by_name: Mapping[str, MaterialExtras],
+                     vertices_by_key: Mapping[bytes, VertexExtras]) -> MeshBatch:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
@@ -129,7 +134,7 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
     # Normals the file provides are in trimesh's cache; otherwise compute smooth ones.
     given_normals = "vertex_normals" in mesh._cache
     normals = np.asarray(mesh.vertex_normals, dtype=np.float64) if given_normals else None
-    uvs = colors = texture = None
+    uvs = colors = texture = tangents = uvs1 = None
     base_color = np.asarray(DEFAULT_BASE_COLOR, dtype=np.float32)
     alpha_mode, alpha_cutoff = "OPAQUE", 0.5
     surface = SurfaceMaterial()
@@ -148,6 +153,8 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
             uvs = np.asarray(visual.uv, dtype=np.float32)
         if image is not None and has_uvs:
             texture = _texture_array(image, textures)
+        if uvs is not None and vertices_by_key:
+            tangents, uvs1 = _vertex_extras(surface, vertices_by_key.get(position_key(vertices)), transform)
         alpha_mode = str(getattr(material, "alphaMode", None) or "OPAQUE").upper()
         cutoff = getattr(material, "alphaCutoff", None)
         alpha_cutoff = 0.5 if cutoff is None else float(cutoff)
@@ -182,7 +189,25 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         alpha_cutoff=alpha_cutoff,
         owner=owner,
         material=surface,
+        tangents=tangents,
+        uvs1=uvs1,
     )
+
+
+def _vertex_extras(surface: SurfaceMaterial, extras: VertexExtras | None,
+                   transform: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The tangents (in world space: xyz by the node's linear part, w negated where it mirrors) and
+    second uvs of a textured mesh, each kept only when its material uses them."""
+    if extras is None:
+        return None, None
+    tangents = None
+    if extras.tangents is not None and surface.normal_texture is not None:
+        linear = transform[:3, :3]
+        xyz = _normalize(extras.tangents[:, :3].astype(np.float64) @ linear.T)
+        w = np.where(extras.tangents[:, 3:] < 0.0, -1.0, 1.0) * np.sign(np.linalg.det(linear))
+        tangents = np.concatenate([xyz, w], axis=1).astype(np.float32)
+    uses_set_1 = any(uv.uv_set == 1 for uv in surface.uv_transforms)
+    return tangents, extras.uvs1 if uses_set_1 else None
 
 
 def _texture_array(image: Any, textures: dict[int, np.ndarray]) -> np.ndarray:
@@ -211,6 +236,7 @@ def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: d
         return _texture_array(image, textures) if image is not None and has_uvs else None
 
     return SurfaceMaterial(
+        uv_transforms=extras.uv_transforms,
         metallic=float(np.clip(default_metallic if metallic is None else metallic, 0.0, 1.0)),
         roughness=float(np.clip(default_roughness if roughness is None else roughness, 0.0, 1.0)),
         emissive=(float(emissive_rgb[0]), float(emissive_rgb[1]), float(emissive_rgb[2])),

@@ -3,6 +3,7 @@ No GL here."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +28,9 @@ class MeshBatch:
     sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
     ``material``: metallic, roughness, emission and the other maps (:mod:`node.scene.material`).
     ``owner``: the index of the scene object it belongs to (:class:`tessera.scene.graph.ObjectGraph`),
-    whose model matrix moves it.
+    whose model matrix moves it. ``tangents`` (N, 4) float32: a glTF file's TANGENTs in world space
+    (unit xyz, w = ±1 the bitangent's sign) or None; ``uvs1`` (N, 2) float32: its TEXCOORD_1 (origin
+    bottom-left) or None.
     """
 
     name: str
@@ -42,6 +45,8 @@ class MeshBatch:
     alpha_cutoff: float = 0.5
     owner: int = 0
     material: SurfaceMaterial = field(default_factory=SurfaceMaterial)
+    tangents: np.ndarray | None = None
+    uvs1: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -50,6 +55,16 @@ class MeshBatch:
     @property
     def vertex_count(self) -> int:
         return len(self.positions)
+
+    def with_vertices(self, order: np.ndarray, faces: np.ndarray) -> MeshBatch:
+        """This batch with vertices ``order`` (M,) (indices of its vertices: every per-vertex array
+        taken in that order) and ``faces`` (F', 3) indexing them."""
+        def take(values: np.ndarray | None) -> np.ndarray | None:
+            return None if values is None else values[order]
+
+        return dataclasses.replace(self, positions=self.positions[order], normals=self.normals[order],
+                                   uvs=take(self.uvs), colors=take(self.colors), tangents=take(self.tangents),
+                                   uvs1=take(self.uvs1), faces=np.asarray(faces, np.uint32))
 
     def bounds(self) -> np.ndarray:
         """World-space AABB (2, 3) float64 of the vertices the faces use."""

@@ -17,6 +17,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from node.scene.gltf_vertices import needs_vertex_extras
 from node.scene.mesh import SceneError
 from tessera.scene.animation import Animation, parse_animations
 from tessera.scene.gltf import GltfDocument, GltfError, read_document
@@ -28,7 +29,8 @@ GLTF_SUFFIXES = (".gltf", ".glb")
 
 def read_gltf(path: Path) -> GltfDocument:
     """The glTF document at ``path`` with its buffers (external ones read beside it); raises
-    SceneError. Buffers are read only when the file has animations (nothing else here needs them)."""
+    SceneError. Buffers are read only when the file has animations or vertex attributes trimesh
+    drops (:func:`node.scene.gltf_vertices.needs_vertex_extras`): nothing else here needs them."""
     data = path.read_bytes()
 
     def read_uri(uri: str) -> bytes:
@@ -39,7 +41,7 @@ def read_gltf(path: Path) -> GltfDocument:
 
     try:
         outline = read_document(data, lambda uri: b"")
-        if not outline.json.get("animations"):
+        if not outline.json.get("animations") and not needs_vertex_extras(outline.json):
             return outline
         return read_document(data, read_uri)
     except GltfError as exc:

@@ -50,8 +50,4 @@ def _with_used_vertices(batch: MeshBatch) -> MeshBatch:
     used = np.unique(batch.faces.reshape(-1))
     renumber = np.zeros(batch.vertex_count, np.uint32)
     renumber[used] = np.arange(used.size, dtype=np.uint32)
-    return dataclasses.replace(
-        batch, positions=batch.positions[used], normals=batch.normals[used],
-        uvs=None if batch.uvs is None else batch.uvs[used],
-        colors=None if batch.colors is None else batch.colors[used],
-        faces=renumber[batch.faces])
+    return batch.with_vertices(used, renumber[batch.faces])

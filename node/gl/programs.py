@@ -1,0 +1,90 @@
+"""The GL programs a scene's batches are drawn with: one per :class:`node.gl.shading.ShaderVariant`
+its batches need, with and without fragment discards, each with its vertex array over the scene's
+buffers; and the buffer of the vertex attributes only some files carry (tangents, a second uv set).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import moderngl
+import numpy as np
+
+from node.gl.shading import ShaderVariant, fragment_shader, vertex_shader
+from node.scene.mesh import MeshBatch
+
+#: Layout of :func:`vertex_extras`: tangent (xyz, w), second uv set.
+EXTRAS_FORMAT = "4f 2f"
+EXTRAS_ATTRIBUTES = ("in_tangent", "in_uv1")
+#: Per texture slot (:data:`node.scene.material.TEXTURE_SLOTS`) one uv matrix and set.
+SLOT_COUNT = 5
+
+
+def vertex_extras(batches: Sequence[MeshBatch]) -> np.ndarray | None:
+    """(V, 6) float32 rows of tangent and second uv for all ``batches``' vertices in order (zeros
+    where a batch has none: a zero tangent makes the shader derive the frame), or None when no
+    batch has either."""
+    if all(batch.tangents is None and batch.uvs1 is None for batch in batches):
+        return None
+    parts = []
+    for batch in batches:
+        count = batch.vertex_count
+        tangents = batch.tangents if batch.tangents is not None else np.zeros((count, 4), np.float32)
+        uvs1 = batch.uvs1 if batch.uvs1 is not None else np.zeros((count, 2), np.float32)
+        parts.append(np.concatenate([tangents, uvs1], axis=1, dtype=np.float32))
+    return np.concatenate(parts)
+
+
+class ShaderPrograms:
+    """The programs of ``batches`` on ``ctx``: for each variant they need (:attr:`variants`, one a
+    batch), without and with discards; vertex arrays over ``content`` (the renderer's vertex buffer
+    specs) and :func:`vertex_extras` when any batch has them, drawing ``index_buffer`` (uint32);
+    samplers bound to ``units`` (uniform name → texture unit)."""
+
+    def __init__(self, ctx: moderngl.Context, batches: Sequence[MeshBatch], content: list[tuple[Any, ...]],
+                 index_buffer: moderngl.Buffer, units: Mapping[str, int]) -> None:
+        self.variants = [ShaderVariant.of(batch) for batch in batches]
+        extras = vertex_extras(batches)
+        self.extras = None if extras is None else ctx.buffer(extras)
+        if self.extras is not None:
+            content = [*content, (self.extras, EXTRAS_FORMAT, *EXTRAS_ATTRIBUTES)]
+        self.programs: dict[tuple[ShaderVariant, bool], moderngl.Program] = {}
+        self.vertex_arrays: dict[tuple[ShaderVariant, bool], moderngl.VertexArray] = {}
+        for variant in sorted(set(self.variants)):
+            for discards in (False, True):
+                program = ctx.program(vertex_shader=vertex_shader(variant),
+                                      fragment_shader=fragment_shader(variant, discards))
+                for name, unit in units.items():
+                    if name in program:
+                        program[name].value = unit
+                self.programs[variant, discards] = program
+                self.vertex_arrays[variant, discards] = ctx.vertex_array(
+                    program, content, index_buffer=index_buffer, index_element_size=4, skip_errors=True)
+
+    def key(self, number: int, discards: bool) -> tuple[ShaderVariant, bool]:
+        """The program key of batch ``number`` drawn with or without discards."""
+        return self.variants[number], discards
+
+    def set(self, name: str, value: Any) -> None:
+        """Set uniform ``name`` of every program that has it."""
+        for program in self.programs.values():
+            if name in program:
+                program[name].value = value
+
+    def use_uv_transforms(self, program: moderngl.Program, batch: MeshBatch) -> None:
+        """Set ``program``'s per-slot uv matrices and sets from ``batch``'s material (a program of a
+        variant with ``uv_transform``)."""
+        material = batch.material
+        transforms = [material.uv_transform(slot) for slot in range(SLOT_COUNT)]
+        # mat3x2 is column-major: the (2, 3) row-major matrix transposed.
+        matrices = np.array([np.reshape(t.matrix, (2, 3)).T for t in transforms], np.float32)
+        program["u_uv_matrix"].write(matrices.tobytes())
+        if "u_uv_set" in program:
+            program["u_uv_set"].write(np.array([t.uv_set for t in transforms], np.int32).tobytes())
+
+    def release(self) -> None:
+        for resource in (*self.vertex_arrays.values(), *self.programs.values()):
+            resource.release()
+        if self.extras is not None:
+            self.extras.release()
