@@ -14,7 +14,11 @@ and reads the frames as they come off the socket. Figures:
   mean interval between frames while moving);
 * KB per interactive frame, and the still frame: its KB, its delay after the last input, and its
   PSNR and share of pixels off by more than 8 levels against ``python -m node --render-once`` of
-  the last camera;
+  the last camera; ``refinements``: when each progressive still frame came after the last input
+  (its sample count, ms);
+* ``--rests N``: N − 1 more rests after the idle window, each after ``--rest-moving-s`` of motion:
+  ``still_after_ms_rests`` the still's delay after the last input of every rest (the first one's
+  included), their median ``still_after_ms_median``;
 * idle: frames received and the CPU cores used by the coordinator and its nodes (``/proc``),
   from 2 s after the last input for ``--idle-s`` seconds;
 * the coordinator's own figures from ``/api/stats`` (imbalance_avg, latency_ms, frames cancelled),
@@ -53,6 +57,8 @@ from tessera.wire.messages import CameraUpdate
 from tessera.wire.protocol import unpack_frame
 
 IDLE_AFTER_S = 2.0
+#: How long a rest of ``--rests`` waits for its still at most, s.
+REST_TIMEOUT_S = 10.0
 
 
 class ScriptedViewer:
@@ -86,13 +92,23 @@ class ScriptedViewer:
                 frame = unpack_frame(message)
                 with self.lock:
                     self.frames.append({"at": now, "id": frame.frame_id, "bytes": len(message), "still": frame.still,
-                                        "input": frame.input_seq, "message": message if frame.still else None})
+                                        "input": frame.input_seq, "samples": frame.samples,
+                                        "message": message if frame.still else None})
 
     def send_camera(self, camera: dict[str, Any]) -> None:
         self.seq += 1
         self.sent[self.seq] = time.perf_counter()
         self.camera = camera
         self.ws.send(CameraUpdate(camera=camera, seq=self.seq).to_text())
+
+    def wait_for_still(self, after: float, timeout: float) -> None:
+        """Until a still frame came after ``after`` (perf_counter s), at most ``timeout`` s."""
+        deadline = time.perf_counter() + timeout
+        while time.perf_counter() < deadline:
+            with self.lock:
+                if any(f["still"] and f["at"] > after for f in self.frames):
+                    return
+            time.sleep(0.02)
 
     def stop(self) -> None:
         self._stop.set()
@@ -147,10 +163,12 @@ class Run:
     idle_frames: int
     idle_cpu_s: float
     idle_wall_s: float
+    rests: list[float]
 
 
 def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer, coordinator_pid: int) -> Run:
-    """Turn the camera at ``--input-hz`` for ``--moving-s``, let go, measure the idle window."""
+    """Turn the camera at ``--input-hz`` for ``--moving-s``, let go, measure the idle window; then
+    the ``--rests`` that follow."""
     start_camera = viewer.camera
     started = next_send = time.perf_counter()
     pauses = np.random.default_rng(0)
@@ -176,8 +194,19 @@ def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer
     idle_cpu = cpu_seconds(pids) - cpu_before
     idle_wall = time.perf_counter() - idle_started
     assert stats_before is not None, "--moving-s must exceed 1 s"
-    return Run(started, last_input, stats_before, stats_moving, client.get("/api/stats").json(),
-               len(viewer.frames) - frames_before, idle_cpu, idle_wall)
+    stats_idle = client.get("/api/stats").json()
+    rests = [last_input]
+    for rest in range(1, args.rests):
+        moving_from = next_send = time.perf_counter()
+        while (now := time.perf_counter()) < moving_from + args.rest_moving_s:
+            viewer.send_camera(orbit(start_camera, 2.0 * math.pi * (args.moving_s + rest + now - moving_from)
+                                     / args.turn_s))
+            next_send += 1.0 / args.input_hz
+            time.sleep(max(0.0, next_send - time.perf_counter()))
+        rests.append(time.perf_counter())
+        viewer.wait_for_still(rests[-1], REST_TIMEOUT_S)
+    return Run(started, last_input, stats_before, stats_moving, stats_idle,
+               len(viewer.frames) - frames_before, idle_cpu, idle_wall, rests)
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -242,6 +271,12 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
     result["latency_p90_frames"] = result["latency_p90_ms"] / interval_ms
     result.update(still_kb=math.nan, still_after_ms=math.nan, still_identical=False, still_psnr_db=math.nan,
                   still_pixels_off=math.nan)
+    first_rest_end = run.rests[1] if len(run.rests) > 1 else math.inf
+    result["refinements"] = [[f["samples"], (f["at"] - run.last_input) * 1000.0] for f in frames
+                             if run.last_input < f["at"] < first_rest_end and (f["samples"] or f["still"])]
+    result["still_after_ms_rests"] = [next(((f["at"] - rest) * 1000.0 for f in frames if f["still"] and f["at"] > rest),
+                                           math.nan) for rest in run.rests]
+    result["still_after_ms_median"] = float(np.median(result["still_after_ms_rests"]))
     if stills:
         still = stills[0]
         image = viewer_frame_image(still["message"])
@@ -274,6 +309,10 @@ def report(result: dict[str, Any]) -> str:
         f"  frames          {result['kb_interactive']:.1f} KB interactive; still {result['still_kb']:.1f} KB, "
         f"{result['still_after_ms']:.0f} ms after the last input",
         f"  still vs render-once  {psnr_text}, {result['still_pixels_off']:.4%} of pixels off by > 8",
+        "  refinements     " + (" ".join(f"{samples}@{ms:.0f}" for samples, ms in result["refinements"]) or "none")
+        + " (samples@ms after the last input)",
+        f"  rest -> still   median {result['still_after_ms_median']:.0f} ms over {len(result['still_after_ms_rests'])} "
+        f"rests ({', '.join(f'{ms:.0f}' for ms in result['still_after_ms_rests'])})",
         f"  idle            {result['idle_fps']:.2f} fps, {result['idle_cores']:.3f} cores (coordinator + nodes), "
         f"from {IDLE_AFTER_S:.0f} s after the last input",
     ])
@@ -293,6 +332,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="LO,HI: a hand that stops: every --pause-every-s, no input for a random LO…HI ms "
                              "(seeded; skews fps and latency, for the still frame's quiet period)")
     parser.add_argument("--pause-every-s", type=float, default=1.0)
+    parser.add_argument("--rests", type=int, default=1,
+                        help="rests measured: the first after --moving-s, each other after --rest-moving-s (default 1)")
+    parser.add_argument("--rest-moving-s", type=float, default=1.0,
+                        help="seconds of camera motion before each rest after the first (default 1)")
     parser.add_argument("--balancer-params", default="",
                         help='JSON parameters for the balancer, set with PUT /api/balancer, e.g. \'{"tau_ms": 100}\'')
     parser.add_argument("--json", type=Path, help="write the figures here")

@@ -27,7 +27,8 @@
   converges on one node). Each count is rendered apart (its samples' texture LOD bias depends on
   it). Per scene also the
   coordinator's CPU per sample (:class:`server.still_refinement.StillRefiner`'s work on a whole
-  frame's PNG): ``decode_ms``, ``accumulate_ms`` (add and mean), ``encode_ms``.
+  frame): ``decode_ms`` (of a PNG sample), ``accumulate_ms`` (add and mean), ``encode_ms`` (the
+  converged still's PNG), ``refinement_encode_ms`` (a refinement frame's JPEG).
 - ``environment_ms``: the environment's prefiltering at start-up (once per process).
 """
 
@@ -58,6 +59,7 @@ from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.material import SurfaceMaterial
 from node.settings import parse_size
+from server.still_refinement import REFINEMENT_QUALITY
 from tessera.geometry import Camera
 from tessera.scheduling.refinement import MAX_STILL_SAMPLES, Accumulator, subsample
 from tessera.wire.codec import Codec, decode, encode
@@ -167,7 +169,8 @@ def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int],
     renderer = TileRenderer(ctx, scene)
     found: dict[int, dict[str, list[float]]] = {n: {"psnr": [], "off": []} for n in sample_counts}
     frame_ms: list[float] = []
-    coordinator: dict[str, list[float]] = {"decode_ms": [], "accumulate_ms": [], "encode_ms": []}
+    coordinator: dict[str, list[float]] = {"decode_ms": [], "accumulate_ms": [], "encode_ms": [],
+                                           "refinement_encode_ms": []}
     renderer.render_frame(cameras[0], size)
     for camera in cameras:
         reference = supersampled(renderer, camera, size)
@@ -185,6 +188,7 @@ def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int],
                 still = accumulator.mean()
                 coordinator["accumulate_ms"].append((time.thread_time() - started_cpu) * 1e3)
                 coordinator["encode_ms"].append(cpu_ms(encode, still, Codec.PNG)[1])
+                coordinator["refinement_encode_ms"].append(cpu_ms(encode, still, Codec.JPEG, REFINEMENT_QUALITY)[1])
             found[count]["psnr"].append(psnr(still, reference))
             error = np.abs(still.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
             found[count]["off"].append(float(np.mean(error > OFF_LEVELS)))
@@ -254,7 +258,8 @@ def table(result: dict[str, Any]) -> str:
                              f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
             cost = scene["coordinator"]
             lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
-                         f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms")
+                         f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms (PNG) or "
+                         f"{cost['refinement_encode_ms']:.1f} ms (a refinement's JPEG)")
     return "\n".join(lines)
 
 

@@ -509,9 +509,10 @@ class RenderService:
     def _refine(self, session: Session, job: FrameJob) -> None:
         """A progressive still's sample (issue 20): accumulated on the still thread
         (:class:`server.still_refinement.StillRefiner`), the running mean published when it is done
-        unless something changed since (input cancels the refinement at once)."""
+        and shown (the converged one, refinements of enough samples) unless something changed since
+        (input cancels the refinement at once)."""
         codec, quality = self.scheduler.sessions[job.session].codec(True)
-        done = session.refiner.submit(job.sample, job.size, self._frame_tiles(job), codec, quality)
+        done = session.refiner.submit(job.sample, job.samples, job.size, self._frame_tiles(job), codec, quality)
         loop = asyncio.get_running_loop()
 
         def back_to_the_loop(future: Future) -> None:

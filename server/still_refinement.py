@@ -1,14 +1,23 @@
 """The progressive still on the coordinator (issue 20): each sample frame of a session's still is
-decoded, added to the session's :class:`tessera.scheduling.refinement.Accumulator` and the running
-mean encoded again as the frame's tiles, on one worker thread shared by the sessions (about 0.1 s
-of CPU per 1280x720 sample: off the event loop, so input is read meanwhile). The service publishes
-the result when nothing changed since: the last sample's as the still frame.
+decoded and added to the session's :class:`tessera.scheduling.refinement.Accumulator` on one worker
+thread shared by the sessions (off the event loop, so input is read meanwhile); the running mean is
+encoded again as the frame's tiles when it is shown. The service publishes the result when
+nothing changed since: the last sample's as the still frame.
+
+What is shown of a still of N samples: the converged mean, exact, in the still codec (lossless
+PNG by default); before it, refinement frames from :data:`FIRST_SHOWN` samples on, encoded as JPEG
+(:data:`REFINEMENT_QUALITY`, 4:4:4: 3 ms a 1280x720 frame where PNG takes 13-26 ms): the first of
+them always (viewers see the still under way), the others only when no later sample waits on the
+thread already (a newer picture is about to be made). The mean of
+fewer samples would show a worse picture than the interactive frame before it (the mean of 2
+jittered samples is further from the 4×4 supersampled frame than llvmpipe's filtered one-sample
+frame; of 4 it is nearer: ``python -m bench.picture``), and each costs the coordinator's CPU beside
+the nodes rendering the next sample.
 
 Why here and not in the viewer: the converged still must also be served as one image
 (``GET /api/frame.png?still=true``), and old viewers that draw what they get show the improving
-picture; accumulating in the page instead would send the same bytes (every sample's lossless tiles)
-and spare the coordinator's encoding (about half of that CPU time, ``coordinator_cpu.still_ms``)
-but not its decoding and summing for the API.
+picture; accumulating in the page instead would send every sample's lossless tiles and spare the
+coordinator only the encoding.
 """
 
 from __future__ import annotations
@@ -22,33 +31,45 @@ from tessera.wire.codec import Codec, decode, encode
 
 #: A frame's tiles as published: (rect, codec, node slot, payload).
 Tiles = list[tuple[Rect, Codec, int, bytes]]
+#: The fewest samples a refinement frame shown holds (the mean of 4 jittered samples is the first
+#: nearer the 4×4 supersampled frame than the interactive frame: diorama / truck / engine 40.8 /
+#: 43.7 / 43.4 dB against 39.6 / 42.2 / 42.2 for the filtered one-sample frame; 2 samples 38.8 /
+#: 40.9 / 41.2 dB).
+FIRST_SHOWN = 4
+#: JPEG quality of refinement frames before the converged still (4:4:4 from 90).
+REFINEMENT_QUALITY = 95
 
 
 class StillRefiner:
     """One session's accumulated still. :meth:`submit` hands a sample's tiles to ``executor`` (one
-    thread: samples are added in order) and gives a future of the mean's tiles (None: a sample
-    came out of turn and was not added); ``pending`` counts those whose result the event loop has
-    not taken yet (:meth:`taken`)."""
+    thread: samples are added in order) and gives a future of the tiles to show (None: nothing to
+    show — a sample out of turn, not added, or a refinement not shown); ``pending`` counts those
+    whose result the event loop has not taken yet (:meth:`taken`)."""
 
     def __init__(self, executor: Executor) -> None:
         self._executor = executor
         self._accumulator: Accumulator | None = None
+        #: The newest sample submitted (read on the worker thread: a later one waits).
+        self._submitted = -1
         self.pending = 0
         #: CPU time of the worker thread spent on this session's samples, ms.
         self.cpu_ms = 0.0
 
-    def submit(self, sample: int, size: tuple[int, int], tiles: Tiles, codec: Codec,
+    def submit(self, sample: int, samples: int, size: tuple[int, int], tiles: Tiles, codec: Codec,
                quality: int) -> Future[Tiles | None]:
-        """Add sample ``sample`` (0: a new still) of a ``size`` frame, its ``tiles``; the mean's
-        tiles come encoded in ``codec`` (``quality``: JPEG only)."""
+        """Add sample ``sample`` (0: a new still) of a still of ``samples``, a ``size`` frame, its
+        ``tiles``; the converged mean's tiles come encoded in ``codec`` (``quality``: JPEG only), a
+        refinement's as JPEG."""
         self.pending += 1
-        return self._executor.submit(self._add, sample, size, tiles, codec, quality)
+        self._submitted = sample
+        return self._executor.submit(self._add, sample, samples, size, tiles, codec, quality)
 
     def taken(self) -> None:
         """The event loop took a sample's result."""
         self.pending -= 1
 
-    def _add(self, sample: int, size: tuple[int, int], tiles: Tiles, codec: Codec, quality: int) -> Tiles | None:
+    def _add(self, sample: int, samples: int, size: tuple[int, int], tiles: Tiles, codec: Codec,
+             quality: int) -> Tiles | None:
         started = time.thread_time()
         try:
             if sample == 0:
@@ -59,6 +80,10 @@ class StillRefiner:
             for rect, tile_codec, _, payload in tiles:
                 accumulator.add(decode(payload, tile_codec, rect.w, rect.h), rect.x, rect.y)
             accumulator.finish_sample()
+            if accumulator.count < samples:
+                if accumulator.count < FIRST_SHOWN or (accumulator.count > FIRST_SHOWN and self._submitted > sample):
+                    return None
+                codec, quality = Codec.JPEG, quality if codec is Codec.JPEG else REFINEMENT_QUALITY
             return [(rect, codec, slot, encode(accumulator.mean(rect.x, rect.y, rect.w, rect.h), codec, quality))
                     for rect, _, slot, _ in tiles]
         finally:

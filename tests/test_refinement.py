@@ -5,12 +5,14 @@ sample count; the coordinator's refiner."""
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
-from server.still_refinement import StillRefiner
+from bench.images import psnr
+from server.still_refinement import FIRST_SHOWN, StillRefiner
 from tessera.geometry import Camera, Rect, view_projection
 from tessera.scheduling.actions import RenderTiles
 from tessera.scheduling.refinement import (
@@ -22,6 +24,7 @@ from tessera.scheduling.refinement import (
     jitter,
     jitter_matrix,
     lod_bias,
+    mean_table,
     radical_inverse,
     subsample,
 )
@@ -89,6 +92,16 @@ def test_accumulation_is_the_rounded_mean_whatever_the_tile_order() -> None:
     assert np.array_equal(accumulate([frames[0]]), frames[0])
     with pytest.raises(ValueError):
         Accumulator((8, 6)).mean()
+    full = Accumulator((1, 1))
+    for _ in range(MAX_STILL_SAMPLES):   # the most samples of 255 still fit the sums
+        full.add(np.full((1, 1, 3), 255, np.uint8))
+        full.finish_sample()
+    assert full.mean().tolist() == [[[255, 255, 255]]]
+    with pytest.raises(ValueError):
+        full.finish_sample()
+    for count in (1, 2, 3, 8, 127):   # the table is the mean rounded half up
+        sums = np.arange(255 * count + 1)
+        assert np.array_equal(mean_table(count), np.floor(sums / count + 0.5).astype(np.uint8))
 
 
 def test_subsamples_pair_the_jitter_with_the_lod_bias_of_the_sample_density() -> None:
@@ -122,7 +135,7 @@ def test_demand_asks_for_the_still_samples_one_at_a_time_and_a_change_restarts_t
     samples = []
     while demand.owed(1.3, False, False, False) == STILL:
         samples.append(demand.started(True))
-        assert demand.owed(1.3, False, False, True) is None, "one sample in flight at a time"
+        assert demand.owed(1.3, False, False, True) is None, "nor while an interactive frame is in flight"
     assert samples == [0, 1, 2] and demand.owed(9.0, False, False, False) is None
     demand.changed(10.0)
     demand.started(False)
@@ -185,6 +198,36 @@ def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -
     assert renders(actions), "the interactive frame starts at once"
 
 
+def test_the_next_sample_goes_ahead_to_nodes_ending_the_one_before_and_input_drops_both() -> None:
+    """A node ending its tile of a sample (within its measured round trip) gets the next sample's
+    tile at once, so two samples are in flight (never more than max_in_flight) and published in
+    order; input drops both and its interactive frame starts at once."""
+    s = scheduler(still_delay_ms=200, still_samples=4)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    finish(s, 1, 0.05)
+    s.tick(0.2)
+    s.drain()
+    (first,) = s.in_flight
+    wanted = s.next_deadline(0.2)
+    assert wanted is not None and wanted < 0.3, "the nodes will want the next sample before they end this one"
+    s.tick(wanted)
+    actions = s.drain()
+    assert sorted(s.in_flight) == [first, first + 1] and [s.in_flight[f].sample for f in sorted(s.in_flight)] == [0, 1]
+    assert {frame for pairs in renders(actions).values() for frame, _ in pairs} == {first + 1}
+    assert all(len(node.outstanding) == 2 for node in s.nodes.values()), "queued behind the first sample"
+    s.tick(wanted + 0.01)
+    assert not renders(s.drain()) and len(s.in_flight) == 2, "max_in_flight holds the third back"
+    assert published(finish(s, first, 0.3)) == [first]
+    samples = set(s.in_flight)
+    assert len(samples) == 2 and all(s.in_flight[f].still for f in samples), "the third went ahead in turn"
+    s.set_camera(camera(1), 0.31)
+    actions = s.drain()
+    assert not samples & set(s.in_flight) and not any(job.still for job in s.in_flight.values())
+    assert max(samples) in {frame for frames in cancels(actions).values() for frame in frames}, "nodes skip it"
+    assert renders(actions), "the interactive frame starts at once"
+
+
 def test_a_one_sample_still_is_not_jittered() -> None:
     s = scheduler(still_delay_ms=0)
     s.set_camera(camera(), 0.0)
@@ -211,23 +254,42 @@ def test_a_refinement_frame_says_its_samples_in_the_frame_header_and_old_frames_
         pack_frame(9, (2, 1), tiles, samples=MAX_STILL_SAMPLES + 1)
 
 
-def test_the_coordinator_refiner_publishes_the_running_mean_and_skips_a_sample_out_of_turn() -> None:
-    """Samples come as tiles (two rects); the mean's tiles are the exact mean of the samples so far,
-    encoded in the still codec; a sample whose predecessor is missing is not added."""
+def test_the_coordinator_refiner_shows_the_converged_mean_exactly_and_skips_a_sample_out_of_turn() -> None:
+    """Samples come as tiles (two rects, RAW or PNG); the converged still's tiles are the exact mean
+    of the samples, encoded in the still codec; refinements of fewer than FIRST_SHOWN samples are not
+    shown, later ones as JPEG near the mean (after the first, only if no later sample waits already);
+    a sample whose predecessor is missing is not added."""
     rng = np.random.default_rng(5)
-    frames = [rng.integers(0, 256, (4, 6, 3), dtype=np.uint8) for _ in range(3)]
+    samples = FIRST_SHOWN + 2
+    frames = [rng.integers(0, 256, (4, 6, 3), dtype=np.uint8) for _ in range(samples)]
     rects = [Rect(0, 0, 4, 4), Rect(4, 0, 2, 4)]
 
-    def tiles(frame: np.ndarray) -> list:
-        return [(r, Codec.PNG, i, encode(frame[r.y:r.y1, r.x:r.x1], Codec.PNG)) for i, r in enumerate(rects)]
+    def tiles(frame: np.ndarray, codec: Codec = Codec.PNG) -> list:
+        return [(r, codec, i, encode(frame[r.y:r.y1, r.x:r.x1], codec)) for i, r in enumerate(rects)]
+
+    def image(out: list) -> np.ndarray:
+        return np.concatenate([decode(t[3], t[1], t[0].w, t[0].h) for t in out], axis=1)
 
     with ThreadPoolExecutor(1) as pool:
         refiner = StillRefiner(pool)
-        for sample in range(3):
-            out = refiner.submit(sample, (6, 4), tiles(frames[sample]), Codec.PNG, 95).result()
+        for sample in range(samples):
+            codec = Codec.RAW if sample % 2 else Codec.PNG
+            out = refiner.submit(sample, samples, (6, 4), tiles(frames[sample], codec), Codec.PNG, 95).result()
+            if sample + 1 < FIRST_SHOWN:
+                assert out is None, "too few samples to show"
+                continue
             assert out is not None and [t[0] for t in out] == rects and [t[2] for t in out] == [0, 1]
             expected = accumulate(frames[:sample + 1])
-            got = np.concatenate([decode(t[3], Codec.PNG, t[0].w, t[0].h) for t in out], axis=1)
-            assert np.array_equal(got, expected)
-        assert refiner.submit(5, (6, 4), tiles(frames[0]), Codec.PNG, 95).result() is None
-        assert refiner.pending == 4 and refiner.cpu_ms > 0.0
+            if sample + 1 < samples:
+                assert {t[1] for t in out} == {Codec.JPEG} and psnr(image(out), expected) > 30.0
+            else:
+                assert {t[1] for t in out} == {Codec.PNG} and np.array_equal(image(out), expected)
+        assert refiner.submit(samples + 2, samples, (6, 4), tiles(frames[0]), Codec.PNG, 95).result() is None
+        assert refiner.pending == samples + 1 and refiner.cpu_ms > 0.0
+        # A later sample submitted before the thread takes a refinement: that refinement is not shown.
+        gate = threading.Event()
+        pool.submit(gate.wait)
+        waiting = [refiner.submit(k, samples, (6, 4), tiles(frames[k]), Codec.PNG, 95) for k in range(samples)]
+        gate.set()
+        shown = [k + 1 for k, future in enumerate(waiting) if future.result() is not None]
+        assert shown == [FIRST_SHOWN, samples], "the first refinement shown always, then the converged still"

@@ -1,9 +1,11 @@
 """Render on demand (trame's and TurboVNC's habit, DESIGN "Render on demand"): which kind of frame
 the state asks for. A frame is owed when something changed since the newest frame started, while
 an animation plays, for at most ``settle_frames`` more frames after a change while the partition
-still moves, and, in the still codec, after nothing changed for ``still_delay_s``: the progressive
-still's ``still_samples`` frames one after the other (:mod:`tessera.scheduling.refinement`), each
-once the one before is done. Pure: the clock comes in as ``now`` (s)."""
+still moves, and, in the still codec, after nothing changed for ``still_delay_s`` and no
+interactive frame is in flight: the progressive still's ``still_samples`` frames one after the
+other (:mod:`tessera.scheduling.refinement`); a sample may start while the one before is in flight
+(the frame scheduler caps how many), so that no node idles between them. Pure: the clock comes in
+as ``now`` (s)."""
 
 from __future__ import annotations
 
@@ -42,16 +44,17 @@ class RenderDemand:
             self._still = min(self._still, version - 1)
             self.refinement.restart()
 
-    def owed(self, now: float, animating: bool, partition_moving: bool, frames_in_flight: bool,
+    def owed(self, now: float, animating: bool, partition_moving: bool, interactive_in_flight: bool,
              ignore_quiet: bool = False) -> str | None:
         """:data:`INTERACTIVE`, :data:`STILL` or None: the kind of frame owed at ``now``
-        (``ignore_quiet``: as if the still frame's quiet time had passed)."""
+        (``interactive_in_flight``: an interactive frame is in flight, which the still waits for;
+        ``ignore_quiet``: as if the still frame's quiet time had passed)."""
         if self.version > self._started or animating:
             return INTERACTIVE
         if self._settle_left > 0 and partition_moving:
             return INTERACTIVE
         quiet = ignore_quiet or now >= self.quiet_until
-        if self.still_frames and self._still < self.version and quiet and not frames_in_flight:
+        if self.still_frames and self._still < self.version and quiet and not interactive_in_flight:
             return STILL
         return None
 

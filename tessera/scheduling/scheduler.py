@@ -14,9 +14,9 @@ What it decides:
   ``settle_frames`` more frames after a change, and only while the partition still moves), or
   when the still frame is owed: once nothing changed for ``still_delay_ms``, frames in the
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality): the progressive
-  still's ``still_samples`` jittered samples, one frame after the other
-  (:mod:`tessera.scheduling.refinement`; their adapter accumulates them). Otherwise nothing
-  renders.
+  still's ``still_samples`` jittered samples, one frame after the other, the next sent ahead to
+  nodes ending their tile of the one before (:mod:`tessera.scheduling.refinement`; their adapter
+  accumulates them). Otherwise nothing renders.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
   newest camera when it starts, and it starts only when a node wants work — it has nothing left
   to do, or its last tile ends within its round trip (dispatch ahead,
@@ -533,12 +533,13 @@ class FrameScheduler:
 
     @staticmethod
     def _goes_ahead(session: SessionFrames) -> bool:
-        """A frame of ``session`` may go to a node ending its last tile: it has no frame in flight
-        (its next frame would otherwise bind its camera a whole frame early: latency over two of
-        its frame intervals, measured on the virtual clock) and does not rotate tiles (they go to
-        the first node freed; pulled ahead, a heavy tile could go to a slow node)."""
+        """A frame of ``session`` may go to a node ending its last tile: it has no interactive frame
+        in flight (its next frame would otherwise bind its camera a whole frame early: latency over
+        two of its frame intervals, measured on the virtual clock; a progressive still's next sample
+        may, the camera rests) and does not rotate tiles (they go to the first node freed; pulled
+        ahead, a heavy tile could go to a slow node)."""
         last = session.mode.tiles.last
-        return not session.frames and not (last is not None and last.pull)
+        return all(job.still for job in session.frames.values()) and not (last is not None and last.pull)
 
     def _wanting_work(self, now: float) -> set[int]:
         """The nodes that want work: the idle ones, and those ending their last tile when some

@@ -73,7 +73,8 @@ class SessionFrames:
         if self.camera is None:
             return None
         moving = self.demand.settling and self.mode.tiles.moving
-        return self.demand.owed(now, self.scene is not None and self.scene.animating, moving, bool(self.frames),
+        interactive = any(not job.still for job in self.frames.values())
+        return self.demand.owed(now, self.scene is not None and self.scene.animating, moving, interactive,
                                 ignore_quiet)
 
     def may_start(self, now: float, idle: set[int]) -> bool:
