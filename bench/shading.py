@@ -1,7 +1,7 @@
 """Shading cost (issue 20): the frame time of this tree's shader against another tree's, on the scans.
 
 ``python -m bench.shading [--tree REV] [--baseline REV …] [--scene S …] [--size 1280x720] [--frames 7]
-[--rounds 2] [--json OUT]``
+[--rounds 2] [--msaa 1] [--json OUT]``
 
 Each tree — this working tree (or the ``--tree`` revision) and each ``--baseline`` revision (default
 :data:`LAMBERT_REVISION`, the tree before physically based shading, whose shader was one headlight
@@ -9,11 +9,13 @@ with Lambert diffuse), a revision's ``node`` and ``tessera`` packages taken out 
 — renders every scene in a process of its own: the scene loaded, a
 :class:`node.gl.renderer.TileRenderer` with its defaults, the scene's default camera
 (:func:`tessera.geometry.default_camera`), the whole frame drawn and read back ``--frames`` times
-after one warm-up frame. The trees take turns ``--rounds`` times (so a change in the machine's load
-falls on both). Per scene and tree: ``wall_ms`` and ``cpu_ms`` (the process's CPU time, llvmpipe's
-threads included: it spreads a frame over the cores, so CPU exceeds wall), the medians over all
-rounds' frames; ``ratio_wall``/``ratio_cpu`` this tree's over the first baseline's; ``psnr_db`` this
-tree's last frame against the baseline's (how much the picture differs).
+after one warm-up frame, at ``--msaa`` where the tree has it (default 1: one sample and no
+anti-aliasing filter, the shading alone; 0 is auto). The trees take turns ``--rounds`` times (so a
+change in the machine's load falls on both). Per scene and tree: ``wall_ms`` and ``cpu_ms`` (the
+process's CPU time, llvmpipe's threads included: it spreads a frame over the cores, so CPU exceeds
+wall), the medians over all rounds' frames; ``ratio_wall``/``ratio_cpu`` this tree's over the first
+baseline's; ``psnr_db`` this tree's last frame against the baseline's (how much the picture
+differs).
 """
 
 from __future__ import annotations
@@ -54,12 +56,17 @@ def worker(out: Path) -> None:
 
     request = json.loads((out / "request.json").read_text())
     scenes, size, frames = request["scenes"], tuple(request["size"]), request["frames"]
+    try:
+        from node.gl.shading import ShadingOptions
+        options: dict[str, Any] = {"shading": ShadingOptions(msaa=request["msaa"])}
+    except ImportError:   # a tree before anti-aliasing: one sample, no filter
+        options = {}
     ctx = create_gl_context()
     found: dict[str, Any] = {}
     for index, spec in enumerate(scenes):
         scene = load_scene(spec)
         camera = default_camera(scene.bounds, aspect=size[0] / size[1])
-        renderer = TileRenderer(ctx, scene)
+        renderer = TileRenderer(ctx, scene, **options)
         pixels = renderer.render_frame(camera, size).pixels
         wall, cpu = [], []
         for _ in range(frames):
@@ -84,10 +91,12 @@ def extract_tree(revision: str, target: Path) -> Path:
     return target
 
 
-def run_tree(root: Path, scenes: Sequence[str], size: tuple[int, int], frames: int, out: Path) -> dict[str, Any]:
+def run_tree(root: Path, scenes: Sequence[str], size: tuple[int, int], frames: int, msaa: int,
+             out: Path) -> dict[str, Any]:
     """:func:`worker` in a process of its own with the tree at ``root`` first on the path."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "request.json").write_text(json.dumps({"scenes": list(scenes), "size": list(size), "frames": frames}))
+    request = {"scenes": list(scenes), "size": list(size), "frames": frames, "msaa": msaa}
+    (out / "request.json").write_text(json.dumps(request))
     environment = {**os.environ, "PYTHONPATH": str(root)}
     subprocess.run([sys.executable, "-m", "bench.shading", "--worker", str(out)], cwd=root, env=environment,
                    check=True)
@@ -95,7 +104,7 @@ def run_tree(root: Path, scenes: Sequence[str], size: tuple[int, int], frames: i
 
 
 def measure(trees: dict[str, Path], scenes: Sequence[str], size: tuple[int, int], frames: int,
-            rounds: int, scratch: Path) -> dict[str, Any]:
+            rounds: int, scratch: Path, msaa: int = 1) -> dict[str, Any]:
     """The figures of the module docstring; ``trees`` by name, :data:`THIS_TREE` and the baselines."""
     from bench.images import psnr, reported_psnr
 
@@ -103,7 +112,7 @@ def measure(trees: dict[str, Path], scenes: Sequence[str], size: tuple[int, int]
         name: {spec: {"wall_ms": [], "cpu_ms": []} for spec in scenes} for name in trees}
     for round_number in range(rounds):
         for tree_number, (name, root) in enumerate(trees.items()):
-            found = run_tree(root, scenes, size, frames, scratch / f"{tree_number}-{round_number}")
+            found = run_tree(root, scenes, size, frames, msaa, scratch / f"{tree_number}-{round_number}")
             for spec in scenes:
                 for key in ("wall_ms", "cpu_ms"):
                     times[name][spec][key].extend(found[spec][key])
@@ -152,6 +161,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--frames", type=int, default=7)
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--msaa", type=int, default=1,
+                        help="--msaa of trees that have it (default 1: one sample and no anti-aliasing filter)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     # Workers run in the trees' directories: file paths made absolute.
@@ -160,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         trees = {THIS_TREE: REPO if args.tree is None else extract_tree(args.tree, Path(scratch) / "tree")}
         for number, revision in enumerate(args.baseline or [LAMBERT_REVISION]):
             trees[revision] = extract_tree(revision, Path(scratch) / f"tree-{number}")
-        result = measure(trees, scenes, args.size, args.frames, args.rounds, Path(scratch))
+        result = measure(trees, scenes, args.size, args.frames, args.rounds, Path(scratch), args.msaa)
     show_result(table(result), result, args.json, argv)
     return 0
 
