@@ -7,11 +7,13 @@ and punctual light added separately, emission added, tone mapping last.
 
 Material inputs: base colour factor × vertex colour × base colour texture (sRGB), metallic and
 roughness factors × the metallic-roughness texture's B and G channels, a tangent-space normal map
-(``normalTexture.scale``; the tangent frame is generated per pixel from the screen-space
-derivatives of position and texture coordinates, Schüler 2006, as files' TANGENT attributes are
-not loaded), occlusion (R, with its strength, applied to image-based light only, as the spec
-advises), emissive factor × strength (``KHR_materials_emissive_strength``) × emissive texture
-(sRGB). Surfaces are lit two-sided: a normal facing away from the eye is flipped.
+(``normalTexture.scale``; in the frame of the file's TANGENTs, bitangent = normal × tangent · w,
+else one generated per pixel from the screen-space derivatives of position and texture
+coordinates, Schüler 2006), occlusion (R, with its strength, applied to image-based light only, as
+the spec advises), emissive factor × strength (``KHR_materials_emissive_strength``) × emissive
+texture (sRGB). Each texture reads its coordinate set (0 or 1) through its
+``KHR_texture_transform``. Surfaces are lit two-sided: a normal facing away from the eye is
+flipped, its tangent frame with it.
 
 Image-based light uses the split-sum approximation with Fdez-Agüera's multiple-scattering term
 (as the Sample Viewer), so a rough white surface in a uniform environment reflects exactly that
@@ -20,14 +22,15 @@ it keeps base colours' hue and saturation (a product viewer's need: what the fil
 shown) and is linear below 0.76.
 
 Cost on llvmpipe (README, Picture quality: ``python -m bench.shading``), where every texture lookup
-and every varying costs: four variants of the fragment shader (:func:`fragment_shader`), with texture
-lookups for batches with texture coordinates and any texture or without any (scans, most CAD parts: a
-1×1 stand-in texture costs as much as a real one), and with the discards of alpha masks and depth
-peeling or without (opaque and blended batches: the depth test then runs before the shader, and with
-chunks drawn nearest first, :mod:`node.culling.order`, hidden fragments are not shaded). Diffuse
-image light is evaluated per vertex (a quadratic in the normal, so interpolating it changes a
-dense mesh's picture by well under a level), except under a normal map; sRGB encoding by three
-square roots instead of a pow; the specular map in half floats.
+and every varying costs: variants by ``#define`` (:class:`ShaderVariant`), so what a batch lacks
+costs nothing — no texture lookup at all without textures (scans, most CAD parts: a 1×1 stand-in
+texture costs as much as a real one), tangents, a second uv set and uv transforms only where used —
+each with and without the discards of alpha masks and depth peeling (opaque and blended batches
+have none: the depth test then runs before the shader, and with chunks drawn nearest first,
+:mod:`node.culling.order`, hidden fragments are not shaded). Diffuse image light is evaluated per
+vertex (a quadratic in the normal, so interpolating it changes a dense mesh's picture by well under
+a level), except under a normal map; sRGB encoding by three square roots instead of a pow; the
+specular map in half floats.
 
 Derivatives are taken in 2×2 pixel quads of the frame-sized framebuffer every tile is drawn into,
 so a tile is still bit-identical to that region of the whole frame.
