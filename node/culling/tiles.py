@@ -138,12 +138,15 @@ class TileCuller:
                   else frustum_planes_from_matrix(view_proj, size, rect))
         return self.moved.cull(planes, batches, models)
 
-    def listed(self, chunk_ids: np.ndarray) -> TileCull:
+    def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None) -> TileCull:
         """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer
-        draws when hybrid ownership or a sort-last share decided (path "list")."""
+        draws when hybrid ownership or a sort-last share decided (path "list"); nearest first under
+        the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`)."""
         ids = np.asarray(chunk_ids, dtype=np.int64)
         heads = np.flatnonzero(np.diff(ids, prepend=-2) != 1)
-        runs = self.chunks.runs(ids[heads], np.append(ids[heads[1:] - 1], ids[-1:]) + 1)
+        first, end = ids[heads], np.append(ids[heads[1:] - 1], ids[-1:]) + 1
+        runs = (self.chunks.runs(first, end) if view_proj is None
+                else front_to_back(self.chunks, self.groups, first, end, view_proj))
         if runs.batch.size:
             self._cpu_commands.write(indirect_commands(_run_spans(runs)).tobytes())
         return TileCull("list", 0.0, self._cpu_commands, runs.batch_slices(), runs)

@@ -336,7 +336,7 @@ class TileRenderer:
         if chunk_ids is None:
             culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
         else:
-            culled = self.culler.listed(chunk_ids)
+            culled = self.culler.listed(chunk_ids, matrix)
         return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None,
                             lod_bias=0.0 if subsample is None else subsample.lod_bias)
