@@ -17,7 +17,8 @@ session of the wall's whole size moved the same way by one viewer (with ``--chro
 Chromium page watches it too): frames per second. Their ratio is what the wall costs in
 throughput; ``--rounds`` alternates the two and takes medians. Each window says how many cores
 were busy: the coordinator and its nodes, the scripted viewers, the browser, and other work on
-the machine.
+the machine; and the CPU ms the coordinator and the nodes spent per frame made (medians over the
+rounds: the nodes' wall / single, the coordinator's extra ms a wall frame).
 
 Everything shares this machine's cores: on 2 cores, N nodes, the cells and the coordinator take turns.
 """
@@ -311,10 +312,22 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         coordinator.stop(timeout=30.0)
     rounds = result["rounds"]
+    for r in rounds:
+        r["cpu_ms_per_frame"] = {name: per_frame(r[name]["cores"], fps) for name, fps in
+                                 (("wall", r["wall"]["driver_fps"]), ("single", r["single"]["fps"]))}
     result["fps_ratio"] = float(np.median([r["fps_ratio"] for r in rounds]))
+    result["nodes_cpu_ratio"] = float(np.median([r["cpu_ms_per_frame"]["wall"]["nodes"] /
+                                                 r["cpu_ms_per_frame"]["single"]["nodes"] for r in rounds]))
+    result["coordinator_extra_ms"] = float(np.median([r["cpu_ms_per_frame"]["wall"]["coordinator"] -
+                                                      r["cpu_ms_per_frame"]["single"]["coordinator"] for r in rounds]))
     result["wall_fps"] = float(np.median([r["wall"]["presented_fps"] for r in rounds]))
     result["single_fps"] = float(np.median([r["single"]["fps"] for r in rounds]))
     return result
+
+
+def per_frame(cores: dict[str, float], fps: float) -> dict[str, float]:
+    """CPU ms per frame made of the coordinator and of its nodes, from a window's cores busy at ``fps``."""
+    return {key: 1000.0 * cores[key] / fps if fps else math.nan for key in ("coordinator", "nodes")}
 
 
 def report(result: dict[str, Any]) -> str:
@@ -331,20 +344,20 @@ def report(result: dict[str, Any]) -> str:
                 f"frames), lead {wall['lead_ms']:.0f} ms")
         cores = " | ".join(f"{name} {' '.join(f'{k} {v:.2f}' for k, v in phase['cores'].items())}"
                            for name, phase in (("wall", wall), ("single", single)))
-        per_frame = " | ".join(
-            f"{name} coordinator {1000 * phase['cores']['coordinator'] / fps:.0f}, nodes "
-            f"{1000 * phase['cores']['nodes'] / fps:.0f}"
-            for name, phase, fps in (("wall", wall, wall["driver_fps"]), ("single", single, single["fps"])) if fps)
+        cpu = " | ".join(f"{name} coordinator {ms['coordinator']:.0f}, nodes {ms['nodes']:.0f}"
+                         for name, ms in phases["cpu_ms_per_frame"].items())
         lines += [f"round {number}: wall {wall['presented_fps']:5.1f} presented/s (driver {wall['driver_fps']:.1f}/s), "
                   f"single {single['fps']:5.1f}/s, ratio {phases['fps_ratio']:.3f}; {skew}",
-                  f"  cores busy: {cores}", f"  CPU ms per frame made: {per_frame}"]
+                  f"  cores busy: {cores}", f"  CPU ms per frame made: {cpu}"]
         timing = wall.get("present_timing")
         if timing:
             lines.append(f"  the pages' presents ({timing['frames']} frames every cell presented; p50/p99/max ms): " +
                          "; ".join(f"{name} {f['p50']}/{f['p99']}/{f['max']}"
                                    for name, f in timing.items() if isinstance(f, dict)))
     lines.append(f"median over {len(result['rounds'])} rounds: wall {result['wall_fps']:.1f} presented/s, single "
-                 f"{result['single_fps']:.1f}/s, wall / single throughput {result['fps_ratio']:.3f}")
+                 f"{result['single_fps']:.1f}/s, wall / single throughput {result['fps_ratio']:.3f}; CPU per frame, "
+                 f"wall / single: nodes {result['nodes_cpu_ratio']:.3f}, coordinator "
+                 f"{result['coordinator_extra_ms']:+.1f} ms")
     return "\n".join(lines)
 
 

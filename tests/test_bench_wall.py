@@ -27,7 +27,9 @@ def test_wall_bench_end_to_end(tmp_path):
         for cores in (wall["cores"], single["cores"]):
             assert cores["coordinator"] > 0 and cores["nodes"] > 0 and cores["machine"] > 0
         assert phases["fps_ratio"] > 0
+        assert all(ms["nodes"] > 0 and ms["coordinator"] > 0 for ms in phases["cpu_ms_per_frame"].values())
     assert result["fps_ratio"] > 0 and result["wall_fps"] > 0 and result["cells_are"] == "scripted"
+    assert result["nodes_cpu_ratio"] > 0 and isinstance(result["coordinator_extra_ms"], float)
 
 
 def test_present_timing_reads_the_pages_present_logs():
