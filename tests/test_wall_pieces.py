@@ -2,7 +2,8 @@
 the ``render`` message carries it (``part_of``, left out for a whole tile), the coordinator pulls a
 tile's pieces together and counts the drawing in a piece's busy time, a node draws the pieces of
 one tile as one rect and sends each piece as its own tile, the drawing's times shared out by area
-and its counters on the first piece; a real node's pieces equal its frame drawn whole."""
+and its counters on the first piece, a failed drawing one failure; a real node's pieces equal its
+frame drawn whole."""
 
 from __future__ import annotations
 
@@ -22,13 +23,15 @@ from node.tile_messages import cut_pieces
 from tessera.balancers.base import Partition, Tile
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Camera, Rect
-from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.actions import CloseNode
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.wire.codec import Codec, decode
 from tessera.wire.messages import InvalidMessage, Render, RenderTile, TilesDropped, parse
 from tessera.wire.protocol import TileHeader, unpack_tile
 from tests.conftest import seconds
 from tests.test_node_client import BACKGROUND, FakeCoordinator, receive, receive_json, send
 from tests.test_node_protocol import CAMERA, connected, drain, sent
+from tests.test_scheduler import camera, finish, renders, scheduler
 
 #: A 2×2 wall of 40×30 cells, 4 px of bezel; three strips over it, as a 3-node balancer makes them.
 WALL = WallLayout(2, 2, (40, 30), (4, 2))
@@ -193,3 +196,19 @@ def test_a_real_nodes_pieces_are_its_frame_and_its_counters_count_one_drawing(ct
         "the old form: each piece drawn on its own"
     shares = [h.render_ms / h.rect.area for h, _, _ in grouped]
     assert max(shares) == pytest.approx(min(shares)), "one drawing's time shared out by area"
+
+
+def test_the_pieces_of_one_failed_drawing_are_one_failure_in_a_row():
+    s = scheduler(nodes=2, max_tile_failures=2, still_codec=None)
+    s.sessions[DEFAULT_SESSION].wall = WallLayout(1, 2, (64, 16))   # each node's 32×32 strip: two pieces
+    s.set_camera(camera(0), 0.0)
+    assert renders(s.drain()) == {1: [(1, 0), (1, 1)], 2: [(1, 2), (1, 3)]}
+    assert [t.part_of for t in s.in_flight[1].tiles] == [Rect(0, 0, 32, 32)] * 2 + [Rect(32, 0, 32, 32)] * 2
+    s.tile_failed(2, 1, 2, 0.01)
+    s.tile_failed(2, 1, 3, 0.01)
+    assert 2 in s.nodes and s.nodes[2].failures == 1, "one drawing failed"
+    finish(s, 1, 0.02)
+    s.set_camera(camera(1), 0.03)
+    s.drain()
+    s.tile_failed(2, 2, 2, 0.04)
+    assert CloseNode(2, 1011, "2 tiles failed in a row") in s.drain(), "the next drawing's failure is the second"

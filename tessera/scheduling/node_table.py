@@ -14,6 +14,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from tessera.geometry import Rect
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.wire.protocol import ProtocolError
 
@@ -41,8 +42,9 @@ class NodeSchedule:
     to (a node keeps one state: another session's frame sends its state whole) (None:
     none yet, or unsure after a failed tile); ``lead_s``: how long before its last tile ends it is
     sent the next (its round trip: answer time − dispatch time − busy time of tiles sent to it
-    while it owed nothing, smoothed); ``fresh``: such a tile in flight and when it went; the rest
-    is the last complete frame's roll-up."""
+    while it owed nothing, smoothed); ``fresh``: such a tile in flight and when it went; ``local``:
+    it connected from the coordinator's machine (loopback); the rest is the last complete frame's
+    roll-up."""
 
     node_id: int
     slot: int
@@ -53,9 +55,13 @@ class NodeSchedule:
     suspect: bool = False
     ms_per_px: float | None = None
     failures: int = 0
+    #: The frame and wall tile (``part_of``) of its last failed piece: the other pieces of that one
+    #: drawing that fail with it are no more failures in a row (None: the last failure was no piece).
+    failed_drawing: tuple[int, Rect] | None = None
     state_sent: tuple[str, int] | None = None
     lead_s: float | None = None
     fresh: tuple[tuple[int, int], float] | None = None
+    local: bool = False
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)

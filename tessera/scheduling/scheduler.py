@@ -16,7 +16,10 @@ What it decides:
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality): the progressive
   still's ``still_samples`` jittered samples, one frame after the other, the next sent ahead to
   nodes ending their tile of the one before (:mod:`tessera.scheduling.refinement`; their adapter
-  accumulates them). Otherwise nothing renders.
+  accumulates them and shows the mean, so when every node is on the coordinator's machine the
+  samples' tiles travel raw: no PNG to encode on the nodes nor to check and decode on the
+  coordinator; a frame no larger than the coordinator's ``size``, whose node messages allow four raw
+  frames). Otherwise nothing renders.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
   newest camera when it starts, and it starts only when a node wants work — it has nothing left
   to do, or its last tile ends within its round trip (dispatch ahead,
@@ -289,9 +292,11 @@ class FrameScheduler:
         self.sessions[session_id].set_groups(boxes, counts, bounds, owners)
 
     # ----------------------------------------------------------------- node events
-    def add_node(self, node_id: int, now: float) -> NodeSchedule:
-        """A node connected (ready for a session once it has loaded that session's scene)."""
+    def add_node(self, node_id: int, now: float, local: bool = False) -> NodeSchedule:
+        """A node connected (ready for a session once it has loaded that session's scene); ``local``:
+        from the coordinator's machine."""
         node = self.table.add(node_id, now)
+        node.local = local
         for session in self.sessions.values():
             self._repartition(session, now, joined=node_id)
         return node
@@ -405,12 +410,16 @@ class FrameScheduler:
         if key not in node.outstanding:
             return
         self.table.answered(node, key, now)
-        node.failures += 1
+        job = self.in_flight.get(frame_id)
+        part = job.tiles[tile_id].part_of if job is not None and 0 <= tile_id < len(job.tiles) else None
+        drawing = None if part is None else (frame_id, part)
+        if drawing is None or drawing != node.failed_drawing:   # a wall tile's pieces fail as one drawing
+            node.failures += 1
+        node.failed_drawing = drawing
         if node.failures >= self.config.max_tile_failures:
             self._actions.append(CloseNode(node_id, 1011, f"{node.failures} tiles failed in a row"))
             self.remove_node(node_id, now)
             return
-        job = self.in_flight.get(frame_id)
         if job is not None and not job.tiles[tile_id].done and job.tiles[tile_id].node_id == node_id:
             session = self.sessions[job.session]
             movable = session.mode.tiles_move
@@ -554,7 +563,10 @@ class FrameScheduler:
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
-        job, error = session.start_frame(self.next_frame_id, ready, now, still)
+        width, height = session.size
+        raw = (still and session.demand.still_samples > 1 and all(n.local for n in ready)
+               and width * height <= self.config.size[0] * self.config.size[1])
+        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw)
         if error is not None:
             self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
