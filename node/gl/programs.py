@@ -77,11 +77,14 @@ class ShaderPrograms:
         variant with ``uv_transform``)."""
         material = batch.material
         transforms = [material.uv_transform(slot) for slot in range(SLOT_COUNT)]
-        # mat3x2 is column-major: the (2, 3) row-major matrix transposed.
-        matrices = np.array([np.reshape(t.matrix, (2, 3)).T for t in transforms], np.float32)
-        program["u_uv_matrix"].write(matrices.tobytes())
+        # mat3x2 is column-major: the (2, 3) row-major matrix transposed. The linker shortens the
+        # arrays to the last slot the variant reads.
+        matrices = program["u_uv_matrix"]
+        matrices.write(np.array([np.reshape(t.matrix, (2, 3)).T for t in transforms[:matrices.array_length]],
+                                np.float32).tobytes())
         if "u_uv_set" in program:
-            program["u_uv_set"].write(np.array([t.uv_set for t in transforms], np.int32).tobytes())
+            sets = program["u_uv_set"]
+            sets.write(np.array([t.uv_set for t in transforms[:sets.array_length]], np.int32).tobytes())
 
     def release(self) -> None:
         for resource in (*self.vertex_arrays.values(), *self.programs.values()):

@@ -566,7 +566,8 @@ class TileRenderer:
             program["u_normal_scale"].value = material.normal_scale
         if variant.uv_transform:
             self.shaders.use_uv_transforms(program, batch)
-        program["u_occlusion_strength"].value = material.occlusion_strength
+        if variant.occlusion_map:
+            program["u_occlusion_strength"].value = material.occlusion_strength
         for image, srgb, unit in ((batch.texture, True, UNIT_BASE),
                                   (material.metallic_roughness_texture, False, UNIT_METALLIC_ROUGHNESS),
                                   (material.normal_texture, False, UNIT_NORMAL),

@@ -271,13 +271,16 @@ void main() {
             discard;
     }
 #endif
-#if TEXTURED
+#if BASE_MAP
     vec4 base = u_base_color * v_color * texture(u_texture, slot_uv(0), u_lod_bias);
+#else
+    vec4 base = u_base_color * v_color;
+#endif
+#if METAL_ROUGH_MAP
     vec4 metal_rough = texture(u_metallic_roughness, slot_uv(1), u_lod_bias);
     float metallic = clamp(u_metallic * metal_rough.b, 0.0, 1.0);
     float roughness = clamp(u_roughness * metal_rough.g, 0.0, 1.0);
 #else
-    vec4 base = u_base_color * v_color;
     float metallic = clamp(u_metallic, 0.0, 1.0);
     float roughness = clamp(u_roughness, 0.0, 1.0);
 #endif
@@ -332,7 +335,7 @@ void main() {
     vec3 specular_light = textureLod(u_specular_map, equirect(reflected), roughness * u_specular_levels).rgb;
     vec3 k_d = c_diff * (1.0 - fss_ess - fms_ems);
     vec3 color = fss_ess * specular_light + (fms_ems + k_d) * diffuse_light;
-#if TEXTURED
+#if OCCLUSION_MAP
     float occlusion = texture(u_occlusion, slot_uv(3), u_lod_bias).r;
     color *= 1.0 + u_occlusion_strength * (occlusion - 1.0);
 #endif
@@ -348,7 +351,7 @@ void main() {
         color += (f_diffuse + f_specular) * (u_key_light * n_dot_l);
     }
 
-#if TEXTURED
+#if EMISSIVE_MAP
     color += u_emissive * texture(u_emissive_texture, slot_uv(4), u_lod_bias).rgb;
 #else
     color += u_emissive;
@@ -361,14 +364,18 @@ void main() {
 @dataclass(frozen=True, order=True, slots=True)
 class ShaderVariant:
     """What a batch's shaders do beyond the plain path (each a ``#define``, so what a batch lacks
-    costs nothing): ``textured``, texture lookups (a batch with texture coordinates and any
-    texture); ``normal_map``, a tangent-space normal map (diffuse image light then per pixel);
-    ``tangents``, the file's tangents under it (else the frame derived per pixel); ``uv_transform``,
-    a texture reads a transformed or second coordinate set (``KHR_texture_transform``,
-    ``texCoord``); ``uv1``, the second set."""
+    costs nothing, on llvmpipe a 1×1 stand-in texture as much as a real one): the texture lookups
+    of its maps (``base_map``, ``metal_rough_map``, ``normal_map``: diffuse image light then per
+    pixel, ``occlusion_map``, ``emissive_map``; only with texture coordinates); ``tangents``, the
+    file's tangents under the normal map (else the frame derived per pixel); ``uv_transform``, a
+    texture reads a transformed or second coordinate set (``KHR_texture_transform``, ``texCoord``);
+    ``uv1``, the second set."""
 
-    textured: bool = False
+    base_map: bool = False
+    metal_rough_map: bool = False
     normal_map: bool = False
+    occlusion_map: bool = False
+    emissive_map: bool = False
     tangents: bool = False
     uv_transform: bool = False
     uv1: bool = False
@@ -379,13 +386,21 @@ class ShaderVariant:
         if batch.uvs is None or (batch.texture is None and not material.textured):
             return cls()
         normal_map = material.normal_texture is not None
-        return cls(True, normal_map, normal_map and batch.tangents is not None, material.uv_transformed,
+        return cls(batch.texture is not None, material.metallic_roughness_texture is not None, normal_map,
+                   material.occlusion_texture is not None, material.emissive_texture is not None,
+                   normal_map and batch.tangents is not None, material.uv_transformed,
                    material.uv_transformed and batch.uvs1 is not None)
+
+    @property
+    def textured(self) -> bool:
+        """Whether it looks any texture of the batch up."""
+        return self.base_map or self.metal_rough_map or self.normal_map or self.occlusion_map or self.emissive_map
 
     def source(self, body: str, discards: bool = False) -> str:
         """``body`` (:data:`VERTEX_SHADER` or :data:`FRAGMENT_SHADER`) with this variant's defines and
         ``DISCARDS`` (the fragment discards of alpha masks and depth peeling)."""
-        flags = {"TEXTURED": self.textured, "NORMAL_MAP": self.normal_map, "TANGENTS": self.tangents,
+        flags = {"BASE_MAP": self.base_map, "METAL_ROUGH_MAP": self.metal_rough_map, "NORMAL_MAP": self.normal_map,
+                 "OCCLUSION_MAP": self.occlusion_map, "EMISSIVE_MAP": self.emissive_map, "TANGENTS": self.tangents,
                  "UV_TRANSFORM": self.uv_transform, "UV1": self.uv1, "DISCARDS": discards}
         return "#version 330\n" + "".join(f"#define {name} {int(on)}\n" for name, on in flags.items()) + body
 
