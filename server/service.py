@@ -309,14 +309,16 @@ class RenderService:
                     "(capabilities.depth); update the node")
         return None
 
-    def add_node(self, hello: NodeHello, close) -> NodeLink:
+    def add_node(self, hello: NodeHello, close, local: bool = False) -> NodeLink:
+        """A node that said ``hello`` joins (``local``: from this machine; ``close(code, reason)``
+        closes its socket)."""
         name, renderer = hello.name[:64] or "node", hello.renderer[:200]
         link = NodeLink(self._next_node_id, name, renderer, close, slowdown=hello.capabilities.slowdown,
                         can_calibrate=hello.capabilities.calibrate)
         self._next_node_id += 1
         self.nodes[link.node_id] = link
         link.send(Welcome(node_id=link.node_id))
-        self.scheduler.add_node(link.node_id, time.monotonic())
+        self.scheduler.add_node(link.node_id, time.monotonic(), local)
         self.apply()   # the scene to load (sort-last: every node's share of the new partition)
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link

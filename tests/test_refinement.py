@@ -13,6 +13,7 @@ import pytest
 
 from bench.images import psnr
 from server.still_refinement import FIRST_SHOWN, StillRefiner
+from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect, view_projection
 from tessera.scheduling.actions import RenderTiles
 from tessera.scheduling.refinement import (
@@ -29,6 +30,7 @@ from tessera.scheduling.refinement import (
     subsample,
 )
 from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec, decode, encode
 from tessera.wire.protocol import pack_frame, unpack_frame
 from tests.test_scheduler import camera, cancels, finish, published, renders, scheduler
@@ -226,6 +228,24 @@ def test_the_next_sample_goes_ahead_to_nodes_ending_the_one_before_and_input_dro
     assert not samples & set(s.in_flight) and not any(job.still for job in s.in_flight.values())
     assert max(samples) in {frame for frames in cancels(actions).values() for frame in frames}, "nodes skip it"
     assert renders(actions), "the interactive frame starts at once"
+
+
+@pytest.mark.parametrize("local", [(True, True), (True, False)])
+def test_samples_travel_raw_when_every_node_is_on_the_coordinators_machine(local) -> None:
+    """A still's samples are asked for raw from nodes that all connected over loopback (the
+    coordinator accumulates them), in the still codec otherwise; interactive frames keep theirs."""
+    s = FrameScheduler(SchedulerConfig(size=(64, 48), max_fps=1e6, settle_frames=0, still_delay_ms=0,
+                                       still_samples=2), StaticBalancer())
+    for node_id, on_this_machine in enumerate(local, 1):
+        s.add_node(node_id, 0.0, local=on_this_machine)
+        s.node_ready(node_id, 0.0)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    assert s.in_flight[1].codec is Codec.JPEG
+    finish(s, 1, 0.05)
+    s.tick(0.1)
+    codecs = {a.message.codec for a in s.drain() if isinstance(a, RenderTiles)}
+    assert codecs == ({Codec.RAW} if all(local) else {Codec.PNG})
 
 
 def test_a_one_sample_still_is_not_jittered() -> None:

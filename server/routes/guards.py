@@ -15,6 +15,7 @@ Each refusal is logged as one line.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import time
 from typing import Any
@@ -34,6 +35,14 @@ MAX_CLOSE_REASON = 120
 
 def peer(ws: WebSocket) -> str:
     return f"{ws.client.host}:{ws.client.port}" if ws.client else "unknown peer"
+
+
+def loopback(ws: WebSocket) -> bool:
+    """The peer connected from this machine (a loopback address)."""
+    try:
+        return ws.client is not None and ipaddress.ip_address(ws.client.host).is_loopback
+    except ValueError:   # not an IP address (a test client's name)
+        return False
 
 
 async def close(ws: WebSocket, code: int, reason: str) -> None:

@@ -66,7 +66,8 @@ async def node_socket(ws: WebSocket) -> None:
         log.warning("node %r refused: %s", hello.name, refusal)
         await guards.close(ws, 1008, refusal)
         return
-    link = service.add_node(hello, lambda code, reason: asyncio.create_task(guards.close(ws, code, reason)))
+    link = service.add_node(hello, lambda code, reason: asyncio.create_task(guards.close(ws, code, reason)),
+                            local=guards.loopback(ws))
     writer = asyncio.create_task(_write(ws, link))
     who = f"node {link.node_id} ({link.name})"
     try:

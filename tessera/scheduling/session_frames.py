@@ -93,10 +93,11 @@ class SessionFrames:
         return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
-                    still: bool) -> tuple[FrameJob, str | None]:
+                    still: bool, raw_samples: bool = False) -> tuple[FrameJob, str | None]:
         """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
-        balancer failed, if it did (the static split was used)."""
+        balancer failed, if it did (the static split was used). ``raw_samples``: a still's samples
+        are asked for raw (they are accumulated, never shown as they come)."""
         assert self.camera is not None
         camera, state = self.camera, self.scene.bind(now) if self.scene else None
         groups_for = self.groups_for
@@ -107,6 +108,8 @@ class SessionFrames:
             partition, parts = self.wall.pieces(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
+        if raw_samples and self.demand.still_samples > 1:
+            codec = Codec.RAW
         sample = self.demand.started(still)
         job = FrameJob.create(frame_id, camera, self.size, codec, quality, partition, now, still=still,
                               version=self.demand.version, changed_at=self.demand.changed_at,
