@@ -12,10 +12,10 @@ and reads the frames as they come off the socket. Figures:
 * latency: input → frame on the viewer socket, for the first frame answering each input (the
   frame header carries the viewer's input number), p50 and p90 in ms and in frame intervals (the
   mean interval between frames while moving);
-* KB per interactive frame, and the still frame: its KB, its delay after the last input, and its
+* KB per interactive frame, and the still frame: its delay after the last input, its KB, and its
   PSNR and share of pixels off by more than 8 levels against ``python -m node --render-once`` of
-  the last camera; ``refinements``: when each progressive still frame came after the last input
-  (its sample count, ms);
+  the last camera (with ``--rests``, the last rest's still); ``refinements``: when each
+  progressive still frame came after the last input (its sample count, ms);
 * ``--rests N``: N − 1 more rests after the idle window, each after ``--rest-moving-s`` of motion:
   ``still_after_ms_rests`` the still's delay after the last input of every rest (the first one's
   included), their median ``still_after_ms_median``;
@@ -193,6 +193,7 @@ def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer
     time.sleep(args.idle_s)
     idle_cpu = cpu_seconds(pids) - cpu_before
     idle_wall = time.perf_counter() - idle_started
+    idle_frames = len(viewer.frames) - frames_before
     assert stats_before is not None, "--moving-s must exceed 1 s"
     stats_idle = client.get("/api/stats").json()
     rests = [last_input]
@@ -205,8 +206,7 @@ def drive(args: argparse.Namespace, client: httpx.Client, viewer: ScriptedViewer
             time.sleep(max(0.0, next_send - time.perf_counter()))
         rests.append(time.perf_counter())
         viewer.wait_for_still(rests[-1], REST_TIMEOUT_S)
-    return Run(started, last_input, stats_before, stats_moving, stats_idle,
-               len(viewer.frames) - frames_before, idle_cpu, idle_wall, rests)
+    return Run(started, last_input, stats_before, stats_moving, stats_idle, idle_frames, idle_cpu, idle_wall, rests)
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -241,7 +241,7 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
     interval_ms = float(intervals.mean() * 1000.0) if len(intervals) else math.nan
     lat = np.array(latencies([f for f in frames if window_start <= f["at"] <= run.last_input + 1.0],
                              {k: v for k, v in viewer.sent.items() if v >= window_start}))
-    stills = [f for f in frames if f["still"] and f["at"] > run.last_input]
+    stills = [f for f in frames if f["still"] and f["at"] > run.rests[-1]]   # of the camera sent last
     stills_moving = sum(f["still"] for f in frames if window_start <= f["at"] <= run.last_input)
     moving, before = run.stats_moving, run.stats_before
     published = moving["coordinator_cpu"]["frames"] - before["coordinator_cpu"]["frames"]
@@ -283,7 +283,7 @@ def figures(args: argparse.Namespace, viewer: ScriptedViewer, run: Run) -> dict[
         reference = render_once(args.scene, viewer.camera, args.size)
         off = np.abs(image.astype(np.int16) - reference.astype(np.int16)).max(axis=2) > 8
         quality = psnr(image, reference)
-        result.update(still_kb=still["bytes"] / 1024.0, still_after_ms=(still["at"] - run.last_input) * 1000.0,
+        result.update(still_kb=still["bytes"] / 1024.0, still_after_ms=result["still_after_ms_rests"][0],
                       still_identical=quality == math.inf, still_psnr_db=None if quality == math.inf else quality,
                       still_pixels_off=float(off.mean()))
     return result

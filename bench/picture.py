@@ -198,7 +198,8 @@ def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int],
              "off16_fraction": float(np.mean(found[count]["off"])), "frame_ms": sample_ms,
              "still_ms": sample_ms * count} for count in sample_counts]
     renderer.release()
-    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "rows": rows,
+    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "filtered": renderer.filtered,
+            "rows": rows,
             "coordinator": {key: float(np.mean(values)) for key, values in coordinator.items()}}
 
 
@@ -253,7 +254,8 @@ def table(result: dict[str, Any]) -> str:
                      f"{'still ms':>9}")
         for scene in result["stills"]:
             for row in scene["rows"]:
-                lines.append(f"{Path(scene['scene']).name + ' (msaa ' + str(scene['msaa']) + ')':<40} "
+                drawn = f"{scene['msaa']}{'+f' if scene.get('filtered') else ''}"
+                lines.append(f"{Path(scene['scene']).name + ' (msaa ' + drawn + ')':<40} "
                              f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
                              f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
             cost = scene["coordinator"]

@@ -174,9 +174,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         type=parse_scene_memory, metavar="MB")
     add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder for scene files fetched from the coordinator (a scene the "
         "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
-    add("--msaa", "auto", "multisample anti-aliasing: samples per pixel of tiles and whole frames, 1 (off), 2, 4 or "
-        "8 (capped at what the GL offers; llvmpipe draws 2 as 4), or auto: 4 on a GPU, 1 on llvmpipe (where 4 cost "
-        "2.3-3.7x the frame time); depth layers (hybrid, sort-last) are drawn at 1", type=parse_msaa, metavar="N")
+    add("--msaa", "auto", "anti-aliasing: samples per pixel of tiles and whole frames, 1 (off), 2, 4 or 8 (capped "
+        "at what the GL offers; llvmpipe draws 2 as 4), or auto: 4 on a GPU; on llvmpipe (where 4 cost 2.6-3.5x the "
+        "frame time) 1 sample resolved by a 3x3 filter (1.1-1.2x); depth layers (hybrid, sort-last) are drawn at 1, "
+        "unfiltered", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")
     add("--samples", DEFAULT_STILL_SAMPLES, "--render-once renders the still of this many jittered samples "

@@ -8,7 +8,7 @@ samples of the pixel and its neighbours: the separable kernel [1, 6, 1] / 8 alon
 (weights 36/64 on the pixel, 6/64 on each side neighbour, 1/64 on each corner), integers, rounded
 half up. It is close to the least-squares 3×3 kernel from the one-sample frames of the benchmark's
 scenes to their 4×4 supersampled references (centre 0.56, sides 0.106, corners 0.004), and as good:
-+3.5 to +3.8 dB on the scenes whose error is at edges, +1.7 dB on the milk truck, whose error is in
++3.4 to +3.8 dB on the scenes whose error is at edges, +1.7 dB on the milk truck, whose error is in
 its textures (:data:`FILTERED_LOD_BIAS`) (``python -m bench.picture``). A linear filter only spreads
 what the centre samples saw: geometry thinner than a pixel stays as aliased as it was drawn.
 

@@ -48,7 +48,7 @@ limits to the tile) into the single-sample one they are read from. A pixel's sam
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. Where
-``--msaa auto`` draws one sample (llvmpipe, where 4 samples cost 3-4x the frame), plain tiles and
+``--msaa auto`` draws one sample (llvmpipe, where 4 samples cost 2.6-3.5x the frame), plain tiles and
 whole frames are resolved by the 3×3 filter of :mod:`tessera.antialiasing` instead, drawn with a
 guard band of one pixel (clipped to the frame) so that the filtered tile is still that region of
 the filtered whole frame, and with its texture LOD bias.

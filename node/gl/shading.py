@@ -47,7 +47,8 @@ from node.scene.mesh import MeshBatch
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
 #: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU, 1 on a software rasterizer, where
-#: 4 samples cost 2.3-3.7x the frame time (README, Picture quality: measured on llvmpipe).
+#: 4 samples cost 2.6-3.5x the frame time and one sample is resolved by a 3x3 filter instead
+#: (:mod:`tessera.antialiasing`; README, Picture quality: measured on llvmpipe).
 AUTO_MSAA = 0
 HARDWARE_MSAA = 4
 #: Sample counts ``--msaa`` accepts besides auto (1: off).
