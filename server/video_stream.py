@@ -36,14 +36,15 @@ from tessera.wire.video import VideoCodec, codec_string, pack_video
 #: PNG 74.0 KB, 43.0 dB (and 64 ms to decode). q88 loses 0.8 dB to lossless tiles at half their bytes.
 VIDEO_SOURCE_QUALITY = 88
 #: Default target bitrate per codec: bits per pixel of a picture at the nominal frame rate, within
-#: --max-bitrate (720p at 60 fps: H.264 5.0 Mbit/s, 10.4 KB a frame at most; 1080p60: the 8 Mbit/s
-#: cap). Both encoders stay under their target (x264 by ~30 %, libvpx-vp9 by ~45 %). Measured on the
+#: --max-bitrate (720p at 60 fps: H.264 4.7 Mbit/s, 9.8 KB a frame at most; 1080p60: the 8 Mbit/s
+#: cap). Both encoders stay under their target (x264 by ~25 %, libvpx-vp9 by ~45 %). Measured on the
 #: default scene at 720p, frames of an orbit 18° apart (bench.stream's ~10 fps), PSNR against the
-#: render, JPEG q60 tiles 24.3 KB 40.75 dB: H.264 0.08 → 6.6 KB 41.2 dB, **0.09 → 7.4 KB 41.7 dB**,
+#: render, JPEG q60 tiles 24.3 KB 40.75 dB: H.264 0.08 → 6.6 KB 41.2 dB, 0.09 → 7.4 KB 41.7 dB,
 #: 0.10 → 8.4 KB 42.0 dB; VP9 0.10 → 6.9 KB 41.6 dB, **0.11 → 7.5 KB 41.8 dB**, 0.12 → 8.0 KB
-#: 42.0 dB (6° apart: 0.4–0.7 dB more at the same bytes). The rates chosen keep a dB above the
-#: tiles' PSNR at under a third of their bytes.
-BITS_PER_PIXEL = {VideoCodec.H264: 0.09, VideoCodec.VP9: 0.11}
+#: 42.0 dB (6° apart: 0.4–0.7 dB more at the same bytes). Live (bench.stream, 720p, 3 nodes, two runs
+#: each, tiles 23.4 KB 43.4 dB): H.264 0.09 → 7.8 KB (tiles / 3.0), 0.5–0.6 dB above the tiles;
+#: **0.085** → 7.4 KB (tiles / 3.2), 0.5–0.6 dB above.
+BITS_PER_PIXEL = {VideoCodec.H264: 0.085, VideoCodec.VP9: 0.11}
 #: Figures kept for the mean and median encode times.
 TIMINGS_KEPT = 240
 log = logging.getLogger("tessera.server")
