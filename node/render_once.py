@@ -101,8 +101,9 @@ def render_once(settings: NodeSettings) -> int:
         return 1
     width, height = settings.size
     kind = "interactive frame" if settings.interactive else "still"
+    resolve = " + 3x3 resolve filter" if settings.interactive and renderer.filtered else ""
     print(f"wrote {settings.render_once} ({kind}, {width}x{height}, {scene.triangle_count} triangles in "
-          f"{scene.chunks.chunk_count} chunks, {drawn}, {renderer.samples}x MSAA, render {render_ms:.1f} ms)")
+          f"{scene.chunks.chunk_count} chunks, {drawn}, {renderer.samples}x MSAA{resolve}, render {render_ms:.1f} ms)")
     return 0
 
 
