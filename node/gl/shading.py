@@ -103,7 +103,9 @@ in vec4 in_color;
 out vec3 v_position;
 out vec3 v_normal;
 out vec2 v_uv;
+#if VERTEX_COLORS
 out vec4 v_color;
+#endif
 #if !NORMAL_MAP
 out vec3 v_irradiance_even;
 out vec3 v_irradiance_odd;
@@ -134,7 +136,9 @@ void main() {
     v_uv1 = in_uv1;
 #endif
     v_uv = in_uv;
+#if VERTEX_COLORS
     v_color = in_color;
+#endif
     gl_Position = u_view_projection * vec4(in_position, 1.0);
 }
 """
@@ -167,7 +171,11 @@ uniform ivec2 u_origin;
 in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
+#if VERTEX_COLORS
 in vec4 v_color;
+#else
+const vec4 v_color = vec4(1.0);
+#endif
 #if !NORMAL_MAP
 in vec3 v_irradiance_even;
 in vec3 v_irradiance_odd;
@@ -365,13 +373,15 @@ void main() {
 @dataclass(frozen=True, order=True, slots=True)
 class ShaderVariant:
     """What a batch's shaders do beyond the plain path (each a ``#define``, so what a batch lacks
-    costs nothing, on llvmpipe a 1×1 stand-in texture as much as a real one): the texture lookups
+    costs nothing: on llvmpipe a 1×1 stand-in texture costs as much as a real one, a varying of ones
+    as much as vertex colours): ``vertex_colors``, the batch's colours; the texture lookups
     of its maps (``base_map``, ``metal_rough_map``, ``normal_map``: diffuse image light then per
     pixel, ``occlusion_map``, ``emissive_map``; only with texture coordinates); ``tangents``, the
     file's tangents under the normal map (else the frame derived per pixel); ``uv_transform``, a
     texture reads a transformed or second coordinate set (``KHR_texture_transform``, ``texCoord``);
     ``uv1``, the second set."""
 
+    vertex_colors: bool = False
     base_map: bool = False
     metal_rough_map: bool = False
     normal_map: bool = False
@@ -384,23 +394,25 @@ class ShaderVariant:
     @classmethod
     def of(cls, batch: MeshBatch) -> ShaderVariant:
         material = batch.material
+        colored = batch.colors is not None
         if batch.uvs is None or (batch.texture is None and not material.textured):
-            return cls()
+            return cls(colored)
         normal_map = material.normal_texture is not None
-        return cls(batch.texture is not None, material.metallic_roughness_texture is not None, normal_map,
+        return cls(colored, batch.texture is not None, material.metallic_roughness_texture is not None, normal_map,
                    material.occlusion_texture is not None, material.emissive_texture is not None,
                    normal_map and batch.tangents is not None, material.uv_transformed,
                    material.uv_transformed and batch.uvs1 is not None)
 
     @property
     def textured(self) -> bool:
-        """Whether it looks any texture of the batch up."""
+        """Whether it looks up any texture of the batch."""
         return self.base_map or self.metal_rough_map or self.normal_map or self.occlusion_map or self.emissive_map
 
     def source(self, body: str, discards: bool = False) -> str:
         """``body`` (:data:`VERTEX_SHADER` or :data:`FRAGMENT_SHADER`) with this variant's defines and
         ``DISCARDS`` (the fragment discards of alpha masks and depth peeling)."""
-        flags = {"BASE_MAP": self.base_map, "METAL_ROUGH_MAP": self.metal_rough_map, "NORMAL_MAP": self.normal_map,
+        flags = {"VERTEX_COLORS": self.vertex_colors, "BASE_MAP": self.base_map,
+                 "METAL_ROUGH_MAP": self.metal_rough_map, "NORMAL_MAP": self.normal_map,
                  "OCCLUSION_MAP": self.occlusion_map, "EMISSIVE_MAP": self.emissive_map, "TANGENTS": self.tangents,
                  "UV_TRANSFORM": self.uv_transform, "UV1": self.uv1, "DISCARDS": discards}
         return "#version 330\n" + "".join(f"#define {name} {int(on)}\n" for name, on in flags.items()) + body
