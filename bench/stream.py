@@ -14,15 +14,17 @@ cameras with input numbers at ``--input-hz`` for ``--moving-s``: the camera path
 bounds, loaded here; synthetic nodes': their box) played at its own ``dt_ms``, cameras between two
 of its frames interpolated, looping. A video viewer sends ``stream_report`` each second, as
 ``web/video.js`` does. The viewer (:mod:`bench.stream_viewer`) decodes every interactive frame
-as it comes. ``--throttle-mbps R``: each viewer connects through a loopback proxy whose
-coordinator → viewer direction carries R Mbit/s (:mod:`bench.throttle`). ``--rest-s S``: after the
-moving window the camera rests until the still answering the last input comes (at most S s),
-then moves on along the path for ``--resume-s``.
+as it comes. Each viewer connects through a loopback proxy (:mod:`bench.throttle`) that counts
+the bytes on the wire; ``--throttle-mbps R``: its coordinator → viewer direction carries R
+Mbit/s. ``--rest-s S``: after the moving window the camera rests until the still answering the
+last input comes (at most S s), then moves on along the path for ``--resume-s``.
 
 Figures per transport, over the moving window (its first second left out):
 
-* ``fps``: interactive frames decoded per second; ``bytes_per_frame``: mean message size on the
-  socket (header included); ``mbps``: ``bytes_per_frame`` × 8 × ``fps``; ``mbps_at_60fps``: at
+* ``fps``: interactive frames decoded per second; ``bytes_per_frame``: mean message size (header
+  included); ``mbps``: ``bytes_per_frame`` × 8 × ``fps``; ``wire_bytes_per_frame``, ``wire_mbps``:
+  the same of the bytes on the wire, after permessage-deflate, which the coordinator agrees on with
+  browsers and with this viewer (JPEG tiles of flat backgrounds shrink to under half; video not); ``mbps_at_60fps``: at
   60 frames/s (the encoder gives each frame the target / the nominal 60 fps whatever the real
   rate, so this is what the link would carry at 60); ``viewer_decode_ms``: this viewer's CPU per
   frame decoding it (tiles: JPEG to RGB; video: PyAV, to YUV);
@@ -172,15 +174,14 @@ def play(args: argparse.Namespace, url: str, client: httpx.Client, transport: st
     answer, the window (perf_counter s: from 1 s after the first input to the last), the stream's
     ``video`` stats at its end, and the rest's still and window (:func:`_rest`)."""
     with contextlib.ExitStack() as stack:
-        ws_url = url.replace("http://", "ws://") + "/ws/view"
-        if args.throttle_mbps:
-            port = stack.enter_context(throttled_proxy(int(url.rsplit(":", 1)[1]), args.throttle_mbps * 1e6))
-            ws_url = f"ws://127.0.0.1:{port}/ws/view"
+        rate = args.throttle_mbps * 1e6 if args.throttle_mbps else None
+        link = stack.enter_context(throttled_proxy(int(url.rsplit(":", 1)[1]), rate))
+        ws_url = f"ws://127.0.0.1:{link.port}/ws/view"
         viewer = StreamViewer(stack.enter_context(ws_client.connect(ws_url, max_size=256 << 20)), transport, url)
         try:
             choice = viewer.offer()
             if choice.get("transport") != transport:
-                return {"viewer": viewer, "choice": choice}
+                return {"viewer": viewer, "choice": choice, "link": link}
             started = time.perf_counter()
             viewer.sample_every_s = (args.moving_s - 1.0) / args.psnr_frames
             viewer.sample_from = started + 1.0 + viewer.sample_every_s / 2.0
@@ -199,7 +200,7 @@ def play(args: argparse.Namespace, url: str, client: httpx.Client, transport: st
         finally:
             viewer.stop()
     return {"viewer": viewer, "choice": choice, "start": started + 1.0, "end": last_input, "stream": stream,
-            "rest": rest}
+            "rest": rest, "link": link}
 
 
 class References:
@@ -290,6 +291,7 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
                     {k: v for k, v in viewer.sent.items() if start <= v <= end})
     p50 = float(np.percentile(lat, 50)) if lat else math.nan
     bytes_per_frame = float(np.mean([f["bytes"] for f in window])) if window else math.nan
+    wire_per_frame = run["link"].bytes_between(start, end) / len(window) if window else math.nan
     against_render = [compare(image, references.image(viewer.cameras[seq]))
                       for image, seq in samples.values() if seq in viewer.cameras] if references else []
     against_source = [compare(image, sources[i]) for i, (image, _) in samples.items() if i in sources]
@@ -299,6 +301,7 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
         "frames": len(window), "fps": round(fps, 2), "bytes_per_frame": round(bytes_per_frame, 1),
         "mbps": round(bytes_per_frame * 8.0 * fps / 1e6, 3),
         "mbps_at_60fps": round(bytes_per_frame * 8.0 * 60.0 / 1e6, 3),
+        "wire_bytes_per_frame": round(wire_per_frame, 1), "wire_mbps": round(wire_per_frame * 8.0 * fps / 1e6, 3),
         "viewer_decode_ms": round(float(np.mean([f["decode_ms"] for f in window])), 2) if window else None,
         **psnr_figures(against_render if references else against_source, "psnr"),
         **psnr_figures(against_source, "psnr_source"),
@@ -386,8 +389,8 @@ def report(result: dict[str, Any]) -> str:
              f"with input at {run['input_hz']:g} Hz for {run['moving_s']:g} s per transport"
              + (f", server args {run['server_args']!r}" if run["server_args"] else "")
              + (f", link {run['throttle_mbps']:g} Mbit/s" if run["throttle_mbps"] else ""),
-             f"{'transport':<10}{'KB/frame':>9}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}{'min':>7}"
-             f"{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
+             f"{'transport':<10}{'KB/frame':>9}{'wire':>6}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}"
+             f"{'min':>7}{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
              f"{'keys':>5}{'lost':>5}"]
     for transport in TRANSPORTS:
         row = result.get(transport)
@@ -397,7 +400,8 @@ def report(result: dict[str, Any]) -> str:
             lines.append(f"{transport:<10}not streamed: the coordinator chose {row['transport']} "
                          f"({row['reason'] or 'no reason given'})")
             continue
-        lines.append(f"{transport:<10}{cell(row['bytes_per_frame'] / 1000, 9, 1)}{cell(row['mbps'], 8, 2)}"
+        lines.append(f"{transport:<10}{cell(row['bytes_per_frame'] / 1000, 9, 1)}"
+                     f"{cell(row['wire_bytes_per_frame'] / 1000, 6, 1)}{cell(row['mbps'], 8, 2)}"
                      f"{cell(row['mbps_at_60fps'], 8, 2)}{cell(row['fps'], 6, 1)}{cell(row['psnr_mean'], 10, 2)}"
                      f"{cell(row['psnr_min'], 7, 2)}{cell(row['psnr_source_mean'], 8, 2)}"
                      f"{cell(row['encode_ms'], 8, 2)}{cell(row['compose_ms'], 8, 2)}"
@@ -414,7 +418,8 @@ def report(result: dict[str, Any]) -> str:
                          f"{cell(row['resume_ms'], 6, 0)} ms, {cell(row['fps_resumed'], 5, 1)} fps")
     reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
                  else "the coordinator's composite of the same frame (GET /api/frame.png)")
-    lines.append(f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
+    lines.append("KB/frame: messages, wire: on the wire (permessage-deflate); "
+                 f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
                  "(the encoder's source); enc/comp ms: the coordinator's CPU per frame (its stream thread), "
                  "wall: both on the wall clock; dec ms: this "
                  "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms)")

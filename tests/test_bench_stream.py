@@ -10,7 +10,8 @@ import pytest
 
 from bench.stream import TRANSPORTS, PathPlayer, main
 
-KEYS = ("bytes_per_frame", "mbps", "fps", "psnr_mean", "psnr_min", "encode_ms", "latency_intervals_p50")
+KEYS = ("bytes_per_frame", "wire_bytes_per_frame", "mbps", "fps", "psnr_mean", "psnr_min", "encode_ms",
+        "latency_intervals_p50")
 
 
 def test_path_player_interpolates_between_frames_and_loops():
@@ -35,6 +36,7 @@ def test_stream_bench_end_to_end(tmp_path):
         assert row["transport"] == transport, row
         assert all(key in row for key in KEYS), row
         assert row["frames"] > 0 and row["fps"] > 0 and row["bytes_per_frame"] > 0 and row["mbps"] > 0, row
+        assert 0 < row["wire_bytes_per_frame"] < 2 * row["bytes_per_frame"], row
         assert 1 <= row["psnr_frames"] <= 2 and row["psnr_min"] <= row["psnr_mean"], row
         # a frame of another camera than its input number names would be far below this
         assert row["psnr_min"] > 25.0, row

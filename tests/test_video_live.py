@@ -152,8 +152,8 @@ def test_a_throttled_viewer_gets_a_lower_bitrate_and_a_stream_that_still_decodes
     with started(coordinator_factory, "--max-bitrate", "2M") as (coordinator, client):
         port = int(coordinator.url.rsplit(":", 1)[1])
         bitrates: list[int] = []
-        with throttled_proxy(port, 16_000) as proxy_port, \
-                video_viewer(f"ws://127.0.0.1:{proxy_port}/ws/view", ["h264"]) as viewer:
+        with throttled_proxy(port, 16_000) as link, \
+                video_viewer(f"ws://127.0.0.1:{link.port}/ws/view", ["h264"]) as viewer:
             deadline = time.monotonic() + seconds(60)
             while time.monotonic() < deadline and not (bitrates and min(bitrates) < bitrates[0]):
                 viewer.move(0.05)
