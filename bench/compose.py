@@ -5,8 +5,9 @@ path, serial replay (every tile or node layer rendered for real, one at a time, 
 [--depth-strip PX] [--strips 0,8,32] [--nodes 4] [--speeds s1,…] [--frames F] [--json OUT]``
 
 Per frame of the path (or ``--frames`` evenly spaced ones, as ``bench.culling``) the whole frame is
-rendered once: the reference, as ``--render-once`` draws it, whose culled triangles are the
-triangles in view. Then every mode:
+rendered once: the reference, as ``--render-once --msaa 1`` draws it (depth layers are drawn at
+one sample and not resolved by the anti-aliasing filter, so every mode draws so here), whose culled
+triangles are the triangles in view. Then every mode:
 
 - ``sort-first``: the ``--tiles`` tiles of the equal strip partition, each culled and drawn as a
   node draws it today, stitched.
@@ -206,13 +207,14 @@ def run(args: argparse.Namespace, cameras: list[Camera]) -> dict[str, Any]:
     from node.gl.context import create_gl_context, renderer_string
     from node.gl.depth_layers import PlanningScene, hybrid_plan, sort_last_plan
     from node.gl.renderer import TileRenderer
+    from node.gl.shading import ShadingOptions
     from node.scene.loading import load_scene
 
     started = time.perf_counter()
     scene = load_scene(args.scene, face_limit=args.face_limit)
     load_s = time.perf_counter() - started
     ctx = create_gl_context()
-    renderer = TileRenderer(ctx, scene, culling=CullMode.CPU)
+    renderer = TileRenderer(ctx, scene, culling=CullMode.CPU, shading=ShadingOptions(msaa=1))
     planning = PlanningScene.of(scene, renderer.culler.bvh)
     size, rects = args.size, equal_strip_partition(args.tiles, args.size)
     slowdowns = args.speeds or [1.0] * args.nodes
