@@ -13,9 +13,10 @@ sessions' frames took, from ``/api/stats``); Jain's fairness index of the shares
 busy fraction (node ms of all frames / (nodes × window)). Phase 2, ``--large-scene`` (a name of
 ``GET /api/scenes``, e.g. ``library/…`` with ``--server-args '--scenes-dir …'``): a session of it
 is opened while the viewers keep moving; the longest gap between frames of any moving session
-until it is ready, and until a node held it (its parse, not its first frames). Phase 3, idle:
+until it is ready, until a node held it (its parse, not its first frames), and until every node
+held it (the nodes load a new scene one after the other). Phase 3, idle:
 frames received and the CPU cores the coordinator and its nodes use, from 2 s after the last
-input for ``--idle-s`` seconds.
+input, once every session is settled (its progressive still done), for ``--idle-s`` seconds.
 
 Everything shares this machine's cores: on 2 cores, N nodes are N processes taking turns.
 """
@@ -67,6 +68,34 @@ def wait_session_ready(client: httpx.Client, session_id: str, timeout: float = 6
             return time.perf_counter() - started
         time.sleep(0.05)
     raise RuntimeError(f"session {session_id[:6]}… not ready within {timeout:.0f} s")
+
+
+def wait_all_loaded(client: httpx.Client, before: dict[int, int], timeout: float = 300.0) -> float:
+    """Seconds until every node holds the new session's scene, once it is ready (``before``: each
+    node's ``triangles_loaded`` in ``/api/stats``, by id, before it was opened; the first node
+    that reports another count holds the new scene: every node's last scene is that one then;
+    none: each had it already); NaN after ``timeout`` (a node that reconnects loads every
+    session's scene again)."""
+    started = time.perf_counter()
+    while time.perf_counter() - started < timeout:
+        nodes = client.get("/api/stats").json()["nodes"]
+        loaded = {n["id"]: n["triangles_loaded"] for n in nodes if n["state"] == "ready"}
+        changed = [count for node_id, count in loaded.items() if node_id in before and count != before[node_id]]
+        if not changed or (len(loaded) == len(nodes) and set(loaded.values()) == {changed[0]}):
+            return time.perf_counter() - started
+        time.sleep(0.1)
+    return math.nan
+
+
+def wait_settled(client: httpx.Client, ids: list[str], timeout: float = 60.0) -> float:
+    """Seconds until every session of ``ids`` is settled (its still done: nothing renders); NaN
+    after ``timeout``."""
+    started = time.perf_counter()
+    while time.perf_counter() - started < timeout:
+        if all(client.get(f"/api/sessions/{i}/stats").json()["settled"] for i in ids):
+            return time.perf_counter() - started
+        time.sleep(0.1)
+    return math.nan
 
 
 def move(viewers: list[ScriptedViewer], until: float, hz: float, turn_s: float, stop: threading.Event) -> None:
@@ -137,25 +166,33 @@ def phases(args: argparse.Namespace, client: httpx.Client, ids: list[str], viewe
     out: dict[str, Any] = {"per_session": per_session,
                            "jain_node_share": jain([s["node_share"] for s in per_session]),
                            "node_busy_fraction": busy_ms / (args.nodes * stats["share_window_s"] * 1000.0)}
+    opened_ids = list(ids)
     if args.large_scene:
         mover = threading.Thread(target=move, args=(viewers, math.inf, args.input_hz, args.turn_s, stop))
         mover.start()
         time.sleep(1.0)
+        before = {n["id"]: n["triangles_loaded"] for n in client.get("/api/stats").json()["nodes"]}
         opened = time.perf_counter()
         loaded: list[float] = []
         try:
             large = open_session(client, args.large_scene, args.size)
+            opened_ids.append(large)
             load_s = wait_session_ready(client, large, loaded=loaded)
+            everywhere_s = (time.perf_counter() - opened) + wait_all_loaded(client, before)
         finally:
             stop.set()
             mover.join()
         # the frames around the load too: a gap that spans its start or end counts
         gaps = [session_figures(viewer, opened - 0.5, opened + load_s + 0.5)["longest_gap_ms"] for viewer in viewers]
         loading = [session_figures(viewer, opened - 0.5, opened + loaded[0])["longest_gap_ms"] for viewer in viewers]
+        everywhere = [session_figures(viewer, opened - 0.5, opened + everywhere_s + 0.5)["longest_gap_ms"]
+                      for viewer in viewers] if math.isfinite(everywhere_s) else [math.nan]
         out["large_scene"] = {"name": args.large_scene, "ready_s": load_s, "loaded_s": loaded[0],
                               "longest_gap_ms": max(gaps), "longest_gap_ms_per_session": gaps,
-                              "longest_gap_loading_ms": max(loading)}
+                              "longest_gap_loading_ms": max(loading), "everywhere_s": everywhere_s,
+                              "longest_gap_everywhere_ms": max(everywhere)}
     time.sleep(IDLE_AFTER_S)
+    out["settled_s"] = IDLE_AFTER_S + wait_settled(client, opened_ids)
     pids = process_tree(coordinator_pid)
     frames_before = sum(len(v.frames) for v in viewers)
     cpu_before, idle_started = cpu_seconds(pids), time.perf_counter()
@@ -179,8 +216,10 @@ def report(result: dict[str, Any]) -> str:
         large = result["large_scene"]
         lines.append(f"opening {large['name']}: ready in {large['ready_s']:.1f} s; longest frame gap of the moving "
                      f"sessions meanwhile {large['longest_gap_ms']:.0f} ms; until a node held it "
-                     f"({large['loaded_s']:.1f} s) {large['longest_gap_loading_ms']:.0f} ms")
-    lines.append(f"idle: {result['idle_frames']} frames, {result['idle_cores']:.3f} cores (coordinator and nodes)")
+                     f"({large['loaded_s']:.1f} s) {large['longest_gap_loading_ms']:.0f} ms; until every node held it "
+                     f"({large['everywhere_s']:.1f} s) {large['longest_gap_everywhere_ms']:.0f} ms")
+    lines.append(f"idle, once every session settled ({result['settled_s']:.1f} s after the last input): "
+                 f"{result['idle_frames']} frames, {result['idle_cores']:.3f} cores (coordinator and nodes)")
     return "\n".join(lines)
 
 

@@ -32,4 +32,6 @@ def test_sessions_bench_end_to_end(tmp_path):
     large = result["large_scene"]
     assert large["ready_s"] >= large["loaded_s"] > 0 and large["longest_gap_ms"] > 0
     assert not large["longest_gap_loading_ms"] > large["longest_gap_ms"], "the loading is part of the whole window"
+    assert large["everywhere_s"] >= large["ready_s"], "every node holds it once the first does and more"
+    assert not large["longest_gap_ms"] > large["longest_gap_everywhere_ms"], "the window until ready is part of it"
     assert result["idle_frames"] == 0, "idle sessions render nothing"
