@@ -73,15 +73,19 @@ def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, node
         assert all(n["tiles"] for n in owners), "every surviving node renders part of the screen"
 
 
-def test_node_joining_repartitions(coordinator_factory, node_factory):
+def test_node_joining_repartitions_the_next_frame(coordinator_factory, node_factory):
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "256x192", "--codec", "png")
     node_factory(coordinator, "test-0")
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_ready_nodes(client, 1, timeout_s=60)
         wait_until(lambda: stats(client)["nodes"][0]["tiles"] == [[0, 0, 256, 192]], seconds(30),
                    "the single node owning the whole screen")
+        shown = stats(client)["frame"]
         node_factory(coordinator, "test-1")
         wait_ready_nodes(client, 2, timeout_s=60)
+        # at rest the picture is the same with one more node: nothing is drawn again for it
+        camera = orbit_cameras(scene_bounds(client), 1)[0]
+        assert client.put("/api/camera", json=camera).raise_for_status().json()["frame"] > shown
         wait_until(lambda: all(len(n["tiles"]) == 1 and n["tiles"][0][2] < 256 for n in ready_nodes(client)),
                    seconds(30), "the screen split between both nodes")
 

@@ -176,7 +176,7 @@ def test_the_still_frame_is_the_last_frame_even_when_the_partition_moves_again()
     assert s.default.settled and not s.in_flight
 
 
-def test_balancer_change_node_join_and_scene_change_render_again():
+def test_balancer_change_and_scene_change_render_again_a_node_join_does_not():
     s = scheduler(still_codec=None)
     s.set_camera(camera(), 0.0)
     finish(s, 1, 0.01)
@@ -189,8 +189,30 @@ def test_balancer_change_node_join_and_scene_change_render_again():
     s.add_node(3, 3.0)
     assert not s.in_flight, "a node still loading changes nothing"
     s.node_ready(3, 3.0)
+    assert not s.in_flight, "the picture at rest is the same with one more node: nothing is drawn again"
+    s.set_camera(camera(1), 4.0)
     frame = max(s.in_flight)
-    assert {t.node_id for t in s.in_flight[frame].tiles} == {1, 2, 3}
+    assert {t.node_id for t in s.in_flight[frame].tiles} == {1, 2, 3}, "the next frame has the new node's tiles"
+
+
+def test_a_node_joining_after_the_only_node_left_mid_frame_draws_the_frame_lost():
+    s = scheduler(nodes=1, still_codec=None)
+    s.set_camera(camera(), 0.0)
+    assert s.in_flight
+    s.remove_node(1, 0.01)
+    assert not s.in_flight, "no node left: the frame is dropped"
+    s.add_node(2, 0.5)
+    s.node_ready(2, 0.5)
+    assert [t.node_id for t in s.in_flight[max(s.in_flight)].tiles] == [2], "nothing showed the camera yet"
+
+
+def test_a_node_ready_before_any_frame_starts_the_frame_owed():
+    s = scheduler(nodes=0, still_codec=None)
+    s.set_camera(camera(), 0.0)
+    assert not s.in_flight, "no node holds the scene"
+    s.add_node(1, 0.5)
+    s.node_ready(1, 0.5)
+    assert [t.node_id for t in s.in_flight[max(s.in_flight)].tiles] == [1]
 
 
 # ------------------------------------------------------------------------ late binding, superseding
@@ -568,6 +590,7 @@ def test_a_node_that_freezes_before_finishing_a_frame_is_backed_up_at_the_slowes
     finish(s, 1, 0.01)
     s.add_node(4, 0.02)
     s.node_ready(4, 0.02)
+    s.set_camera(camera(1), 0.02)
     s.drain()
     [(frame, tile)] = s.nodes[4].outstanding
     for node_id in (1, 2, 3):

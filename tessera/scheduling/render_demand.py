@@ -90,6 +90,11 @@ class RenderDemand:
         """Samples a still accumulates."""
         return self.refinement.samples
 
+    @property
+    def shown(self) -> bool:
+        """A published frame showed the current version."""
+        return self._published >= self.version
+
     def published(self, version: int) -> bool:
         """A frame of ``version`` was published; True when it is the first to show that version."""
         first = version > self._published
