@@ -5,20 +5,21 @@ one session of the same total size.
 [--scene builtin:cluster] [--input-hz 30] [--moving-s 8] [--turn-s 8] [--chromium] [--rounds 1]
 [--server-args "…"] [--present-log LOG] [--json OUT]``
 
-The wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the drive link
-that turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each that says
-``have`` for every frame, presents on ``present`` at its time and reports when, on the
-coordinator's clock estimated by ping → pong), or with ``--chromium`` headless Chromium pages of
-the real viewer (their present logs, web/wall.js, say when each present came and which animation
-frame it was drawn in). Over the window (its first second left out): frames the lock presented
-per second, frames the driver received per second, the present skew between cells (p50, p99 in
-ms, from ``/api/sessions/{id}/stats``), the lead presents were told with. The single session: one
-session of the wall's whole size moved the same way by one viewer (with ``--chromium``, a
-Chromium page watches it too): frames per second. Their ratio is what the wall costs in
-throughput; ``--rounds`` alternates the two and takes medians. Each window says how many cores
-were busy: the coordinator and its nodes, the scripted viewers, the browser, and other work on
-the machine; and the CPU ms the coordinator and the nodes spent per frame made (medians over the
-rounds: the nodes' wall / single, the coordinator's extra ms a wall frame).
+The wall: one viewer per cell (``/ws/view?session=ID&cell=C,R``) and a driver on the drive link that
+turns the camera at ``--input-hz``. Cells are scripted viewers (a thread each that says ``have`` for
+every frame, presents on ``present`` at its time and reports when, on the coordinator's clock
+estimated by ping → pong), or with ``--chromium`` headless Chromium pages of the real viewer, each
+page's viewport the cell's size as a screen of the wall would be (their present logs, web/wall.js,
+say when each present came and which animation frame it was drawn in). Over the window (its first
+second left out): frames the lock presented per second, frames the driver received per second, the
+present skew between cells (p50, p99 in ms, from ``/api/sessions/{id}/stats``), the lead presents
+were told with. The single session: one session of the wall's whole size moved the same way by one
+viewer (with ``--chromium``, a Chromium page of the whole size watches it too: the same pixels on
+screen as the cells'): frames per second. Their ratio is what the wall costs in throughput;
+``--rounds`` alternates the two and takes medians. Each window says how many cores were busy: the
+coordinator and its nodes, the scripted viewers, the browser, and other work on the machine; and the
+CPU ms the coordinator and the nodes spent per frame made (medians over the rounds: the nodes' wall
+/ single, the coordinator's extra ms a wall frame).
 
 Everything shares this machine's cores: on 2 cores, N nodes, the cells and the coordinator take turns.
 """
@@ -121,9 +122,10 @@ def chromium() -> Iterator[Any]:
 
 
 @contextlib.contextmanager
-def pages_at(browser: Any, urls: list[str]) -> Iterator[list[Any]]:
-    """A page of the viewer at each of ``urls`` in ``browser`` (the pages), closed when the block ends."""
-    pages = [browser.new_page(viewport={"width": 480, "height": 320}) for _ in urls]
+def pages_at(browser: Any, urls: list[str], viewport: tuple[int, int]) -> Iterator[list[Any]]:
+    """A page of the viewer at each of ``urls`` in ``browser``, ``viewport`` (w, h) CSS px each (the
+    pages), closed when the block ends."""
+    pages = [browser.new_page(viewport={"width": viewport[0], "height": viewport[1]}) for _ in urls]
     try:
         for page, url in zip(pages, urls, strict=True):
             page.goto(url)
@@ -222,7 +224,8 @@ def wall_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, serv
     with contextlib.ExitStack() as stack:
         pages: list[Any] = []
         if browser is not None:
-            pages = stack.enter_context(pages_at(browser, [f"{body['viewer_url']}&cell={cell}" for cell in cells]))
+            pages = stack.enter_context(pages_at(browser, [f"{body['viewer_url']}&cell={cell}" for cell in cells],
+                                                    args.cell))
             scripted: list[ScriptedCell] = []
         else:
             scripted = [ScriptedCell(stack.enter_context(ws_client.connect(
@@ -268,7 +271,7 @@ def single_phase(args: argparse.Namespace, client: httpx.Client, ws_url: str, si
     wait_session_ready(client, body["id"])
     with contextlib.ExitStack() as stack:
         if browser is not None:
-            stack.enter_context(pages_at(browser, [body["watch_url"]]))
+            stack.enter_context(pages_at(browser, [body["watch_url"]], (size[0], size[1])))
         viewer = ScriptedViewer(stack.enter_context(ws_client.connect(f"{ws_url}/ws/view?session={body['id']}",
                                                                       max_size=256 << 20)))
         started = time.perf_counter()
