@@ -398,8 +398,7 @@ class RenderService:
         link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
-        showing = self._showing(message.scene)
-        for session in showing:
+        for session in self._showing(message.scene):
             if session.bounds is None:
                 self._adopt_scene(session, message, bounds, now)
             self.scheduler.node_ready(link.node_id, now, message.share, session.id)
@@ -407,12 +406,7 @@ class RenderService:
                  message.scene or self.settings.scene, link.triangles,
                  "" if message.share is None else f", its share of partition {message.share}")
         self.apply()
-        # A node is calibrated on the default session's scene once it holds it (again with each
-        # sort-last share): another session's scene leaves its speed as it was (measured: three
-        # renders of 90-115 ms held a node that had just loaded a scan while four sessions moved,
-        # and their frames waited on it).
-        anew = link.calibration_ms is None or message.share is not None
-        if link.can_calibrate and self.default in showing and anew:
+        if link.can_calibrate:
             self.calibration.request(link.node_id)
             self._start_calibration()
 

@@ -6,25 +6,17 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
-from collections.abc import Callable
-from itertools import pairwise
 
-import numpy as np
 import pytest
 
-from tessera.balancers import create_balancer
-from tessera.balancers.base import Partition, ProjectedGroups, Tile
-from tessera.balancers.partition import check_exact_cover
 from tessera.balancers.static import StaticBalancer
-from tessera.geometry import Camera, Rect
+from tessera.geometry import Camera
 from tessera.scene.graph import ObjectGraph, SceneObject
 from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
-from tessera.scheduling.fair_share import FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
-from tessera.scheduling.tile_pieces import CostField, cut_heavy, piece_bound_ms
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import TileHeader, state_tag
 
@@ -141,25 +133,18 @@ def test_resizing_a_session_drops_its_frames_and_renders_the_new_size():
     assert all(job.size == (32, 16) for job in s.in_flight.values())
 
 
-#: A tile's cost (ms) from its rect and its frame's size.
-TileCost = Callable[[Rect, tuple[int, int]], float]
-
-
-def run_virtual(s: FrameScheduler, cost_ms: dict[str, float | TileCost], seconds: float,
-                wants: dict[str, float] | None = None, latency_s: float = 0.0,
-                at: list[tuple[float, Callable[[FrameScheduler, float], None]]] = ()) -> dict[str, dict]:
+def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
+                wants: dict[str, float] | None = None, latency_s: float = 0.0) -> dict[str, dict[str, float]]:
     """Every session moves its camera whenever a frame of it is published (or, for sessions in
     ``wants``, at that many frames per second); a node works through its queue in order, a tile
-    costing its session's ``cost_ms`` × its share of the frame's pixels (or what its function says
-    of the tile); messages each way take ``latency_s``; the scheduler is ticked at its deadlines;
-    each of ``at`` is called at its time (a session opened, a node that loaded its scene). Returns
-    per session its node busy ms, frames published (and ``published_at``, their times) and frames
-    asked for, and ``latency_ms``, its mean input → frame time."""
+    costing its session's ``cost_ms`` × its share of the frame's pixels; messages each way take
+    ``latency_s``; the scheduler is ticked at its deadlines. Returns per session its node busy
+    ms, frames published and frames asked for, and ``latency_ms``, its mean input → frame time."""
     queue: dict[int, deque[tuple[RenderTiles, int]]] = {n: deque() for n in s.nodes}
     busy_until = dict.fromkeys(s.nodes, 0.0)
     events: list[tuple[float, int, str, object]] = []
     counter = 0
-    figures = {sid: {"busy_ms": 0.0, "published": 0, "asked": 0, "published_at": []} for sid in cost_ms}
+    figures = {sid: {"busy_ms": 0.0, "published": 0, "asked": 0} for sid in s.sessions}
     ticks: set[float] = set()
 
     def push(at: float, kind: str, what: object) -> None:
@@ -173,7 +158,6 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float | TileCost], seconds
                 push(now + latency_s, "message", action)
             elif isinstance(action, PublishFrame):
                 figures[action.job.session]["published"] += 1
-                figures[action.job.session]["published_at"].append(now)
                 if wants is None or action.job.session not in wants:
                     ask(action.job.session, now)
         if (deadline := s.next_deadline(now)) is not None and max(deadline, now) not in ticks:
@@ -181,8 +165,6 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float | TileCost], seconds
             push(max(deadline, now), "tick", None)
 
     def ask(session_id: str, now: float) -> None:
-        if session_id not in s.sessions:
-            return
         figures[session_id]["asked"] += 1
         s.set_camera(camera(int(figures[session_id]["asked"]) % 7), now, session_id=session_id)
         carry_out(s.drain(), now)
@@ -195,27 +177,21 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float | TileCost], seconds
         session_id = job.session if job else DEFAULT_SESSION
         rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
         size = action.message.size
-        cost = cost_ms[session_id]
-        ms = (cost(rect, size) if callable(cost) else cost * rect.area / (size[0] * size[1])) if job else 0.0
+        ms = cost_ms[session_id] * rect.area / (size[0] * size[1]) if job else 0.0
         figures[session_id]["busy_ms"] += ms
         busy_until[node_id] = now + ms / 1000.0
         push(busy_until[node_id], "done", (node_id, action, tile_id, ms))
 
-    for session_id in cost_ms:
+    for session_id in s.sessions:
         if wants is None or session_id not in wants:
             ask(session_id, 0.0)
         else:
             for k in range(int(seconds * wants[session_id])):
                 push(k / wants[session_id], "ask", session_id)
-    for when, call in at:
-        push(when, "call", call)
     while events and events[0][0] < seconds:
         now, _, kind, what = heapq.heappop(events)
         if kind == "ask":
             ask(what, now)
-        elif kind == "call":
-            what(s, now)
-            carry_out(s.drain(), now)
         elif kind == "tick":
             ticks.discard(now)
             s.tick(now)
@@ -232,8 +208,7 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float | TileCost], seconds
         else:
             node_id, action, tile_id, ms = what
             rect = next(t.rect for t in action.message.tiles if t.tile == tile_id)
-            job = s.in_flight.get(action.message.frame)
-            header = TileHeader(action.message.frame, tile_id, rect, job.codec if job else Codec.JPEG, ms, 0.0, 0.0)
+            header = TileHeader(action.message.frame, tile_id, rect, Codec.JPEG, ms, 0.0, 0.0)
             if s.tile_arrived(node_id, header, b"", now) is not None:
                 s.tile_sent(node_id, action.message.frame, tile_id, 0.0)
             carry_out(s.drain(), now)
@@ -323,112 +298,3 @@ def test_a_node_is_sent_a_sessions_state_whole_when_another_sessions_frame_came_
         kinds.append(type(renders[0].message.state).__name__)
         answer(s, renders[0], now + 0.5)
     assert kinds == ["SceneState", "StateDelta", "SceneState", "SceneState"]
-
-
-def test_a_heavy_sessions_tiles_expected_over_the_bound_are_cut_into_pulled_pieces_dearest_first():
-    frame = Partition((Tile(Rect(0, 0, 320, 360), 1), Tile(Rect(320, 0, 320, 360), 2)))
-    # the frame before, cut in four: its cost all on the right, and there in a 40 px spot
-    dense = CostField.of([(Rect(0, 0, 320, 360), 4.0), (Rect(320, 0, 140, 360), 10.0), (Rect(460, 0, 40, 360), 180.0),
-                          (Rect(500, 0, 140, 360), 10.0)])
-    assert cut_heavy(frame, dense, 204.0, None) == (frame, None), "no other session busy: nothing waits on it"
-    assert cut_heavy(frame, dense, 90.0, 50.0) == (frame, None), "its tiles hold a node under 2 bounds: as is"
-    pieces, costs = cut_heavy(frame, dense, 204.0, 50.0)
-    assert pieces.pull and all(t.node_id is None for t in pieces.tiles)
-    check_exact_cover(pieces.rects, (640, 360))
-    expected = [dense.expected(r) for r in pieces.rects]
-    assert expected == sorted(expected, reverse=True) and costs == tuple(max(ms, 50.0) for ms in expected)
-    assert Rect(0, 0, 320, 360) in pieces.rects, "the left tile whole"
-    assert len(pieces.tiles) == 1 + 4 and costs[:4] == pytest.approx([50.0] * 4), "the right one: where its cost is"
-    # nothing measured yet: a model of 5000 primitives in one spot, 0.04 ms each as the others' are
-    spot = CostField.of_groups(ProjectedGroups(np.array([[100.0, 100.0, 140.0, 140.0]]), np.array([5000.0])), 0.04)
-    assert spot.expected(Rect(0, 0, 320, 360)) == pytest.approx(200.0)
-    projected, costs = cut_heavy(frame, spot, 200.0, 50.0)
-    check_exact_cover(projected.rects, (640, 360))
-    assert Rect(320, 0, 320, 360) in projected.rects and len(projected.tiles) == 1 + 4, "where it projects: in four"
-    assert piece_bound_ms([]) is None and piece_bound_ms([30.0, 60.0]) == 60.0 and piece_bound_ms([1.0]) == 10.0
-    doubled = dense.scaled((640, 360), (1280, 720))
-    assert doubled.expected(Rect(920, 0, 80, 720)) == pytest.approx(180.0), "a resized session's cost on its new size"
-
-
-def test_a_heavy_session_loading_beside_four_moving_ones_neither_stalls_them_nor_starves():
-    """bench.sessions' load phase on the virtual clock: four sessions move at 60 Hz on 3 nodes
-    (each frame 195 ms of node time); at 2 s a fifth opens a scene whose frames cost 300 ms, all in
-    the middle third of the screen, loaded on node 1 at 3 s, on the others at 5 and 7 s. Drawn
-    whole (main before pieces and spread), its first frames held node 1 for 300 ms a tile while
-    the others' frames, each with a tile there, waited: their longest gap went from 0.26 to 0.55 s
-    while node 1 alone held it; and once it could not start on the nodes holding it (the others'
-    frames, started on node 3, kept them busy) it got 7 frames in 8 s. Cut into pieces handed out
-    in fair turn, counted 3 times while one node of 3 holds it and owed its turn while it waits:
-    0.34 s while one node holds it, 0.48 s at most until 3 s after the last (0.50 s without the
-    spread, 0.56 s without the pieces), 11 frames."""
-    size = (640, 360)
-    config = SchedulerConfig(size=size, max_fps=1e6, settle_frames=0, still_codec=Codec.PNG, still_samples=8)
-    s = FrameScheduler(config, create_balancer("adaptive"), scene="builtin:spheres")
-    for session_id in ("b", "c", "d"):
-        s.add_session(session_id, config, create_balancer("adaptive"), f"builtin:{session_id}", 0.0)
-    for node_id in (1, 2, 3):
-        s.add_node(node_id, 0.0)
-        for session_id in s.sessions:
-            s.node_ready(node_id, 0.0, session_id=session_id)
-    for session in s.sessions.values():
-        session.primitives = 100_000.0   # as many as the scan: 200 ms a frame expected of it before one is measured
-    s.drain()
-
-    def scan_cost(rect: Rect, frame: tuple[int, int]) -> float:
-        third = Rect(frame[0] // 3, 0, frame[0] // 3, frame[1])
-        return 1.0 + 300.0 * (max(0, min(rect.x1, third.x1) - max(rect.x, third.x)) * rect.h) / third.area
-
-    def opened(s: FrameScheduler, now: float) -> None:
-        scan = s.add_session("scan", config, create_balancer("adaptive"), "library/scan.ply", now)
-        scan.primitives = 150_000.0    # its groups project to the middle third
-        scan.groups_for = lambda camera, state: ProjectedGroups(np.array([[213.0, 0.0, 427.0, 360.0]]),
-                                                                np.array([150_000.0]))
-
-    def loaded(node_id: int) -> Callable[[FrameScheduler, float], None]:
-        def ready(s: FrameScheduler, now: float) -> None:
-            s.node_ready(node_id, now, session_id="scan")
-            if node_id == 1:
-                s.set_camera(camera(), now, session_id="scan")
-        return ready
-
-    moving = {sid: 195.0 for sid in s.sessions}
-    figures = run_virtual(s, {**moving, "scan": scan_cost}, seconds=10.0, wants=dict.fromkeys(moving, 60.0),
-                          latency_s=0.003, at=[(2.0, opened), (3.0, loaded(1)), (5.0, loaded(2)), (7.0, loaded(3))])
-
-    def longest_gap(sid: str, start: float, end: float) -> float:
-        times = [t for t in figures[sid]["published_at"] if start <= t <= end]
-        return max(b - a for a, b in pairwise(times))
-
-    before = max(longest_gap(sid, 0.5, 2.0) for sid in moving)
-    one_node = max(longest_gap(sid, 2.0, 5.0) for sid in moving)
-    loading = max(longest_gap(sid, 2.0, 10.0) for sid in moving)
-    assert one_node <= 1.4 * before and loading <= 1.95 * before, (before, one_node, loading)
-    assert figures["scan"]["published"] >= 10, figures["scan"]
-    assert min(figures["scan"]["published_at"]) < 5.0, "its first frame within 2 s of its first node"
-
-
-def test_a_session_whose_scene_few_nodes_hold_has_its_node_time_counted_as_many_times_fewer():
-    s = cluster(3, {})
-    s.add_session("scan", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
-    assert s.table.spread(s.sessions["scan"].ready) == 1.0, "held nowhere yet: no frame of it runs"
-    s.node_ready(2, 0.0, session_id="scan")
-    assert s.table.spread(s.sessions["scan"].ready) == 3.0
-    s.node_ready(1, 0.0, session_id="scan")
-    assert s.table.spread(s.sessions["scan"].ready) == 1.5
-    assert s.table.spread(s.default.ready) == 1.0
-
-
-def test_a_session_that_owes_a_frame_it_cannot_start_yet_is_owed_nothing_for_the_time_it_was_loading():
-    """A session opened while others moved waits seconds for its scene; once it owes a frame, it
-    counts as having work even before a node holding its scene is free (else the others' frames,
-    started on the other nodes, keep those busy forever), and it is first lifted to the least
-    served of the active ones: seen live, unlifted, it took every turn for 5 s."""
-    fair = FairShare()
-    fair.add("moving")
-    fair.add("scan", 1.0)
-    for k in range(100):    # 10 s of frames of 50 ms node time while the scan's scene loads
-        fair.order(["moving"], [], k * 0.1)
-        fair.finished("moving", fair.started("moving"), 50.0, k * 0.1 + 0.05)
-    assert fair.order([], ["scan"], 10.0) == [], "it owes a frame; no node holding its scene is free"
-    assert fair.served["scan"] == fair.served["moving"], "owed nothing for the time it had no work"
-    assert fair.order(["moving", "scan"], [], 10.1)[0] in ("moving", "scan")

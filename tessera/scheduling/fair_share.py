@@ -38,7 +38,6 @@ class FairShare:
         self.served: dict[str, float] = {}
         self.weights: dict[str, float] = {}
         self._cost: dict[str, float] = {}
-        self._frame_ms: dict[str, float] = {}
         self._busy: dict[str, deque[tuple[float, float]]] = {}
         self._active_at: dict[str, float] = {}
 
@@ -48,24 +47,22 @@ class FairShare:
             raise ValueError(f"a session's weight must be > 0, got {weight}")
         self.served[session] = min(self.served.values(), default=0.0)
         self.weights[session] = weight
-        self._cost[session] = self._frame_ms[session] = FIRST_FRAME_MS
+        self._cost[session] = FIRST_FRAME_MS
         self._busy[session] = deque(maxlen=SHARE_WINDOW_FRAMES)
 
     def remove(self, session: str) -> None:
-        for book in (self.served, self.weights, self._cost, self._frame_ms, self._busy, self._active_at):
+        for book in (self.served, self.weights, self._cost, self._busy, self._active_at):
             book.pop(session, None)
 
     def order(self, wanting: Iterable[str], busy: Iterable[str], now: float) -> list[str]:
         """The sessions of ``wanting`` (they owe a frame) that may start one, least served first:
         none more than the costliest backlogged session's frame ahead of the least served
-        backlogged one (``busy`` ones have frames in flight, or owe one they cannot start yet). A
-        backlogged session idle for :data:`IDLE_S` before ``now`` is first lifted to the least
-        served of those active within it (one that had nothing to do, or was loading its scene,
-        is owed nothing)."""
+        backlogged one (``busy`` ones have frames in flight). A wanting session idle for
+        :data:`IDLE_S` before ``now`` is first lifted to the least served of those active within it."""
         wanting, busy = list(wanting), set(busy)
         active = [s for s in self.served if now - self._active_at.get(s, -IDLE_S - 1.0) <= IDLE_S]
         floor = min((self.served[s] for s in active), default=None)
-        for session in (*wanting, *busy):
+        for session in wanting:
             if floor is not None and session not in active and self.served[session] < floor:
                 self.served[session] = floor
         for session in (*wanting, *busy):
@@ -74,40 +71,28 @@ class FairShare:
         return sorted((s for s in wanting if self.in_turn(s, backlogged)), key=lambda s: (self.served[s], s))
 
     def in_turn(self, session: str, backlogged: Iterable[str]) -> bool:
-        """``session`` is at most the costliest ``backlogged`` session's turn ahead of the least
-        served of them (see the module docstring): its frame's node time as measured, not counted
-        ``spread`` times, or one piece's of a frame cut into pieces (else the others would run that
-        much further ahead of such a session, which would then take as much in one go)."""
+        """``session`` is at most the costliest ``backlogged`` session's frame ahead of the least
+        served of them (see the module docstring)."""
         known = [s for s in {*backlogged, session} if s in self.served]
         least = min((self.served[s] for s in known), default=0.0)
-        ahead = max((self._frame_ms[s] / self.weights[s] for s in known), default=0.0)
+        ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
         return self.served[session] <= least + ahead
 
     def started(self, session: str) -> float:
         """A frame of ``session`` started: charged at its last measured cost; returns the charge."""
-        return self.charge(session, self._cost[session])
-
-    def charge(self, session: str, ms: float) -> float:
-        """Charge ``session`` ``ms`` of node time (a piece of a frame as it is handed out, at its
-        expected cost, and corrected to its measured cost when it is back:
-        :mod:`tessera.scheduling.tile_pieces`); returns the charge."""
-        charge = ms / self.weights[session]
+        charge = self._cost[session] / self.weights[session]
         self.served[session] += charge
         return charge
 
-    def finished(self, session: str, charge: float, busy_ms: float | None, now: float, spread: float = 1.0,
-                 turn_ms: float | None = None) -> None:
+    def finished(self, session: str, charge: float, busy_ms: float | None, now: float) -> None:
         """A frame charged ``charge`` ended at ``now`` (s) having cost ``busy_ms`` of node time
-        (None: dropped, refunded), counted ``spread`` times (a session whose scene few nodes hold:
-        see :meth:`tessera.scheduling.node_table.NodeTable.spread`); ``turn_ms``: what one turn of
-        it cost, when it was not the whole frame (a frame cut into pieces, charged one by one)."""
+        (None: dropped, refunded)."""
         if session not in self.served:
             return
         self.served[session] -= charge
         if busy_ms is not None:
-            self.served[session] += busy_ms * spread / self.weights[session]
-            self._cost[session] = max(busy_ms * spread, 0.1)
-            self._frame_ms[session] = max(busy_ms if turn_ms is None else turn_ms, 0.1)
+            self.served[session] += busy_ms / self.weights[session]
+            self._cost[session] = max(busy_ms, 0.1)
             self._busy[session].append((now, busy_ms))
 
     def busy_ms(self, session: str, now: float, window_s: float = SHARE_WINDOW_S) -> float:

@@ -99,9 +99,6 @@ class FrameJob:
     ahead: bool = False
     sample: int = 0
     samples: int = 1
-    #: A frame cut into pieces (:mod:`tessera.scheduling.tile_pieces`): each tile's expected busy
-    #: ms; its tiles are handed out one at a time in fair turn (None: not cut).
-    piece_ms: tuple[float, ...] | None = None
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,

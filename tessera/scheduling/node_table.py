@@ -123,16 +123,6 @@ class NodeTable:
         """The ready nodes among ``holders`` (those that hold a session's scene), by id."""
         return [n for n in self.ready() if n.node_id in holders]
 
-    def spread(self, holders: set[int]) -> float:
-        """How many times the node time of a session whose scene the nodes ``holders`` hold counts
-        in its fair share: the ready nodes over those of them holding it (1 when all do, or none).
-        While the only node (of few) holding a session's scene draws it, the frames of the sessions
-        partitioned over all nodes wait for that node: counted once, a session just loaded on one
-        node of three would take up to three fifths of it beside four others, and their frames
-        would come at its pace."""
-        holding = len(self.holding(holders))
-        return max(1.0, len(self.ready()) / holding) if holding else 1.0
-
     def touch(self, node: NodeSchedule, state_changed: bool = False) -> None:
         """``node``'s queue changed (and, with ``state_changed``, whether it is ready or suspect)."""
         if state_changed:

@@ -57,12 +57,8 @@ What it decides:
   size, mode and balancer, camera, scene state and frames); the nodes are shared. Frame ids are
   unique across sessions, so a node's queue may hold tiles of several. A frame of a session
   starts only when a node that holds its scene has nothing left to do; when several sessions owe
-  a frame, the one that has had least node time goes first (:class:`FairShare`). A session
-  whose scene only k of the N ready nodes hold has its node time counted N/k times
-  (:meth:`NodeTable.spread`), and a session whose tiles would hold a node far longer than
-  the others' is cut into pieces handed out one at a time in the same fair turn
-  (:mod:`tessera.scheduling.tile_pieces`). The methods that act on one session take its id and
-  default to :data:`DEFAULT_SESSION`.
+  a frame, the one that has had least node time goes first (:class:`FairShare`). The methods
+  that act on one session take its id and default to :data:`DEFAULT_SESSION`.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
   frame completes, so the next frame is partitioned with them; send times, which each node
@@ -98,7 +94,6 @@ from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.refinement import MAX_STILL_SAMPLES
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
-from tessera.scheduling.tile_pieces import piece_bound_ms
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader
@@ -203,13 +198,14 @@ class FrameScheduler:
         if len(self.sessions) == 1:   # one session is always in turn
             times = [at] if (at := self.default.start_due(now, self._free_for(self.default, free))) is not None else []
         else:
-            backlogged = self._backlogged(now)
+            backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
             times = [at for s in self.sessions.values()
                      if (at := s.start_due(now, self._free_for(s, free))) is not None
                      and self.fair.in_turn(s.id, backlogged)]
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
-            if self._any_ahead() and (at := self.table.next_wanting_at(self.in_flight, now)) is not None:
+            if any(self._goes_ahead(s) for s in self.sessions.values()) and (
+                    at := self.table.next_wanting_at(self.in_flight, now)) is not None:
                 times.append(at)
         return min(times) if times else None
 
@@ -391,10 +387,6 @@ class FrameScheduler:
             return None
         node.tiles_rendered += 1
         node.failures = 0
-        if job.piece_ms is not None and (session := self.sessions.get(job.session)) is not None:
-            measured = header.render_ms + header.readback_ms + header.encode_ms
-            session.charges[job.frame_id] += self.fair.charge(
-                session.id, (measured - job.piece_ms[header.tile_id]) * self.table.spread(session.ready))
         if job.complete:
             self._complete(job, now)
         self._advance(now)
@@ -537,50 +529,22 @@ class FrameScheduler:
                 self._actions.append(CancelFrames(node.node_id, (job.frame_id,)))
 
     def _advance(self, now: float) -> None:
-        """Hand out pulled tiles, then, the session that has had least node time first, the next
-        piece of a frame cut into pieces or a new frame of a session that owes one and may start it."""
+        """Hand out pulled tiles, then start every frame that is owed and allowed, the session
+        that has had least node time first."""
         self._pump_pull(now)
         while free := self._wanting_work(now):
-            pieces = {s.id: job for s in self.sessions.values()
-                      if (job := s.waiting_pieces()) is not None and not s.ready.isdisjoint(free)}
-            wanting = [s for s in self.sessions.values() if s.id in pieces or (
-                s.waiting_pieces() is None and s.may_start(now, self._free_for(s, free)))]
+            wanting = [s for s in self.sessions.values() if s.may_start(now, self._free_for(s, free))]
             if len(wanting) > 1 or (wanting and len(self.sessions) > 1):
-                order = self.fair.order([s.id for s in wanting], self._backlogged(now), now)
+                busy = [s.id for s in self.sessions.values() if s.frames]
+                order = self.fair.order([s.id for s in wanting], busy, now)
                 wanting = [self.sessions[order[0]]] if order else []   # none: the least served goes next
             if not wanting:
                 return
             session = wanting[0]
-            if session.id in pieces:
-                self._hand_piece(pieces[session.id], free, now)
-                continue
             kind = session.owed(now)
             assert kind is not None
             self._start_frame(session, now, still=kind == STILL)
             self._pump_pull(now)
-
-    def _hand_piece(self, job: FrameJob, free: set[int], now: float) -> None:
-        """The next piece of ``job`` to a node of ``free`` that holds its scene, an idle one first,
-        then the fastest; charged at its expected cost."""
-        session = self.sessions[job.session]
-        node = min((self.nodes[i] for i in free if i in session.ready),
-                   key=lambda n: (n.node_id not in self.table.idle, -n.speed, n.node_id))
-        tile_id = job.pull_queue.popleft()
-        assert job.piece_ms is not None
-        expected = job.piece_ms[tile_id] * self.table.spread(session.ready)
-        session.charges[job.frame_id] += self.fair.charge(session.id, expected)
-        self._push(job, node, [tile_id], now)
-
-    def _backlogged(self, now: float) -> list[str]:
-        """The sessions with work: frames in flight, or a frame owed that a ready node holding their
-        scene could draw, busy or not (a session only some nodes can draw must not wait for them
-        forever while frames of the others, started on the rest, keep them busy)."""
-        return [s.id for s in self.sessions.values()
-                if s.frames or (s.owed(now) is not None and self.table.holding(s.ready))]
-
-    def _any_ahead(self) -> bool:
-        """Some session may go ahead (:meth:`_goes_ahead`) or has pieces waiting."""
-        return any(self._goes_ahead(s) or s.waiting_pieces() is not None for s in self.sessions.values())
 
     @staticmethod
     def _goes_ahead(session: SessionFrames) -> bool:
@@ -589,12 +553,13 @@ class FrameScheduler:
         two of its frame intervals, measured on the virtual clock; a progressive still's next sample
         may, the camera rests) and does not rotate tiles (they go to the first node freed; pulled
         ahead, a heavy tile could go to a slow node)."""
-        return all(job.still for job in session.frames.values()) and not session.pulls
+        last = session.mode.tiles.last
+        return all(job.still for job in session.frames.values()) and not (last is not None and last.pull)
 
     def _wanting_work(self, now: float) -> set[int]:
         """The nodes that want work: the idle ones, and those ending their last tile when some
         session may go ahead (per event, so the nodes are looked at only then)."""
-        if self._any_ahead():
+        if any(self._goes_ahead(s) for s in self.sessions.values()):
             return self.table.wanting_work(self.in_flight, now)
         return self.table.idle
 
@@ -607,16 +572,12 @@ class FrameScheduler:
         width, height = session.size
         raw = (still and session.demand.still_samples > 1 and all(n.local for n in ready)
                and width * height <= self.config.size[0] * self.config.size[1])
-        others = [s for s in self.sessions.values() if s is not session and s.node_ms is not None]
-        busy = [s.node_ms for s in others if s.node_ms is not None and (s.frames or s.owed(now) is not None)]
-        rates = [rate for s in others if (rate := s.ms_per_primitive) is not None]
-        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw,
-                                         piece_ms=piece_bound_ms(busy), ms_per_primitive=max(rates, default=None))
+        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw)
         if error is not None:
             self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
-        session.charges[job.frame_id] = 0.0 if job.piece_ms is not None else self.fair.started(session.id)
+        session.charges[job.frame_id] = self.fair.started(session.id)
         job.ahead = self.table.idle.isdisjoint(session.ready)   # started for a node ending its last tile
         if not job.pull:
             by_node: dict[int, list[int]] = {}
@@ -670,11 +631,10 @@ class FrameScheduler:
         """Tile rotation (seed 000 §4.3): idle nodes pull the next tiles (heaviest first), oldest frame
         first; when several are idle at once the fastest gets the heaviest, then the first freed.
         A node pulls only tiles of sessions whose scene it holds."""
-        rotating = [job for job in self.in_flight.values() if job.pull_queue and job.piece_ms is None]
-        if not self.table.idle or not rotating:
+        if not self.table.idle or not any(job.pull_queue for job in self.in_flight.values()):
             return
         idle = sorted((self.nodes[i] for i in self.table.idle), key=lambda n: (-n.speed, n.idle_since, n.node_id))
-        for job in rotating:
+        for job in self.in_flight.values():
             holders = self.sessions[job.session].ready
             while job.pull_queue and idle:
                 node = idle[0] if idle[0].node_id in holders else next((n for n in idle if n.node_id in holders), None)
@@ -696,11 +656,8 @@ class FrameScheduler:
         session.awaiting_send[job.frame_id] = job
         for old in [k for k in session.awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
             del session.awaiting_send[old]
-        session.measured(job)
         timings = job.timings()
-        turn_ms = None if job.piece_ms is None else max(t.busy_ms for t in timings)
-        self.fair.finished(session.id, session.charges.pop(job.frame_id, 0.0), sum(t.busy_ms for t in timings), now,
-                           self.table.spread(session.ready), turn_ms)
+        self.fair.finished(session.id, session.charges.pop(job.frame_id, 0.0), sum(t.busy_ms for t in timings), now)
         if not job.still:
             session.mode.take_timings(job.frame_id, timings)
         for node_id, rate in job.ms_per_px_by_node().items():

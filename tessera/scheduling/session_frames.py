@@ -23,17 +23,7 @@ from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.frame_stats import FrameStats
 from tessera.scheduling.node_table import NodeSchedule
 from tessera.scheduling.render_demand import STILL, RenderDemand
-from tessera.scheduling.tile_pieces import CostField, cut_heavy, longest_tile
 from tessera.wire.codec import Codec
-
-#: Weight of a new frame in how long a session's frames hold a node (:attr:`SessionFrames.node_ms`,
-#: :attr:`SessionFrames.hold_ms`).
-HOLD_SMOOTHING = 0.3
-
-
-def smoothed(old: float | None, sample: float) -> float:
-    """``sample`` folded into ``old`` (None: none before) with weight :data:`HOLD_SMOOTHING`."""
-    return sample if old is None else old + HOLD_SMOOTHING * (sample - old)
 
 
 class SessionFrames:
@@ -67,17 +57,6 @@ class SessionFrames:
         #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
         self.loads_waiting: list[int] = []
         self.frames_cancelled = 0
-        #: Its last complete frame's tiles with their busy ms (None: none yet); its frames' busy ms
-        #: in all and per node that drew them, smoothed (None: none measured yet); the longest tile
-        #: expected of its partitions from the frame before (smoothed); its scene's primitives
-        #: (None: no groups reported).
-        self.cost_field: CostField | None = None
-        self.frame_ms: float | None = None
-        self.node_ms: float | None = None
-        self.hold_ms: float | None = None
-        self.primitives: float | None = None
-        #: Its balancer rotates tiles (its frames are not sent ahead).
-        self.pulls = False
         #: A display wall's cells (issue 22): each frame's partition is cut at their edges (the
         #: pieces of a tile name it: a node draws it once).
         self.wall: WallLayout | None = None
@@ -114,15 +93,11 @@ class SessionFrames:
         return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
-                    still: bool, raw_samples: bool = False, piece_ms: float | None = None,
-                    ms_per_primitive: float | None = None) -> tuple[FrameJob, str | None]:
+                    still: bool, raw_samples: bool = False) -> tuple[FrameJob, str | None]:
         """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
         balancer failed, if it did (the static split was used). ``raw_samples``: a still's samples
-        are asked for raw (they are accumulated, never shown as they come). Tiles expected over
-        ``piece_ms`` are cut into pieces (:func:`tessera.scheduling.tile_pieces.cut_heavy`;
-        sort-first, not on a wall; None: none cut); before a frame is measured, its cost is
-        expected at ``ms_per_primitive`` (None: not cut)."""
+        are asked for raw (they are accumulated, never shown as they come)."""
         assert self.camera is not None
         camera, state = self.camera, self.scene.bind(now) if self.scene else None
         groups_for = self.groups_for
@@ -131,18 +106,6 @@ class SessionFrames:
         parts: tuple[Rect | None, ...] = ()
         if self.wall is not None:
             partition, parts = self.wall.pieces(partition)
-        self.pulls, piece_costs = partition.pull, None
-        if not self.mode.needs_depth and self.wall is None:
-            field, hold = self.cost_field, self.hold_ms
-            if field is not None:
-                hold = self.hold_ms = smoothed(self.hold_ms, longest_tile(partition, field))
-            elif piece_ms is not None and ms_per_primitive is not None and groups_for is not None:
-                projected = groups_for(camera, state)
-                if projected is not None and len(projected.weights):
-                    field = CostField.of_groups(projected, ms_per_primitive)
-                    hold = longest_tile(partition, field)
-            if field is not None and hold is not None:
-                partition, piece_costs = cut_heavy(partition, field, hold, piece_ms)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
         if raw_samples and self.demand.still_samples > 1:
@@ -153,7 +116,6 @@ class SessionFrames:
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
                               samples=self.demand.still_samples if still else 1, parts=parts)
-        job.piece_ms = piece_costs
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error
@@ -162,24 +124,6 @@ class SessionFrames:
     def settled(self) -> bool:
         """Nothing is owed: the newest state was rendered, the still frame too."""
         return not self.frames and self.owed(float("inf")) is None
-
-    def waiting_pieces(self) -> FrameJob | None:
-        """Its oldest frame cut into pieces with pieces not handed out (None: none); it starts no
-        other frame meanwhile."""
-        return next((job for job in self.frames.values() if job.piece_ms is not None and job.pull_queue), None)
-
-    def measured(self, job: FrameJob) -> None:
-        """``job``, complete, is the cost its next frames' tiles are expected from."""
-        timings = job.timings()
-        self.cost_field = CostField.of((t.rect, t.busy_ms) for t in timings)
-        busy = sum(t.busy_ms for t in timings)
-        self.frame_ms = smoothed(self.frame_ms, busy)
-        self.node_ms = smoothed(self.node_ms, busy / len({t.node_id for t in timings}))
-
-    @property
-    def ms_per_primitive(self) -> float | None:
-        """Its frames' busy ms per primitive of its scene (None: not known)."""
-        return None if self.frame_ms is None or not self.primitives else self.frame_ms / self.primitives
 
     def codec(self, still: bool) -> tuple[Codec, int]:
         """The codec and JPEG quality of a still or an interactive frame (interactive tiles that feed
@@ -207,7 +151,6 @@ class SessionFrames:
         """The scene's primitive groups (K, 6), their primitive counts (K,), its bounds (2, 3) and
         each group's object ``owners`` (K,), projected per frame in the session's state and size
         for balancers that use them (seed 003 DPBP; :class:`GroupProjector`)."""
-        self.primitives = float(np.sum(counts))
         self._project(GroupProjector(boxes, counts, bounds, owners, self.size))
 
     def _project(self, projector: GroupProjector) -> None:
@@ -216,10 +159,8 @@ class SessionFrames:
                                                           None if self.scene is None else self.scene.graph)
 
     def resize(self, size: tuple[int, int]) -> None:
-        """Frames from now on are ``size`` (w, h) px: the mode, the groups and the cost field
-        follow; the partition history starts anew (the caller drops the frames in flight)."""
-        if self.cost_field is not None:
-            self.cost_field = self.cost_field.scaled(self.size, size)
+        """Frames from now on are ``size`` (w, h) px: the mode and the groups follow; the
+        partition history starts anew (the caller drops the frames in flight)."""
         self.config = dataclasses.replace(self.config, size=size)
         self.mode.resize(size)
         if self._projector is not None:
