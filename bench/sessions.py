@@ -29,6 +29,7 @@ import math
 import shlex
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -70,32 +71,35 @@ def wait_session_ready(client: httpx.Client, session_id: str, timeout: float = 6
     raise RuntimeError(f"session {session_id[:6]}… not ready within {timeout:.0f} s")
 
 
+def seconds_until(condition: Callable[[], bool], timeout: float, interval: float = 0.1) -> float:
+    """Seconds until ``condition()`` holds, asked every ``interval`` s; NaN after ``timeout``."""
+    started = time.perf_counter()
+    while time.perf_counter() - started < timeout:
+        if condition():
+            return time.perf_counter() - started
+        time.sleep(interval)
+    return math.nan
+
+
 def wait_all_loaded(client: httpx.Client, before: dict[int, int], timeout: float = 300.0) -> float:
     """Seconds until every node holds the new session's scene, once it is ready (``before``: each
     node's ``triangles_loaded`` in ``/api/stats``, by id, before it was opened; the first node
     that reports another count holds the new scene: every node's last scene is that one then;
     none: each had it already); NaN after ``timeout`` (a node that reconnects loads every
     session's scene again)."""
-    started = time.perf_counter()
-    while time.perf_counter() - started < timeout:
+    def everywhere() -> bool:
         nodes = client.get("/api/stats").json()["nodes"]
         loaded = {n["id"]: n["triangles_loaded"] for n in nodes if n["state"] == "ready"}
         changed = [count for node_id, count in loaded.items() if node_id in before and count != before[node_id]]
-        if not changed or (len(loaded) == len(nodes) and set(loaded.values()) == {changed[0]}):
-            return time.perf_counter() - started
-        time.sleep(0.1)
-    return math.nan
+        return not changed or (len(loaded) == len(nodes) and set(loaded.values()) == {changed[0]})
+
+    return seconds_until(everywhere, timeout)
 
 
 def wait_settled(client: httpx.Client, ids: list[str], timeout: float = 60.0) -> float:
     """Seconds until every session of ``ids`` is settled (its still done: nothing renders); NaN
     after ``timeout``."""
-    started = time.perf_counter()
-    while time.perf_counter() - started < timeout:
-        if all(client.get(f"/api/sessions/{i}/stats").json()["settled"] for i in ids):
-            return time.perf_counter() - started
-        time.sleep(0.1)
-    return math.nan
+    return seconds_until(lambda: all(client.get(f"/api/sessions/{i}/stats").json()["settled"] for i in ids), timeout)
 
 
 def move(viewers: list[ScriptedViewer], until: float, hz: float, turn_s: float, stop: threading.Event) -> None:
