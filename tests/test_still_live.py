@@ -6,12 +6,14 @@ refinement cancels it at once: the next frame is the interactive one."""
 from __future__ import annotations
 
 import json
+from itertools import dropwhile
 
 import httpx
 import pytest
 import websockets.sync.client as ws_client
 
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
+from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.wire.protocol import unpack_frame
 from tests.conftest import seconds
 from tests.integration_support import (
@@ -70,11 +72,14 @@ def test_at_rest_the_refinement_frames_converge_to_render_once_then_nothing_rend
             frame = unpack_frame(message)
             if frame.frame_id >= first:
                 seen.append(frame)
-    assert seen[0].frame_id == first and not seen[0].still and seen[0].samples == 0, "the interactive frame"
-    refining = [frame.samples for frame in seen[1:]]
+    # the interactive frame, then up to settle_frames more while the balancer's partition still moves
+    interactive = len(seen) - len(list(dropwhile(lambda frame: frame.samples == 0 and not frame.still, seen)))
+    assert seen[0].frame_id == first and 1 <= interactive <= 1 + SchedulerConfig().settle_frames, \
+        f"the interactive frames: {[(frame.frame_id, frame.samples) for frame in seen]}"
+    refining = [frame.samples for frame in seen[interactive:]]
     assert refining == sorted(set(refining)) and refining[-1] == DEFAULT_STILL_SAMPLES and len(refining) >= 2, \
         f"the refinement frames say their growing sample counts: {refining}"
-    assert not any(frame.still for frame in seen[1:-1])
+    assert not any(frame.still for frame in seen[:-1])
     still = client.get("/api/frame.png", params={"after": first, "still": "true"}, timeout=seconds(120))
     assert still.headers["x-frame-still"] == "1" and still.headers["x-frame-samples"] == str(DEFAULT_STILL_SAMPLES)
     assert int(still.headers["x-frame-id"]) == seen[-1].frame_id
