@@ -195,6 +195,17 @@ def test_balancer_change_and_scene_change_render_again_a_node_join_does_not():
     assert {t.node_id for t in s.in_flight[frame].tiles} == {1, 2, 3}, "the next frame has the new node's tiles"
 
 
+def test_a_node_joining_while_the_frame_of_the_newest_camera_is_in_flight_does_not_draw_it_twice():
+    s = scheduler(still_codec=None)
+    s.set_camera(camera(), 0.0)
+    frame = max(s.in_flight)
+    s.add_node(3, 0.001)
+    s.node_ready(3, 0.001)
+    assert list(s.in_flight) == [frame], "the frame in flight will show the camera"
+    assert published(finish(s, frame, 0.01)) == [frame]
+    assert not s.in_flight, "nothing more is owed"
+
+
 def test_a_node_joining_after_the_only_node_left_mid_frame_draws_the_frame_lost():
     s = scheduler(nodes=1, still_codec=None)
     s.set_camera(camera(), 0.0)

@@ -304,9 +304,10 @@ class FrameScheduler:
     def node_ready(self, node_id: int, now: float, share: int | None = None,
                    session_id: str = DEFAULT_SESSION) -> None:
         """The node loaded the session's scene (sort-last: its share of partition ``share``). A
-        sort-first session whose newest state a published frame shows is not drawn again for it
-        (at rest, a scan's session would draw its progressive still once more per node joining);
-        the node takes its tiles from the next frame owed."""
+        sort-first session whose newest state a published frame shows, or an interactive frame in
+        flight will show, is not drawn again for it (at rest, a scan's session would draw its
+        progressive still once more per node joining; a moving one, its frame twice); the node
+        takes its tiles from the next frame owed."""
         node, session = self.nodes[node_id], self.sessions.get(session_id)
         if session is None:
             return
@@ -316,7 +317,8 @@ class FrameScheduler:
         session.ready.add(node_id)
         session.mode.share_loaded(node_id, share)
         self._load_next(session)
-        if session.mode.needs_depth or not session.demand.shown:
+        showing = session.demand.shown or any(not job.still for job in session.frames.values())
+        if session.mode.needs_depth or not showing:
             self._changed(session, now, supersede=False)
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
             self._advance(now)
