@@ -91,9 +91,9 @@ def test_multi_batch_chunks_blended_batches_stay_whole_and_runs_are_cut_per_batc
 
 
 def test_groups_are_chunks_or_merged_runs_of_them():
-    scene = SceneData.from_batches("one", [batch("a", 3000, 0.0)], face_limit=10)
+    scene = SceneData.from_batches("one", [batch("a", 3000, 0.0)], face_limit=30)
     chunks = scene.chunks
-    assert chunks.chunk_count > 100
+    assert 100 < chunks.chunk_count <= MAX_GROUPS
     assert np.array_equal(scene.groups.counts, chunks.face_counts)
     merged = chunks.primitive_groups(max_groups=40)
     assert len(merged.counts) <= 40 and merged.counts.sum() == scene.triangle_count
@@ -103,8 +103,9 @@ def test_groups_are_chunks_or_merged_runs_of_them():
 
 
 def test_groups_never_merge_two_objects():
-    scene = SceneData.from_batches("two", [batch("a", 3000, 0.0), batch("b", 3000, 5.0)], face_limit=10)
+    scene = SceneData.from_batches("two", [batch("a", 3000, 0.0), batch("b", 3000, 5.0)], face_limit=60)
     chunks = scene.chunks
+    assert chunks.chunk_count <= MAX_GROUPS, "the scene's groups are its chunks"
     owners = np.array([b.owner for b in scene.batches])
     assert owners.tolist() == [0, 1] and scene.groups.owners.tolist() == owners[chunks.batch].tolist()
     merged = chunks.primitive_groups(owners, max_groups=7)       # 7 does not divide the chunk runs evenly

@@ -26,8 +26,13 @@ import numpy as np
 from node.scene.mesh import MeshBatch
 from node.scene.octree import DEFAULT_FACE_LIMIT, octree_split
 
-#: Most primitive groups sent to the coordinator (seed 003's DPBP): 4000 boxes stay near 0.5 MB of JSON.
-MAX_GROUPS = 4000
+#: Most primitive groups sent to the coordinator (seed 003's DPBP). The coordinator projects them
+#: and its ``*-predict`` balancers sweep a box per group (and per group–tile overlap) every frame, so
+#: its CPU per frame grows with them; the balance does not (``bench.balance``, adaptive-predict, 3
+#: nodes, 1280x720, orbits: imbalance mean at 4000 / 1024 / 512 groups: builtin:cluster 1.036 /
+#: 1.041 / 1.036, pan 1.032 / 1.029 / 1.031, lucy 1.083 / 1.028 / 1.036), while a partition's CPU
+#: fell from 3.7 ms (cluster, 2181 groups) and 4.8 ms (pan, 3021) to 1.5 and 1.6 ms at 512.
+MAX_GROUPS = 512
 
 
 @dataclass(frozen=True, eq=False)
