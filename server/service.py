@@ -394,6 +394,12 @@ class RenderService:
         return [s for s in self.sessions.values() if s.scene == spec]
 
     def _on_scene_ready(self, link: NodeLink, message: SceneReady) -> None:
+        """A node holds ``message``'s scene: the sessions showing it may draw on it. It is calibrated
+        (on the default session's scene) when that is the scene it reports, not again for another
+        session's: its speed is the same, and a calibration holds up its tiles of every session while
+        it draws the region three times, then reweights every session's partition with a time taken
+        on a loaded machine (the speeds swung between 1.0 and 2.3 from one to the next in
+        ``bench.sessions``, each time a node held the new session's scan)."""
         bounds = np.asarray(message.bounds, dtype=np.float64)
         link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
@@ -406,7 +412,7 @@ class RenderService:
                  message.scene or self.settings.scene, link.triangles,
                  "" if message.share is None else f", its share of partition {message.share}")
         self.apply()
-        if link.can_calibrate:
+        if link.can_calibrate and self.default in self._showing(message.scene):
             self.calibration.request(link.node_id)
             self._start_calibration()
 

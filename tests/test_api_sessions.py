@@ -31,10 +31,11 @@ class SceneNode:
     """A fake node over ``/ws/node`` that holds every scene it is told to load and answers each
     render with flat tiles whose grey level says which scene they are of."""
 
-    def __init__(self, ws) -> None:
+    def __init__(self, ws, hello: dict[str, Any] = HELLO) -> None:
         self.ws = ws
         self.scenes: list[str] = []
-        ws.send_json(HELLO)
+        self.calibrations = 0
+        ws.send_json(hello)
         next_json(ws, "welcome")
 
     def serve(self, until) -> list[dict[str, Any]]:
@@ -46,6 +47,9 @@ class SceneNode:
                 self.scenes.append(message["scene"])
                 self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "triangles": 12,
                                    "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}]})
+            elif message["type"] == "calibrate":
+                self.calibrations += 1
+                self.ws.send_json({"type": "calibration", "ms": 5.0})
             elif message["type"] == "render":
                 self.answer(message)
                 renders.append(message)
@@ -99,6 +103,22 @@ def test_a_session_has_unguessable_keys_and_its_own_scene_and_size(client):
         stats = client.get(f"/api/sessions/{session_id}/stats").json()
         assert stats["size"] == [80, 40] and stats["session"] == session_id
         assert {s["id"] for s in client.get("/api/stats").json()["sessions"]} == {"default", session_id}
+
+
+def test_a_node_is_calibrated_on_the_default_scene_and_not_again_for_another_sessions_scene(client):
+    with client.websocket_connect("/ws/node") as ws:
+        node = SceneNode(ws, {**HELLO, "capabilities": {**HELLO["capabilities"], "calibrate": True}})
+        default_first = client.put("/api/camera", json={"eye": [0, 0, 6], "target": [0, 0, 0]}).json()["frame"]
+        node.serve(lambda render: render["scene"] == "builtin:spheres" and render["frame"] >= default_first)
+        session_id = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()["id"]
+        first = client.put(f"/api/sessions/{session_id}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
+        default_next = client.put("/api/camera", json={"eye": [0, 0, 7], "target": [0, 0, 0]}).json()["frame"]
+        node.serve(lambda render: render["scene"] == "builtin:spheres" and render["frame"] >= default_next)
+        assert node.scenes == ["builtin:spheres", "builtin:cluster"]
+        assert node.calibrations == 1, "loading another session's scene leaves the node's speed as it was"
+        assert wait_until(lambda: [n["calibration_ms"] for n in client.get("/api/stats").json()["nodes"]] == [5.0],
+                          seconds(10), "the calibration in the stats")
 
 
 def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):

@@ -6,6 +6,8 @@ and the GL worker sends files at or over its threshold there (and draws them lik
 from __future__ import annotations
 
 import asyncio
+import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,7 @@ import pytest
 
 from node.gl.worker import GLWorker
 from node.scene.mesh import SceneError
-from node.scene.read_process import SceneReaderProcess, read_scene, reads_in_process
+from node.scene.read_process import READER_NICE, SceneReaderProcess, read_scene, reads_in_process
 from tessera.geometry import Rect, default_camera
 from tessera.wire.messages import LoadScene, ShareSpec
 from tests.conftest import scene_path
@@ -41,6 +43,17 @@ def test_a_file_read_in_the_child_is_the_scene_read_here(reader):
     assert all(np.array_equal(a, b) for a, b in zip(there.packed, here.packed, strict=True))
     assert progress[0][1] == "reading bun_zipper.ply" and progress[-1][1].startswith("keeping share 2")
     assert reader.read(path, "again", 4096, None, lambda f, m: None).scene.triangle_count > 0, "the child serves again"
+
+
+def test_every_thread_of_the_child_runs_at_the_lower_priority_and_the_callers_keeps_its_own(reader):
+    """Born lowered: its start-up and the threads numpy starts at import are lowered too."""
+    before = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    reader.read(str(scene_path(BUNNY)), "library/bunny.ply", 4096, None, lambda f, m: None)
+    assert reader._process is not None
+    tasks = list(Path(f"/proc/{reader._process.pid}/task").iterdir())
+    niceness = {int(task.joinpath("stat").read_text().rsplit(")", 1)[1].split()[16]) for task in tasks}
+    assert niceness == {min(before + READER_NICE, 19)}, f"{len(tasks)} threads at {niceness}"
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before
 
 
 def test_a_broken_file_comes_back_with_its_reason(reader, tmp_path: Path):

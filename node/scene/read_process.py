@@ -5,8 +5,12 @@ tiles it draws for other sessions).
 Parsing and splitting a large scan is seconds of Python and numpy. In a thread of the node it
 holds the GIL much of that time, so the GL thread's tiles of other scenes wait for it (measured:
 a 0.90 s gap in other sessions' frames while the 990k-triangle scan loaded). The child process
-has a GIL of its own and runs at a lower CPU priority (``nice`` +:data:`READER_NICE`), so on a
-machine short of cores the tiles come first; it sends progress and then the read scene back over
+has a GIL of its own and runs at a lower CPU priority (``nice`` +:data:`READER_NICE`) from its
+first instruction — it is started by a thread of that priority, whose niceness it inherits, so its
+start (a new interpreter importing numpy, trimesh and the node's modules: 0.9 s of CPU with the
+bunny's read, measured) and the threads numpy starts at import are lowered too (``os.nice`` in the
+child lowered its main thread only: two of its three threads stayed at the node's priority) — so on a machine short of cores the
+tiles come first; it sends progress and then the read scene back over
 a pipe (about 60 MB pickled for the 990k scan, unpickled in under 10 ms). Small files and the
 built-in scenes are read in the loader thread: starting the child (importing numpy and trimesh)
 costs more than they take.
@@ -18,6 +22,7 @@ import contextlib
 import dataclasses
 import multiprocessing
 import os
+import threading
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -107,9 +112,8 @@ class SceneReaderProcess:
             self._stop()
             context = multiprocessing.get_context("spawn")
             ours, theirs = context.Pipe()
-            self._process = context.Process(target=_serve, args=(theirs, self.nice), name="tessera-scene-reader",
-                                            daemon=True)
-            self._process.start()
+            self._process = context.Process(target=_serve, args=(theirs,), name="tessera-scene-reader", daemon=True)
+            _start_lowered(self._process, self.nice)
             theirs.close()
             self._connection = ours
         return self._connection
@@ -129,11 +133,23 @@ class SceneReaderProcess:
         return process.exitcode
 
 
-def _serve(connection: Connection, nice: int) -> None:
+def _start_lowered(process: multiprocessing.process.BaseProcess, increment: int) -> None:
+    """Start ``process`` from a thread of its own whose niceness is raised by ``increment`` first
+    (Linux: a thread's own), so the child is born at that priority; the caller's is left as it was
+    (lowering it back would need privileges)."""
+    def start() -> None:
+        with contextlib.suppress(OSError):
+            os.nice(increment)
+        process.start()
+
+    starter = threading.Thread(target=start, name="tessera-scene-reader-start")
+    starter.start()
+    starter.join()
+
+
+def _serve(connection: Connection) -> None:
     """The child: read each request, answer progress messages then the scene (or an error line),
     until the node closes the pipe."""
-    with contextlib.suppress(OSError):
-        os.nice(nice)
 
     def report(fraction: float, message: str) -> None:
         connection.send(("progress", fraction, message))
