@@ -5,13 +5,13 @@ tiles it draws for other sessions).
 Parsing and splitting a large scan is seconds of Python and numpy. In a thread of the node it
 holds the GIL much of that time, so the GL thread's tiles of other scenes wait for it (measured:
 a 0.90 s gap in other sessions' frames while the 990k-triangle scan loaded). The child process
-has a GIL of its own and runs at a lower CPU priority (``nice`` +:data:`READER_NICE`) from its
-first instruction — it is started by a thread of that priority, whose niceness it inherits, so its
-start (a new interpreter importing numpy, trimesh and the node's modules: 0.9 s of CPU with the
-bunny's read, measured) and the threads numpy starts at import are lowered too (``os.nice`` in the
-child lowered its main thread only: two of its three threads stayed at the node's priority) — so on a machine short of cores the
-tiles come first; it sends progress and then the read scene back over
-a pipe (about 60 MB pickled for the 990k scan, unpickled in under 10 ms). Small files and the
+has a GIL of its own and runs at a lower CPU priority (``nice`` +:data:`READER_NICE`), so on a
+machine short of cores the tiles come first. It is lowered from its first instruction: a thread of
+that priority starts it, and it inherits the niceness, so its start (a new interpreter importing
+numpy, trimesh and the node's modules: 0.9 s of CPU with the bunny's read, measured) and the threads
+numpy starts at import are lowered too (``os.nice`` in the child lowered its main thread only: two
+of its three threads stayed at the node's priority). It sends progress and then the read scene back
+over a pipe (about 60 MB pickled for the 990k scan, unpickled in under 10 ms). Small files and the
 built-in scenes are read in the loader thread: starting the child (importing numpy and trimesh)
 costs more than they take.
 """
