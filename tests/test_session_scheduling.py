@@ -298,3 +298,23 @@ def test_a_node_is_sent_a_sessions_state_whole_when_another_sessions_frame_came_
         kinds.append(type(renders[0].message.state).__name__)
         answer(s, renders[0], now + 0.5)
     assert kinds == ["SceneState", "StateDelta", "SceneState", "SceneState"]
+
+
+def test_a_session_only_a_busy_node_holds_starts_when_another_node_is_free():
+    """Node 1 alone holds session p's scene and is never idle (session a's frames keep a tile
+    queued there): p's frame starts once node 2 is free, its tile queued at node 1."""
+    s = cluster(2, {"a": (64, 32)})
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    s.node_ready(1, 0.0, session_id="p")
+    s.drain()
+    s.set_camera(camera(), 0.0, session_id="a")
+    first = {a.node_id: a for a in s.drain() if isinstance(a, RenderTiles)}
+    assert sorted(first) == [1, 2]
+    answer(s, first[2], 0.01)   # node 2 is free, node 1 still on a's tile
+    s.set_camera(camera(), 0.02, session_id="p")
+    started = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    assert [(a.node_id, s.in_flight[a.message.frame].session) for a in started] == [(1, "p")]
+    assert s.nodes[1].outstanding and len(s.nodes[1].outstanding) == 2, "queued behind a's tile"
+    published = [a.job.session for a in answer(s, first[1], 0.05) + answer(s, started[0], 0.08)
+                 if isinstance(a, PublishFrame)]
+    assert published == ["a", "p"]

@@ -566,8 +566,17 @@ class FrameScheduler:
         return self.table.idle
 
     def _free_for(self, session: SessionFrames, free: set[int]) -> set[int]:
-        """The nodes of ``free`` (:meth:`_wanting_work`) a frame of ``session`` may start on."""
-        return free if self._goes_ahead(session) else self.table.idle
+        """The nodes of ``free`` (:meth:`_wanting_work`) a frame of ``session`` may start on. While
+        only some nodes hold its scene (the others still loading it) and none of those is free but
+        another node is, its holders stand in: its frame may start and its tiles queue at them, as
+        other sessions' tiles queue at busy nodes. Else the others' frames, started whenever one of
+        their nodes frees up, keep its holders' queues from ever running dry, and it never starts
+        (measured: a session of the 990k scan that one node held waited 14 s for its first frame,
+        until a second node held it)."""
+        nodes = free if self._goes_ahead(session) else self.table.idle
+        if nodes and session.ready.isdisjoint(nodes):
+            return {n.node_id for n in self.table.holding(session.ready)}
+        return nodes
 
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
