@@ -404,7 +404,8 @@ class RenderService:
         link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
         now = time.monotonic()
-        for session in self._showing(message.scene):
+        showing = self._showing(message.scene)
+        for session in showing:
             if session.bounds is None:
                 self._adopt_scene(session, message, bounds, now)
             self.scheduler.node_ready(link.node_id, now, message.share, session.id)
@@ -412,7 +413,7 @@ class RenderService:
                  message.scene or self.settings.scene, link.triangles,
                  "" if message.share is None else f", its share of partition {message.share}")
         self.apply()
-        if link.can_calibrate and self.default in self._showing(message.scene):
+        if link.can_calibrate and self.default in showing:
             self.calibration.request(link.node_id)
             self._start_calibration()
 

@@ -56,8 +56,10 @@ What it decides:
 * **Sessions** (issue 19). Every frame belongs to a session (:class:`SessionFrames`: its own
   size, mode and balancer, camera, scene state and frames); the nodes are shared. Frame ids are
   unique across sessions, so a node's queue may hold tiles of several. A frame of a session
-  starts only when a node that holds its scene has nothing left to do; when several sessions owe
-  a frame, the one that has had least node time goes first (:class:`FairShare`). The methods
+  starts only when a node that holds its scene has nothing left to do (or, while only some
+  nodes hold it and none of them is free, when another node is: :meth:`FrameScheduler._free_for`);
+  when several sessions owe a frame, the one that has had least node time goes first
+  (:class:`FairShare`). The methods
   that act on one session take its id and default to :data:`DEFAULT_SESSION`.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
@@ -317,8 +319,7 @@ class FrameScheduler:
         session.ready.add(node_id)
         session.mode.share_loaded(node_id, share)
         self._load_next(session)
-        showing = session.demand.shown or any(not job.still for job in session.frames.values())
-        if session.mode.needs_depth or not showing:
+        if session.mode.needs_depth or not (session.demand.shown or session.interactive_in_flight):
             self._changed(session, now, supersede=False)
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
             self._advance(now)

@@ -73,9 +73,13 @@ class SessionFrames:
         if self.camera is None:
             return None
         moving = self.demand.settling and self.mode.tiles.moving
-        interactive = any(not job.still for job in self.frames.values())
-        return self.demand.owed(now, self.scene is not None and self.scene.animating, moving, interactive,
-                                ignore_quiet)
+        return self.demand.owed(now, self.scene is not None and self.scene.animating, moving,
+                                self.interactive_in_flight, ignore_quiet)
+
+    @property
+    def interactive_in_flight(self) -> bool:
+        """An interactive frame of the session is in flight (it will show the newest state it took)."""
+        return any(not job.still for job in self.frames.values())
 
     def may_start(self, now: float, idle: set[int]) -> bool:
         """A frame is owed, another may be in flight, and a node holding the scene is ``idle``."""
