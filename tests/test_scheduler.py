@@ -148,6 +148,21 @@ def test_settling_frames_are_bounded_and_only_while_the_partition_moves():
     assert not steady.in_flight
 
 
+def test_a_frame_on_one_node_has_no_settling_frame():
+    """The whole frame is one node's tile: no edge can move, so no frame is drawn twice (a session
+    whose scene one node holds yet drew its first frame again, holding up the other sessions)."""
+    s = scheduler(nodes=1, settle_frames=3, still_codec=None)
+    s.set_camera(camera(0), 0.0)
+    assert list(s.in_flight) == [1]
+    finish(s, 1, 0.01)
+    assert not s.in_flight, "one tile: nothing to settle"
+    s.add_node(2, 0.02)
+    s.node_ready(2, 0.02)
+    s.set_camera(camera(1), 0.03)
+    finish(s, 2, 0.04)
+    assert list(s.in_flight) == [3], "two nodes: the first partition of two tiles is compared with the next"
+
+
 def test_the_still_frame_is_the_last_frame_even_when_the_partition_moves_again():
     """Steady for the first two frames (settling stops with frames to spare), moving from the still
     frame on: no settling frame may follow the still frame."""
