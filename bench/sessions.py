@@ -7,7 +7,8 @@ scripted viewer, on a coordinator with N local nodes.
 
 Phase 1, moving: every viewer (a real ``/ws/view`` client of its session's drive link, as in
 :mod:`bench.live`) turns its camera at ``--input-hz``. Per session over the window (its first
-second left out): frames received per second, input → frame latency p50 in ms and in the
+second left out): interactive frames received per second (neither the still nor the progressive
+still's refinements, which come once the camera rests), input → frame latency p50 in ms and in the
 session's own frame intervals, and its ``node_share`` (its fraction of the node time all
 sessions' frames took, from ``/api/stats``); Jain's fairness index of the shares; the nodes'
 busy fraction (node ms of all frames / (nodes × window)). Phase 2, ``--large-scene`` (a name of
@@ -115,7 +116,7 @@ def move(viewers: list[ScriptedViewer], until: float, hz: float, turn_s: float, 
 
 def session_figures(viewer: ScriptedViewer, start: float, end: float) -> dict[str, float]:
     with viewer.lock:
-        frames = [f for f in viewer.frames if start <= f["at"] <= end and not f["still"]]
+        frames = [f for f in viewer.frames if start <= f["at"] <= end and not (f["still"] or f["samples"])]
         late = [f for f in viewer.frames if start <= f["at"] <= end + 1.0]
     intervals = np.diff([f["at"] for f in frames])
     interval_ms = float(intervals.mean() * 1000.0) if len(intervals) else math.nan

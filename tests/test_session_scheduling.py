@@ -318,3 +318,20 @@ def test_a_session_only_a_busy_node_holds_starts_when_another_node_is_free():
     published = [a.job.session for a in answer(s, first[1], 0.05) + answer(s, started[0], 0.08)
                  if isinstance(a, PublishFrame)]
     assert published == ["a", "p"]
+
+
+def test_a_session_few_nodes_hold_pays_for_holding_them_up():
+    """Session p's scene is on node 1 alone (the others still load it) and its frame costs 150 ms
+    there; three sessions of 30 ms frames over all three nodes move too. p's node time counts three
+    times (three nodes ready, one holds it): it takes about a fair share of node 1 (a quarter), not
+    a fair share of the whole cluster on node 1, where the others' tiles wait behind its frames
+    (unscaled: p took 51 % of node 1, the others a third fewer frames)."""
+    s = cluster(3, {"b": (64, 32), "c": (64, 32)})
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    s.node_ready(1, 0.0, session_id="p")
+    s.drain()
+    costs = {DEFAULT_SESSION: 30.0, "b": 30.0, "c": 30.0, "p": 150.0}
+    figures = run_virtual(s, costs, seconds=20.0)
+    assert 0.2 * 20_000.0 <= figures["p"]["busy_ms"] <= 0.3 * 20_000.0, figures
+    others = [figures[sid]["busy_ms"] for sid in (DEFAULT_SESSION, "b", "c")]
+    assert jain(others) >= 0.95 and min(others) > 2.5 * figures["p"]["busy_ms"], figures

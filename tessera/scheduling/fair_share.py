@@ -12,7 +12,12 @@ measured cost when the frame completes (or refunded when it is dropped). A sessi
 work for :data:`IDLE_S` (no frame owed, none in flight) is lifted to the least served of the
 active ones when it wants again: an idle session is owed nothing, and one that joins cannot
 starve the others. Weights scale the charge (a session of weight 2 gets twice the node time).
-Pure: the clock comes in as ``now`` (s).
+A frame drawn while only some nodes hold its session's scene is charged its node time times the
+frame's *scarcity* (the nodes over those that hold the scene): the few holders are the nodes every
+other session's frames wait at too. Unscaled, a session of the 990k scan that one node of three
+held took its fair share of all three nodes' time on that one node (sample after sample of its
+still, 120-160 ms each), and the others' tiles queued behind them (gaps of 0.5 s). The node
+shares reported stay the node time taken. Pure: the clock comes in as ``now`` (s).
 """
 
 from __future__ import annotations
@@ -78,20 +83,22 @@ class FairShare:
         ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
         return self.served[session] <= least + ahead
 
-    def started(self, session: str) -> float:
-        """A frame of ``session`` started: charged at its last measured cost; returns the charge."""
-        charge = self._cost[session] / self.weights[session]
+    def started(self, session: str, scarcity: float = 1.0) -> float:
+        """A frame of ``session`` started: charged at its last measured cost times its ``scarcity``
+        (see the module docstring); returns the charge."""
+        charge = self._cost[session] * scarcity / self.weights[session]
         self.served[session] += charge
         return charge
 
-    def finished(self, session: str, charge: float, busy_ms: float | None, now: float) -> None:
+    def finished(self, session: str, charge: float, busy_ms: float | None, now: float,
+                 scarcity: float = 1.0) -> None:
         """A frame charged ``charge`` ended at ``now`` (s) having cost ``busy_ms`` of node time
-        (None: dropped, refunded)."""
+        (None: dropped, refunded), counted ``scarcity`` times."""
         if session not in self.served:
             return
         self.served[session] -= charge
         if busy_ms is not None:
-            self.served[session] += busy_ms / self.weights[session]
+            self.served[session] += busy_ms * scarcity / self.weights[session]
             self._cost[session] = max(busy_ms, 0.1)
             self._busy[session].append((now, busy_ms))
 

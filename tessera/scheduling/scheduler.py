@@ -59,7 +59,8 @@ What it decides:
   starts only when a node that holds its scene has nothing left to do (or, while only some
   nodes hold it and none of them is free, when another node is: :meth:`FrameScheduler._free_for`);
   when several sessions owe a frame, the one that has had least node time goes first
-  (:class:`FairShare`). The methods
+  (:class:`FairShare`; while only some nodes hold a session's scene, its time on them counts
+  as many times as they are fewer than the ready nodes: :meth:`FrameScheduler._scarcity`). The methods
   that act on one session take its id and default to :data:`DEFAULT_SESSION`.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
@@ -525,7 +526,7 @@ class FrameScheduler:
             session.frames_cancelled += 1
             if job.still:
                 session.demand.still_dropped(job.version)
-            self.fair.finished(job.session, session.charges.pop(job.frame_id, 0.0), None, now)
+            self.fair.finished(job.session, session.charges.pop(job.frame_id, (0.0, 1.0))[0], None, now)
         self.frames_cancelled += 1
         for node in self.nodes.values():
             if self.table.drop(node, job.frame_id, now):
@@ -579,6 +580,13 @@ class FrameScheduler:
             return {n.node_id for n in self.table.holding(session.ready)}
         return nodes
 
+    def _scarcity(self, session: SessionFrames) -> float:
+        """The ready nodes over those of them that hold ``session``'s scene (1 when all do): how
+        much its node time counts in its fair share (:class:`FairShare`)."""
+        ready = [n for n in self.nodes.values() if n.ready]
+        holders = sum(n.node_id in session.ready for n in ready)
+        return len(ready) / holders if holders else 1.0
+
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
         width, height = session.size
@@ -589,7 +597,8 @@ class FrameScheduler:
             self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
-        session.charges[job.frame_id] = self.fair.started(session.id)
+        scarcity = self._scarcity(session)
+        session.charges[job.frame_id] = (self.fair.started(session.id, scarcity), scarcity)
         job.ahead = self.table.idle.isdisjoint(session.ready)   # started for a node ending its last tile
         if not job.pull:
             by_node: dict[int, list[int]] = {}
@@ -669,7 +678,8 @@ class FrameScheduler:
         for old in [k for k in session.awaiting_send if k < job.frame_id - AWAITING_SEND_FRAMES]:
             del session.awaiting_send[old]
         timings = job.timings()
-        self.fair.finished(session.id, session.charges.pop(job.frame_id, 0.0), sum(t.busy_ms for t in timings), now)
+        charge, scarcity = session.charges.pop(job.frame_id, (0.0, 1.0))
+        self.fair.finished(session.id, charge, sum(t.busy_ms for t in timings), now, scarcity)
         if not job.still:
             session.mode.take_timings(job.frame_id, timings)
         for node_id, rate in job.ms_per_px_by_node().items():

@@ -29,7 +29,7 @@ from tessera.wire.codec import Codec
 class SessionFrames:
     """Session ``session_id``: ``scene_key`` is the scene its nodes load (None: the coordinator's
     own); ``ready`` the nodes that hold it; ``frames`` its frames in flight by id; ``charges`` what each
-    was charged of node time (:class:`tessera.scheduling.fair_share.FairShare`)."""
+    was charged of node time and its scarcity (:class:`tessera.scheduling.fair_share.FairShare`)."""
 
     def __init__(self, session_id: str, config, balancer: Balancer, scene_key: str | None = None) -> None:
         self.id = session_id
@@ -50,7 +50,7 @@ class SessionFrames:
         self._projector: GroupProjector | None = None
         self.stats = FrameStats()
         self.frames: dict[int, FrameJob] = {}
-        self.charges: dict[int, float] = {}
+        self.charges: dict[int, tuple[float, float]] = {}
         self.awaiting_send: dict[int, FrameJob] = {}
         self.next_start_at = 0.0
         self.ready: set[int] = set()
