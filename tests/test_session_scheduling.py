@@ -5,6 +5,7 @@ fairly among sessions with work (on a virtual clock: nodes answer after a modell
 from __future__ import annotations
 
 import heapq
+import itertools
 from collections import deque
 
 import pytest
@@ -16,7 +17,7 @@ from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
-from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.scheduling.scheduler import FIRST_FRAME_PIECES, FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import TileHeader, state_tag
 
@@ -134,17 +135,20 @@ def test_resizing_a_session_drops_its_frames_and_renders_the_new_size():
 
 
 def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
-                wants: dict[str, float] | None = None, latency_s: float = 0.0) -> dict[str, dict[str, float]]:
+                wants: dict[str, float] | None = None, latency_s: float = 0.0,
+                gaps_after_s: float = 0.0) -> dict[str, dict[str, float]]:
     """Every session moves its camera whenever a frame of it is published (or, for sessions in
     ``wants``, at that many frames per second); a node works through its queue in order, a tile
     costing its session's ``cost_ms`` × its share of the frame's pixels; messages each way take
     ``latency_s``; the scheduler is ticked at its deadlines. Returns per session its node busy
-    ms, frames published and frames asked for, and ``latency_ms``, its mean input → frame time."""
+    ms, frames published and frames asked for, ``latency_ms``, its mean input → frame time, and
+    ``longest_gap_s`` between its frames published from ``gaps_after_s`` on."""
     queue: dict[int, deque[tuple[RenderTiles, int]]] = {n: deque() for n in s.nodes}
     busy_until = dict.fromkeys(s.nodes, 0.0)
     events: list[tuple[float, int, str, object]] = []
     counter = 0
     figures = {sid: {"busy_ms": 0.0, "published": 0, "asked": 0} for sid in s.sessions}
+    published_at: dict[str, list[float]] = {sid: [] for sid in s.sessions}
     ticks: set[float] = set()
 
     def push(at: float, kind: str, what: object) -> None:
@@ -158,6 +162,7 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
                 push(now + latency_s, "message", action)
             elif isinstance(action, PublishFrame):
                 figures[action.job.session]["published"] += 1
+                published_at[action.job.session].append(now)
                 if wants is None or action.job.session not in wants:
                     ask(action.job.session, now)
         if (deadline := s.next_deadline(now)) is not None and max(deadline, now) not in ticks:
@@ -214,6 +219,8 @@ def run_virtual(s: FrameScheduler, cost_ms: dict[str, float], seconds: float,
             carry_out(s.drain(), now)
     for session_id, session in s.sessions.items():
         figures[session_id]["latency_ms"] = session.stats.latency_ms
+        times = [t for t in published_at[session_id] if t >= gaps_after_s]
+        figures[session_id]["longest_gap_s"] = max((b - a for a, b in itertools.pairwise(times)), default=0.0)
     return figures
 
 
@@ -315,9 +322,54 @@ def test_a_session_only_a_busy_node_holds_starts_when_another_node_is_free():
     started = [a for a in s.drain() if isinstance(a, RenderTiles)]
     assert [(a.node_id, s.in_flight[a.message.frame].session) for a in started] == [(1, "p")]
     assert s.nodes[1].outstanding and len(s.nodes[1].outstanding) == 2, "queued behind a's tile"
-    published = [a.job.session for a in answer(s, first[1], 0.05) + answer(s, started[0], 0.08)
-                 if isinstance(a, PublishFrame)]
-    assert published == ["a", "p"]
+    actions = answer(s, first[1], 0.05)
+    pending = started[0]   # p's first frame goes in pieces, one at a time, while node 1 alone holds it
+    while pending is not None:
+        actions += (more := answer(s, pending, 0.08))
+        pending = next((a for a in more if isinstance(a, RenderTiles)), None)
+    assert [a.job.session for a in actions if isinstance(a, PublishFrame)] == ["a", "p"]
+
+
+def test_a_session_few_nodes_hold_draws_its_frames_in_pieces_one_at_a_time():
+    """Node 1 alone holds p's scene; p's first frame (its cost unknown) and then, after a frame
+    measured at 200 ms, each frame is cut into pieces of about PIECE_MS, the next sent to the node
+    when the one before came back, so the tile another session queued at node 1 meanwhile comes
+    first; the whole frame is published from them."""
+    s = cluster(2, {"a": (64, 32)})
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    s.node_ready(1, 0.0, session_id="p")
+    s.drain()
+    s.set_camera(camera(), 0.0, session_id="p")
+    (first,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    job = s.in_flight[first.message.frame]
+    assert job.one_by_one and len(job.tiles) == FIRST_FRAME_PIECES and len(first.message.tiles) == 1
+    pending = first
+    while pending is not None:
+        tile = pending.message.tiles[0]
+        s.tile_arrived(1, TileHeader(job.frame_id, tile.tile, tile.rect, Codec.JPEG, 50.0, 0.0, 0.0,
+                                     state_tag(None)), b"", 0.2)
+        s.tile_sent(1, job.frame_id, tile.tile, 0.0)
+        pending = next((a for a in s.drain() if isinstance(a, RenderTiles)), None)
+    assert job.frame_id not in s.in_flight, "published"
+    s.set_camera(camera(1), 0.3, session_id="p")
+    (piece,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    pieced = s.in_flight[piece.message.frame]
+    assert pieced.one_by_one and len(pieced.tiles) == 5 and len(piece.message.tiles) == 1, "200 ms / 40"
+    s.set_camera(camera(1), 0.31, session_id="a")
+    queued = {a.node_id: a for a in s.drain() if isinstance(a, RenderTiles)}
+    assert sorted(queued) == [1, 2]
+    published, pieces, pending = [], 1, piece
+    for step in range(8):
+        actions = answer(s, pending, 0.32 + 0.01 * step)
+        if step == 0:
+            actions += answer(s, queued[1], 0.325) + answer(s, queued[2], 0.325)
+        published += [a.job.session for a in actions if isinstance(a, PublishFrame)]
+        nxt = [a for a in actions if isinstance(a, RenderTiles) and a.message.frame == pieced.frame_id]
+        if not nxt:
+            break
+        assert s.nodes[1].outstanding[(pieced.frame_id, nxt[0].message.tiles[0].tile)] is not None
+        pending, pieces = nxt[0], pieces + 1
+    assert pieces == 5 and published == ["a", "p"], (pieces, published)
 
 
 def test_a_session_few_nodes_hold_pays_for_holding_them_up():
@@ -331,7 +383,9 @@ def test_a_session_few_nodes_hold_pays_for_holding_them_up():
     s.node_ready(1, 0.0, session_id="p")
     s.drain()
     costs = {DEFAULT_SESSION: 30.0, "b": 30.0, "c": 30.0, "p": 150.0}
-    figures = run_virtual(s, costs, seconds=20.0)
+    figures = run_virtual(s, costs, seconds=20.0, gaps_after_s=1.0)
     assert 0.2 * 20_000.0 <= figures["p"]["busy_ms"] <= 0.3 * 20_000.0, figures
     others = [figures[sid]["busy_ms"] for sid in (DEFAULT_SESSION, "b", "c")]
     assert jain(others) >= 0.95 and min(others) > 2.5 * figures["p"]["busy_ms"], figures
+    assert max(figures[sid]["longest_gap_s"] for sid in (DEFAULT_SESSION, "b", "c")) < 0.1, (
+        "p's frames in pieces: the others wait for a piece at node 1, not a frame (whole: 0.18 s)", figures)

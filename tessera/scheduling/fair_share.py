@@ -83,6 +83,10 @@ class FairShare:
         ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
         return self.served[session] <= least + ahead
 
+    def frame_cost(self, session: str) -> float | None:
+        """The node time (ms) the session's last complete frame took (None before one)."""
+        return self._cost[session] if self._busy[session] else None
+
     def started(self, session: str, scarcity: float = 1.0) -> float:
         """A frame of ``session`` started: charged at its last measured cost times its ``scarcity``
         (see the module docstring); returns the charge."""

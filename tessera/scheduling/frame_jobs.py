@@ -73,7 +73,9 @@ class FrameJob:
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
     it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
     sort-first), its tiles then depth tiles; ``ahead``: started while no node holding its scene was
-    idle, for one ending its last tile (dispatch ahead).
+    idle, for one ending its last tile (dispatch ahead); ``one_by_one``: its tiles are pieces of
+    the frame that go to a node one at a time, the next when the one before came back (a pull
+    frame: an idle node holding the scene takes one too).
     """
 
     frame_id: int
@@ -97,6 +99,7 @@ class FrameJob:
     tiles_done: int = 0
     sends_done: int = 0
     ahead: bool = False
+    one_by_one: bool = False
     sample: int = 0
     samples: int = 1
 

@@ -60,7 +60,8 @@ What it decides:
   nodes hold it and none of them is free, when another node is: :meth:`FrameScheduler._free_for`);
   when several sessions owe a frame, the one that has had least node time goes first
   (:class:`FairShare`; while only some nodes hold a session's scene, its time on them counts
-  as many times as they are fewer than the ready nodes: :meth:`FrameScheduler._scarcity`). The methods
+  as many times as they are fewer than the ready nodes, :meth:`FrameScheduler._scarcity`, and
+  its frames go to them in pieces one at a time, :meth:`FrameScheduler._pieces`). The methods
   that act on one session take its id and default to :data:`DEFAULT_SESSION`.
 * **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
   timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
@@ -70,6 +71,7 @@ What it decides:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -105,6 +107,12 @@ from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader
 AWAITING_SEND_FRAMES = 8
 #: How often frames in flight are looked at for stragglers (s).
 STRAGGLER_CHECK_S = 0.1
+#: While few nodes hold a session's scene, its frames are cut into pieces expected to take about
+#: this long (ms of node time) each on the nodes that hold it, at most :data:`MAX_PIECES`; its
+#: first frame, whose cost is not known yet, into :data:`FIRST_FRAME_PIECES`.
+PIECE_MS = 40.0
+MAX_PIECES = 8
+FIRST_FRAME_PIECES = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -391,6 +399,8 @@ class FrameScheduler:
             return None
         node.tiles_rendered += 1
         node.failures = 0
+        if job.one_by_one and job.pull_queue and node_id in self.sessions[job.session].ready:
+            self._push(job, node, job.pull_next(), now)   # behind the tiles queued there meanwhile
         if job.complete:
             self._complete(job, now)
         self._advance(now)
@@ -587,20 +597,38 @@ class FrameScheduler:
         holders = sum(n.node_id in session.ready for n in ready)
         return len(ready) / holders if holders else 1.0
 
+    def _pieces(self, session: SessionFrames, holders: int, scarcity: float) -> int:
+        """How many pieces a frame of ``session`` is cut into (1: none). While only some nodes
+        hold its scene (``scarcity`` > 1), a sort-first frame whose last one took each of its
+        ``holders`` more than :data:`PIECE_MS` goes to them in pieces of about that, one at a
+        time: every other session's tiles at those nodes then wait for one piece, not a whole frame
+        (the 990k scan's still samples took 120-250 ms on the one node holding it). Its first frame,
+        not measured yet, goes in :data:`FIRST_FRAME_PIECES`."""
+        if scarcity <= 1.0 or session.mode.needs_depth or not session.mode.tiles_move or session.wall is not None:
+            return 1
+        if (cost := self.fair.frame_cost(session.id)) is None:
+            return FIRST_FRAME_PIECES
+        return min(MAX_PIECES, max(1, math.ceil(cost / (holders * PIECE_MS))))
+
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
         width, height = session.size
         raw = (still and session.demand.still_samples > 1 and all(n.local for n in ready)
                and width * height <= self.config.size[0] * self.config.size[1])
-        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw)
+        scarcity = self._scarcity(session)
+        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw,
+                                         pieces=self._pieces(session, len(ready), scarcity))
         if error is not None:
             self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
-        scarcity = self._scarcity(session)
         session.charges[job.frame_id] = (self.fair.started(session.id, scarcity), scarcity)
         job.ahead = self.table.idle.isdisjoint(session.ready)   # started for a node ending its last tile
-        if not job.pull:
+        if job.one_by_one:
+            for node in sorted(ready, key=lambda n: (-n.speed, n.node_id)):
+                if job.pull_queue:
+                    self._push(job, node, job.pull_next(), now)
+        elif not job.pull:
             by_node: dict[int, list[int]] = {}
             for tile in job.tiles:
                 assert tile.node_id is not None
@@ -680,7 +708,7 @@ class FrameScheduler:
         timings = job.timings()
         charge, scarcity = session.charges.pop(job.frame_id, (0.0, 1.0))
         self.fair.finished(session.id, charge, sum(t.busy_ms for t in timings), now, scarcity)
-        if not job.still:
+        if not (job.still or job.one_by_one):   # the balancer learns from its own partitions
             session.mode.take_timings(job.frame_id, timings)
         for node_id, rate in job.ms_per_px_by_node().items():
             if node_id in self.nodes:
@@ -699,5 +727,5 @@ class FrameScheduler:
             node = self.nodes.get(node_id)
             if node is not None:
                 node.last_phases, node.last_tiles, node.last_readback, node.counters = phases, rects, readback, counters
-        if not job.still and session.mode.take_timings(job.frame_id, timings):
+        if not (job.still or job.one_by_one) and session.mode.take_timings(job.frame_id, timings):
             session.stats.record_balance({n: sum(r[0].values()) for n, r in rollup.items()})

@@ -10,7 +10,8 @@ from collections.abc import Callable, Hashable, Sequence
 
 import numpy as np
 
-from tessera.balancers.base import Balancer, ProjectedGroups
+from tessera.balancers.base import Balancer, Partition, ProjectedGroups, Tile
+from tessera.balancers.partition import equal_strip_partition
 from tessera.balancers.projection import GroupProjector
 from tessera.compositing.layers import background_pixel
 from tessera.decomposition.mode import DecompositionMode
@@ -97,11 +98,14 @@ class SessionFrames:
         return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
-                    still: bool, raw_samples: bool = False) -> tuple[FrameJob, str | None]:
+                    still: bool, raw_samples: bool = False, pieces: int = 1) -> tuple[FrameJob, str | None]:
         """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
         balancer failed, if it did (the static split was used). ``raw_samples``: a still's samples
-        are asked for raw (they are accumulated, never shown as they come)."""
+        are asked for raw (they are accumulated, never shown as they come). ``pieces`` > 1: the
+        frame is cut into that many equal-area pieces handed to its nodes one at a time instead
+        (:attr:`FrameJob.one_by_one`; the balancer's partition is made all the same, so its
+        history goes on)."""
         assert self.camera is not None
         camera, state = self.camera, self.scene.bind(now) if self.scene else None
         groups_for = self.groups_for
@@ -110,6 +114,9 @@ class SessionFrames:
         parts: tuple[Rect | None, ...] = ()
         if self.wall is not None:
             partition, parts = self.wall.pieces(partition)
+        elif pieces > 1:
+            partition = Partition(tuple(Tile(rect, None) for rect in equal_strip_partition(pieces, self.size)),
+                                  pull=True)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
         if raw_samples and self.demand.still_samples > 1:
@@ -120,6 +127,7 @@ class SessionFrames:
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
                               samples=self.demand.still_samples if still else 1, parts=parts)
+        job.one_by_one = pieces > 1 and self.wall is None
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error
