@@ -16,6 +16,7 @@ from tessera.scene.graph import ObjectGraph, SceneObject
 from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.fair_share import FIRST_FRAME_MS, FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.scheduler import FIRST_FRAME_PIECES, FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
@@ -389,3 +390,15 @@ def test_a_session_few_nodes_hold_pays_for_holding_them_up():
     assert jain(others) >= 0.95 and min(others) > 2.5 * figures["p"]["busy_ms"], figures
     assert max(figures[sid]["longest_gap_s"] for sid in (DEFAULT_SESSION, "b", "c")) < 0.1, (
         "p's frames in pieces: the others wait for a piece at node 1, not a frame (whole: 0.18 s)", figures)
+
+
+def test_a_new_sessions_first_frame_is_charged_as_the_costliest_others_frame():
+    """Charged 10 ms, a session whose first frame takes long stays the least served while it is
+    drawn, and the others, more than a frame ahead of it, wait with nodes free."""
+    fair = FairShare()
+    fair.add("a")
+    assert fair.started("a") == FIRST_FRAME_MS, "the first session: nothing measured yet"
+    fair.finished("a", FIRST_FRAME_MS, 90.0, 1.0)
+    fair.add("p")
+    assert fair.started("p", scarcity=3.0) == pytest.approx(270.0)
+    assert fair.frame_cost("p") is None and fair.frame_cost("a") == 90.0

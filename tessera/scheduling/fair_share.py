@@ -8,7 +8,10 @@ frame or with frames in flight) waits, as a flow whose deficit is spent waits fo
 in DRR: otherwise sessions that each keep their frames in flight would get equal frame rates,
 not equal node time. A frame is charged when it starts, at the session's last measured frame cost (so a
 session with a frame in flight is not picked again for free), and the charge is corrected to the
-measured cost when the frame completes (or refunded when it is dropped). A session that had no
+measured cost when the frame completes (or refunded when it is dropped); a new session's first
+frame is charged at the costliest other session's last frame (charged less, a session whose first
+frame takes long, a large scan's, was the least served all the while it was drawn, and the
+others, more than a frame ahead of it, waited with nodes free). A session that had no
 work for :data:`IDLE_S` (no frame owed, none in flight) is lifted to the least served of the
 active ones when it wants again: an idle session is owed nothing, and one that joins cannot
 starve the others. Weights scale the charge (a session of weight 2 gets twice the node time).
@@ -25,7 +28,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable
 
-#: The charge of a session's first frame, before any was measured (ms of node time).
+#: The charge of the first session's first frame, before any was measured (ms of node time).
 FIRST_FRAME_MS = 10.0
 #: A session without work for this long (s) is idle: it is owed nothing when it comes back (the
 #: gap between a frame and the viewer's next camera is not idleness).
@@ -52,7 +55,7 @@ class FairShare:
             raise ValueError(f"a session's weight must be > 0, got {weight}")
         self.served[session] = min(self.served.values(), default=0.0)
         self.weights[session] = weight
-        self._cost[session] = FIRST_FRAME_MS
+        self._cost[session] = max(self._cost.values(), default=FIRST_FRAME_MS)
         self._busy[session] = deque(maxlen=SHARE_WINDOW_FRAMES)
 
     def remove(self, session: str) -> None:
