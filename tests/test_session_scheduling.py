@@ -332,45 +332,33 @@ def test_a_session_only_a_busy_node_holds_starts_when_another_node_is_free():
 
 
 def test_a_session_few_nodes_hold_draws_its_frames_in_pieces_one_at_a_time():
-    """Node 1 alone holds p's scene; p's first frame (its cost unknown) and then, after a frame
-    measured at 200 ms, each frame is cut into pieces of about PIECE_MS, the next sent to the node
-    when the one before came back, so the tile another session queued at node 1 meanwhile comes
-    first; the whole frame is published from them."""
+    """Node 1 alone holds p's scene. Alone, p's frame goes whole; beside session a's frame, p's
+    first frame (its cost unknown) goes in FIRST_FRAME_PIECES pieces, the next sent to node 1 when
+    the one before came back, so a's tile queued there comes first; once a frame of p took 200 ms,
+    its frames go in pieces of about PIECE_MS (40 ms)."""
     s = cluster(2, {"a": (64, 32)})
     s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
     s.node_ready(1, 0.0, session_id="p")
     s.drain()
-    s.set_camera(camera(), 0.0, session_id="p")
-    (first,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
-    job = s.in_flight[first.message.frame]
-    assert job.one_by_one and len(job.tiles) == FIRST_FRAME_PIECES and len(first.message.tiles) == 1
-    pending = first
-    while pending is not None:
-        tile = pending.message.tiles[0]
-        s.tile_arrived(1, TileHeader(job.frame_id, tile.tile, tile.rect, Codec.JPEG, 50.0, 0.0, 0.0,
-                                     state_tag(None)), b"", 0.2)
-        s.tile_sent(1, job.frame_id, tile.tile, 0.0)
-        pending = next((a for a in s.drain() if isinstance(a, RenderTiles)), None)
-    assert job.frame_id not in s.in_flight, "published"
-    s.set_camera(camera(1), 0.3, session_id="p")
-    (piece,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
-    pieced = s.in_flight[piece.message.frame]
-    assert pieced.one_by_one and len(pieced.tiles) == 5 and len(piece.message.tiles) == 1, "200 ms / 40"
-    s.set_camera(camera(1), 0.31, session_id="a")
+    assert s._pieces(s.sessions["p"], 1, 2.0) == 1, "no other session draws: nothing to wait for p"
+    s.set_camera(camera(), 0.0, session_id="a")
     queued = {a.node_id: a for a in s.drain() if isinstance(a, RenderTiles)}
-    assert sorted(queued) == [1, 2]
-    published, pieces, pending = [], 1, piece
-    for step in range(8):
-        actions = answer(s, pending, 0.32 + 0.01 * step)
-        if step == 0:
-            actions += answer(s, queued[1], 0.325) + answer(s, queued[2], 0.325)
-        published += [a.job.session for a in actions if isinstance(a, PublishFrame)]
-        nxt = [a for a in actions if isinstance(a, RenderTiles) and a.message.frame == pieced.frame_id]
-        if not nxt:
-            break
-        assert s.nodes[1].outstanding[(pieced.frame_id, nxt[0].message.tiles[0].tile)] is not None
-        pending, pieces = nxt[0], pieces + 1
-    assert pieces == 5 and published == ["a", "p"], (pieces, published)
+    actions = answer(s, queued[2], 0.005)   # node 2 is free, node 1 still on a's tile
+    s.set_camera(camera(), 0.01, session_id="p")
+    (pending,) = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    job = s.in_flight[pending.message.frame]
+    assert job.one_by_one and len(job.tiles) == FIRST_FRAME_PIECES and len(pending.message.tiles) == 1
+    actions, pieces = actions + answer(s, queued[1], 0.03), 0
+    while pending is not None:
+        assert [key for key in s.nodes[1].outstanding if key[0] == job.frame_id] == [
+            (job.frame_id, pending.message.tiles[0].tile)], "one piece at a time"
+        actions += (more := answer(s, pending, 0.05 + 0.01 * pieces))
+        pending, pieces = next((a for a in more if isinstance(a, RenderTiles)), None), pieces + 1
+    assert pieces == FIRST_FRAME_PIECES
+    assert [a.job.session for a in actions if isinstance(a, PublishFrame)] == ["a", "p"]
+    s.set_camera(camera(1), 0.2, session_id="a")
+    s.fair.finished("p", 0.0, 200.0, 0.2)
+    assert s._pieces(s.sessions["p"], 1, 2.0) == 5, "200 ms of node time / 40"
 
 
 def test_a_session_few_nodes_hold_pays_for_holding_them_up():

@@ -599,12 +599,13 @@ class FrameScheduler:
 
     def _pieces(self, session: SessionFrames, holders: int, scarcity: float) -> int:
         """How many pieces a frame of ``session`` is cut into (1: none). While only some nodes
-        hold its scene (``scarcity`` > 1), a sort-first frame whose last one took each of its
-        ``holders`` more than :data:`PIECE_MS` goes to them in pieces of about that, one at a
-        time: every other session's tiles at those nodes then wait for one piece, not a whole frame
-        (the 990k scan's still samples took 120-250 ms on the one node holding it). Its first frame,
-        not measured yet, goes in :data:`FIRST_FRAME_PIECES`."""
-        if scarcity <= 1.0 or session.mode.needs_depth or not session.mode.tiles_move or session.wall is not None:
+        hold its scene (``scarcity`` > 1) and another session has frames in flight, a sort-first
+        frame whose last one took each of its ``holders`` more than :data:`PIECE_MS` goes to them
+        in pieces of about that, one at a time: every other session's tiles at those nodes then
+        wait for one piece, not a whole frame (the 990k scan's still samples took 120-250 ms on the
+        one node holding it). Its first frame, not measured yet, goes in :data:`FIRST_FRAME_PIECES`."""
+        if (scarcity <= 1.0 or session.mode.needs_depth or not session.mode.tiles_move or session.wall is not None
+                or not any(other.frames for other in self.sessions.values() if other is not session)):
             return 1
         if (cost := self.fair.frame_cost(session.id)) is None:
             return FIRST_FRAME_PIECES
