@@ -340,7 +340,7 @@ def test_a_session_few_nodes_hold_draws_its_frames_in_pieces_one_at_a_time():
     s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
     s.node_ready(1, 0.0, session_id="p")
     s.drain()
-    assert s._pieces(s.sessions["p"], 1, 2.0) == 1, "no other session draws: nothing to wait for p"
+    assert s._pieces(s.sessions["p"], 1, 2.0, 0.0) == 1, "no other session draws: nothing to wait for p"
     s.set_camera(camera(), 0.0, session_id="a")
     queued = {a.node_id: a for a in s.drain() if isinstance(a, RenderTiles)}
     actions = answer(s, queued[2], 0.005)   # node 2 is free, node 1 still on a's tile
@@ -356,9 +356,9 @@ def test_a_session_few_nodes_hold_draws_its_frames_in_pieces_one_at_a_time():
         pending, pieces = next((a for a in more if isinstance(a, RenderTiles)), None), pieces + 1
     assert pieces == FIRST_FRAME_PIECES
     assert [a.job.session for a in actions if isinstance(a, PublishFrame)] == ["a", "p"]
-    s.set_camera(camera(1), 0.2, session_id="a")
     s.fair.finished("p", 0.0, 200.0, 0.2)
-    assert s._pieces(s.sessions["p"], 1, 2.0) == 5, "200 ms of node time / 40"
+    assert s._pieces(s.sessions["p"], 1, 2.0, 0.2) == 5, "200 ms of node time / 40"
+    assert s._pieces(s.sessions["p"], 1, 2.0, 0.71) == 1, "a had nothing to do for over half a second"
 
 
 def test_a_session_few_nodes_hold_pays_for_holding_them_up():

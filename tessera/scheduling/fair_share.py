@@ -86,6 +86,10 @@ class FairShare:
         ahead = max((self._cost[s] / self.weights[s] for s in known), default=0.0)
         return self.served[session] <= least + ahead
 
+    def others_active(self, session: str, now: float) -> bool:
+        """A session other than ``session`` had work within :data:`IDLE_S` before ``now``."""
+        return any(now - at <= IDLE_S for other, at in self._active_at.items() if other != session)
+
     def frame_cost(self, session: str) -> float | None:
         """The node time (ms) the session's last complete frame took (None before one)."""
         return self._cost[session] if self._busy[session] else None

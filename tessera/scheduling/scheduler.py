@@ -597,15 +597,17 @@ class FrameScheduler:
         holders = sum(n.node_id in session.ready for n in ready)
         return len(ready) / holders if holders else 1.0
 
-    def _pieces(self, session: SessionFrames, holders: int, scarcity: float) -> int:
+    def _pieces(self, session: SessionFrames, holders: int, scarcity: float, now: float) -> int:
         """How many pieces a frame of ``session`` is cut into (1: none). While only some nodes
-        hold its scene (``scarcity`` > 1) and another session has frames in flight, a sort-first
+        hold its scene (``scarcity`` > 1) and another session had work within the last half
+        second (:meth:`FairShare.others_active`; whether one has a frame in flight at this instant
+        says little: a moving session has none between its frames), a sort-first
         frame whose last one took each of its ``holders`` more than :data:`PIECE_MS` goes to them
         in pieces of about that, one at a time: every other session's tiles at those nodes then
         wait for one piece, not a whole frame (the 990k scan's still samples took 120-250 ms on the
         one node holding it). Its first frame, not measured yet, goes in :data:`FIRST_FRAME_PIECES`."""
         if (scarcity <= 1.0 or session.mode.needs_depth or not session.mode.tiles_move or session.wall is not None
-                or not any(other.frames for other in self.sessions.values() if other is not session)):
+                or not self.fair.others_active(session.id, now)):
             return 1
         if (cost := self.fair.frame_cost(session.id)) is None:
             return FIRST_FRAME_PIECES
@@ -618,7 +620,7 @@ class FrameScheduler:
                and width * height <= self.config.size[0] * self.config.size[1])
         scarcity = self._scarcity(session)
         job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw,
-                                         pieces=self._pieces(session, len(ready), scarcity))
+                                         pieces=self._pieces(session, len(ready), scarcity, now))
         if error is not None:
             self._actions.append(BalancerFailed(error))
         self.next_frame_id += 1
