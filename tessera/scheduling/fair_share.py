@@ -19,7 +19,7 @@ A frame drawn while only some nodes hold its session's scene is charged its node
 frame's *scarcity* (the nodes over those that hold the scene): the few holders are the nodes every
 other session's frames wait at too. Unscaled, a session of the 990k scan that one node of three
 held took its fair share of all three nodes' time on that one node (sample after sample of its
-still, 120-160 ms each), and the others' tiles queued behind them (gaps of 0.5 s). The node
+still, 120-250 ms each), and the others' tiles queued behind them (gaps of 0.5 s). The node
 shares reported stay the node time taken. Pure: the clock comes in as ``now`` (s).
 """
 
