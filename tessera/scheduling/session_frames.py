@@ -102,21 +102,22 @@ class SessionFrames:
         """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
         balancer failed, if it did (the static split was used). ``raw_samples``: a still's samples
-        are asked for raw (they are accumulated, never shown as they come). ``pieces`` > 1: the
-        frame is cut into that many equal-area pieces handed to its nodes one at a time instead
-        (:attr:`FrameJob.one_by_one`; the balancer's partition is made all the same, so its
-        history goes on)."""
+        are asked for raw (they are accumulated, never shown as they come). ``pieces`` > 1 (not
+        for a display wall's session): the frame is cut into that many equal-area pieces handed to
+        its nodes one at a time instead (:attr:`FrameJob.one_by_one`), the balancer not asked (it
+        learns from its own partitions only)."""
         assert self.camera is not None
         camera, state = self.camera, self.scene.bind(now) if self.scene else None
         groups_for = self.groups_for
-        partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
-                                        lambda: groups_for(camera, state) if groups_for else None)
         parts: tuple[Rect | None, ...] = ()
-        if self.wall is not None:
-            partition, parts = self.wall.pieces(partition)
-        elif pieces > 1:
+        if pieces > 1:
             partition = Partition(tuple(Tile(rect, None) for rect in equal_strip_partition(pieces, self.size)),
                                   pull=True)
+        else:
+            partition = self.mode.partition([n.node_id for n in ready], {n.node_id: n.speed for n in ready}, now,
+                                            lambda: groups_for(camera, state) if groups_for else None)
+            if self.wall is not None:
+                partition, parts = self.wall.pieces(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
         if raw_samples and self.demand.still_samples > 1:
@@ -127,7 +128,7 @@ class SessionFrames:
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
                               samples=self.demand.still_samples if still else 1, parts=parts)
-        job.one_by_one = pieces > 1 and self.wall is None
+        job.one_by_one = pieces > 1
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error
