@@ -11,14 +11,16 @@
   between the two pictures over the sphere's pixels, 8-bit levels.
 - Anti-aliasing: per scene (default the diorama, truck and engine and the four scans), ``--frames``
   cameras of an orbit rendered whole at each ``--msaa`` setting (``auto``: the node's default, on
-  llvmpipe one sample and :mod:`tessera.antialiasing`'s resolve filter; ``msaa`` 0 in the JSON) and,
+  llvmpipe two samples a pixel drawn twice as wide and :mod:`tessera.antialiasing`'s resolve
+  filter, ``msaa`` 0 in the JSON; ``filter``: one sample and the filter, ``msaa`` -1) and,
   as the reference, at 4×4 the size with one sample, box-filtered down to the size (the
-  sRGB-encoded values averaged, as the MSAA resolve averages them). Per setting: ``samples`` drawn,
-  ``filtered``, ``psnr_mean_db`` / ``psnr_min_db`` against that reference, ``off16_fraction`` the
-  pixels off by more than 16 levels in any channel, ``frame_ms`` the mean wall time of a whole frame
-  (draw, resolve, read-back, filter; llvmpipe uses the machine's cores, so the load of the machine
-  counts) and ``frame_cpu_ms`` the CPU time of the process meanwhile (every llvmpipe thread; less
-  sensitive to other work on the machine). The settings of a scene take turns frame by frame, so
+  sRGB-encoded values averaged, as the MSAA resolve averages them). Per setting: ``samples``
+  (multisamples) drawn, ``paired``, ``filtered``, ``psnr_mean_db`` / ``psnr_min_db`` against that
+  reference, ``off16_fraction`` the pixels off by more than 16 levels in any channel, ``frame_ms``
+  the mean wall time of a whole frame (draw, resolve, read-back, filter; llvmpipe uses the
+  machine's cores, so the load of the machine counts) and ``frame_cpu_ms`` the CPU time of the
+  process meanwhile (every llvmpipe thread; less sensitive to other work on the machine). The
+  settings of a scene take turns frame by frame, so
   that a change of load touches them alike.
 - Progressive still (issue 20): per scene, the same cameras rendered as the still of each
   ``--still-samples`` count with the node's default shading (``--msaa auto``), against the same
@@ -53,12 +55,12 @@ from bench.processes import show_result
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.image_lighting import prefiltered_environment
 from node.gl.renderer import TileRenderer
-from node.gl.shading import AUTO_MSAA, MSAA_CHOICES, ShadingOptions
+from node.gl.shading import AUTO_MSAA, FILTER_MSAA, ShadingOptions
 from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.material import SurfaceMaterial
-from node.settings import parse_size
+from node.settings import parse_msaa, parse_size
 from server.still_refinement import REFINEMENT_QUALITY
 from tessera.geometry import Camera
 from tessera.scheduling.refinement import MAX_STILL_SAMPLES, Accumulator, subsample
@@ -151,7 +153,7 @@ def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int
             found[msaa]["psnr"].append(psnr(pixels := renderer.render_frame(camera, size).pixels, reference))
             error = np.abs(pixels.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
             found[msaa]["off"].append(float(np.mean(error > OFF_LEVELS)))
-    rows = [{"msaa": msaa, "samples": renderer.samples, "filtered": renderer.filtered,
+    rows = [{"msaa": msaa, "samples": renderer.samples, "paired": renderer.paired, "filtered": renderer.filtered,
              "psnr_mean_db": reported_psnr(float(np.mean(found[msaa]["psnr"]))),
              "psnr_min_db": reported_psnr(float(np.min(found[msaa]["psnr"]))),
              "off16_fraction": float(np.mean(found[msaa]["off"])), "frame_ms": float(np.median(found[msaa]["wall"])),
@@ -198,7 +200,8 @@ def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int],
              "off16_fraction": float(np.mean(found[count]["off"])), "frame_ms": sample_ms,
              "still_ms": sample_ms * count} for count in sample_counts]
     renderer.release()
-    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "filtered": renderer.filtered,
+    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "paired": renderer.paired,
+            "filtered": renderer.filtered,
             "rows": rows,
             "coordinator": {key: float(np.mean(values)) for key, values in coordinator.items()}}
 
@@ -218,12 +221,11 @@ def parse_still_counts(text: str) -> list[int]:
 
 
 def parse_counts(text: str) -> list[int]:
-    """``--msaa`` settings: auto (:data:`node.gl.shading.AUTO_MSAA`), 1, 2, 4 or 8, in the order given."""
+    """``--msaa`` settings, each as the node's ``--msaa`` takes it (auto, filter, 1, 2, 4, 8), in the
+    order given."""
     counts: list[int] = []
-    for part in (part.strip().lower() for part in text.split(",") if part.strip()):
-        count = AUTO_MSAA if part == "auto" else int(part) if part.isdigit() else -1
-        if count not in (AUTO_MSAA, *MSAA_CHOICES):
-            raise argparse.ArgumentTypeError(f"msaa settings are auto, 1, 2, 4 or 8, got {text!r}")
+    for part in (part.strip() for part in text.split(",") if part.strip()):
+        count = parse_msaa(part)
         if count not in counts:
             counts.append(count)
     if not counts:
@@ -231,10 +233,17 @@ def parse_counts(text: str) -> list[int]:
     return counts
 
 
+def drawn_name(row: dict[str, Any]) -> str:
+    """What a row's frames were drawn with, as the table shows it: '1', '4', '1+f' (one sample,
+    filtered), '2w+f' (two samples drawn twice as wide, filtered)."""
+    return f"{'2w' if row.get('paired') else row['samples']}{'+f' if row.get('filtered') else ''}"
+
+
 def setting_name(row: dict[str, Any]) -> str:
-    """A ``--msaa`` row's setting as the table shows it: '1', '4', 'auto 1+f' (one sample, filtered)."""
-    drawn = f"{row['samples']}{'+f' if row.get('filtered') else ''}"
-    return f"auto {drawn}" if row["msaa"] == AUTO_MSAA else drawn
+    """A ``--msaa`` row's setting as the table shows it: :func:`drawn_name` after 'auto' or 'filter'
+    where the row's ``msaa`` was one of those."""
+    named = {AUTO_MSAA: "auto ", FILTER_MSAA: "filter "}
+    return named.get(row["msaa"], "") + drawn_name(row)
 
 
 def table(result: dict[str, Any]) -> str:
@@ -254,7 +263,7 @@ def table(result: dict[str, Any]) -> str:
                      f"{'still ms':>9}")
         for scene in result["stills"]:
             for row in scene["rows"]:
-                drawn = f"{scene['msaa']}{'+f' if scene.get('filtered') else ''}"
+                drawn = drawn_name({"samples": scene["msaa"], **scene})
                 lines.append(f"{Path(scene['scene']).name + ' (msaa ' + drawn + ')':<40} "
                              f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
                              f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
@@ -272,8 +281,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "of the first three)")
     parser.add_argument("--size", type=parse_size, default=(1280, 720))
     parser.add_argument("--frames", type=int, default=2)
-    parser.add_argument("--msaa", type=parse_counts, default=[AUTO_MSAA, 1, 4],
-                        help="settings compared, of auto, 1, 2, 4, 8 (default auto,1,4)")
+    parser.add_argument("--msaa", type=parse_counts, default=[AUTO_MSAA, FILTER_MSAA, 1, 4],
+                        help="settings compared, of auto, filter, 1, 2, 4, 8 (default auto,filter,1,4)")
     parser.add_argument("--still-samples", type=parse_still_counts, default=[1, 2, 4, 8, 16, 32],
                         help="progressive still sample counts (default 1,2,4,8,16,32)")
     parser.add_argument("--material-size", type=parse_size, default=(256, 256))

@@ -27,6 +27,7 @@ from node.culling.tiles import CullingUnavailableError
 from node.gl.context import GLUnavailableError, create_gl_context
 from node.gl.environment import EnvironmentError
 from node.gl.renderer import TileRenderer
+from node.gl.shading import Antialiasing
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
@@ -101,9 +102,10 @@ def render_once(settings: NodeSettings) -> int:
         return 1
     width, height = settings.size
     kind = "interactive frame" if settings.interactive else "still"
-    resolve = " + 3x3 resolve filter" if settings.interactive and renderer.filtered else ""
+    antialiasing = Antialiasing(renderer.samples, renderer.paired and settings.interactive,
+                                renderer.filtered and settings.interactive).label
     print(f"wrote {settings.render_once} ({kind}, {width}x{height}, {scene.triangle_count} triangles in "
-          f"{scene.chunks.chunk_count} chunks, {drawn}, {renderer.samples}x MSAA{resolve}, render {render_ms:.1f} ms)")
+          f"{scene.chunks.chunk_count} chunks, {drawn}, {antialiasing}, render {render_ms:.1f} ms)")
     return 0
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from node.container_name import DOCKER_MARKER, container_name, is_unexpanded_template
 from node.culling.switch import CullMode
-from node.gl.shading import AUTO_MSAA, MSAA_CHOICES, ShadingOptions
+from node.gl.shading import AUTO_MSAA, FILTER_MSAA, MSAA_CHOICES, ShadingOptions
 from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import number_parser, parse_background, size_parser
@@ -114,10 +114,12 @@ parse_scene_memory = positive_int_parser("scene memory")
 
 
 def parse_msaa(text: str) -> int:
-    """``auto`` (:data:`node.gl.shading.AUTO_MSAA`) or one of :data:`node.gl.shading.MSAA_CHOICES`."""
-    choices = ", ".join(["auto", *(str(value) for value in MSAA_CHOICES)])
-    if text.strip().lower() == "auto":
-        return AUTO_MSAA
+    """``auto`` (:data:`node.gl.shading.AUTO_MSAA`), ``filter`` (:data:`node.gl.shading.FILTER_MSAA`)
+    or one of :data:`node.gl.shading.MSAA_CHOICES`."""
+    choices = ", ".join(["auto", "filter", *(str(value) for value in MSAA_CHOICES)])
+    named = {"auto": AUTO_MSAA, "filter": FILTER_MSAA}
+    if text.strip().lower() in named:
+        return named[text.strip().lower()]
     try:
         value = int(text)
     except ValueError:
@@ -174,9 +176,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         type=parse_scene_memory, metavar="MB")
     add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder for scene files fetched from the coordinator (a scene the "
         "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
-    add("--msaa", "auto", "anti-aliasing: samples per pixel of tiles and whole frames, 1 (off), 2, 4 or 8 (capped "
-        "at what the GL offers; llvmpipe draws 2 as 4), or auto: 4 on a GPU; on llvmpipe (where 4 cost 2.6-3.5x the "
-        "frame time) 1 sample resolved by a 3x3 filter (1.1-1.2x); depth layers (hybrid, sort-last) are drawn at 1, "
+    add("--msaa", "auto", "anti-aliasing of tiles and whole frames: 1 (off), 2, 4 or 8 samples per pixel (capped at "
+        "what the GL offers; on llvmpipe 2 is two samples drawn as a frame twice as wide, resolved by a 3x3 filter, "
+        "1.1-1.8x the frame time, where its 4 multisamples cost 2.6-3.5x), filter (1 sample resolved by the 3x3 "
+        "filter, 1.1-1.2x), or auto: 4 on a GPU, 2 on llvmpipe; depth layers (hybrid, sort-last) are drawn at 1, "
         "unfiltered", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")

@@ -9,9 +9,9 @@ PNG by default); before it, refinement frames from :data:`FIRST_SHOWN` samples o
 (:data:`REFINEMENT_QUALITY`, 4:4:4: 3 ms a 1280x720 frame where PNG takes 13-26 ms): the first of
 them always (viewers see the still under way), the others only when no later sample waits on the
 thread already (a newer picture is about to be made). The mean of
-fewer samples would show a worse picture than the interactive frame before it (the mean of 2
-jittered samples is further from the 4×4 supersampled frame than llvmpipe's filtered one-sample
-frame; of 4 it is nearer: ``python -m bench.picture``), and each costs the coordinator's CPU beside
+fewer samples would show a worse picture than the interactive frame before it (the mean of 4
+jittered samples is further from the 4×4 supersampled frame than llvmpipe's filtered two-sample
+frame on two of three scenes; of 5 it is nearer on all three), and each costs the coordinator's CPU beside
 the nodes rendering the next sample.
 
 Why here and not in the viewer: the converged still must also be served as one image
@@ -31,11 +31,11 @@ from tessera.wire.codec import Codec, decode, encode
 
 #: A frame's tiles as published: (rect, codec, node slot, payload).
 Tiles = list[tuple[Rect, Codec, int, bytes]]
-#: The fewest samples a refinement frame shown holds (the mean of 4 jittered samples is the first
-#: nearer the 4×4 supersampled frame than the interactive frame: diorama / truck / engine 40.8 /
-#: 43.7 / 43.4 dB against 39.6 / 42.2 / 42.2 for the filtered one-sample frame; 2 samples 38.8 /
-#: 40.9 / 41.2 dB).
-FIRST_SHOWN = 4
+#: The fewest samples a refinement frame shown holds: the first mean of a default still of 8 nearer
+#: the 4×4 supersampled frame than the interactive frame on llvmpipe (two samples, filtered): diorama
+#: / truck / engine 43.9 / 47.8 / 46.7 dB after 5 samples against 41.7 / 43.7 / 44.0; after 4 samples
+#: 40.8 / 44.4 / 43.4 (1280x720, 2 orbit cameras, ``python -m bench.picture``'s scenes and reference).
+FIRST_SHOWN = 5
 #: JPEG quality of refinement frames before the converged still (4:4:4 from 90).
 REFINEMENT_QUALITY = 95
 

@@ -13,7 +13,7 @@ from bench.picture import SPHERE_CAMERA, luma, material_contrast, sphere_scene
 from node.gl.environment import EnvironmentError, read_hdr, studio_environment, write_hdr
 from node.gl.image_lighting import LEVELS, brdf_lut, ggx_convolve, irradiance_polynomial, irradiance_sh, sh_basis
 from node.gl.renderer import TileRenderer
-from node.gl.shading import AUTO_MSAA, ShadingOptions, resolve_samples
+from node.gl.shading import AUTO_MSAA, FILTER_MSAA, Antialiasing, ShadingOptions, resolve_antialiasing
 from node.scene.data import SceneData
 from node.scene.material import SurfaceMaterial
 from node.scene.mesh import MeshBatch
@@ -198,9 +198,15 @@ def test_node_flags_and_render_once_with_a_bad_environment(tmp_path):
     assert settings.shading == ShadingOptions(msaa=1, environment=settings.environment)
     assert parse_settings([], {"TESSERA_MSAA": "2"}).msaa == 2
     assert parse_settings([], {}).msaa == AUTO_MSAA == parse_settings(["--msaa", "auto"], {}).msaa
-    assert resolve_samples(AUTO_MSAA, "llvmpipe (LLVM 15.0.6, 256 bits)", 4) == 1
-    assert resolve_samples(AUTO_MSAA, "NVIDIA H100 80GB HBM3/PCIe/SSE2", 32) == 4
-    assert resolve_samples(8, "llvmpipe", 4) == 4 and resolve_samples(2, "NVIDIA", 32) == 2
+    assert parse_settings(["--msaa", "Filter"], {}).msaa == FILTER_MSAA
+    llvmpipe, gpu = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
+    paired = Antialiasing(samples=1, paired=True, filtered=True)
+    assert resolve_antialiasing(AUTO_MSAA, llvmpipe, 4) == paired == resolve_antialiasing(2, llvmpipe, 4)
+    assert resolve_antialiasing(AUTO_MSAA, gpu, 32) == Antialiasing(samples=4)
+    assert resolve_antialiasing(2, gpu, 32) == Antialiasing(samples=2)
+    assert resolve_antialiasing(8, llvmpipe, 4) == Antialiasing(samples=4)
+    assert resolve_antialiasing(FILTER_MSAA, gpu, 32) == Antialiasing(filtered=True)
+    assert resolve_antialiasing(1, llvmpipe, 4) == Antialiasing()
     with pytest.raises(SystemExit):
         parse_settings(["--msaa", "3"], {})
     bad = tmp_path / "bad.hdr"

@@ -47,11 +47,13 @@ multisampled framebuffer, scissored to the tile, and resolved (a blit, which the
 limits to the tile) into the single-sample one they are read from. A pixel's samples never leave
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
-(a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. Where
-``--msaa auto`` draws one sample (llvmpipe, where 4 samples cost 2.6-3.5x the frame), plain tiles and
-whole frames are resolved by the 3×3 filter of :mod:`tessera.antialiasing` instead, drawn with a
-guard band of one pixel (clipped to the frame) so that the filtered tile is still that region of
-the filtered whole frame, and with its texture LOD bias.
+(a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. On a software
+rasterizer (llvmpipe, where 4 samples cost 2.6-3.5x the frame) ``--msaa auto`` draws two samples a
+pixel instead: the same projection over a viewport twice as wide, so columns 2i and 2i + 1 are
+pixel i's samples ¼ pixel left and right of its centre, one draw at 1.1-1.8x the frame; these
+frames (and ``--msaa filter``'s one sample) are resolved by the 3×3 filter of
+:mod:`tessera.antialiasing`, drawn with a guard band of one pixel (clipped to the frame) so that
+the filtered tile is still that region of the filtered whole frame, and with its texture LOD bias.
 
 The progressive still (issue 20): a render may be a still's ``subsample``
 (:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a
@@ -76,12 +78,12 @@ from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
 from node.gl.programs import ShaderPrograms
-from node.gl.shading import AUTO_MSAA, ShaderVariant, ShadingOptions, resolve_samples
+from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
 from node.scene.pose import ScenePose
-from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter
+from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, resolve_pair_filter
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling import refinement
@@ -192,9 +194,9 @@ class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of
     the scene's batches when already done (None: packed here). ``samples``: the multisample count
-    drawn with (:func:`node.gl.shading.resolve_samples`); ``filtered``: plain tiles and whole frames
-    at one sample are resolved by :func:`tessera.antialiasing.resolve_filter` (``--msaa auto`` where
-    it draws one sample). Raises
+    drawn with; ``paired``: plain tiles and whole frames drawn twice as wide, two samples a pixel;
+    ``filtered``: those frames resolved by :mod:`tessera.antialiasing`'s filter (all three as
+    :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). Raises
     CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
     environment file."""
 
@@ -207,8 +209,8 @@ class TileRenderer:
         self.scene = scene
         self.background = background
         self.shading = shading
-        self.samples = resolve_samples(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
-        self.filtered = shading.msaa == AUTO_MSAA and self.samples == 1
+        antialiasing = resolve_antialiasing(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
+        self.samples, self.paired, self.filtered = antialiasing.samples, antialiasing.paired, antialiasing.filtered
         # First: they raise before any GL object of the scene exists to leak.
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
@@ -295,12 +297,16 @@ class TileRenderer:
         lod_bias = subsample.lod_bias if subsample is not None else FILTERED_LOD_BIAS if filtered else 0.0
         pose, matrix, moved = self._posed(camera, size, drawn, state, subsample)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn)
-        tile = self._render(camera, size, drawn, matrix, culled, started, with_depth=False, pose=pose, moved=moved,
-                            lod_bias=lod_bias)
+        paired = filtered and self.paired
+        # Paired samples: the same projection drawn over a viewport twice as wide.
+        target_size, target = ((2 * size[0], size[1]), Rect(2 * drawn.x, drawn.y, 2 * drawn.w, drawn.h)) if paired \
+            else (size, drawn)
+        tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
+                            moved=moved, lod_bias=lod_bias)
         if not filtered:
             return tile
         filtering = time.perf_counter()
-        pixels = resolve_filter(tile.pixels, rect, drawn)
+        pixels = (resolve_pair_filter if paired else resolve_filter)(tile.pixels, rect, drawn)
         return dataclasses.replace(tile, rect=rect, pixels=pixels,
                                    render_ms=tile.render_ms + (time.perf_counter() - filtering) * 1e3)
 

@@ -46,19 +46,42 @@ from node.scene.mesh import MeshBatch
 
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
-#: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU, 1 on a software rasterizer, where
-#: 4 samples cost 2.6-3.5x the frame time and one sample is resolved by a 3x3 filter instead
-#: (:mod:`tessera.antialiasing`; README, Picture quality: measured on llvmpipe).
+#: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU; on a software rasterizer, where 4
+#: samples cost 2.6-3.5x the frame time, two samples per pixel drawn as a frame twice as wide and
+#: resolved by a 3x3 filter (1.1-1.8x: :mod:`tessera.antialiasing`; README, Picture quality:
+#: measured on llvmpipe).
 AUTO_MSAA = 0
+#: ``--msaa filter``: one sample per pixel resolved by the 3x3 filter (1.1-1.2x on llvmpipe).
+FILTER_MSAA = -1
 HARDWARE_MSAA = 4
-#: Sample counts ``--msaa`` accepts besides auto (1: off).
+#: Sample counts ``--msaa`` accepts besides auto and filter (1: off).
 MSAA_CHOICES = (1, 2, 4, 8)
 
 
 @dataclass(frozen=True, slots=True)
+class Antialiasing:
+    """How plain tiles and whole frames are drawn and resolved: ``samples`` multisamples per pixel
+    (a blit resolves them), or at one sample ``paired`` (two samples per pixel, ¼ pixel left and
+    right of its centre: the frame drawn twice as wide) and ``filtered`` (resolved by
+    :mod:`tessera.antialiasing`'s filter)."""
+
+    samples: int = 1
+    paired: bool = False
+    filtered: bool = False
+
+    @property
+    def label(self) -> str:
+        """What is drawn, as logs and benchmarks say it: '4x MSAA', '2 samples (twice as wide) + 3x3
+        filter', '1 sample + 3x3 filter'."""
+        drawn = "2 samples (twice as wide)" if self.paired else f"{self.samples}x MSAA" if self.samples > 1 else \
+            "1 sample"
+        return drawn + (" + 3x3 filter" if self.filtered else "")
+
+
+@dataclass(frozen=True, slots=True)
 class ShadingOptions:
-    """How a node shades: ``msaa`` samples per pixel of plain tiles and whole frames (:data:`AUTO_MSAA`:
-    chosen by :func:`resolve_samples`; depth layers
+    """How a node shades: ``msaa`` samples per pixel of plain tiles and whole frames (:data:`AUTO_MSAA`,
+    :data:`FILTER_MSAA`: as :func:`resolve_antialiasing` resolves them; depth layers
     are always drawn at 1x: sort-last merging needs one exact depth per pixel), ``environment`` a
     Radiance .hdr lighting the scene (None: the generated studio), ``key_light`` the key light's
     radiance (0: image-based light alone)."""
@@ -68,14 +91,20 @@ class ShadingOptions:
     key_light: float = KEY_LIGHT
 
 
-def resolve_samples(msaa: int, gl_renderer: str, max_samples: int) -> int:
-    """The samples per pixel ``msaa`` draws with on the GL renderer named ``gl_renderer``
-    offering at most ``max_samples``: :data:`AUTO_MSAA` is 1 on a software rasterizer and
-    :data:`HARDWARE_MSAA` otherwise; any count is capped at ``max_samples``."""
+def resolve_antialiasing(msaa: int, gl_renderer: str, max_samples: int) -> Antialiasing:
+    """What ``--msaa`` = ``msaa`` draws on the GL renderer named ``gl_renderer`` offering at most
+    ``max_samples``: :data:`AUTO_MSAA` is :data:`HARDWARE_MSAA` samples on a GPU and 2 on a software
+    rasterizer; 2 on a software rasterizer is a paired, filtered frame (its GL would draw 4
+    multisamples, at 2.6-3.5x the cost); :data:`FILTER_MSAA` one filtered sample; a multisample
+    count is capped at ``max_samples``."""
+    software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)
+    if msaa == FILTER_MSAA:
+        return Antialiasing(filtered=True)
     if msaa == AUTO_MSAA:
-        software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)
-        msaa = 1 if software else HARDWARE_MSAA
-    return max(1, min(msaa, max_samples))
+        msaa = 2 if software else HARDWARE_MSAA
+    if msaa == 2 and software:
+        return Antialiasing(paired=True, filtered=True)
+    return Antialiasing(samples=max(1, min(msaa, max_samples)))
 
 
 #: The irradiance polynomial E(n)/π = Σ k_i·m_i(n) of :func:`node.gl.image_lighting.irradiance_polynomial`,
