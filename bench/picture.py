@@ -131,11 +131,12 @@ def orbit_cameras(scene: SceneData, frames: int) -> list[Camera]:
 
 
 def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
-                         settings: Sequence[int], repeats: int = 3) -> dict[str, Any]:
-    """The ``--msaa`` rows of one scene (see the module docstring); each frame is timed ``repeats``
-    times, the settings in turn."""
+                         settings: Sequence[int], repeats: int = 3,
+                         cameras: Sequence[Camera] | None = None) -> dict[str, Any]:
+    """The ``--msaa`` rows of one scene (see the module docstring) at ``cameras`` (None: ``frames``
+    of an orbit); each frame is timed ``repeats`` times, the settings in turn."""
     scene = load_scene(scene_spec)
-    cameras = orbit_cameras(scene, frames)
+    cameras = orbit_cameras(scene, frames) if cameras is None else cameras
     renderers = {msaa: TileRenderer(ctx, scene, shading=ShadingOptions(msaa=msaa)) for msaa in settings}
     references = [supersampled(renderers[settings[0]], camera, size) for camera in cameras]
     found: dict[int, dict[str, list[float]]] = {msaa: {"psnr": [], "off": [], "wall": [], "cpu": []}
@@ -164,10 +165,11 @@ def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int
 
 
 def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
-                  sample_counts: Sequence[int]) -> dict[str, Any]:
-    """The progressive still rows of one scene (see the module docstring)."""
+                  sample_counts: Sequence[int], cameras: Sequence[Camera] | None = None) -> dict[str, Any]:
+    """The progressive still rows of one scene (see the module docstring) at ``cameras`` (None:
+    ``frames`` of an orbit)."""
     scene = load_scene(scene_spec)
-    cameras = orbit_cameras(scene, frames)
+    cameras = orbit_cameras(scene, frames) if cameras is None else cameras
     renderer = TileRenderer(ctx, scene)
     found: dict[int, dict[str, list[float]]] = {n: {"psnr": [], "off": []} for n in sample_counts}
     frame_ms: list[float] = []
@@ -251,26 +253,37 @@ def table(result: dict[str, Any]) -> str:
     lines = [f"materials: spread ratio {materials['spread_ratio']:.2f}, colour distance "
              f"{materials['colour_distance']:.1f} levels (metal spread {materials['metal_spread']:.1f}, "
              f"dielectric {materials['dielectric_spread']:.1f}); environment prefiltered in "
-             f"{result['environment_ms']:.0f} ms",
-             f"{'scene':<40} {'msaa':>8} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} {'CPU ms':>7}"]
-    for scene in result["scenes"]:
+             f"{result['environment_ms']:.0f} ms", antialiasing_table(result["scenes"])]
+    if result.get("stills"):
+        lines.append(still_table(result["stills"]))
+    return "\n".join(lines)
+
+
+def antialiasing_table(scenes: Sequence[dict[str, Any]]) -> str:
+    """The ``--msaa`` rows of :func:`measure_antialiasing`'s ``scenes``, one line each."""
+    lines = [f"{'scene':<40} {'msaa':>8} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} {'CPU ms':>7}"]
+    for scene in scenes:
         for row in scene["rows"]:
             lines.append(f"{Path(scene['scene']).name:<40} {setting_name(row):>8} {row['psnr_mean_db']:>8.2f} "
                          f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} "
                          f"{row.get('frame_cpu_ms', math.nan):>7.1f}")
-    if result.get("stills"):
-        lines.append(f"{'progressive still':<40} {'N':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} "
-                     f"{'still ms':>9}")
-        for scene in result["stills"]:
-            for row in scene["rows"]:
-                drawn = drawn_name({"samples": scene["msaa"], **scene})
-                lines.append(f"{Path(scene['scene']).name + ' (msaa ' + drawn + ')':<40} "
-                             f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
-                             f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
-            cost = scene["coordinator"]
-            lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
-                         f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms (PNG) or "
-                         f"{cost['refinement_encode_ms']:.1f} ms (a refinement's JPEG)")
+    return "\n".join(lines)
+
+
+def still_table(stills: Sequence[dict[str, Any]]) -> str:
+    """The rows of :func:`measure_still`'s ``stills``, one line each, and the coordinator's cost."""
+    lines = [f"{'progressive still':<40} {'N':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} "
+             f"{'still ms':>9}"]
+    for scene in stills:
+        for row in scene["rows"]:
+            drawn = drawn_name({"samples": scene["msaa"], **scene})
+            lines.append(f"{Path(scene['scene']).name + ' (msaa ' + drawn + ')':<40} "
+                         f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
+                         f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
+        cost = scene["coordinator"]
+        lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
+                     f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms (PNG) or "
+                     f"{cost['refinement_encode_ms']:.1f} ms (a refinement's JPEG)")
     return "\n".join(lines)
 
 

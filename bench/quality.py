@@ -24,6 +24,14 @@ below q90, 4:4:4 from q90, as the codec does), as PNG and as RAW, and decoded ag
 
 Per scene, ``quality_for_35db`` and ``quality_for_40db`` are the smallest JPEG quality whose mean
 PSNR reaches 35 and 40 dB (``null`` if none does): a reading aid for the interactive default.
+
+Picture quality (issue 20), with ``--msaa auto,filter,1,2,4,8`` and/or ``--still-samples
+1,2,4,8,16,32``: at ``--picture-frames`` (default 2) evenly spaced cameras of the scene's path,
+each ``--msaa`` setting's interactive frame and each sample count's progressive still against the
+same camera rendered 4×4 supersampled, and their time per frame (``antialiasing`` and ``still`` per
+scene in the JSON; figures and rows as :mod:`bench.picture` defines them, whose functions measure
+them). Lambert against PBR shading is timed by ``python -m bench.shading``, which runs the tree
+before PBR beside this one.
 """
 
 from __future__ import annotations
@@ -45,6 +53,14 @@ from PIL import Image, JpegImagePlugin
 from bench.culling import read_path
 from bench.images import psnr
 from bench.paths import KINDS, make_path, surface_focus
+from bench.picture import (
+    antialiasing_table,
+    measure_antialiasing,
+    measure_still,
+    parse_counts,
+    parse_still_counts,
+    still_table,
+)
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
@@ -194,13 +210,20 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"evenly spaced cameras per scene (default {DEFAULT_FRAMES})")
     parser.add_argument("--qualities", type=parse_qualities, default=list(DEFAULT_QUALITIES),
                         help="JPEG qualities, comma-separated (default " + ",".join(map(str, DEFAULT_QUALITIES)) + ")")
+    parser.add_argument("--msaa", type=parse_counts, default=[],
+                        help="also the interactive frame's PSNR against the 4x4 supersampled one and its time at "
+                             "these --msaa settings (of auto, filter, 1, 2, 4, 8)")
+    parser.add_argument("--still-samples", type=parse_still_counts, default=[],
+                        help="also the progressive still's PSNR against it at these sample counts")
+    parser.add_argument("--picture-frames", type=int, default=2,
+                        help="cameras of each path those are measured at (default 2)")
     parser.add_argument("--json", type=Path, help="write the report here")
     args = parser.parse_args(args_list)
     if len(args.path) not in (1, len(args.scene)):
         parser.error(f"give one --path for all scenes or one per scene; got {len(args.path)} for "
                      f"{len(args.scene)} scenes")
-    if args.frames < 1:
-        parser.error("--frames must be at least 1")
+    if args.frames < 1 or args.picture_frames < 1:
+        parser.error("--frames and --picture-frames must be at least 1")
     paths = args.path * len(args.scene) if len(args.path) == 1 else args.path
     warm_up_codecs()
     ctx = create_gl_context()
@@ -210,6 +233,16 @@ def main(argv: list[str] | None = None) -> int:
     for scene_spec, path_spec in zip(args.scene, paths, strict=True):
         scenes.append(measure_scene(ctx, scene_spec, path_spec, args.size, args.frames, args.qualities))
         print_scene(scenes[-1], args.size)
+        cameras = scene_cameras(path_spec, load_scene(scene_spec), args.picture_frames) \
+            if args.msaa or args.still_samples else []
+        if args.msaa:
+            scenes[-1]["antialiasing"] = measure_antialiasing(ctx, scene_spec, args.size, len(cameras), args.msaa,
+                                                              cameras=cameras)
+            print(antialiasing_table([scenes[-1]["antialiasing"]]))
+        if args.still_samples:
+            scenes[-1]["still"] = measure_still(ctx, scene_spec, args.size, len(cameras), args.still_samples,
+                                                cameras=cameras)
+            print(still_table([scenes[-1]["still"]]))
     ctx.release()
     if args.json is not None:
         meta = {"scenes": args.scene, "paths": paths, "size": list(args.size), "frames": args.frames,

@@ -59,3 +59,24 @@ def test_quality_benchmark_rejects_unpaired_paths() -> None:
     with pytest.raises(SystemExit):
         main(["--scene", "builtin:spheres", "--scene", "builtin:cluster", "--path", "orbit", "--path", "zoom",
               "--path", "orbit"])
+
+
+def test_quality_benchmark_measures_antialiasing_and_the_still(tmp_path, capsys) -> None:
+    """Issue 20's figures from ``bench.quality``: at a camera of the scene's path, the interactive
+    frame of each ``--msaa`` setting and the still of each sample count against the 4×4
+    supersampled frame, with their times; anti-aliasing and more samples come closer to it."""
+    path = orbit_path(tmp_path, "builtin:spheres")
+    out = tmp_path / "quality.json"
+    argv = ["--scene", "builtin:spheres", "--path", str(path), "--size", "96x72", "--frames", "1",
+            "--qualities", "60", "--msaa", "auto,1", "--still-samples", "1,8", "--picture-frames", "1",
+            "--json", str(out)]
+    assert main(argv) == 0
+    (scene,) = json.loads(out.read_text())["scenes"]
+    auto, one = scene["antialiasing"]["rows"]
+    assert (auto["msaa"], one["msaa"], scene["antialiasing"]["frames"]) == (0, 1, 1)
+    assert auto["psnr_mean_db"] > one["psnr_mean_db"] + 1.0 and auto["frame_ms"] > 0.0 < one["frame_ms"]
+    single, eight = scene["still"]["rows"]
+    assert (single["samples"], eight["samples"]) == (1, 8) and eight["psnr_mean_db"] > single["psnr_mean_db"]
+    assert eight["still_ms"] == pytest.approx(8 * eight["frame_ms"])
+    printed = capsys.readouterr().out
+    assert "auto " in printed and "progressive still" in printed
