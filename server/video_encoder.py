@@ -4,17 +4,16 @@ picture in, its packet out. A new target takes a new encoder (and so a keyframe)
 nor libvpx-vp9, as PyAV drives them, follows a bitrate changed on an open encoder (measured: frame
 sizes stayed the same for 20 frames after a tenfold cut).
 
-The target is a rate at the stream's nominal frame rate: pictures are timed ``1/fps`` apart
-whatever the nodes' real rate, so each gets ``bitrate / fps`` bits on average and the link never
-carries more than the target (fewer frames, fewer bits). H.264 is x264 ``ultrafast`` +
-``zerolatency`` with 4×4 intra partitions and the deblocking filter back on (:data:`X264_PARAMS`),
-Constrained Baseline, constant quality (:data:`X264_CRF`) capped by the target under a VBV of
+The target is a rate at the stream's nominal frame rate: pictures are timed ``1/fps`` apart whatever
+the nodes' real rate, so each gets ``bitrate / fps`` bits on average and the link never carries more
+than the target (fewer frames, fewer bits). H.264 is x264 ``ultrafast`` + ``zerolatency`` with what
+pays for itself on top (:data:`X264_PARAMS`: CABAC, 8×8 inter partitions, sub-pixel refinement,
+trellis), Main profile, constant quality (:data:`X264_CRF`) capped by the target under a VBV of
 :data:`BUFFER_FRAMES` pictures (a keyframe too stays near a frame's share), SPS/PPS before every
 keyframe (Annex B); VP9 is libvpx ``realtime`` at the fastest speed, tuned for screen content, at
-the target bitrate under the same VBV. Both run on the caller's thread
-(:data:`THREADS`), so its CPU time is the encoding's. Full-range BT.601 (the pictures of
-:mod:`tessera.video.yuv_frame`) is written in the stream's colour description. libx264 is GPL;
-libvpx (VP9) is BSD-licensed.
+the target bitrate under the same VBV. Both run on the caller's thread (:data:`THREADS`), so its CPU
+time is the encoding's. Full-range BT.601 (the pictures of :mod:`tessera.video.yuv_frame`) is
+written in the stream's colour description. libx264 is GPL; libvpx (VP9) is BSD-licensed.
 """
 
 from __future__ import annotations
@@ -24,28 +23,40 @@ from fractions import Fraction
 import av
 import numpy as np
 
+from tessera.video.budget import full_analysis
 from tessera.video.yuv_frame import coded_size
 from tessera.wire.video import VideoCodec
 
 _ENCODERS = {VideoCodec.H264: "libx264", VideoCodec.VP9: "libvpx-vp9"}
-#: What x264 does beyond ``ultrafast``: 4×4 intra partitions and the deblocking filter (strength
-#: 0:0). Measured at 720p on the default scene, frames of an orbit 18° apart (bench.stream's ~10 fps),
-#: JPEG q88 tiles as the source, 0.08 bit per pixel, one thread: ultrafast 6.44 KB a frame, 39.31 dB
-#: against the render, 2.7 ms CPU; + deblocking 39.74 dB; + i4x4 40.70 dB; both 40.94 dB (6.43 KB,
-#: 2.9 ms); + subme 1 41.01 dB (3.5 ms); + trellis 41.19 dB (6.0 ms); ``superfast`` 41.08 dB
-#: (3.7 ms); High profile (CABAC off under ultrafast) nothing. JPEG q60 tiles: 24.3 KB, 40.75 dB.
-X264_PARAMS = "partitions=i4x4:deblock=0,0"
+#: What x264 does beyond ``ultrafast`` (and so the Main profile: CABAC). Measured offline at 720p on
+#: 24 renders of the default scene 10.6° of orbit apart (bench.stream's frames are 9-10° apart:
+#: nearly every block coded afresh), raw tiles as the source, one thread, PSNR against the render
+#: (JPEG q60 tiles 43.46 dB), CRF 28: the options before (4×4 intra partitions and the deblocking
+#: filter on ``ultrafast``, Constrained Baseline) 4.89 KB 43.67 dB 2.4 ms; + CABAC 4.43 KB, the same
+#: dB, +0.2 ms; + 8×8 inter partitions, sub-pixel refinement 2 and a hexagon search 3.24 KB
+#: 43.22 dB (+1.2 ms); + trellis 3.44 KB 43.45 dB (+0.3 ms); + chroma QP offset −2 and deblocking
+#: 1:1 (chroma costs PSNR more than bits) 3.50 KB 43.67 dB. Tried and left: ``superfast`` and
+#: ``veryfast`` (their psycho-visual tuning costs PSNR: 3.75 KB 41.67 dB at CRF 26), with ``tune
+#: psnr`` (3.87 KB 42.52 dB, 3.9 ms); sub-pixel refinement 3-4 and two references (nothing more);
+#: the uneven multi-hexagon search (−3 % bytes, +0.6 ms); 8×8 transforms (High profile: −0.3 dB);
+#: SVT-AV1 at presets 10-13 (5.9 KB 40.6 dB at CRF 35).
+X264_PARAMS = "partitions=i4x4,p8x8:deblock=1,1:cabac=1:subme=2:me=hex:trellis=1:chroma-qp-offset=-2"
 #: x264's constant rate factor, the target a cap over it (capped CRF): a picture gets the bits its
 #: quality needs up to its share of the target, where the target alone (constant bitrate) spent every
-#: frame's share. Measured live (``bench.stream``, 720p, default scene, 3 nodes; JPEG q60 tiles
-#: 9.5 KB a frame on the wire, 43.4 dB against render-once): the default orbit (a turn in 2 s)
-#: constant bitrate 7.5 KB 43.94 dB, CRF 26 6.0 KB 43.59 dB, CRF 28 5.1 KB 43.26 dB (under the
-#: tiles); an orbit of a turn in 8 s: constant bitrate 7.3 KB 44.40 dB, CRF 24 6.3 KB 44.33 dB, CRF 28
-#: 4.4 KB 43.59 dB. 26: the most bits saved at the tiles' PSNR or better on both.
-X264_CRF = 26
+#: frame's share. Live (``bench.stream``, 720p, default scene, 3 nodes, raw tiles as the source; JPEG
+#: q60 tiles 9.5-9.6 KB a frame on the wire, 43.35-43.41 dB against render-once), two runs each: CRF
+#: 28.5 3.4 KB 43.57-43.68 dB; CRF 29 3.2 KB 43.30-43.39 dB (the tiles' PSNR give or take 0.1 dB).
+#: 28.5: the fewest bits that stay above the tiles' PSNR. (Before, from JPEG q88 tiles with the
+#: options before: CRF 26 5.8 KB 43.76 dB.)
+X264_CRF = 28.5
+#: Frames larger than :data:`tessera.video.budget.FULL_ANALYSIS_PIXELS`, encoded from JPEG q88 tiles:
+#: ``ultrafast`` with 4×4 intra partitions, the deblocking filter and CABAC (the options before the
+#: fuller analysis, −9 % bytes at the same PSNR with CABAC, +0.2 ms), at the CRF they had (26).
+X264_LIGHT_PARAMS = "partitions=i4x4:deblock=0,0:cabac=1"
+X264_LIGHT_CRF = 26
 _OPTIONS = {
-    VideoCodec.H264: {"preset": "ultrafast", "tune": "zerolatency", "profile": "baseline", "forced-idr": "1",
-                      "x264-params": X264_PARAMS, "crf": str(X264_CRF)},
+    VideoCodec.H264: {"preset": "ultrafast", "tune": "zerolatency", "profile": "main", "forced-idr": "1",
+                      "x264-params": X264_PARAMS, "crf": f"{X264_CRF:g}"},
     # tune-content screen: measured as above at 0.10 bit per pixel, 6.45 KB → 6.19 KB, 40.32 → 40.98 dB, same CPU
     VideoCodec.VP9: {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "row-mt": "1",
                      "error-resilient": "0", "tune-content": "screen"},
@@ -54,14 +65,16 @@ _OPTIONS = {
 BUFFER_FRAMES = 2.0
 #: Encoder threads: one, the caller's (so the thread's CPU time is the encoding's, exactly: checked
 #: against the process's). Measured at 720p, 20 orbit frames 18° apart, two runs at load 5: x264 (the
-#: options above, 0.09 bit per pixel) 3.31–3.35 ms CPU a frame on one thread, 3.47–3.89 ms on two
-#: (slices); libvpx-vp9 7.1–7.6 ms either way. A coordinator's cores are the nodes' too: CPU counts.
+#: options before CABAC, 0.09 bit per pixel) 3.31–3.35 ms CPU a frame on one thread, 3.47–3.89 ms on
+#: two (slices); libvpx-vp9 7.1–7.6 ms either way; x264 with :data:`X264_PARAMS` 4.0–4.2 ms live on one
+#: thread. A coordinator's cores are the nodes' too: CPU counts.
 THREADS = 1
 
 
 class VideoEncoder:
     """Encodes pictures of ``size`` (w, h px; the coded size is even) with ``codec`` at a target
-    ``bitrate`` (bit/s at ``fps`` pictures per second; H.264: at most)."""
+    ``bitrate`` (bit/s at ``fps`` pictures per second; H.264: at most); ``options``: the encoder's
+    options as opened (H.264: the fuller analysis up to 1280×720, :mod:`tessera.video.budget`)."""
 
     def __init__(self, codec: VideoCodec, size: tuple[int, int], bitrate: float, fps: float) -> None:
         self.codec = codec
@@ -77,7 +90,10 @@ class VideoEncoder:
         context.gop_size = 1 << 30   # keyframes only when asked for
         context.thread_count = THREADS
         context.bit_rate = 0 if codec is VideoCodec.H264 else int(bitrate)   # H.264: the CRF under the cap
-        context.options = {**_OPTIONS[codec], "maxrate": str(int(bitrate)),
+        options = dict(_OPTIONS[codec])
+        if codec is VideoCodec.H264 and not full_analysis(size):
+            options.update({"x264-params": X264_LIGHT_PARAMS, "crf": str(X264_LIGHT_CRF)})
+        context.options = self.options = {**options, "maxrate": str(int(bitrate)),
                            "bufsize": str(int(bitrate * BUFFER_FRAMES / fps))}
         context.open()
         self._context = context

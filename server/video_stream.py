@@ -107,6 +107,9 @@ class VideoStream:
         self.keyframes = 0
         self.bytes = 0
         self.encoders_made = 0
+        #: The tile codecs of the newest frame encoded (``raw`` from local nodes while every viewer
+        #: takes video; ``jpeg`` otherwise; None before the first).
+        self.source: str | None = None
         #: Per frame: (compose, encode) ms of the wall clock, and of the stream thread's CPU.
         self._timings: deque[tuple[float, float, float, float]] = deque(maxlen=TIMINGS_KEPT)
 
@@ -179,6 +182,7 @@ class VideoStream:
         self.keyframes += sum(key for _, key in encoded.units)
         self.bytes += sum(len(unit) for unit, _ in encoded.units)
         self._timings.append((encoded.compose_ms, encoded.encode_ms, encoded.compose_cpu_ms, encoded.encode_cpu_ms))
+        self.source = "+".join(sorted({codec.name.lower() for _, codec, _, _ in encoded.frame.tiles}))
         self._deliver(self, encoded)
         self._pump()
 
@@ -197,7 +201,8 @@ class VideoStream:
     def describe(self) -> dict[str, Any]:
         """This stream in ``/api/stats`` ``video``: codec, size, frames encoded, encode and compose
         times per frame (ms of the stream thread's CPU, ``*_cpu_ms_*``, and of the wall clock, over
-        the last :data:`TIMINGS_KEPT` frames), target bitrate (bit/s) and frame rate cap."""
+        the last :data:`TIMINGS_KEPT` frames), target bitrate (bit/s), frame rate cap, and the tile
+        codecs it was fed last (``source``)."""
         compose, encode, compose_cpu, encode_cpu = ([timing[i] for timing in self._timings] for i in range(4))
 
         def mean(values: list[float]) -> float | None:
@@ -218,4 +223,5 @@ class VideoStream:
             "keyframes": self.keyframes,
             "encoders_made": self.encoders_made,
             "bytes": self.bytes,
+            "source": self.source,
         }

@@ -31,6 +31,7 @@ from tessera.scheduling.refinement import (
 )
 from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.video.budget import full_analysis
 from tessera.wire.codec import Codec, decode, encode
 from tessera.wire.protocol import pack_frame, unpack_frame
 from tests.test_scheduler import camera, cancels, finish, published, renders, scheduler
@@ -246,6 +247,30 @@ def test_samples_travel_raw_when_every_node_is_on_the_coordinators_machine(local
     s.tick(0.1)
     codecs = {a.message.codec for a in s.drain() if isinstance(a, RenderTiles)}
     assert codecs == ({Codec.RAW} if all(local) else {Codec.PNG})
+
+
+@pytest.mark.parametrize("local, video_only, size", [((True, True), True, (1280, 720)),
+                                                     ((True, False), True, (1280, 720)),
+                                                     ((True, True), False, (1280, 720)),
+                                                     ((True, True), True, (1282, 720))])
+def test_a_video_only_sessions_interactive_tiles_travel_raw_from_local_nodes(local, video_only, size) -> None:
+    """While every viewer takes the session as video (issue 21), its interactive tiles, the
+    encoder's source, are asked for raw from nodes that all connected over loopback, for frames
+    the stream thread can afford to convert (up to 1280×720); otherwise (a node elsewhere, a
+    viewer of tiles, a larger frame) as JPEG at the video source's quality."""
+    s = FrameScheduler(SchedulerConfig(size=size, max_fps=1e6, settle_frames=0, still_delay_ms=0),
+                       StaticBalancer())
+    for node_id, on_this_machine in enumerate(local, 1):
+        s.add_node(node_id, 0.0, local=on_this_machine)
+        s.node_ready(node_id, 0.0)
+    s.default.video_source_quality, s.default.video_only = 88, video_only
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    job = s.in_flight[1]
+    if all(local) and video_only and full_analysis(size):
+        assert job.codec is Codec.RAW
+    else:
+        assert (job.codec, job.jpeg_quality) == (Codec.JPEG, 88)
 
 
 def test_a_one_sample_still_is_not_jittered() -> None:

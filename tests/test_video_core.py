@@ -44,11 +44,11 @@ def test_malformed_video_messages_say_what_is_wrong(message: bytes, reason: str)
 
 
 def test_codec_strings_name_the_smallest_level_that_holds_the_frames() -> None:
-    assert codec_string(VideoCodec.H264, (640, 360), 30) == "avc1.42c01e"      # level 3.0
-    assert codec_string(VideoCodec.H264, (1280, 720), 30) == "avc1.42c01f"     # 3.1
-    assert codec_string(VideoCodec.H264, (1280, 720), 60) == "avc1.42c020"     # 3.2
-    assert codec_string(VideoCodec.H264, (1920, 1080), 60) == "avc1.42c02a"    # 4.2
-    assert codec_string(VideoCodec.H264, (3840, 2160), 30) == "avc1.42c033"    # 5.1
+    assert codec_string(VideoCodec.H264, (640, 360), 30) == "avc1.4d401e"      # level 3.0
+    assert codec_string(VideoCodec.H264, (1280, 720), 30) == "avc1.4d401f"     # 3.1
+    assert codec_string(VideoCodec.H264, (1280, 720), 60) == "avc1.4d4020"     # 3.2
+    assert codec_string(VideoCodec.H264, (1920, 1080), 60) == "avc1.4d402a"    # 4.2
+    assert codec_string(VideoCodec.H264, (3840, 2160), 30) == "avc1.4d4033"    # 5.1
     assert codec_string(VideoCodec.VP9, (1280, 720), 30) == "vp09.00.31.08"
     assert codec_string(VideoCodec.VP9, (1920, 1080), 60) == "vp09.00.41.08"
 
@@ -149,6 +149,28 @@ def test_the_picture_from_jpeg_png_and_raw_tiles_is_the_frame_in_ycbcr_420() -> 
     cb, cr = chroma_planes(planes, (coded_w, coded_h))
     for plane, channel in ((cb, 1), (cr, 2)):           # PNG and raw: the mean of each 2×2 block
         assert np.abs(plane[:33, 25:50] - block_means(expected[:66, 50:100, channel])).max() <= 1.0
+
+
+def test_a_frame_of_rgb_tiles_is_converted_whole_its_chroma_from_block_means() -> None:
+    """Raw and PNG tiles only (local nodes' tiles of a video session): the frame is laid out and
+    converted at once; luma within a level of the JFIF conversion, each chroma sample within a
+    level of its 2×2 block's mean, the padding the last row and column."""
+    width, height = 101, 67
+    yy, xx = np.mgrid[0:height, 0:width]
+    rgb = np.stack([(xx * 2) % 256, (yy * 3) % 256, ((xx + yy) * 2) % 256], axis=-1).astype(np.uint8)
+    rects = [Rect(0, 0, 51, 67), Rect(51, 0, 50, 31), Rect(51, 31, 50, 36)]
+    tiles = [(rect, codec, 0, encode(np.ascontiguousarray(rgb[rect.y:rect.y1, rect.x:rect.x1]), codec, 0))
+             for rect, codec in zip(rects, (Codec.RAW, Codec.PNG, Codec.RAW), strict=True)]
+    planes = compose_yuv420((width, height), tiles)
+    coded_w, coded_h = coded_size((width, height))
+    assert planes.shape == (coded_h * 3 // 2, coded_w)
+    expected = rgb_to_ycbcr(rgb)
+    luma = planes[:coded_h].astype(np.float64)
+    assert np.abs(luma[:67, :101] - expected[..., 0]).max() <= 1.0
+    assert np.array_equal(luma[:, 101], luma[:, 100]) and np.array_equal(luma[67], luma[66])
+    cb, cr = chroma_planes(planes, (coded_w, coded_h))
+    for plane, channel in ((cb, 1), (cr, 2)):
+        assert np.abs(plane[:33, :50] - block_means(expected[:66, :100, channel])).max() <= 1.0
 
 
 def test_jpeg_tiles_at_odd_columns_and_rows_put_their_chroma_on_the_frames_grid() -> None:

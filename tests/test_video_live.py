@@ -123,7 +123,7 @@ def test_a_video_viewer_sees_render_once_and_a_late_viewer_starts_on_a_keyframe(
                            "the still frame")
                 late.read(0.5)
             assert stats(client)["video"], "the stream runs while a viewer takes it"
-        assert viewer.choices[0]["transport"] == "h264" and viewer.choices[0]["codec"].startswith("avc1.42c0")
+        assert viewer.choices[0]["transport"] == "h264" and viewer.choices[0]["codec"].startswith("avc1.4d40")
         assert len(viewer.video) >= 5, viewer.video
         assert viewer.video[0][1], "the first video frame is a keyframe"
         assert sum(key for _, key, _, _ in viewer.video) < len(viewer.video) / 2
@@ -134,6 +134,31 @@ def test_a_video_viewer_sees_render_once_and_a_late_viewer_starts_on_a_keyframe(
         tiles = decode(encode(reference, Codec.JPEG, 60), Codec.JPEG, *SIZE)       # today's interactive tiles
         assert psnr(picture, reference) >= psnr(tiles, reference) - 3.0
         wait_until(lambda: not stats(client)["video"], seconds(10), "the stream stops with its last viewer")
+
+
+def test_a_video_only_session_feeds_raw_tiles_to_its_encoder_and_a_tile_viewer_brings_jpeg_back(
+        coordinator_factory):
+    """While every viewer takes video, the local node's interactive tiles come raw (the encoder's
+    source without JPEG's loss); a viewer of tiles brings JPEG tiles back, for it as for the
+    encoder, until it leaves."""
+    with started(coordinator_factory) as (coordinator, client):
+        url = f"{coordinator.ws_url}/ws/view"
+
+        def source_becomes(viewers: list[VideoViewer], wanted: str) -> bool:
+            viewers[0].move(0.03)
+            for viewer in viewers:
+                viewer.read(0.1)
+            streams = stats(client)["video"]
+            return bool(streams) and streams[0]["source"] == wanted
+
+        with video_viewer(url, ["h264"]) as viewer:
+            wait_until(lambda: source_becomes([viewer], "raw"), seconds(60), "raw tiles for a video-only session")
+            with video_viewer(url, []) as tiles_viewer:
+                wait_until(lambda: source_becomes([viewer, tiles_viewer], "jpeg"), seconds(60),
+                           "JPEG tiles once a viewer takes tiles")
+                assert tiles_viewer.tiles, "the viewer of tiles gets frames"
+            wait_until(lambda: source_becomes([viewer], "raw"), seconds(60), "raw again once it left")
+        assert len(viewer.video) >= 3, "the video viewer kept its stream throughout"
 
 
 def test_stream_tiles_keeps_tiles_and_says_why(coordinator_factory):

@@ -16,7 +16,7 @@ from bench.images import psnr
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from server.frame_store import PublishedFrame
-from server.video_encoder import VideoEncoder
+from server.video_encoder import X264_LIGHT_PARAMS, X264_PARAMS, VideoEncoder
 from server.video_stream import VIDEO_SOURCE_QUALITY, default_bitrate
 from server.viewers import MAX_UNACKNOWLEDGED, MAX_VIDEO_QUEUED, ViewerHub, ViewerSlot
 from tessera.geometry import Camera, Rect, default_camera
@@ -101,12 +101,35 @@ async def encoded(hub: ViewerHub, codec: VideoCodec, count: int) -> None:
 
 
 @pytest.mark.gl
+@pytest.mark.gl
+def test_h264_from_raw_tiles_is_main_profile_with_cabac_and_larger_frames_get_the_lighter_options(renders) -> None:
+    """Raw tiles (a video-only session's, from local nodes) in: a Main-profile stream with CABAC
+    (the PPS's entropy coding flag), every frame within 38 dB of its render; a frame over 1280×720
+    is encoded with the lighter options."""
+    encoder = VideoEncoder(VideoCodec.H264, SIZE, default_bitrate(VideoCodec.H264, SIZE, 30.0, 8e6) * 4, 30.0)
+    assert encoder.options["x264-params"] == X264_PARAMS
+    decoder = av.CodecContext.create("h264", "r")
+    stream, quality = b"", []
+    for index, pixels in enumerate(renders):
+        raw = [(Rect(0, 0, *SIZE), Codec.RAW, 0, pixels.tobytes())]
+        (data, _), = encoder.encode(compose_yuv420(SIZE, raw), keyframe=index == 0)
+        stream += data
+        (picture,) = decoder.decode(av.Packet(data))
+        quality.append(psnr(picture.to_ndarray(format="rgb24")[:SIZE[1], :SIZE[0]], pixels))
+    sps, pps = stream.index(b"\x00\x00\x01\x67"), stream.index(b"\x00\x00\x01\x68")
+    assert stream[sps + 4] == 0x4D, "Main profile"
+    assert stream[pps + 4] & 0x20, "entropy_coding_mode_flag (CABAC) after pps_id 0 and sps_id 0"
+    assert min(quality) >= 38.0, quality
+    large = VideoEncoder(VideoCodec.H264, (1282, 720), 4e6, 30.0)
+    assert large.options["x264-params"] == X264_LIGHT_PARAMS
+
+
 def test_viewers_of_one_stream_keyframes_skips_and_stills(renders) -> None:
     async def scenario() -> None:
         hub = ViewerHub()
         first, tiles_viewer = hub.join(), hub.join()
         choice = hub.start_video(first, VideoCodec.H264, SIZE, 8e6, 60.0)
-        assert (choice.transport, choice.codec) == ("h264", "avc1.42c01e")
+        assert (choice.transport, choice.codec) == ("h264", "avc1.4d401e")
         hub.publish_frame(frame(1, renders[0], inputs={first.viewer_id: 7}))
         await encoded(hub, VideoCodec.H264, 1)
         video = unpack_video(_next(first))                       # type: ignore[arg-type]

@@ -38,14 +38,14 @@ const BEYOND_LEVELS = 62;
 
 /**
  * The WebCodecs codec string of `codec` (VideoCodec) for frames of `width`×`height` px at up to
- * `fps`: H.264 Constrained Baseline (`avc1.42c0LL`), VP9 profile 0 8-bit (`vp09.00.LL.08`); the
+ * `fps`: H.264 Main (`avc1.4d40LL`: CABAC), VP9 profile 0 8-bit (`vp09.00.LL.08`); the
  * level is the smallest that holds the size and rate (as tessera.wire.video.codec_string).
  */
 export function codecString(codec, width, height, fps = 60) {
   if (codec === VideoCodec.H264) {
     const blocks = Math.ceil(width / 16) * Math.ceil(height / 16);
     const level = H264_LEVELS.find(([, frame, rate]) => blocks <= frame && blocks * fps <= rate)?.[0] ?? BEYOND_LEVELS;
-    return `avc1.42c0${level.toString(16).padStart(2, "0")}`;
+    return `avc1.4d40${level.toString(16).padStart(2, "0")}`;
   }
   if (codec === VideoCodec.VP9) {
     const pixels = width * height;

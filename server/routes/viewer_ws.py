@@ -98,10 +98,14 @@ async def _refuse_feedback(ws: WebSocket, slot: ViewerSlot, reason: str) -> None
 
 def _video_source(session) -> None:
     """While a viewer takes the session as video, its interactive tiles are the encoder's source:
-    near-lossless (:data:`VIDEO_SOURCE_QUALITY`)."""
+    near-lossless (:data:`VIDEO_SOURCE_QUALITY`), or raw from local nodes while every viewer takes
+    video (none would get the tiles themselves)."""
     frames = session.service.scheduler.sessions.get(session.id)   # None once the session was closed
     if frames is not None:
-        frames.video_source_quality = VIDEO_SOURCE_QUALITY if session.viewers.streams else None
+        viewers = session.viewers
+        frames.video_source_quality = VIDEO_SOURCE_QUALITY if viewers.streams else None
+        frames.video_only = bool(viewers.slots) and all(slot.video_codec is not None and slot.cell is None
+                                                        for slot in viewers.slots)
 
 
 @router.websocket("/ws/view")
@@ -137,6 +141,7 @@ async def viewer_socket(ws: WebSocket) -> None:
         return
     limits = guards.limits_for(ws, "viewer")
     slot = session.viewers.join(cell, time.monotonic())
+    _video_source(session)   # a viewer of tiles until it takes video
     session.touch()
     slot.put_control(ViewerHello(
         size=session.size if cell is None or session.wall is None else session.wall.cell, viewer=slot.viewer_id,

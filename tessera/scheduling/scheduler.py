@@ -19,7 +19,8 @@ What it decides:
   accumulates them and shows the mean, so when every node is on the coordinator's machine the
   samples' tiles travel raw: no PNG to encode on the nodes nor to check and decode on the
   coordinator; a frame no larger than the coordinator's ``size``, whose node messages allow four raw
-  frames). Otherwise nothing renders.
+  frames). Otherwise nothing renders. So do the interactive tiles of a session every viewer takes
+  as video (issue 21): the encoder's source, without JPEG's loss.
 * **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
   newest camera when it starts, and it starts only when a node wants work — it has nothing left
   to do, or its last tile ends within its round trip (dispatch ahead,
@@ -99,6 +100,7 @@ from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.refinement import MAX_STILL_SAMPLES
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
+from tessera.video.budget import full_analysis
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader
@@ -616,10 +618,10 @@ class FrameScheduler:
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
         width, height = session.size
-        raw = (still and session.demand.still_samples > 1 and all(n.local for n in ready)
-               and width * height <= self.config.size[0] * self.config.size[1])
+        raw = ((session.demand.still_samples > 1 if still else session.video_only and full_analysis(session.size))
+               and all(n.local for n in ready) and width * height <= self.config.size[0] * self.config.size[1])
         scarcity = self._scarcity(session)
-        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_samples=raw,
+        job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_tiles=raw,
                                          pieces=self._pieces(session, len(ready), scarcity, now))
         if error is not None:
             self._actions.append(BalancerFailed(error))

@@ -64,6 +64,9 @@ class SessionFrames:
         #: JPEG quality of interactive tiles while a viewer takes the session as video (issue 21):
         #: the tiles are the encoder's source, decoded on the coordinator (None: no video viewer).
         self.video_source_quality: int | None = None
+        #: Every viewer of the session takes it as video (issue 21): interactive tiles from nodes on
+        #: the coordinator's machine come raw, the encoder's source without a lossy step.
+        self.video_only = False
 
     @property
     def size(self) -> tuple[int, int]:
@@ -98,11 +101,12 @@ class SessionFrames:
         return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
-                    still: bool, raw_samples: bool = False, pieces: int = 1) -> tuple[FrameJob, str | None]:
+                    still: bool, raw_tiles: bool = False, pieces: int = 1) -> tuple[FrameJob, str | None]:
         """Frame ``frame_id`` (a still's next sample or an interactive frame) of the newest camera and scene state,
         partitioned by the mode over the ``ready`` nodes that hold the scene; with why the
-        balancer failed, if it did (the static split was used). ``raw_samples``: a still's samples
-        are asked for raw (they are accumulated, never shown as they come). ``pieces`` > 1 (not
+        balancer failed, if it did (the static split was used). ``raw_tiles``: the tiles are
+        asked for raw (a still's samples, accumulated, never shown as they come; a video-only
+        session's interactive frames, the encoder's source). ``pieces`` > 1 (not
         for a display wall's session): the frame is cut into that many equal-area pieces handed to
         its nodes one at a time instead (:attr:`FrameJob.one_by_one`), the balancer not asked (it
         learns from its own partitions only)."""
@@ -120,7 +124,7 @@ class SessionFrames:
                 partition, parts = self.wall.pieces(partition)
         error, self.mode.tiles.error = self.mode.tiles.error, None
         codec, quality = self.codec(still)
-        if raw_samples and self.demand.still_samples > 1:
+        if raw_tiles:
             codec = Codec.RAW
         sample = self.demand.started(still)
         job = FrameJob.create(frame_id, camera, self.size, codec, quality, partition, now, still=still,

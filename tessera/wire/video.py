@@ -55,13 +55,13 @@ _VP9_LEVELS = ((10, 36864, 829440), (11, 73728, 2764800), (20, 122880, 4608000),
 
 def codec_string(codec: VideoCodec, size: tuple[int, int], fps: float = 60.0) -> str:
     """The WebCodecs codec string of ``codec`` for frames of ``size`` (w, h px) at up to ``fps``:
-    H.264 Constrained Baseline (``avc1.42c0LL``), VP9 profile 0 8-bit (``vp09.00.LL.08``); the
+    H.264 Main (``avc1.4d40LL``: CABAC), VP9 profile 0 8-bit (``vp09.00.LL.08``); the
     level is the smallest that holds the size and rate."""
     width, height = size
     if codec is VideoCodec.H264:
         blocks = -(-width // 16) * -(-height // 16)
         level = next((idc for idc, frame, rate in _H264_LEVELS if blocks <= frame and blocks * fps <= rate), 62)
-        return f"avc1.42c0{level:02x}"
+        return f"avc1.4d40{level:02x}"
     pixels = width * height
     level = next((lvl for lvl, frame, rate in _VP9_LEVELS if pixels <= frame and pixels * fps <= rate), 62)
     return f"vp09.00.{level:02d}.08"

@@ -59,10 +59,10 @@ test("a TFRM frame is not video; malformed video messages are refused", () => {
 
 // The same values tessera.wire.video.codec_string gives (tests/test_web_mirror.py checks a grid).
 test("codec strings name the smallest level that holds the size at 60 fps", () => {
-  assert.equal(codecString(VideoCodec.H264, 1280, 720), "avc1.42c020");
-  assert.equal(codecString(VideoCodec.H264, 640, 360), "avc1.42c01f");
-  assert.equal(codecString(VideoCodec.H264, 1920, 1080), "avc1.42c02a");
-  assert.equal(codecString(VideoCodec.H264, 8192, 8192), "avc1.42c03e");
+  assert.equal(codecString(VideoCodec.H264, 1280, 720), "avc1.4d4020");
+  assert.equal(codecString(VideoCodec.H264, 640, 360), "avc1.4d401f");
+  assert.equal(codecString(VideoCodec.H264, 1920, 1080), "avc1.4d402a");
+  assert.equal(codecString(VideoCodec.H264, 8192, 8192), "avc1.4d403e");
   assert.equal(codecString(VideoCodec.VP9, 64, 48), "vp09.00.10.08");
   assert.equal(codecString(VideoCodec.VP9, 1920, 1080), "vp09.00.41.08");
 });
@@ -77,7 +77,7 @@ test("the offer lists the codecs the decoder supports, best first; none without 
     },
   };
   assert.deepEqual(await decodableCodecs(1280, 720, decoder), ["vp9"]);
-  assert.deepEqual(asked.map((c) => c.codec), ["avc1.42c020", "vp09.00.40.08"]);
+  assert.deepEqual(asked.map((c) => c.codec), ["avc1.4d4020", "vp09.00.40.08"]);
   assert.ok(asked.every((c) => c.codedWidth === 1280 && c.codedHeight === 720 && c.optimizeForLatency));
   assert.deepEqual(await decodableCodecs(1280, 720, { isConfigSupported: async () => ({ supported: true }) }),
     ["h264", "vp9"]);
@@ -146,7 +146,7 @@ function stream({ paintable = () => true } = {}) {
     requestKeyframe: () => events.requests++,
     onError: () => events.errors++,
   }, { VideoDecoder: FakeDecoder, EncodedVideoChunk: FakeChunk });
-  video.choose({ transport: "h264", codec: "avc1.42c01f" });
+  video.choose({ transport: "h264", codec: "avc1.4d401f" });
   return { video, canvas, calls, events };
 }
 
@@ -160,7 +160,7 @@ test("a keyframe configures the decoder with the stream's codec and colours; dec
   video.submit(frame(6, false));
   assert.equal(decoders.length, 1);
   assert.deepEqual(decoders[0].configs, [
-    { codec: "avc1.42c01f", codedWidth: 640, codedHeight: 360, optimizeForLatency: true,
+    { codec: "avc1.4d401f", codedWidth: 640, codedHeight: 360, optimizeForLatency: true,
       colorSpace: { primaries: "bt709", transfer: "iec61966-2-1", matrix: "smpte170m", fullRange: true } },
   ]);
   assert.deepEqual(decoders[0].chunks.map((c) => c.type), ["key", "delta"]);
@@ -237,11 +237,11 @@ test("a decoder error asks for a keyframe once; the keyframe gets a new decoder"
 test("a keyframe of another size reconfigures the decoder; tiles close it", () => {
   const { video, canvas } = stream();
   video.submit(frame(1, true));
-  video.choose({ transport: "h264", codec: "avc1.42c020" });
+  video.choose({ transport: "h264", codec: "avc1.4d4020" });
   video.submit(frame(2, true, 1280, 720));
   assert.equal(decoders.length, 1);
   assert.deepEqual(decoders[0].configs.map((c) => [c.codec, c.codedWidth, c.codedHeight]),
-    [["avc1.42c01f", 640, 360], ["avc1.42c020", 1280, 720]]);
+    [["avc1.4d401f", 640, 360], ["avc1.4d4020", 1280, 720]]);
   decoders[0].emit(1);
   assert.deepEqual([canvas.width, canvas.height], [1280, 720]);
   video.choose({ transport: "tiles", codec: null });
