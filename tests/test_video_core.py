@@ -131,14 +131,21 @@ def chroma_planes(planes: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray
     return flat[:quarter].reshape(height // 2, width // 2), flat[quarter:].reshape(height // 2, width // 2)
 
 
-def test_the_picture_from_jpeg_png_and_raw_tiles_is_the_frame_in_ycbcr_420() -> None:
-    width, height = 101, 67                                  # odd: padded to 102x68
+def ramp_tiles(rects: list[Rect], codecs: tuple[Codec, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """A 101x67 frame of colour ramps (h, w, 3) uint8 (odd: padded to 102x68) and its yuv420p
+    picture from the tiles ``rects`` in ``codecs`` (JPEG at q95)."""
+    width, height = 101, 67
     yy, xx = np.mgrid[0:height, 0:width]
     rgb = np.stack([(xx * 2) % 256, (yy * 3) % 256, ((xx + yy) * 2) % 256], axis=-1).astype(np.uint8)
-    rects = [Rect(0, 0, 50, 67), Rect(50, 0, 51, 30), Rect(50, 30, 51, 37)]
     tiles = [(rect, codec, 0, encode(np.ascontiguousarray(rgb[rect.y:rect.y1, rect.x:rect.x1]), codec, 95))
-             for rect, codec in zip(rects, (Codec.JPEG, Codec.PNG, Codec.RAW), strict=True)]
-    planes = compose_yuv420((width, height), tiles)
+             for rect, codec in zip(rects, codecs, strict=True)]
+    return rgb, compose_yuv420((width, height), tiles)
+
+
+def test_the_picture_from_jpeg_png_and_raw_tiles_is_the_frame_in_ycbcr_420() -> None:
+    rgb, planes = ramp_tiles([Rect(0, 0, 50, 67), Rect(50, 0, 51, 30), Rect(50, 30, 51, 37)],
+                             (Codec.JPEG, Codec.PNG, Codec.RAW))
+    width, height = 101, 67
     coded_w, coded_h = coded_size((width, height))
     assert (coded_w, coded_h) == (102, 68) and planes.shape == (coded_h * 3 // 2, coded_w)
     expected = rgb_to_ycbcr(rgb)
@@ -155,14 +162,9 @@ def test_a_frame_of_rgb_tiles_is_converted_whole_its_chroma_from_block_means() -
     """Raw and PNG tiles only (local nodes' tiles of a video session): the frame is laid out and
     converted at once; luma within a level of the JFIF conversion, each chroma sample within a
     level of its 2×2 block's mean, the padding the last row and column."""
-    width, height = 101, 67
-    yy, xx = np.mgrid[0:height, 0:width]
-    rgb = np.stack([(xx * 2) % 256, (yy * 3) % 256, ((xx + yy) * 2) % 256], axis=-1).astype(np.uint8)
-    rects = [Rect(0, 0, 51, 67), Rect(51, 0, 50, 31), Rect(51, 31, 50, 36)]
-    tiles = [(rect, codec, 0, encode(np.ascontiguousarray(rgb[rect.y:rect.y1, rect.x:rect.x1]), codec, 0))
-             for rect, codec in zip(rects, (Codec.RAW, Codec.PNG, Codec.RAW), strict=True)]
-    planes = compose_yuv420((width, height), tiles)
-    coded_w, coded_h = coded_size((width, height))
+    rgb, planes = ramp_tiles([Rect(0, 0, 51, 67), Rect(51, 0, 50, 31), Rect(51, 31, 50, 36)],
+                             (Codec.RAW, Codec.PNG, Codec.RAW))
+    coded_w, coded_h = coded_size((101, 67))
     assert planes.shape == (coded_h * 3 // 2, coded_w)
     expected = rgb_to_ycbcr(rgb)
     luma = planes[:coded_h].astype(np.float64)
