@@ -9,6 +9,7 @@ import pytest
 from node.culling.order import ChunkGroups, front_to_back
 from node.culling.switch import CullMode
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.chunks import SceneChunks
 from node.scene.loading import load_scene
 from tessera.geometry import default_camera
@@ -43,7 +44,7 @@ def test_nearest_first_shades_the_bunny_once_a_pixel_and_draws_the_same_picture(
     camera = default_camera(scene.bounds, aspect=size[0] / size[1])
     passed, pictures = [], []
     for culling in (CullMode.OFF, CullMode.CPU):
-        renderer = TileRenderer(ctx, scene, culling=culling)
+        renderer = TileRenderer(ctx, scene, culling=culling, shading=ShadingOptions(msaa=1))   # a sample a pixel
         try:
             renderer.render_frame(camera, size)
             query = ctx.query(samples=True)
