@@ -177,10 +177,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder for scene files fetched from the coordinator (a scene the "
         "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
     add("--msaa", "auto", "anti-aliasing of tiles and whole frames: 1 (off), 2, 4 or 8 samples per pixel (capped at "
-        "what the GL offers; on llvmpipe 2 is two samples drawn as a frame twice as wide, resolved by a 3x3 filter, "
-        "1.1-1.8x the frame time, where its 4 multisamples cost 2.6-3.5x), filter (1 sample resolved by the 3x3 "
-        "filter, 1.1-1.2x), or auto: 4 on a GPU, 2 on llvmpipe; depth layers (hybrid, sort-last) are drawn at 1, "
-        "unfiltered", type=parse_msaa, metavar="N")
+        "what the GL offers; on llvmpipe 2 is two samples drawn as a frame twice as wide and resolved by a 3x3 "
+        "filter, 1.2-2.0x the frame time of filter, where 4 multisamples cost 2.6-3.5x that of 1), filter (1 sample "
+        "resolved by the 3x3 filter, 1.1-1.2x that of 1), or auto: 4 on a GPU, 2 on llvmpipe; depth layers (hybrid, "
+        "sort-last) are drawn at 1, unfiltered", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")
     add("--samples", DEFAULT_STILL_SAMPLES, "--render-once renders the still of this many jittered samples "

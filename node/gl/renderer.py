@@ -50,7 +50,7 @@ sample: merging layers picks one surface per pixel by its depth, which a resolve
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. On a software
 rasterizer (llvmpipe, where 4 samples cost 2.6-3.5x the frame) ``--msaa auto`` draws two samples a
 pixel instead: the same projection over a viewport twice as wide, so columns 2i and 2i + 1 are
-pixel i's samples ¼ pixel left and right of its centre, one draw at 1.1-1.8x the frame; these
+pixel i's samples ¼ pixel left and right of its centre, one draw at 1.2-2.0x the one-sample frame; these
 frames (and ``--msaa filter``'s one sample) are resolved by the 3×3 filter of
 :mod:`tessera.antialiasing`, drawn with a guard band of one pixel (clipped to the frame) so that
 the filtered tile is still that region of the filtered whole frame, and with its texture LOD bias.

@@ -48,8 +48,8 @@ from node.scene.mesh import MeshBatch
 KEY_LIGHT = 1.5
 #: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU; on a software rasterizer, where 4
 #: samples cost 2.6-3.5x the frame time, two samples per pixel drawn as a frame twice as wide and
-#: resolved by a 3x3 filter (1.1-1.8x: :mod:`tessera.antialiasing`; README, Picture quality:
-#: measured on llvmpipe).
+#: resolved by a 3x3 filter (1.2-2.0x the one-sample filter's frame: :mod:`tessera.antialiasing`;
+#: README, Picture quality: measured on llvmpipe).
 AUTO_MSAA = 0
 #: ``--msaa filter``: one sample per pixel resolved by the 3x3 filter (1.1-1.2x on llvmpipe).
 FILTER_MSAA = -1
