@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tessera.geometry import Camera, Rect
-from tessera.wire.codec import Codec, decode, encode_png
+from tessera.wire.codec import Codec, encode_png, paste_into
 from tessera.wire.protocol import pack_frame, with_input_seq
 
 
@@ -60,10 +60,7 @@ class PublishedFrame:
 def paste_tiles(frame: PublishedFrame) -> np.ndarray:
     """Decode and paste every tile: (height, width, 3) uint8."""
     width, height = frame.size
-    image = np.empty((height, width, 3), dtype=np.uint8)
-    for rect, codec, _, payload in frame.tiles:
-        image[rect.y:rect.y1, rect.x:rect.x1] = decode(payload, codec, rect.w, rect.h)
-    return image
+    return paste_into(np.empty((height, width, 3), dtype=np.uint8), frame.tiles)
 
 
 def encode_frame_png(frame: PublishedFrame) -> tuple[bytes, float, float]:

@@ -21,7 +21,7 @@ import av
 import numpy as np
 
 from tessera.geometry import Rect
-from tessera.wire.codec import Codec, decode
+from tessera.wire.codec import Codec, decode, paste_into
 
 #: RGB → full-range BT.601 YCbCr (JFIF), rows Y, Cb, Cr; Cb and Cr get +128.
 _RGB_TO_YCBCR = np.array([[0.299, 0.587, 0.114],
@@ -137,9 +137,7 @@ def _rgb_yuv420(size: tuple[int, int], tiles: list[tuple[Rect, Codec, int, bytes
     padded to the coded size by its last row and column, converted at once (chroma from each 2×2
     block's mean RGB: the conversion is linear, so that is the mean of the block's Cb and Cr)."""
     width, height = coded_size(size)
-    rgb = np.empty((height, width, 3), dtype=np.uint8)
-    for rect, codec, _, payload in tiles:
-        rgb[rect.y:rect.y1, rect.x:rect.x1] = decode(payload, codec, rect.w, rect.h)
+    rgb = paste_into(np.empty((height, width, 3), dtype=np.uint8), tiles)
     if width != size[0]:
         rgb[:size[1], -1] = rgb[:size[1], -2]
     if height != size[1]:

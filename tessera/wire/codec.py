@@ -7,10 +7,13 @@ Pure: bytes and arrays in, bytes and arrays out. Pixel arrays are ``uint8`` of s
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable
 from enum import IntEnum
 
 import numpy as np
 from PIL import Image
+
+from tessera.geometry import Rect
 
 
 class Codec(IntEnum):
@@ -60,6 +63,13 @@ def decode(data: bytes, codec: Codec, width: int, height: int) -> np.ndarray:
         raise
     except Exception as exc:  # Pillow raises many types for corrupt input
         raise CodecError(f"undecodable {codec.name} tile: {exc}") from None
+
+
+def paste_into(image: np.ndarray, tiles: Iterable[tuple[Rect, Codec, int, bytes]]) -> np.ndarray:
+    """``image`` (h, w, 3) uint8 with each (rect, codec, node, payload) tile decoded into its rect."""
+    for rect, codec, _, payload in tiles:
+        image[rect.y:rect.y1, rect.x:rect.x1] = decode(payload, codec, rect.w, rect.h)
+    return image
 
 
 def encode_png(pixels: np.ndarray) -> bytes:
