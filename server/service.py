@@ -565,7 +565,7 @@ class RenderService:
             "frames_cancelled": frames.frames_cancelled,
             "still": bool(latest and latest.still),
             "still_samples": {"done": latest.samples if latest else 0, "wanted": frames.demand.still_samples},
-            "settled": frames.settled,
+            "settled": session.settled,
             "scene": session.name,
             "scene_state": session.scene_state(),
             "session": session.id if session is not self.default else DEFAULT_SESSION,

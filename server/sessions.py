@@ -134,6 +134,17 @@ class Session:
         """Frames of ``size`` (w, h) from now on; returns the first frame id of that size."""
         return self._event(lambda now: self.service.scheduler.resize(size, now, self.id))
 
+    @property
+    def settled(self) -> bool:
+        """At rest and shown: no frame is owed or in flight, no still sample waits to be accumulated,
+        and, where stills are on, the newest frame published is the still (``/api/stats``'
+        ``settled``; the scheduler's own :attr:`SessionFrames.settled` is true as soon as the last
+        sample came back, before the coordinator accumulated and published it)."""
+        if not self.frames.settled or self.refiner.pending:
+            return False
+        latest = self.store.latest
+        return self.frames.config.still_codec is None or (latest is not None and latest.still)
+
     def request_frame(self) -> None:
         """Someone waits for a newer frame: render one if nothing is on its way (render on demand; a
         still's last sample being accumulated is on its way)."""

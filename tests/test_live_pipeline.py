@@ -66,9 +66,9 @@ def test_nothing_renders_while_nothing_changes_and_the_next_camera_renders_again
     first = client.put("/api/camera", json=camera).json()["frame"]
     frame_id, _ = fetch_frame(client, first)
     assert frame_id >= first
-    after = wait_until(lambda: (s := stats(client))["settled"] and s, seconds(60), "the still frame")
+    after = wait_until(lambda: (s := stats(client))["settled"] and s, seconds(60), "the still frame, settled")
+    assert after["still"], "settled means the still is shown"
     assert after["coordinator_cpu"]["frames"] >= published + 2, "an interactive frame, then the still frame"
-    assert after["still"]
     assert all(n["tiles_rendered"] > r for n, r in zip(after["nodes"], rendered, strict=True))
 
 
