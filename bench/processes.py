@@ -42,10 +42,12 @@ class LoggedProcess:
 
     ``new_session``: the child gets a session of its own, so a Ctrl-C on the terminal reaches only
     this process, and the child just what :meth:`stop` sends. ``label`` names it in errors (default:
-    the command line)."""
+    the command line). ``cwd``: where it runs (default the repository); ``environ``: the environment
+    ``env`` is added to (default this process's)."""
 
     def __init__(self, command: Sequence[str], *, label: str = "", env: Mapping[str, str] | None = None,
-                 log_path: Path | None = None, new_session: bool = False, stop_timeout: float = 20.0) -> None:
+                 log_path: Path | None = None, new_session: bool = False, stop_timeout: float = 20.0,
+                 cwd: Path = REPO, environ: Mapping[str, str] | None = None) -> None:
         self.label = label or shlex.join(command)
         self.stop_timeout = stop_timeout
         self.lines: deque[str] = deque(maxlen=KEPT_LINES)
@@ -56,8 +58,9 @@ class LoggedProcess:
         self._ended = False
         self._changed = threading.Condition()
         self._log = log_path.open("w") if log_path is not None else None
-        self.process = subprocess.Popen(list(command), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                        text=True, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+        base = os.environ if environ is None else environ
+        self.process = subprocess.Popen(list(command), cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                        text=True, env={**base, "PYTHONUNBUFFERED": "1", **(env or {})},
                                         start_new_session=new_session)
         self._reader = threading.Thread(target=self._read, name=f"output of {self.label}", daemon=True)
         self._reader.start()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import socket
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +16,7 @@ from node.culling.switch import CullMode
 from node.gl.shading import AUTO_MSAA, FILTER_MSAA, MSAA_CHOICES, ShadingOptions
 from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from tessera.cli_values import number_parser, parse_background, size_parser
+from tessera.cli_values import command_name, number_parser, parse_background, size_parser
 from tessera.geometry import DEFAULT_BACKGROUND
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, MAX_STILL_SAMPLES
 from tessera.wire.messages import MAX_SIDE
@@ -138,7 +139,7 @@ def parse_coordinator(text: str) -> str:
 def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     """The ``python -m node`` parser; defaults come from ``TESSERA_<FLAG>`` variables in ``environ``."""
     parser = argparse.ArgumentParser(
-        prog="python -m node",
+        prog=command_name(sys.argv[0], "node"),
         description="Tessera render node: renders tiles for a coordinator, or one frame with --render-once.",
         epilog="Every flag can also be set as an environment variable TESSERA_<FLAG>, e.g. TESSERA_TOKEN.",
     )
@@ -163,14 +164,15 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--size", DEFAULT_SIZE, "frame size WxH for --render-once", type=parse_size)
     add("--background", DEFAULT_BACKGROUND, "clear colour '#rrggbb' or 'r,g,b' in 0..1 for --render-once",
         type=parse_background)
-    add("--culling", CullMode.AUTO.value, "per-tile frustum culling: hybrid (CPU, GPU when CPU culling is slow; "
-        "seed 001), cpu, gpu, off, or auto (hybrid on a hardware GPU, cpu on llvmpipe)", type=parse_culling)
+    add("--culling", CullMode.AUTO.value, "skip the geometry outside each tile before drawing it: hybrid (on the "
+        "CPU, on the GPU where the CPU is slow), cpu, gpu, off, or auto (hybrid on a hardware GPU, cpu on llvmpipe)",
+        type=parse_culling)
     add("--time", 0.0, "scene time in seconds for --render-once: the scene's animations are sampled there",
         type=parse_time)
     add("--objects", None, "object state JSON file for --render-once, {name: {translation, rotation, scale, "
         "visible}} (any subset of those)", type=Path, metavar="STATE.json")
-    add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into octree chunks of at most this many faces at load "
-        "(seed 002)", type=parse_face_limit)
+    add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into chunks of at most this many faces at load, so that each "
+        "tile draws only the chunks it sees", type=parse_face_limit)
     add("--scene-memory-mb", DEFAULT_SCENE_MEMORY_MB, "memory for the scenes a node holds at once (their vertex "
         "and index buffers and arrays); after a load the least recently used others are released until they fit",
         type=parse_scene_memory, metavar="MB")

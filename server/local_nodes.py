@@ -2,7 +2,8 @@
 
 The nodes share this machine's cores: each gets ``LP_NUM_THREADS`` = cores / N (unless set), so
 that N llvmpipe renderers do not fight over more threads than there are cores.
-Each child gets PR_SET_PDEATHSIG so that it dies with the coordinator even if the coordinator is
+They import this coordinator's own ``node`` package (:mod:`server.child_python`), whatever the
+working folder holds. Each child gets PR_SET_PDEATHSIG so that it dies with the coordinator even if the coordinator is
 killed outright; a normal exit (Ctrl-C) terminates and reaps them.
 """
 
@@ -14,7 +15,8 @@ import logging
 import os
 import signal
 import subprocess
-import sys
+
+from server.child_python import child_environment, module_command
 
 log = logging.getLogger("tessera.server")
 PR_SET_PDEATHSIG = 1
@@ -37,10 +39,10 @@ class LocalNodes:
 
     def spawn(self, count: int, coordinator_url: str, token: str | None, slowdowns: tuple[float, ...]) -> None:
         for index in range(count):
-            args = [sys.executable, "-m", "node", "--coordinator", coordinator_url, "--name", f"local-{index + 1}"]
+            args = module_command("node", "--coordinator", coordinator_url, "--name", f"local-{index + 1}")
             if index < len(slowdowns) and slowdowns[index] != 1.0:
                 args += ["--slowdown", str(slowdowns[index])]
-            env = dict(os.environ)
+            env = child_environment()
             if token:
                 env["TESSERA_TOKEN"] = token
             env.setdefault("LP_NUM_THREADS", str(llvmpipe_threads_per_node(count)))

@@ -6,12 +6,13 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from server.origins import normalise_origins
-from tessera.cli_values import number_parser, parse_background, size_parser
+from tessera.cli_values import command_name, number_parser, parse_background, size_parser
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
@@ -201,27 +202,40 @@ class Settings(SchedulerConfig):
         return self.max_node_message_bytes or auto_node_message_bytes(self.size)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """The coordinator's parser; ``prog`` names the command in its usage (default: as invoked)."""
     defaults = Settings()
     parser = argparse.ArgumentParser(
-        prog="python -m server",
+        prog=prog or command_name(sys.argv[0], "server"),
         description="Tessera coordinator: partitions the screen, gathers tiles from render nodes, "
         "serves the viewer. Every flag can also be set as TESSERA_<FLAG> (e.g. TESSERA_SCENE, TESSERA_LOCAL_NODES).",
     )
-    parser.add_argument("--host", help=f"address to listen on (default {defaults.host})")
+    parser.add_argument("--host", help=f"address to listen on (default {defaults.host}: this machine only; "
+                                       "0.0.0.0 for every network)")
     parser.add_argument("--port", type=_port, help=f"port (default {defaults.port}; 0 picks a free one)")
-    parser.add_argument("--scene", help=f"scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME (default {DEFAULT_SCENE})")
-    parser.add_argument("--size", type=parse_size,
-                        help=f"frame size WxH (default {defaults.size[0]}x{defaults.size[1]})")
-    parser.add_argument("--balancer", help=f"load balancer (default {DEFAULT_BALANCER})")
+    parser.add_argument("--scene", metavar="FILE|builtin:NAME",
+                        help="what the shared default session shows: a scene file (glTF/GLB/OBJ/PLY/STL) or "
+                             f"builtin:NAME (default {DEFAULT_SCENE})")
+    parser.add_argument("--size", type=parse_size, metavar="WxH",
+                        help=f"frame size of the default session (default {defaults.size[0]}x{defaults.size[1]}; "
+                             "other sessions follow their viewer's window)")
+    parser.add_argument("--balancer", metavar="NAME",
+                        help=f"how the screen is split between the nodes (default {DEFAULT_BALANCER}; "
+                             "GET /api/balancer lists them, and the viewer's panel switches them live)")
     parser.add_argument("--mode", choices=MODES,
-                        help="sort-first (default: disjoint tiles, every node holds the scene), hybrid (seed 000 "
-                             "§4.4: each chunk drawn once, by the tile owning it, into a border strip merged by "
-                             "depth) or sort-last (each node holds a share of the scene; layers merged by depth)")
-    parser.add_argument("--depth-strip", type=_count,
-                        help=f"hybrid border strip, px (default {DEFAULT_DEPTH_STRIP}, measured by bench.compose)")
-    parser.add_argument("--token", help="shared secret that nodes and viewers must present")
-    parser.add_argument("--local-nodes", type=_count, help="spawn N render nodes on this machine")
+                        help="how the nodes share the work: sort-first (default: each node draws its own part of "
+                             "the screen and holds the whole scene), hybrid (each part of the scene is drawn once, "
+                             "by one node, and the edges are merged by depth) or sort-last (each node holds only "
+                             "a share of the scene; their pictures are merged by depth)")
+    parser.add_argument("--depth-strip", type=_count, metavar="PX",
+                        help=f"with --mode hybrid: width of the edge strips merged by depth, px "
+                             f"(default {DEFAULT_DEPTH_STRIP})")
+    parser.add_argument("--token", metavar="SECRET",
+                        help="shared secret that nodes, viewers and API calls must present (default: none; set one "
+                             "on any network you share)")
+    parser.add_argument("--local-nodes", type=_count, metavar="N",
+                        help="start N render nodes on this machine with the coordinator (default 0: nodes join "
+                             "from elsewhere with tessera-node --coordinator ws://HOST:PORT/ws/node)")
     parser.add_argument("--codec", type=_codec,
                         help="tile codec while the picture changes: jpeg (default), png (lossless) or raw")
     parser.add_argument("--interactive-quality", "--jpeg-quality", dest="interactive_quality", type=_quality,

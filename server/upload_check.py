@@ -17,18 +17,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
 import resource
 import signal
 import subprocess
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from server.child_python import child_environment, module_command
 from server.scene_library import NotAScene, TooLargeToLoad, check_scene_file
 
-#: The folder holding the ``server``, ``node`` and ``tessera`` packages, for the child's imports.
-PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 #: One BLAS and OpenMP thread in the child: their per-thread buffers would make the cap depend on
 #: the host's core count, and the loader needs none of them.
 CHILD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -39,9 +36,8 @@ def checked_triangles(path: Path, name: str, memory_mb: int, timeout_s: float) -
     process with at most ``memory_mb`` MiB of address space and ``timeout_s`` seconds. Raises
     :class:`TooLargeToLoad` when it needs more memory, :class:`NotAScene` when it does not load, takes
     longer, or the child dies. Blocking: call it from a worker thread."""
-    environment = {**os.environ, **CHILD_ENVIRONMENT,
-                   "PYTHONPATH": os.pathsep.join(filter(None, [str(PACKAGE_ROOT), os.environ.get("PYTHONPATH")]))}
-    command = [sys.executable, "-m", "server.upload_check", "--memory-mb", str(memory_mb), str(path), name]
+    environment = {**child_environment(), **CHILD_ENVIRONMENT}
+    command = module_command("server.upload_check", "--memory-mb", str(memory_mb), str(path), name)
     try:
         child = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, env=environment,
                                stdin=subprocess.DEVNULL)

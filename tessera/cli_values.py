@@ -6,6 +6,14 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import PurePath
+
+
+def command_name(argv0: str, module: str) -> str:
+    """How the user started the process, for its usage line: the console script's name
+    (``tessera-server``) when run by one, else ``python -m MODULE``."""
+    name = PurePath(argv0).name
+    return name if name.startswith("tessera-") else f"python -m {module}"
 
 
 def size_parser(minimum: int, maximum: int) -> Callable[[str], tuple[int, int]]:

@@ -11,7 +11,8 @@ from fastapi.responses import FileResponse
 
 from server.routes.deps import TOKEN_COOKIE, token_ok
 
-WEB_DIR = Path(__file__).resolve().parents[2] / "web"
+#: The viewer's files: web/ in the repository, server/viewer (a link to it) the package data a wheel holds.
+WEB_DIR = (Path(__file__).resolve().parents[1] / "viewer").resolve()
 
 router = APIRouter(tags=["viewer"])
 
