@@ -37,7 +37,7 @@ async def serve(settings: Settings) -> None:
     max_message = max(settings.node_message_bytes, settings.max_viewer_message_bytes)
     config = uvicorn.Config(create_app(settings), log_level=settings.log_level, ws_max_size=max_message,
                             ws_ping_interval=settings.heartbeat_s, ws_ping_timeout=2 * settings.heartbeat_s,
-                            access_log=False, lifespan="on")
+                            access_log=False, lifespan="on", root_path=settings.root_path)
     server = uvicorn.Server(config)
     nodes = LocalNodes()
     task = asyncio.create_task(server.serve(sockets=[sock]))

@@ -94,3 +94,27 @@ class OriginPolicy:
             return None
         shown = origin if len(origin) <= 60 else origin[:59] + "…"
         return f"origin {shown!r} is not this coordinator's nor in --allowed-origins"
+
+
+def path_prefix(text: str | None) -> str:
+    """A path prefix (``--root-path``, ``X-Forwarded-Prefix``) as ``/a/b`` without a trailing slash
+    (``""`` for none); anything that is no plain path (a scheme, ``//``, ``..``, a query, control
+    characters) counts as none, so a link never points off this coordinator."""
+    prefix = _first(text).rstrip("/")
+    if not prefix:
+        return ""
+    if (not prefix.startswith("/") or prefix.startswith("//") or any(c in prefix for c in "?#\\\"'<> ")
+            or any(ord(c) < 0x20 or ord(c) == 0x7F for c in prefix) or ".." in prefix.split("/")):
+        return ""
+    return prefix
+
+
+def public_base(scheme: str, host: str | None, root_path: str = "", forwarded_proto: str | None = None,
+                forwarded_host: str | None = None, forwarded_prefix: str | None = None) -> str:
+    """The coordinator's address as the browser uses it, ending in ``/``: ``host`` (or a proxy's
+    ``X-Forwarded-Host``) with ``scheme`` (or ``X-Forwarded-Proto``), under the proxy's
+    ``X-Forwarded-Prefix`` or else ``--root-path``: the base of the links the coordinator returns."""
+    origin = own_origin(scheme, host, forwarded_proto, forwarded_host)
+    prefix = path_prefix(forwarded_prefix) or path_prefix(root_path)
+    address = format_origin(origin) if origin is not None else f"{PAGE_SCHEME.get(scheme, 'http')}://localhost"
+    return f"{address}{prefix}/"

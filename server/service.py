@@ -178,6 +178,34 @@ class RenderService:
         log.info("session %s… opened: %s at %dx%d", session.id[:6], session.name, *config.size)
         return session
 
+    def switch_scene(self, session: Session, name: str, spec: str, fetch: tuple[str, str] | None,
+                     camera: Camera | None = None) -> int:
+        """``session`` shows library scene ``name`` (``spec``: what nodes load; ``fetch`` as in
+        :meth:`create_session`) from now on, with its size, balancer, viewers and frame store, its
+        camera kept unless ``camera`` is given. Its frames in flight are dropped, so the next frame
+        published is the new scene's, whole; until then viewers keep the old scene's last frame.
+        Returns the first frame id that can show the new scene."""
+        now = time.monotonic()
+        if fetch is not None:
+            self._fetch[spec] = fetch
+        balancer, size = session.balancer, session.size
+        camera = camera or session.camera
+        self.scheduler.remove_session(session.id, now)
+        for node in self.scheduler.nodes.values():   # the new scene's state versions start afresh: send them whole
+            if node.state_sent is not None and node.state_sent[0] == session.id:
+                node.state_sent = None
+        session.scene, session.name, session.bounds, session.state, session.error = spec, name, None, "loading", None
+        config = dataclasses.replace(self.settings.scheduler_config(), size=size)
+        self.scheduler.add_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now)
+        session.frames.wall = session.wall
+        first = self.scheduler.next_frame_id
+        if camera is not None:
+            first = self.scheduler.set_camera(camera, now, session_id=session.id)
+        self.apply()
+        self.changed_sessions = True
+        log.info("session %s… now shows %s", session.id[:6], name)
+        return first
+
     # ----------------------------------------------------------------- sessions across restarts
     def save_sessions(self) -> Future[None] | None:
         """Write every session to ``--data-dir`` (nothing without one) on the writer thread, off the

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from server.origins import normalise_origins
+from server.origins import normalise_origins, path_prefix
 from tessera.cli_values import command_name, number_parser, parse_background, size_parser
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
@@ -119,6 +119,13 @@ def _folder(text: str) -> Path:
     return path
 
 
+def _root_path(text: str) -> str:
+    prefix = path_prefix(text)
+    if text.strip().rstrip("/") and not prefix:
+        raise argparse.ArgumentTypeError(f"a root path is a plain path such as /tessera, got {text!r}")
+    return prefix
+
+
 def _megabytes(text: str) -> int:
     value = _count(text)
     if value < 1:
@@ -195,6 +202,9 @@ class Settings(SchedulerConfig):
     stream: str = "auto"
     #: The highest bitrate of a session's video stream, bit/s.
     max_bitrate: int = DEFAULT_MAX_BITRATE
+    #: The path prefix a reverse proxy serves the coordinator under (``/tessera``; "" for none),
+    #: for the links it returns when the proxy sends no ``X-Forwarded-Prefix``.
+    root_path: str = ""
 
     @property
     def node_message_bytes(self) -> int:
@@ -309,6 +319,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                              f"{DEFAULT_MAX_BITRATE // 1_000_000}M); the stream follows each viewer's link below it")
     parser.add_argument("--max-size", type=parse_size,
                         help=f"largest frame of a session, WxH (default {defaults.max_size[0]}x{defaults.max_size[1]})")
+    parser.add_argument("--root-path", type=_root_path,
+                        help="path prefix a reverse proxy serves the coordinator under, e.g. /tessera (the proxy "
+                             "strips it); the links the coordinator returns carry it. A proxy's X-Forwarded-Prefix "
+                             "header wins (default: none)")
     return parser
 
 

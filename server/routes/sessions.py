@@ -1,5 +1,7 @@
 """Sessions (issue 19): ``POST /api/sessions`` opens one (with ``wall``: a display wall's, issue 22),
-``GET /api/sessions`` lists them, ``GET|DELETE /api/sessions/{id}``, ``PUT /api/sessions/{id}/size``.
+``GET /api/sessions`` lists them, ``GET|DELETE /api/sessions/{id}``, ``PUT /api/sessions/{id}/size``,
+``PUT /api/sessions/{id}/scene`` (issue 33: another library scene, without a torn frame). Links are
+built for the address the browser uses (``--root-path`` / ``X-Forwarded-Prefix`` behind a proxy).
 The routes that act on a session (camera, frame.png, objects, animation, balancer, stats) are served under
 ``/api/sessions/{id}/…`` as under ``/api/…`` for the default session (server/app.py)."""
 
@@ -13,9 +15,10 @@ from urllib.parse import quote
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from server.origins import public_base
 from server.routes.camera import CameraBody
 from server.routes.deps import get_service, get_session, require_token
-from server.scene_library import SceneLibrary, SceneRefused
+from server.scene_library import SceneEntry, SceneLibrary, SceneRefused
 from server.service import RenderService, SessionsFull
 from server.sessions import Session, fit_size
 from tessera.decomposition.wall_cells import WallError, WallLayout
@@ -77,11 +80,37 @@ def checked_wall(body: WallBody, service: RenderService) -> WallLayout:
         raise HTTPException(status_code=422, detail=str(exc)) from None
 
 
+def public_url(request: Request) -> str:
+    """The coordinator's address as the browser uses it (behind a proxy: its host, scheme and path
+    prefix, ``X-Forwarded-Prefix`` or ``--root-path``), ending in ``/``."""
+    headers = request.headers
+    return public_base(request.url.scheme, headers.get("host"), request.app.state.settings.root_path,
+                       headers.get("x-forwarded-proto"), headers.get("x-forwarded-host"),
+                       headers.get("x-forwarded-prefix"))
+
+
 def links(request: Request, session: Session) -> dict[str, str]:
     """The viewer page that drives the session, and the one that only watches it."""
-    base = str(request.base_url)
+    base = public_url(request)
     return {"viewer_url": f"{base}?session={quote(session.id)}",
             "watch_url": f"{base}?session={quote(session.watch_key)}&watch=1"}
+
+
+def library_scene(request: Request, name: str, camera: CameraBody | None) -> tuple[SceneEntry, Camera | None]:
+    """The library's scene ``name`` and ``camera`` as a Camera; 422 with the reason for either."""
+    library: SceneLibrary = request.app.state.scenes
+    try:
+        return library.find(name), None if camera is None else Camera.from_json(camera.model_dump(exclude_none=True))
+    except (SceneRefused, CameraError) as exc:
+        raise HTTPException(status_code=422, detail=str(exc)) from None
+
+
+async def scene_fetch(request: Request, entry: SceneEntry) -> tuple[str, str] | None:
+    """Where nodes fetch a library file's scene from this coordinator, and its sha256 (None: built in)."""
+    if entry.path is None:
+        return None
+    sha256 = await asyncio.to_thread(request.app.state.scenes.content_hash, entry)
+    return f"/api/scenes/{quote(entry.name, safe='')}/file", sha256
 
 
 @router.post("/api/sessions", status_code=201)
@@ -90,20 +119,12 @@ async def open_session(body: NewSession, request: Request,
     """Open a session showing ``scene``: 201 ``{"id", "viewer_url", "watch_url", "size"}``. An unknown
     scene or a bad size or camera is 422; 503 when ``--max-sessions`` are open. Nodes load the
     scene (from the coordinator, by its content hash, when they lack the file)."""
-    library: SceneLibrary = request.app.state.scenes
-    try:
-        entry = library.find(body.scene)
-        camera = None if body.camera is None else Camera.from_json(body.camera.model_dump(exclude_none=True))
-    except (SceneRefused, CameraError) as exc:
-        raise HTTPException(status_code=422, detail=str(exc)) from None
+    entry, camera = library_scene(request, body.scene, body.camera)
     if body.wall is not None and body.size is not None:
         raise HTTPException(status_code=422, detail="a wall's size is its cells' and bezels': give wall or size")
     wall = None if body.wall is None else checked_wall(body.wall, service)
     size = checked_size(body.size, service) if body.size is not None else service.settings.size
-    fetch = None
-    if entry.path is not None:
-        sha256 = await asyncio.to_thread(library.content_hash, entry)
-        fetch = (f"/api/scenes/{quote(entry.name, safe='')}/file", sha256)
+    fetch = await scene_fetch(request, entry)
     try:
         session = service.create_session(entry.name, size, camera, entry.spec, fetch, wall)
     except SessionsFull as exc:
@@ -145,3 +166,29 @@ async def put_size(body: SizeBody, session: Session = Depends(get_session),
         raise HTTPException(status_code=409, detail=WALL_SIZE_FIXED)
     size = checked_size(body.size, service)
     return {"frame": session.resize(size), "size": list(size)}
+
+
+class SceneBody(BaseModel):
+    """``scene``: a name of ``GET /api/scenes``; ``camera``: where to look from (default: the
+    session's camera as it is)."""
+
+    model_config = ConfigDict(extra="forbid")
+    scene: Annotated[str, Field(min_length=1, max_length=1024)]
+    camera: CameraBody | None = None
+
+
+@router.put("/api/sessions/{session_id}/scene")
+async def put_scene(body: SceneBody, request: Request, session: Session = Depends(get_session),
+                    service: RenderService = Depends(get_service)) -> dict[str, Any]:
+    """Show library scene ``scene`` from now on, with the session's size, balancer and viewers (and
+    its camera, unless ``camera`` is given): ``frame`` is the first frame id of the new scene, and
+    until it is published viewers keep the old scene's last frame (no frame mixes the two). An
+    unknown scene or a bad camera is 422; the default session shows ``--scene`` (409)."""
+    if session is service.default:
+        raise HTTPException(status_code=409, detail="the default session shows --scene; open a session to "
+                                                    "switch scenes (POST /api/sessions)")
+    entry, camera = library_scene(request, body.scene, body.camera)
+    fetch = await scene_fetch(request, entry)
+    if service.find_session(session.id) is not session:
+        raise HTTPException(status_code=404, detail="no such session")
+    return {"frame": service.switch_scene(session, entry.name, entry.spec, fetch, camera), "scene": entry.name}

@@ -9,6 +9,7 @@ from pathlib import Path
 from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
 
+from server.origins import path_prefix
 from server.routes.deps import TOKEN_COOKIE, token_ok
 
 #: The viewer's files: web/ in the repository, server/viewer (a link to it) the package data a wheel holds.
@@ -23,5 +24,7 @@ async def index(request: Request) -> FileResponse:
     token, expected = request.query_params.get("token"), request.app.state.settings.token
     if expected is not None and token is not None and token_ok(expected, token):
         secure = request.url.scheme == "https" or request.headers.get("x-forwarded-proto") == "https"
-        page.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="strict", secure=secure, path="/")
+        # Only the coordinator's own paths carry it (behind a proxy: its prefix), not other sites of the host.
+        path = path_prefix(request.headers.get("x-forwarded-prefix")) or request.app.state.settings.root_path
+        page.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="strict", secure=secure, path=f"{path}/")
     return page

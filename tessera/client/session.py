@@ -1,0 +1,248 @@
+"""A session from Python: its camera, size, objects, animation and scene, its frames as numpy
+images, and its notebook view. Every call is one REST request (or the viewer socket, for
+:meth:`Session.frames`); every error a :class:`TesseraError`."""
+
+from __future__ import annotations
+
+import io
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
+
+import numpy as np
+from PIL import Image
+
+from tessera.client.connection import Connection
+from tessera.client.errors import TesseraError
+from tessera.client.frames import ViewSocket, composite, decode_frame
+from tessera.client.scene_state import Animation, Objects
+from tessera.client.values import SessionInfo, camera_json
+from tessera.geometry import Camera
+
+if TYPE_CHECKING:
+    from tessera.client.notebook import TesseraView
+
+
+def orbited(camera: Camera, degrees: float, elevation: float = 0.0) -> Camera:
+    """``camera`` with its eye turned ``degrees`` about its up vector through its target (right
+    handed: positive turns the eye to its left), then raised ``elevation`` degrees toward up."""
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (camera.eye, camera.target, camera.up))
+    axis = up / np.linalg.norm(up)
+    offset = eye - target
+    offset = rotate(offset, axis, math.radians(degrees))
+    if elevation:
+        side = np.cross(axis, offset)
+        if np.linalg.norm(side) > 1e-12:
+            raised = rotate(offset, side / np.linalg.norm(side), -math.radians(elevation))
+            if np.linalg.norm(np.cross(raised, axis)) > 1e-6 * np.linalg.norm(raised):
+                offset = raised
+    return Camera(tuple((target + offset).tolist()), camera.target, camera.up, camera.fovy_deg, camera.near, camera.far)
+
+
+def rotate(vector: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """``vector`` (3,) turned ``angle`` radians about unit ``axis`` (Rodrigues)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return vector * c + np.cross(axis, vector) * s + axis * float(np.dot(axis, vector)) * (1.0 - c)
+
+
+def fitted(camera: Camera, bounds: np.ndarray, size: tuple[int, int]) -> Camera:
+    """``camera`` looking from the same direction at the centre of ``bounds`` (2×3), as far away as
+    the bounding sphere needs to fill the narrower field of view of a ``size`` (w, h) frame."""
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+    half = math.radians(camera.fovy_deg) / 2.0
+    narrowest = min(half, math.atan(math.tan(half) * size[0] / size[1]))
+    direction = np.asarray(camera.eye, dtype=np.float64) - np.asarray(camera.target, dtype=np.float64)
+    direction /= np.linalg.norm(direction)
+    eye = center + direction * radius / math.sin(narrowest) * 1.05
+    return Camera(tuple(eye.tolist()), tuple(center.tolist()), camera.up, camera.fovy_deg)
+
+
+class Session:
+    """Session ``id`` of the coordinator ``connection`` (made by :meth:`Tessera.open_session`,
+    :meth:`Tessera.session`); ``on_close`` is told when :meth:`close` closed it. A context manager:
+    leaving it closes a session this client opened (one with ``on_close``)."""
+
+    def __init__(self, connection: Connection, session_id: str,
+                 on_close: Callable[[Session], None] | None = None) -> None:
+        self.connection = connection
+        self.id = session_id
+        self.on_close = on_close
+        #: The first frame id that shows every change this object made (camera, size, objects…).
+        self.changed_at = 0
+        self.objects = Objects(self)
+        self.animation = Animation(self)
+        self._ready = False
+
+    @property
+    def path(self) -> str:
+        """The session's routes: ``api/`` for the default session, else ``api/sessions/ID/``."""
+        return "api/" if self.id == "default" else f"api/sessions/{quote(self.id, safe='')}/"
+
+    def call(self, method: str, route: str, **options: Any) -> Any:
+        return self.connection.call(method, self.path + route, **options)
+
+    def changed(self, answer: dict[str, Any]) -> int:
+        """Note an answer's ``frame`` (the first frame id showing a change); returns it."""
+        self.changed_at = max(self.changed_at, int(answer["frame"]))
+        return int(answer["frame"])
+
+    # ----------------------------------------------------------------- what it is
+    def info(self) -> SessionInfo:
+        """The session's summary: scene, size, viewers, fps, latency, state…"""
+        return SessionInfo.from_json(self.connection.call("GET", f"api/sessions/{quote(self.id, safe='')}"))
+
+    @property
+    def scene(self) -> str:
+        return self.info().scene
+
+    def stats(self) -> dict[str, Any]:
+        """The session's ``/stats``: frame, fps, size, balancer, imbalance, latency_ms, nodes…"""
+        return self.call("GET", "stats")
+
+    def wait_ready(self, timeout: float | None = None) -> Session:
+        """Wait until a node holds the session's scene (its camera and bounds known); TesseraError
+        when the scene failed to load or ``timeout`` (default the client's) passed."""
+        deadline = time.monotonic() + (timeout if timeout is not None else self.connection.timeout)
+        while not self._ready:
+            info = self.info()
+            if info.state == "error":
+                raise TesseraError(f"the scene {info.scene!r} did not load: {info.summary.get('error')}")
+            self._ready = info.state == "ready" and self.call("GET", "camera")["bounds"] is not None
+            if not self._ready and time.monotonic() > deadline:
+                raise TesseraError(f"the scene {info.scene!r} was not loaded in time (state {info.state})")
+            if not self._ready:
+                time.sleep(0.05)
+        return self
+
+    # ----------------------------------------------------------------- camera
+    @property
+    def camera(self) -> Camera:
+        """The newest camera (set it to a :class:`Camera` or camera JSON)."""
+        camera = self.wait_ready().call("GET", "camera")["camera"]
+        return Camera.from_json(camera)
+
+    @camera.setter
+    def camera(self, camera: Camera | dict[str, Any]) -> None:
+        self.set_camera(camera)
+
+    def set_camera(self, camera: Camera | dict[str, Any]) -> int:
+        """Set the camera; returns the first frame id that shows it."""
+        return self.changed(self.call("PUT", "camera", json=camera_json(camera)))
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """The scene's axis-aligned bounds, (2, 3) float64: lowest and highest corner."""
+        return np.asarray(self.wait_ready().call("GET", "camera")["bounds"], dtype=np.float64)
+
+    def orbit(self, degrees: float, elevation: float = 0.0) -> int:
+        """Turn the eye ``degrees`` about the up vector through the target (and raise it
+        ``elevation`` degrees); returns the first frame id showing it."""
+        return self.set_camera(orbited(self.camera, degrees, elevation))
+
+    def look_at(self, target: Sequence[float], eye: Sequence[float] | None = None,
+                up: Sequence[float] | None = None, fovy_deg: float | None = None) -> int:
+        """Look at ``target`` from ``eye`` (default: where the eye is), with ``up`` and
+        ``fovy_deg`` (default: as they are); returns the first frame id showing it."""
+        now = self.camera
+        return self.set_camera({"eye": list(eye if eye is not None else now.eye), "target": list(target),
+                                "up": list(up if up is not None else now.up),
+                                "fovy_deg": fovy_deg if fovy_deg is not None else now.fovy_deg})
+
+    def fit(self) -> int:
+        """Frame the whole scene from the current view direction; returns the first frame id showing it."""
+        return self.set_camera(fitted(self.camera, self.bounds, self.size))
+
+    # ----------------------------------------------------------------- size
+    @property
+    def size(self) -> tuple[int, int]:
+        """The frame size (w, h px); set it to resize (scaled down to fit ``--max-size``)."""
+        width, height = self.info().size
+        return width, height
+
+    @size.setter
+    def size(self, size: tuple[int, int]) -> None:
+        self.changed(self.call("PUT", "size", json={"size": [int(size[0]), int(size[1])]}))
+
+    # ----------------------------------------------------------------- the scene
+    def set_scene(self, scene: str, camera: Camera | dict[str, Any] | None = None) -> int:
+        """Show library scene ``scene`` (a name, or what :meth:`Tessera.upload` returned) from now
+        on, keeping the camera (or from ``camera``). The frames before the new scene's first one
+        show the old scene whole, never a mix; returns the first frame id of the new scene."""
+        body: dict[str, Any] = {"scene": scene}
+        if camera is not None:
+            body["camera"] = camera_json(camera)
+        self._ready = False
+        return self.changed(self.call("PUT", "scene", json=body))
+
+    # ----------------------------------------------------------------- pictures
+    def snapshot(self, still: bool = True, after: int | None = None) -> np.ndarray:
+        """The picture as an (h, w, 3) uint8 array: with ``still`` the lossless still the session
+        converges to once nothing moves (every sample of the progressive still), else the first
+        complete frame; either showing every change this object made (or from frame ``after``)."""
+        return self.snapshot_frame(still, after)[1]
+
+    def snapshot_frame(self, still: bool = True, after: int | None = None) -> tuple[int, np.ndarray]:
+        """:meth:`snapshot` with the frame's id."""
+        params: dict[str, Any] = {"after": self.changed_at if after is None else after}
+        if still:
+            params["still"] = "true"
+        response = self.connection.request("GET", self.path + "frame.png", params=params)
+        image = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
+        return int(response.headers["x-frame-id"]), image
+
+    def save(self, path: str | Path, still: bool = True) -> Path:
+        """Write :meth:`snapshot` to ``path`` (PNG, or any format Pillow knows by its suffix)."""
+        path = Path(path)
+        Image.fromarray(self.snapshot(still)).save(path)
+        return path
+
+    def frames(self, still_only: bool = False, timeout: float | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """The session's frames as they are published: (frame id, (h, w, 3) uint8 image), each one
+        complete (every tile of one instant), newest first when this reader falls behind (frames in
+        between are skipped); ``still_only``: only still frames. Stops with TesseraError when the
+        session closes, or when no frame came for ``timeout`` s (None: waits as long as it takes).
+        Frames render on demand: a session nobody moves publishes no new frame."""
+        with ViewSocket(self.connection.url, self.id, self.connection.token, self.connection.timeout) as socket:
+            while True:
+                try:
+                    message = socket.receive(timeout)
+                except TimeoutError:
+                    raise TesseraError(f"no frame in {timeout} s", what="WS /ws/view") from None
+                if isinstance(message, bytes):
+                    frame = decode_frame(message)
+                    if frame.still or not still_only:
+                        yield frame.frame_id, composite(frame)
+
+    # ----------------------------------------------------------------- notebook
+    def show(self, width: int = 640, height: int = 360, transport: str = "comm") -> TesseraView:
+        """A live Jupyter view of the session (an anywidget): the picture, orbit / pan / zoom with
+        the mouse and touch, the still badge and a stats line; frames sized to the cell ×
+        devicePixelRatio. ``transport="comm"`` (default) carries frames and input through the
+        kernel, so the page needs no route to the coordinator; ``"direct"`` opens the coordinator's
+        socket from the page (lower latency; the page must reach the coordinator and be one of its
+        ``--allowed-origins``)."""
+        from tessera.client.notebook import TesseraView
+
+        return TesseraView(self, width, height, transport)
+
+    # ----------------------------------------------------------------- lifetime
+    def close(self) -> None:
+        """Close the session on the coordinator (its viewers are disconnected)."""
+        if self.on_close is not None:
+            self.on_close(self)
+        self.connection.call("DELETE", f"api/sessions/{quote(self.id, safe='')}")
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.on_close is not None:
+            self.close()
+
+    def __repr__(self) -> str:
+        return f"Session({self.id!r})"
