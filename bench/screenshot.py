@@ -1,10 +1,11 @@
-"""The README's picture, made from the real viewer: ``python -m bench.screenshot [--out PNG]``.
+"""The picture of README and the manual's front page, made from the real viewer:
+``python -m bench.screenshot [--out PNG]``.
 
 Starts ``python -m server --local-nodes N`` (every other setting its default unless given), opens
 the viewer in Debian's headless Chromium through Playwright (no browser download), turns the camera
 by mouse drags as a user would (3 s each, paced like a hand), waits until the still frame is on
 screen and the panel shows the cluster at rest with every node's bar, and writes a screenshot of
-the page (default docs/screenshot.png). Refresh the README's picture with this one command after a
+the page (default docs/screenshot.png). Refresh the picture with this one command after a
 viewer change.
 """
 

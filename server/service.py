@@ -5,7 +5,7 @@ socket messages and the clock into scheduler events and carries out the schedule
 The decomposition mode (:mod:`tessera.decomposition`) lives in the scheduler: it reads each tile
 (a depth tile is decoded and checked when it arrives) and assembles each complete frame for the
 viewers (a depth frame merged on the coordinator: at 1080p with 4 nodes the merge costs 5–15 ms of
-one core, below a node's render time, docs/depth_compositing.md); this module carries bytes.
+one core, below a node's render time, docs/benchmarks/compose.md); this module carries bytes.
 
 What happens when — render on demand, late camera binding, superseded frames, publish order —
 is decided in the scheduler; this module adds what needs I/O: the nodes' connections and scene

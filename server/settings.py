@@ -22,7 +22,7 @@ from tessera.video.transport import STREAM_MODES
 from tessera.wire.codec import Codec
 
 DEFAULT_SCENE = "builtin:cluster"
-#: The best measured balancer (README "Balancing": bench.balance on Lucy's orbit, fly-through and orbit
+#: The best measured balancer (docs/benchmarks/balance.md: bench.balance on Lucy's orbit, fly-through and orbit
 #: with speeds 1,1,2,4 and the Pan's orbit, and bench.live): the highest speedup on two of the four,
 #: within 2–3 % of the best on the others, the lowest or second-lowest imbalance on all four.
 DEFAULT_BALANCER = "adaptive-predict"
@@ -38,7 +38,7 @@ DEFAULT_MAX_VIEWER_MESSAGE_BYTES = 64 << 10
 #: once per display refresh (60–240 Hz) and its latency once a second.
 DEFAULT_MAX_VIEWER_MESSAGES_PER_S = 500.0
 #: Messages per second a node may send (burst: one second's worth): two per tile (the binary tile and
-#: its ``tile_sent``). Receiving a tile costs the coordinator 0.13–0.15 ms (README, loopback bench), so
+#: its ``tile_sent``). Receiving a tile costs the coordinator 0.13–0.15 ms (bench.scale over loopback), so
 #: it takes at most about 7,700 tiles/s (15,400 messages/s) from all nodes together, whatever the tiles
 #: per frame (768 tiles at 60 frames/s would be 46,000): no node doing its work comes near 40,000.
 DEFAULT_MAX_NODE_MESSAGES_PER_S = 40000.0

@@ -1,4 +1,4 @@
-"""``python -m bench.screenshot`` (the README's picture) on a small real cluster: it starts the
+"""``python -m bench.screenshot`` (the picture of README and docs/index.md) on a small real cluster: it starts the
 coordinator with local nodes, drives the viewer in headless Chromium and writes a PNG of the page."""
 
 from __future__ import annotations

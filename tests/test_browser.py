@@ -2,7 +2,7 @@
 
 Uses Debian's /usr/bin/chromium through Playwright (never a downloaded browser). Missing
 Playwright or Chromium skips the test, except in CI (CI=true), where it fails. Set
-TESSERA_UPDATE_SCREENSHOT=1 to refresh docs/screenshot.png, the README's picture.
+TESSERA_UPDATE_SCREENSHOT=1 to refresh docs/screenshot.png, the picture of README and the manual's front page.
 """
 
 from __future__ import annotations

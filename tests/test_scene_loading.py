@@ -19,7 +19,7 @@ from tests.conftest import scene_path
 #: A face limit no mesh reaches: batches stay unsplit, in file order.
 UNSPLIT = 1 << 40
 
-#: The README table: file, triangles (instances counted), drawn mesh instances.
+#: The test scenes: file, triangles (instances counted), drawn mesh instances.
 SHARED_SCENES = [
     ("bunny/bun_zipper.ply", 69_451, 1),
     ("large_scan/stanford_dragon_vrip_res2_202k.ply", 202_520, 1),

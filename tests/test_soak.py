@@ -18,8 +18,8 @@ What it asserts, from the figures the soak reports (its JSON):
 * RSS: the coordinator's growth within the soak's 10 % goal (it measured +0.2 % here), the nodes'
   summed RSS within 50 %. Over one minute RSS is not a leak figure: a node's RSS moves by ±20 % with
   the picture (205–245 MB in one process in the same minute) and the sum compares processes a
-  restart replaced, so the nodes' bound only catches a gross leak; the 30-minute soak in the README
-  is where RSS growth is measured.
+  restart replaced, so the nodes' bound only catches a gross leak; the 30-minute soak of
+  docs/benchmarks/reliability.md is where RSS growth is measured.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ contiguous range of chunks, hence of faces: a node wholly inside the tile is one
 
 The traversal is vectorised (:func:`cull`): the frontier of nodes is tested at once with the
 p-/n-vertex box–plane test, :data:`LEVEL_STEP` tree levels per step, because the number of numpy
-calls is what a tile's cull costs (docs/culling.md). Plane masking and plane coherency (testing
+calls is what a tile's cull costs (docs/explanation/culling.md). Plane masking and plane coherency (testing
 first the plane that culled a node last frame) only pay in a one-node-at-a-time loop and are left
 out.
 """
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: The CPU traversal tests the binary tree this many levels at a time (a 2⁵ = 32-ary view of it):
-#: the fastest of 2…7 measured (docs/culling.md).
+#: the fastest of 2…7 measured (docs/explanation/culling.md).
 LEVEL_STEP = 5
 
 

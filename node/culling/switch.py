@@ -46,7 +46,7 @@ def resolve_culling(mode: CullMode, gl_renderer: str) -> CullMode:
     """The mode that runs for ``mode`` on the GL renderer named ``gl_renderer``: ``auto`` is
     ``cpu`` on a software rasterizer — its "GPU" culling is compute shaders on the same CPU cores,
     so handing culling over cannot relieve the CPU, which is the seed's premise, and it measured
-    slower (docs/culling.md) — and ``hybrid`` otherwise; other modes are themselves."""
+    slower (docs/explanation/culling.md) — and ``hybrid`` otherwise; other modes are themselves."""
     if mode is not CullMode.AUTO:
         return mode
     software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)

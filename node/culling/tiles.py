@@ -22,11 +22,11 @@ Either way a tile is drawn the same way (:class:`TileCull`): per batch, one
 glMultiDrawElementsIndirect over its slice of a command buffer. On llvmpipe that ties with one
 ``render(first=, vertices=)`` per run, since Mesa loops over the commands in C at the same cost a
 draw either way; multi-draw is kept for one draw path for both culling devices and no Python call
-per run (docs/culling.md).
+per run (docs/explanation/culling.md).
 
 On llvmpipe the GPU path loses: its compute shaders run on the same CPU cores, cull slower than
 the CPU traversal, and the seed's 0.3 ms threshold, which the CPU cull time straddles on a shared
-machine, sends many tiles to them (docs/culling.md). The seed's parameters stay the defaults (a
+machine, sends many tiles to them (docs/explanation/culling.md). The seed's parameters stay the defaults (a
 real GPU is what they were chosen for), and the default mode ``auto`` culls on the CPU on llvmpipe.
 
 What ran is reported per tile: the path, chunks drawn, triangles submitted and the culling time. On

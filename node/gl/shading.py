@@ -21,7 +21,7 @@ environment (the white-furnace test). Tone mapping: Khronos PBR Neutral, chosen 
 it keeps base colours' hue and saturation (a product viewer's need: what the file says is what is
 shown) and is linear below 0.76.
 
-Cost on llvmpipe (README, Picture quality: ``python -m bench.shading``), where every texture lookup
+Cost on llvmpipe (docs/benchmarks/picture.md: ``python -m bench.shading``), where every texture lookup
 and every varying costs: variants by ``#define`` (:class:`ShaderVariant`), so what a batch lacks
 costs nothing — no texture lookup at all without textures (scans, most CAD parts: a 1×1 stand-in
 texture costs as much as a real one), tangents, a second uv set and uv transforms only where used —
@@ -49,7 +49,7 @@ KEY_LIGHT = 1.5
 #: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU; on a software rasterizer, where 4
 #: samples cost 2.6-3.5x the frame time, two samples per pixel drawn as a frame twice as wide and
 #: resolved by a 3x3 filter (1.2-2.0x the one-sample filter's frame: :mod:`tessera.antialiasing`;
-#: README, Picture quality: measured on llvmpipe).
+#: docs/benchmarks/picture.md: measured on llvmpipe).
 AUTO_MSAA = 0
 #: ``--msaa filter``: one sample per pixel resolved by the 3x3 filter (1.1-1.2x on llvmpipe).
 FILTER_MSAA = -1

@@ -5,7 +5,7 @@ here.
 
 Splitting only re-orders a batch's faces, and its vertices into the order the re-ordered faces
 first use them (so a chunk's vertices sit together in memory, which makes culled tiles faster on
-llvmpipe: docs/culling.md); attribute values and materials stay. The renderer's one index buffer
+llvmpipe: docs/explanation/culling.md); attribute values and materials stay. The renderer's one index buffer
 (batches in order, 3 indices per face) holds every chunk as a contiguous index range. Chunks are
 numbered in that buffer's order, so chunk i + 1 starts where chunk i ends.
 

@@ -5,7 +5,7 @@ The seed subdivides a leaf's bounding box into eight while it holds too many fac
 non-empty children. Here the root cell is the cube on the mesh's bounding box (:func:`octree_root`),
 so cells are cubes at every level: compact chunks whose screen footprints stay small from any
 viewpoint (the same tile redundancy with fewer chunks than halving an elongated box:
-docs/culling.md). Every face goes to the octree cell holding its centroid; the whole adaptive
+docs/explanation/culling.md). Every face goes to the octree cell holding its centroid; the whole adaptive
 octree is found at once from the faces' Morton codes (sorting by code lists every cell's faces
 contiguously, in depth-first octree order), level by level with numpy, no per-face loop.
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Default most faces per chunk: about the largest limit that keeps sort-first redundancy
-#: (triangles drawn by 16 tiles / by the whole frame, both culled) within 1.10 (docs/culling.md).
+#: (triangles drawn by 16 tiles / by the whole frame, both culled) within 1.10 (docs/explanation/culling.md).
 DEFAULT_FACE_LIMIT = 192
 #: Octree depth of the Morton code (21 bits per axis fill a uint64).
 MAX_DEPTH = 21

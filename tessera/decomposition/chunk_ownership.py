@@ -54,7 +54,7 @@ OFF_SCREEN = -2
 DEFAULT_MARGIN_PX = 1.0
 #: The border strip's default width (``--depth-strip``): the narrowest that kept the hybrid's
 #: redundancy within 1.02 on the Pan's orbit, zoom and fly-through (bench.compose's strip sweep,
-#: docs/depth_compositing.md).
+#: docs/benchmarks/compose.md).
 DEFAULT_DEPTH_STRIP = 32
 
 

@@ -57,7 +57,7 @@ MAX_PIECES = 4
 #: Most blend pieces (peeled layers of blended fragments) a depth tile may hold.
 MAX_BLEND_PIECES = 8
 #: zlib level of the piece parts: level 1 deflates the runs and the colour of active pixels well
-#: at a fraction of level 6's time (docs/depth_compositing.md).
+#: at a fraction of level 6's time (measured with bench.compose).
 DEFLATE_LEVEL = 1
 
 
