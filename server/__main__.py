@@ -11,6 +11,7 @@ import uvicorn
 
 from server.app import create_app
 from server.local_nodes import LocalNodes
+from server.scene_library import UPLOADS_FOLDER
 from server.settings import Settings, load_settings
 
 log = logging.getLogger("tessera.server")
@@ -49,11 +50,27 @@ async def serve(settings: Settings) -> None:
             await asyncio.sleep(0.05)
         shown_host = "localhost" if settings.host in ("0.0.0.0", "::") else settings.host
         print(f"Tessera serving on http://{shown_host}:{port}/", flush=True)
+        for line in where_scenes_are(settings):
+            print(line, flush=True)
         if settings.local_nodes:
             nodes.spawn(settings.local_nodes, f"ws://127.0.0.1:{port}/ws/node", settings.token, settings.node_slowdowns)
         await task
     finally:
         nodes.stop()
+
+
+def where_scenes_are(settings: Settings) -> list[str]:
+    """What the start-up tells of the scene library and the uploads: their folders, or how to get them."""
+    library = (f"  scene library: {settings.scenes_dir}" if settings.scenes_dir is not None else
+               "  scene library: none (--scenes-dir DIR, or start from a folder that holds scenes/)")
+    home = settings.uploads_home
+    if home is None:
+        uploads = "  uploads: off (--data-dir DIR turns them on)"
+    elif settings.data_dir is None:
+        uploads = f"  uploads: {home / UPLOADS_FOLDER} (sessions are kept across restarts only with --data-dir DIR)"
+    else:
+        uploads = f"  uploads and sessions: {home}"
+    return [library, uploads]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,7 +27,7 @@ from server.routes import (
     viewer_ws,
     web,
 )
-from server.routes.guards import refuse_cross_site_writes
+from server.routes.guards import refuse_cross_site_writes, refuse_watch_writes
 from server.routes.scenes import UploadChecks
 from server.routes.web import WEB_DIR
 from server.scene_library import SceneLibrary
@@ -37,7 +37,7 @@ from server.settings import Settings
 
 def create_app(settings: Settings) -> FastAPI:
     metrics = CoordinatorMetrics()
-    library = SceneLibrary(settings.scenes_dir, settings.data_dir, settings.max_upload_mb << 20)
+    library = SceneLibrary(settings.scenes_dir, settings.uploads_home, settings.max_upload_mb << 20)
     service = RenderService(settings, metrics, library)
     metrics.watch(service)
 
@@ -56,7 +56,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.origins = OriginPolicy(settings.allowed_origins)
     app.state.scenes = library
     app.state.upload_checks = UploadChecks(settings.upload_check_memory_mb)
-    app.middleware("http")(refuse_cross_site_writes)
+    app.middleware("http")(refuse_watch_writes)
+    app.middleware("http")(refuse_cross_site_writes)   # added last: runs first
     for module in (health, scenes, nodes, node_ws, viewer_ws, web, sessions):
         app.include_router(module.router)
     app.include_router(stats.metrics_router)

@@ -42,6 +42,10 @@ TEMPORARY_PREFIX = ".upload-"
 MAX_NAME_BYTES = 255 - len(TEMPORARY_PREFIX) - 17
 
 
+#: Why an upload is refused when uploads are off.
+UPLOADS_OFF = "uploads are off: start the coordinator with --data-dir DIR to turn them on"
+
+
 class SceneRefused(ValueError):
     """A scene name or upload the library turns down; the message says why."""
 
@@ -170,6 +174,26 @@ class SceneLibrary:
                             key=lambda entry: entry.name)
         return found
 
+    def describe(self) -> dict[str, Any]:
+        """What the viewer's panel offers and says (``GET /api/library``): the library's ``folder``
+        and how many ``library_scenes`` it holds, with a ``library_hint`` when none; whether
+        ``uploads`` are on (``uploads_off``: why not and how to turn them on), their largest size
+        (``max_upload_mb``) and the ``formats`` a file may have. Reads the folders: call it off the loop."""
+        folder = self.scenes_dir
+        count = 0 if folder is None else len(self._library_entries(folder))
+        if folder is None:
+            hint = "no scene library: start the coordinator with --scenes-dir DIR, or from a folder that holds scenes/"
+        elif count == 0:
+            formats = ", ".join(suffix.lstrip(".").upper() for suffix in SUPPORTED_SUFFIXES)
+            hint = f"no scene files in {folder} yet: put {formats} files there (sub-folders too) to offer them here"
+        else:
+            hint = None
+        return {"folder": None if folder is None else str(folder), "library_scenes": count, "library_hint": hint,
+                "uploads": self.uploads_dir is not None,
+                "uploads_off": UPLOADS_OFF if self.uploads_dir is None else None,
+                "max_upload_mb": self.max_upload_bytes >> 20,
+                "formats": [suffix.lstrip(".") for suffix in SUPPORTED_SUFFIXES]}
+
     def _library_entries(self, root: Path) -> list[SceneEntry]:
         entries = []
         for folder, subfolders, files in os.walk(root):
@@ -246,7 +270,7 @@ class SceneLibrary:
         """A temporary file to receive the upload ``filename`` into; raises :class:`SceneRefused`
         subclasses for a name or format it does not take, a name taken, or uploads unavailable."""
         if self.uploads_dir is None:
-            raise UploadsUnavailable("uploads are off: start the coordinator with --data-dir DIR")
+            raise UploadsUnavailable(UPLOADS_OFF)
         refusal = _part_refusal(filename)
         if refusal is not None:
             raise BadSceneName(f"{filename!r} is {refusal}; upload a plain file name")

@@ -573,9 +573,10 @@ class RenderService:
         self._show(session, job, tiles, samples=job.sample + 1)
 
     # ----------------------------------------------------------------- reporting
-    def describe(self, session: Session | None = None) -> dict[str, Any]:
+    def describe(self, session: Session | None = None, public: bool = False) -> dict[str, Any]:
         """``/api/stats``: ``session``'s figures (default: the default session's) with the nodes', the
-        coordinator's and every session's summary."""
+        coordinator's and every session's summary; ``public``: sessions named by their labels, not
+        by the ids that drive them (for a watcher)."""
         session = session or self.default
         scheduler, frames = self.scheduler, session.frames
         stats, latest, now = frames.stats, session.store.latest, time.monotonic()
@@ -596,7 +597,7 @@ class RenderService:
             "settled": session.settled,
             "scene": session.name,
             "scene_state": session.scene_state(),
-            "session": session.id if session is not self.default else DEFAULT_SESSION,
+            "session": session.label if public else session.id,
             "codec": self.settings.codec.name.lower(),
             "interactive_quality": self.settings.interactive_quality,
             "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec is not None else "none",
@@ -614,7 +615,7 @@ class RenderService:
                 "process_ms": round(time.process_time() * 1000.0, 3),
                 "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
             },
-            "sessions": [s.summary(now) for s in self.sessions.values()],
+            "sessions": [s.summary(now, public) for s in self.sessions.values()],
             "share_window_s": SHARE_WINDOW_S,
             "nodes": [link.describe(scheduler.nodes[link.node_id])
                       for link in sorted(self.nodes.values(), key=lambda n: n.node_id)],

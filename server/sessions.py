@@ -207,10 +207,11 @@ class Session:
         return {"version": scene.log.current.version, "time": scene.time_at(time.monotonic()),
                 "playing": scene.playing, "speed": scene.speed, "animated": bool(scene.animations)}
 
-    def summary(self, now: float) -> dict[str, Any]:
-        """The session in ``/api/sessions`` and ``/api/stats``' ``sessions``."""
+    def summary(self, now: float, public: bool = False) -> dict[str, Any]:
+        """The session in ``/api/sessions`` and ``/api/stats``' ``sessions``; ``public``: without its
+        id, the key that drives it (for a watcher)."""
         stats = self.frames.stats
-        return {"id": self.id, "label": self.label, "scene": self.name, "size": list(self.size),
+        return {**({} if public else {"id": self.id}), "label": self.label, "scene": self.name, "size": list(self.size),
                 "viewers": len(self.viewers.slots),
                 "fps": round(stats.fps(now), 2), "latency_ms": round(stats.latency_ms, 2),
                 "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4),

@@ -126,6 +126,26 @@ def _root_path(text: str) -> str:
     return prefix
 
 
+#: ``--data-dir none``: no uploads, nothing kept.
+NO_DATA_DIR = "none"
+
+
+def _data_folder(text: str) -> Path | str:
+    """An existing folder, or ``none``."""
+    return NO_DATA_DIR if text.strip().lower() == NO_DATA_DIR else _folder(text)
+
+
+def user_data_dir(environ: dict[str, str]) -> Path:
+    """Tessera's folder in the user's data directory: ``$XDG_DATA_HOME/tessera`` (default
+    ``~/.local/share/tessera``)."""
+    base = environ.get("XDG_DATA_HOME") or str(Path(environ.get("HOME") or Path.home()) / ".local" / "share")
+    return Path(base).expanduser() / "tessera"
+
+
+#: The scene library a coordinator started without ``--scenes-dir`` shows, when its working folder has it.
+SCENES_FOLDER = Path("scenes")
+
+
 def _megabytes(text: str) -> int:
     value = _count(text)
     if value < 1:
@@ -186,8 +206,12 @@ class Settings(SchedulerConfig):
     max_node_messages_per_s: float = DEFAULT_MAX_NODE_MESSAGES_PER_S
     #: The scene library, read only: its files are listed as ``library/PATH`` (server/scene_library.py).
     scenes_dir: Path | None = None
-    #: Where uploads (``DIR/scenes``) live; None: uploads are refused.
+    #: ``--data-dir``: where uploads (``DIR/scenes``) and the sessions (``DIR/sessions.json``, brought
+    #: back at start-up) live.
     data_dir: Path | None = None
+    #: Without ``--data-dir``: where uploads live (the user's data folder, ``XDG_DATA_HOME/tessera``);
+    #: sessions are not kept. Both None: uploads are refused.
+    user_data_dir: Path | None = None
     max_upload_mb: int = 512
     #: Address space of the process that loads an upload to check it (server/upload_check.py), MiB.
     upload_check_memory_mb: int = 4096
@@ -205,6 +229,11 @@ class Settings(SchedulerConfig):
     #: The path prefix a reverse proxy serves the coordinator under (``/tessera``; "" for none),
     #: for the links it returns when the proxy sends no ``X-Forwarded-Prefix``.
     root_path: str = ""
+
+    @property
+    def uploads_home(self) -> Path | None:
+        """The folder whose ``scenes`` sub-folder holds the uploads (None: uploads are off)."""
+        return self.data_dir or self.user_data_dir
 
     @property
     def node_message_bytes(self) -> int:
@@ -294,12 +323,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--max-node-messages-per-s", type=RATE,
                         help=f"messages per second per node socket, a second's worth at once "
                              f"(default {DEFAULT_MAX_NODE_MESSAGES_PER_S:.0f}; 0: no limit)")
-    parser.add_argument("--scenes-dir", type=_folder,
-                        help="folder of scene files (glTF/GLB/OBJ/PLY/STL, sub-folders too) that sessions may "
-                             "show as library/PATH; read only (default: none, only built-in scenes and uploads)")
-    parser.add_argument("--data-dir", type=_folder,
-                        help="folder for uploaded scenes (DIR/scenes) and what outlives a restart "
-                             "(default: none, uploads are refused)")
+    parser.add_argument("--scenes-dir", type=_folder, metavar="DIR",
+                        help="folder of scene files (glTF/GLB/OBJ/PLY/STL, sub-folders too) that the viewer's "
+                             "scene picker offers; read only (default: ./scenes when the folder you start from "
+                             "has one)")
+    parser.add_argument("--data-dir", type=_data_folder, metavar="DIR",
+                        help="folder for uploaded scenes (DIR/scenes) and the sessions, which come back after a "
+                             "restart (default: uploads go to your data folder, $XDG_DATA_HOME/tessera or "
+                             "~/.local/share/tessera, and sessions are not kept; none: no uploads)")
     parser.add_argument("--max-upload-mb", type=_megabytes,
                         help=f"largest scene upload, MiB (default {defaults.max_upload_mb})")
     parser.add_argument("--upload-check-memory-mb", type=_megabytes,
@@ -351,6 +382,12 @@ def load_settings(argv: Sequence[str] | None = None, environ: dict[str, str] | N
             parser.error("--node-slowdowns must be finite numbers >= 1")
     if values.get("still_codec") == NO_STILL:
         values["still_codec"] = None
+    if values.get("data_dir") == NO_DATA_DIR:
+        del values["data_dir"]
+    elif "data_dir" not in values:
+        values["user_data_dir"] = user_data_dir(env)
+    if "scenes_dir" not in values and SCENES_FOLDER.is_dir():
+        values["scenes_dir"] = SCENES_FOLDER.resolve()
     try:
         settings = Settings(**values)
     except ValueError as exc:

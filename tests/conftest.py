@@ -7,7 +7,10 @@ multiple of ``TIMEOUT_SCALE`` (raise ``TESSERA_TEST_TIMEOUT_SCALE`` on slow mach
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +25,12 @@ from node.gl.context import create_gl_context
 #: The real scenes: $TESSERA_TEST_SCENES (scripts/test sets it), else ../shared/scenes.
 SCENES = Path(os.environ.get("TESSERA_TEST_SCENES") or REPO.parent / "shared" / "scenes")
 TIMEOUT_SCALE = float(os.environ.get("TESSERA_TEST_TIMEOUT_SCALE", "1.0"))
+
+
+#: The user's data folder of the coordinators the tests start (where uploads go without --data-dir):
+#: one of the test run's own, never the user's.
+DATA_HOME = Path(tempfile.mkdtemp(prefix="tessera-test-data-"))
+atexit.register(shutil.rmtree, DATA_HOME, ignore_errors=True)
 
 
 def seconds(value: float) -> float:
@@ -75,7 +84,9 @@ class Coordinator:
 
 def start_coordinator(*args: str, env: dict[str, str] | None = None, port: int = 0) -> Coordinator:
     """``python -m server --port PORT ARGS`` (port 0: one the system picks) as :func:`start_process`
-    starts a process, once it printed its URL (a scaled 60 s at most)."""
+    starts a process, once it printed its URL (a scaled 60 s at most); its user data folder is
+    :data:`DATA_HOME` unless ``env`` names another."""
+    env = {"XDG_DATA_HOME": str(DATA_HOME), **(env or {})}
     return Coordinator(*processes.start_coordinator(args, port=port, timeout=seconds(60), env=env, new_session=True,
                                                    stop_timeout=seconds(20)))
 

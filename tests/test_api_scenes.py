@@ -186,6 +186,22 @@ def test_without_a_data_dir_uploads_are_503_and_the_library_still_lists(tmp_path
         assert answer.status_code == 503
         assert "--data-dir" in answer.json()["detail"]
         assert set(listed(client)) == {f"builtin:{name}" for name in BUILTIN_SCENES}
+        library = client.get("/api/library").json()
+        assert library["uploads"] is False and library["uploads_off"] == answer.json()["detail"]
+
+
+def test_the_library_says_what_the_picker_offers_and_how_to_add_scenes(client, tmp_path):
+    """Issue 38: the panel offers what the server allows, and says how to fill an empty library."""
+    empty = client.get("/api/library").json()
+    assert empty["folder"] == str((tmp_path / "library").resolve()) and empty["library_scenes"] == 0
+    assert empty["folder"] in empty["library_hint"] and "put GLB" in empty["library_hint"]
+    assert (empty["uploads"], empty["uploads_off"], empty["max_upload_mb"]) == (True, None, 512)
+    assert {"glb", "gltf", "ply"} <= set(empty["formats"])
+    shutil.copy(scene_path(BUNNY), tmp_path / "library" / "bunny.ply")
+    assert client.get("/api/library").json()["library_scenes"] == 1
+    assert client.get("/api/library").json()["library_hint"] is None
+    with TestClient(create_app(settings(tmp_path, scenes_dir=None))) as bare:
+        assert "--scenes-dir" in bare.get("/api/library").json()["library_hint"]
 
 
 @pytest.mark.parametrize("path", [

@@ -147,7 +147,8 @@ def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_v
 def test_a_drive_link_cannot_be_made_from_a_watch_key(client):
     body = client.post("/api/sessions", json={"scene": "builtin:spheres"}).json()
     watch_key = body["watch_url"].split("session=")[1].split("&")[0]
-    assert client.get(f"/api/sessions/{watch_key}").status_code == 404
+    watched = client.get(f"/api/sessions/{watch_key}").json()
+    assert "id" not in watched and "viewer_url" not in watched and body["id"] not in str(watched)
     with client.websocket_connect(f"/ws/view?session={watch_key}") as ws:
         assert closed_with(ws)[0] == 4404
 

@@ -282,15 +282,32 @@ def test_bodies_without_one_whole_file_field_are_refused(content_type, body, rea
         read_field(body, 1 << 16, content_type)
 
 
-def test_flags_and_environment_variables(tmp_path):
+def test_flags_and_environment_variables(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     settings = load_settings(["--scenes-dir", str(tmp_path), "--max-upload-mb", "64"],
                              {"TESSERA_DATA_DIR": str(tmp_path), "TESSERA_UPLOAD_CHECK_MEMORY_MB": "1024"})
     assert (settings.scenes_dir, settings.data_dir, settings.max_upload_mb) == (tmp_path, tmp_path, 64)
-    assert settings.upload_check_memory_mb == 1024
+    assert settings.upload_check_memory_mb == 1024 and settings.uploads_home == tmp_path
     assert load_settings(["--upload-check-memory-mb", "300"], {}).upload_check_memory_mb == 300
-    assert load_settings([], {}) == Settings()
+    assert load_settings(["--data-dir", "none"], {}) == Settings()
     assert (Settings().scenes_dir, Settings().data_dir, Settings().max_upload_mb) == (None, None, 512)
-    assert Settings().upload_check_memory_mb == 4096
+    assert Settings().upload_check_memory_mb == 4096 and Settings().uploads_home is None
+
+
+def test_without_flags_uploads_go_to_the_users_data_folder_and_the_library_is_dot_scenes(tmp_path, monkeypatch):
+    """Issue 38: a coordinator started with no flags has uploads on, in XDG_DATA_HOME/tessera (sessions
+    are kept only with --data-dir), and shows ./scenes when the folder it starts from has one."""
+    monkeypatch.chdir(tmp_path)
+    plain = load_settings([], {"XDG_DATA_HOME": str(tmp_path / "xdg")})
+    assert plain.uploads_home == tmp_path / "xdg" / "tessera" and plain.data_dir is None
+    assert plain.scenes_dir is None, "no ./scenes here"
+    assert load_settings([], {"HOME": "/home/someone"}).uploads_home == Path("/home/someone/.local/share/tessera")
+    (tmp_path / "scenes").mkdir()
+    assert load_settings([], {}).scenes_dir == tmp_path / "scenes"
+    (tmp_path / "other").mkdir()
+    assert load_settings(["--scenes-dir", str(tmp_path / "other")], {}).scenes_dir == tmp_path / "other"
+    off = load_settings([], {"TESSERA_DATA_DIR": "none"})
+    assert off.uploads_home is None and off.data_dir is None
 
 
 @pytest.mark.parametrize(("argv", "fragment"), [

@@ -4,14 +4,25 @@ from __future__ import annotations
 
 import pytest
 
-from server.settings import DEFAULT_SCENE, Settings, load_settings
+from server.settings import DEFAULT_SCENE, Settings, load_settings, user_data_dir
 from tessera.balancers import BALANCERS
 from tessera.wire.codec import Codec
 
 
+@pytest.fixture(autouse=True)
+def _elsewhere(tmp_path, monkeypatch):
+    """Start from a folder without scenes/: the defaults do not depend on where the tests run."""
+    monkeypatch.chdir(tmp_path)
+
+
+def plain_defaults(environ: dict[str, str]) -> Settings:
+    """What a coordinator started without flags has: Settings()'s defaults and uploads in the user's data folder."""
+    return Settings(user_data_dir=user_data_dir(environ))
+
+
 def test_defaults():
     settings = load_settings([], {})
-    assert settings == Settings()
+    assert settings == plain_defaults({})
     assert (settings.host, settings.port, settings.scene, settings.size) == ("127.0.0.1", 8000, DEFAULT_SCENE,
                                                                             (1280, 720))
     assert (settings.balancer, settings.token, settings.local_nodes, settings.codec) == ("adaptive-predict", None, 0,
@@ -33,7 +44,8 @@ def test_environment_variables_apply():
     assert settings == Settings(
         host="0.0.0.0", port=9001, scene="builtin:grid", size=(640, 480), token="s3cret", local_nodes=3,
         codec=Codec.PNG, interactive_quality=70, max_in_flight=4, max_fps=30.0, background=(1.0, 0.0, 128 / 255),
-        node_slowdowns=(1.0, 1.0, 3.0), log_level="debug", tile_timeout_s=5.0, frame_wait_s=2.5)
+        node_slowdowns=(1.0, 1.0, 3.0), log_level="debug", tile_timeout_s=5.0, frame_wait_s=2.5,
+        user_data_dir=user_data_dir({}))
 
 
 def test_quality_flags_old_and_new_names():
@@ -56,8 +68,8 @@ def test_command_line_beats_environment():
 
 
 def test_empty_and_unrelated_variables_are_ignored():
-    settings = load_settings([], {"TESSERA_SIZE": "", "TESSERA_NOPE": "1", "SIZE": "16x16", "tessera_port": "1"})
-    assert settings == Settings()
+    environ = {"TESSERA_SIZE": "", "TESSERA_NOPE": "1", "SIZE": "16x16", "tessera_port": "1"}
+    assert load_settings([], environ) == plain_defaults(environ)
 
 
 def test_environ_argument_replaces_the_process_environment(monkeypatch):

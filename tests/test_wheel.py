@@ -1,9 +1,11 @@
 """``pip install`` as a new user meets it (issue 38): the wheel built from the repository, installed
 into a fresh virtual environment outside the checkout, gives ``tessera-server`` and ``tessera-node``
 that work from any folder: the viewer page and its scripts are served, local nodes render a frame,
-``tessera-node --render-once`` writes one. The folder they run in holds decoy ``node`` and
-``server`` packages (a user's own code, or another distribution's): local nodes still import
-Tessera's. Dependencies come from PyPI (about 30 s on the 2-core CI machine)."""
+``tessera-node --render-once`` writes one. Without flags the coordinator takes uploads into the
+user's data folder and offers the folder's ``scenes/`` as its library, and says so at start. The
+folder they run in holds decoy ``node`` and ``server`` packages (a user's own code, or another
+distribution's): local nodes still import Tessera's. Dependencies come from PyPI (about 30 s on the
+2-core CI machine)."""
 
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from PIL import Image
 from bench.processes import PYTHON, REPO, LoggedProcess
 from tests.conftest import seconds
 from tests.integration_support import wait_until
+from tests.scene_files_support import TRIANGLE_PLY
 
 pytestmark = [pytest.mark.integration, pytest.mark.gl, pytest.mark.timeout(900)]
 
@@ -74,11 +77,14 @@ def installed(wheel, tmp_path_factory) -> Iterator[dict[str, str]]:
 
 @pytest.fixture
 def user_folder(tmp_path) -> Path:
-    """A folder of a user's, outside the checkout, holding decoy ``node`` and ``server`` packages."""
+    """A folder of a user's, outside the checkout, holding decoy ``node`` and ``server`` packages and
+    a ``scenes`` folder with one scene."""
     folder = tmp_path / "work"
     for name in ("node", "server"):
         (folder / name).mkdir(parents=True)
         (folder / name / "__init__.py").write_text(DECOY.format(name=name))
+    (folder / "scenes").mkdir()
+    (folder / "scenes" / "triangle.ply").write_bytes(TRIANGLE_PLY)
     return folder
 
 
@@ -108,6 +114,9 @@ def test_installed_commands_serve_the_viewer_and_render_from_any_folder(installe
                            cwd=user_folder, environ=installed, new_session=True, stop_timeout=seconds(20))
     try:
         url = server.wait_for_line(r"Tessera serving on (http://\S+)", seconds(60)).group(1).rstrip("/")
+        uploads = Path(installed["XDG_DATA_HOME"]) / "tessera" / "scenes"
+        server.wait_for_line(rf"scene library: {user_folder / 'scenes'}$", seconds(10))
+        server.wait_for_line(rf"uploads: {uploads} ", seconds(10))
         with httpx.Client(base_url=url, timeout=seconds(30)) as client:
             page = client.get("/")
             assert page.status_code == 200 and "<title>Tessera viewer</title>" in page.text
@@ -119,6 +128,10 @@ def test_installed_commands_serve_the_viewer_and_render_from_any_folder(installe
             assert frame.status_code == 200, frame.text
             image = np.asarray(Image.open(io.BytesIO(frame.content)).convert("RGB"))
             assert image.shape == (SIZE[1], SIZE[0], 3) and len(np.unique(image.reshape(-1, 3), axis=0)) > 8
+            assert "library/triangle.ply" in {scene["name"] for scene in client.get("/api/scenes").json()}
+            uploaded = client.post("/api/scenes", files={"file": ("mine.ply", TRIANGLE_PLY)})
+            assert uploaded.status_code == 201, uploaded.text
+            assert (uploads / "mine.ply").read_bytes() == TRIANGLE_PLY
     finally:
         server.stop()
     assert "working folder" not in server.output(), server.output()

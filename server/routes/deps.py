@@ -22,14 +22,24 @@ async def get_service(request: Request) -> RenderService:
 
 async def get_session(request: Request) -> Session:
     """The session a route acts on: ``/api/sessions/{session_id}/…``'s, else the default one; 404
-    for an unknown id. Using a session keeps it from being closed as idle."""
+    for an unknown id. A watch key in place of the id reads its session (``request.state.watching``
+    says so; :func:`server.routes.guards.refuse_watch_writes` turns away any change made with one).
+    Using a session keeps it from being closed as idle."""
     service: RenderService = request.app.state.service
     session_id = request.path_params.get("session_id")
     session = service.default if session_id is None else service.find_session(session_id)
+    if session is None and session_id is not None:
+        session = service.find_session(session_id, watch=True)
+        request.state.watching = session is not None
     if session is None:
-        raise HTTPException(status_code=404, detail="no such session")
+        raise HTTPException(status_code=404, detail="no such session (closed, or a wrong link)")
     session.touch()
     return session
+
+
+def watching(request: Request) -> bool:
+    """The request named its session by a watch key (:func:`get_session`)."""
+    return bool(getattr(request.state, "watching", False))
 
 
 TOKEN_COOKIE = "tessera_token"

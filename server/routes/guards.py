@@ -1,6 +1,9 @@
 """What every coordinator WebSocket passes (``/ws/view``, ``/ws/node``), and every request that
 changes something (``POST``/``PUT``/``DELETE``…).
 
+* **Watch keys**: a request that may change something and names a session by its watch key (in
+  ``/api/sessions/KEY/…``, or in the ``X-Tessera-Watch`` header the watch page sends with every
+  call) gets a JSON 403 with the reason: a watch link shows a session and changes nothing.
 * **Origin**, before the handshake: a browser page of another origin gets HTTP 403 with the reason
   (``server/origins.py``: same origin, ``--allowed-origins``, no ``Origin`` header for non-browsers).
   Requests other than GET, HEAD and OPTIONS get the same check (cross-site request forgery: a page
@@ -19,6 +22,7 @@ import ipaddress
 import logging
 import time
 from typing import Any
+from urllib.parse import unquote
 
 from fastapi import Request, WebSocket
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
@@ -72,6 +76,35 @@ async def refuse_cross_site_writes(request: Request, call_next: RequestResponseE
     log.warning("%s %s from %s refused: %s", request.method, request.url.path,
                 f"{request.client.host}:{request.client.port}" if request.client else "unknown peer", reason)
     return JSONResponse({"detail": reason}, status_code=403)
+
+
+#: What a change made with a watch key is told.
+WATCH_KEYS_CHANGE_NOTHING = ("this is a watch link: it shows the session and changes nothing "
+                             "(the session's drive link steers it)")
+#: The header the watch page names its watch key in, on every API call.
+WATCH_HEADER = "x-tessera-watch"
+SESSIONS_PATH = "/api/sessions/"
+
+
+def watch_key_of(request: Request) -> str | None:
+    """The watch key the request presents (its ``X-Tessera-Watch`` header, or a session's watch key
+    in place of its id in ``/api/sessions/KEY/…``), or None."""
+    if (header := request.headers.get(WATCH_HEADER)) is not None:
+        return header
+    path = request.url.path.removeprefix(request.scope.get("root_path", "") or "")
+    if not path.startswith(SESSIONS_PATH):
+        return None
+    key = unquote(path[len(SESSIONS_PATH):].split("/", 1)[0])
+    return key if request.app.state.service.find_session(key, watch=True) is not None else None
+
+
+async def refuse_watch_writes(request: Request, call_next: RequestResponseEndpoint) -> Response:
+    """HTTP middleware: a request that may change something, made with a watch key, gets 403 with
+    :data:`WATCH_KEYS_CHANGE_NOTHING` instead of reaching its route."""
+    if request.method in SAFE_METHODS or watch_key_of(request) is None:
+        return await call_next(request)
+    log.info("%s %s refused: made with a watch key", request.method, request.url.path)
+    return JSONResponse({"detail": WATCH_KEYS_CHANGE_NOTHING}, status_code=403)
 
 
 async def admit_origin(ws: WebSocket, what: str) -> bool:

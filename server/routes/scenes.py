@@ -82,6 +82,14 @@ async def list_scenes(library: SceneLibrary = Depends(get_library)) -> list[dict
     return [entry.to_json() for entry in await asyncio.to_thread(library.entries)]
 
 
+@router.get("/api/library")
+async def describe_library(library: SceneLibrary = Depends(get_library)) -> dict[str, Any]:
+    """What the viewer's scene picker offers: the library's ``folder``, its ``library_scenes`` and a
+    ``library_hint`` saying how to add some when it has none; ``uploads`` on or off (``uploads_off``:
+    how to turn them on), ``max_upload_mb``, the ``formats`` a scene file may have."""
+    return await asyncio.to_thread(library.describe)
+
+
 @router.get("/api/scenes/{name:path}/file")
 async def scene_file(name: str, library: SceneLibrary = Depends(get_library)) -> Response:
     """The scene file's bytes (a library ``.gltf`` with separate files: made self-contained),

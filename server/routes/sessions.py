@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
 from server.origins import public_base
 from server.routes.camera import CameraBody
-from server.routes.deps import get_service, get_session, require_token
+from server.routes.deps import get_service, get_session, require_token, watching
 from server.scene_library import SceneEntry, SceneLibrary, SceneRefused
 from server.service import RenderService, SessionsFull
 from server.sessions import Session, fit_size
@@ -142,7 +142,10 @@ async def list_sessions(service: RenderService = Depends(get_service)) -> list[d
 
 @router.get("/api/sessions/{session_id}")
 async def get_session_summary(request: Request, session: Session = Depends(get_session)) -> dict[str, Any]:
-    """The session's summary (as in the list) with its links."""
+    """The session's summary (as in the list) with its links; asked with its watch key, without its
+    id and drive link (a watch link never leads to one)."""
+    if watching(request):
+        return {**session.summary(time.monotonic(), public=True), "watch_url": links(request, session)["watch_url"]}
     return {**session.summary(time.monotonic()), **links(request, session)}
 
 

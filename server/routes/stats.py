@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import PlainTextResponse
 
-from server.routes.deps import get_session, require_token
+from server.routes.deps import get_session, require_token, watching
 from server.sessions import Session
 
 router = APIRouter(tags=["stats"])
@@ -14,10 +14,11 @@ metrics_router = APIRouter(tags=["stats"])
 
 
 @router.get("/stats", dependencies=[Depends(require_token)])
-async def get_stats(session: Session = Depends(get_session)) -> dict:
+async def get_stats(request: Request, session: Session = Depends(get_session)) -> dict:
     """The session's frame id, fps, size, balancer, imbalance (last and 60-frame mean), latency;
-    every node's work; every session's summary (``sessions``)."""
-    return session.service.describe(session)
+    every node's work; every session's summary (``sessions``). Asked with a watch key
+    (``/api/sessions/KEY/stats``): the same figures, no session's id (the keys that drive them)."""
+    return session.service.describe(session, public=watching(request))
 
 
 @metrics_router.get("/metrics", response_class=PlainTextResponse)
