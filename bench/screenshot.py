@@ -5,16 +5,21 @@ Starts ``python -m server --local-nodes N`` (every other setting its default unl
 the viewer in Debian's headless Chromium through Playwright (no browser download), turns the camera
 by mouse drags as a user would (3 s each, paced like a hand), waits until the still frame is on
 screen and the panel shows the cluster at rest with every node's bar, and writes a screenshot of
-the page (default docs/screenshot.png). Refresh the picture with this one command after a
-viewer change.
+the page (default docs/screenshot.png). The PNG records, as text chunks, when it was made and a
+digest of the files that lay out the page and its panel (:data:`VIEWER_FILES`): ``tests/test_docs.py``
+fails once they change, until this command is run again.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import hashlib
 import os
 import sys
 from pathlib import Path
+
+from PIL import Image, PngImagePlugin
 
 from bench.processes import REPO, start_coordinator
 
@@ -22,6 +27,12 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 DEFAULT_OUT = REPO / "docs" / "screenshot.png"
+#: The files that lay out the viewer page and its panel: a picture made before one of them changed
+#: shows a page users no longer see.
+VIEWER_FILES = ("web/index.html", "web/style.css", "web/panel.js")
+#: PNG text keys: the digest of VIEWER_FILES the picture was made with, and the UTC date it was made.
+DIGEST_KEY = "tessera-viewer-sha256"
+MADE_KEY = "tessera-made"
 #: Drags before the picture: the first frames after start-up are slow (nodes warming up), later
 #: ones show the figures a user meets while turning the camera.
 DEFAULT_TURNS = 3
@@ -36,6 +47,24 @@ READY_JS = """(nodes) =>
   document.querySelectorAll("#nodes li").length === nodes &&
   [...document.querySelectorAll("#nodes .seg.render")].some((seg) => seg.offsetWidth > 0) &&
   document.getAnimations().every((animation) => animation.playState !== "running")"""
+
+
+def viewer_digest() -> str:
+    """SHA-256 over the names and bytes of :data:`VIEWER_FILES` as they are now."""
+    digest = hashlib.sha256()
+    for name in VIEWER_FILES:
+        digest.update(name.encode() + b"\0" + (REPO / name).read_bytes())
+    return digest.hexdigest()
+
+
+def stamp(path: Path) -> None:
+    """Write into the PNG at ``path`` the viewer's digest and today's date (UTC)."""
+    with Image.open(path) as image:
+        image.load()
+        info = PngImagePlugin.PngInfo()
+        info.add_text(DIGEST_KEY, viewer_digest())
+        info.add_text(MADE_KEY, datetime.datetime.now(datetime.UTC).date().isoformat())
+        image.save(path, pnginfo=info, optimize=True)
 
 
 def size(text: str) -> tuple[int, int]:
@@ -79,6 +108,7 @@ def take_screenshot(out: Path, nodes: int, viewport: tuple[int, int], server_arg
                 page.mouse.move(0, 0)
                 out.parent.mkdir(parents=True, exist_ok=True)
                 page.screenshot(path=str(out))
+                stamp(out)
             finally:
                 browser.close()
     finally:

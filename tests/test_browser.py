@@ -1,17 +1,15 @@
 """The viewer in headless Chromium against a real coordinator with two local render nodes.
 
 Uses Debian's /usr/bin/chromium through Playwright (never a downloaded browser). Missing
-Playwright or Chromium skips the test, except in CI (CI=true), where it fails. Set
-TESSERA_UPDATE_SCREENSHOT=1 to refresh docs/screenshot.png, the picture of README and the manual's front page.
+Playwright or Chromium skips the test, except in CI (CI=true), where it fails. The picture of
+README and the manual's front page comes from ``python -m bench.screenshot``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import shutil
 import urllib.request
 from pathlib import Path
 
@@ -19,14 +17,13 @@ import pytest
 from PIL import Image
 
 from tests.browser_support import DRAWN_FRACTION_JS, chromium_context
-from tests.conftest import REPO, seconds
+from tests.conftest import seconds
 from tests.integration_support import wait_until
 from tests.test_web_mirror import WEB, js_const
 
 pytestmark = pytest.mark.browser
 
 VIEWPORT = {"width": 960, "height": 540}
-SCREENSHOT = REPO / "docs" / "screenshot.png"
 
 SNAPSHOT_JS = """() => {
   const canvas = document.getElementById("frame");
@@ -201,9 +198,6 @@ def test_viewer_shows_scene_orbits_and_draws_tile_overlay(chromium, coordinator_
     drive_viewer(chromium, coordinator.url, screenshot, nodes=2)
     with Image.open(screenshot) as image:
         assert image.size == (VIEWPORT["width"], VIEWPORT["height"])
-    if os.environ.get("TESSERA_UPDATE_SCREENSHOT") == "1":
-        SCREENSHOT.parent.mkdir(exist_ok=True)
-        shutil.copyfile(screenshot, SCREENSHOT)
 
 
 def test_viewer_opened_with_the_token_keeps_it_in_a_cookie_not_in_the_address_bar(chromium, coordinator_factory):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from PIL import Image
 
 from bench.processes import PYTHON, REPO
 from tests.conftest import Coordinator, scene_path, seconds, start_coordinator
@@ -182,3 +183,16 @@ def test_the_tutorials_commands_run_against_a_real_coordinator(page, coordinator
         if importlib.util.find_spec("tessera.client") is None:
             pytest.skip(f"{page.name}: its Python blocks need tessera.client, which is not installed")
         run_blocks(python, [PYTHON], workdir, coordinator.url, ".py")
+
+
+def test_the_front_page_picture_shows_the_viewer_as_it_is():
+    from bench.screenshot import DIGEST_KEY, MADE_KEY, VIEWER_FILES, viewer_digest
+
+    picture = DOCS / "screenshot.png"
+    assert picture.stat().st_size < 1 << 20, "docs/screenshot.png over 1 MiB"
+    with Image.open(picture) as image:
+        assert image.size == (1280, 720)
+        made, digest = image.text.get(MADE_KEY), image.text.get(DIGEST_KEY)
+    assert made and digest, "docs/screenshot.png was not made by python -m bench.screenshot"
+    assert digest == viewer_digest(), (f"{', '.join(VIEWER_FILES)} changed since docs/screenshot.png was made "
+                                       f"({made}): run python -m bench.screenshot and commit the picture")
