@@ -9,7 +9,9 @@ A page asks for a table with a marker line of its own, e.g. ``<!-- reference: se
   grouped by tag, with its parameters, request body fields and answers;
 - ``other routes``: the routes outside the schema (WebSockets, the viewer page, static files);
 - ``messages``: every JSON control message of the sockets, from the catalogue's models
-  (``tessera.wire.messages``, ``stream_messages``, ``wall_messages``).
+  (``tessera.wire.messages``, ``stream_messages``, ``wall_messages``);
+- ``python client``: every public class of ``tessera.client`` with its methods and properties, from
+  their signatures and docstrings.
 
 An unknown marker fails the build. ``tests/test_docs.py`` checks the tables against ``--help`` and a
 running coordinator's ``/openapi.json``.
@@ -298,6 +300,75 @@ def messages_markdown() -> str:
     return "\n".join(out)
 
 
+# ---- the Python client -----------------------------------------------------------------------------
+
+def prose(doc: str) -> str:
+    """A docstring as Markdown: RST literals and cross-references as code, doctest examples as a
+    Python block."""
+    doc = re.sub(r":(?:meth|class|func|attr|data|mod):`~?([^`]+)`", r"`\1`", doc)
+    doc = re.sub(r"``(.+?)``", r"`\1`", doc, flags=re.S)
+    return re.sub(r"(?m)((?:^(?:>>>|\.\.\.)(?: .*)?\n?)+)",
+                  lambda m: "```python\n" + re.sub(r"(?m)^(?:>>>|\.\.\.) ?", "", m[1]).rstrip("\n") + "\n```\n", doc)
+
+
+def signature(obj: Any, name: str) -> str:
+    """``name(parameters) -> return`` with the annotations as written (no quotes)."""
+    try:
+        found = inspect.signature(obj)
+    except (TypeError, ValueError):
+        return name
+    parameters = []
+    for parameter in found.parameters.values():
+        if parameter.name == "self":
+            continue
+        text = {parameter.VAR_POSITIONAL: "*", parameter.VAR_KEYWORD: "**"}.get(parameter.kind, "") + parameter.name
+        if parameter.annotation is not parameter.empty:
+            text += f": {annotation_name(parameter.annotation)}"
+        if parameter.default is not parameter.empty:
+            text += f" = {parameter.default!r}"
+        parameters.append(text)
+    returns = found.return_annotation
+    shown = "" if returns is found.empty or returns in ("None", None) else f" -> {annotation_name(returns)}"
+    return f"{name}({', '.join(parameters)}){shown}"
+
+
+def annotation_name(annotation: Any) -> str:
+    return annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+
+
+def client_members(cls: type) -> Iterator[tuple[str, Any]]:
+    """The public methods and properties ``cls`` itself defines, in source order."""
+    for name, member in vars(cls).items():
+        if name.startswith("_"):
+            continue
+        if isinstance(member, (property, classmethod, staticmethod)) or inspect.isfunction(member):
+            yield name, member
+
+
+def client_markdown() -> str:
+    import tessera.client as client
+
+    order = ["Tessera", "Session", "TesseraError"]
+    names = order + sorted(set(client.__all__) - set(order))
+    out: list[str] = []
+    for name in names:
+        obj = getattr(client, name)
+        out += [f"## `{name}`", "", f"```python\n{signature(obj, name)}\n```", "",
+                prose(inspect.getdoc(obj) or ""), ""]
+        if not inspect.isclass(obj) or not obj.__module__.startswith("tessera.client"):
+            continue
+        for member_name, member in client_members(obj):
+            if isinstance(member, property):
+                doc = inspect.getdoc(member) or ""
+                kind = "property, settable" if member.fset is not None else "property"
+                out += [f"### `{name}.{member_name}` ({kind})", "", prose(doc), ""]
+            else:
+                function = member.__func__ if isinstance(member, (classmethod, staticmethod)) else member
+                out += [f"### `{name}.{member_name}`", "", f"```python\n{signature(function, member_name)}\n```", "",
+                        prose(inspect.getdoc(function) or ""), ""]
+    return "\n".join(out)
+
+
 # ---- the hook --------------------------------------------------------------------------------------
 
 def generators() -> dict[str, Callable[[], str]]:
@@ -307,6 +378,7 @@ def generators() -> dict[str, Callable[[], str]]:
         "http endpoints": lambda: endpoints_markdown(coordinator_app().openapi()),
         "other routes": lambda: other_routes_markdown(coordinator_app()),
         "messages": messages_markdown,
+        "python client": client_markdown,
     }
 
 

@@ -70,6 +70,16 @@ def test_every_message_of_the_catalogue_is_in_the_messages_reference():
     assert not missing, f"messages missing from docs/reference/messages.md: {missing}"
 
 
+def test_every_public_method_of_the_python_client_is_in_its_reference():
+    from tessera.client import Session, Tessera
+
+    page = generated("reference/python-client.md")
+    for cls in (Tessera, Session):
+        public = [name for name in vars(cls) if not name.startswith("_")]
+        missing = [name for name in public if f"### `{cls.__name__}.{name}`" not in page]
+        assert not missing, f"{cls.__name__} members missing from docs/reference/python-client.md: {missing}"
+
+
 def test_every_panel_figure_of_the_viewer_is_explained():
     labels = re.findall(r"<dt>([^<]+)</dt>", (REPO / "web" / "index.html").read_text())
     page = (DOCS / "reference" / "viewer.md").read_text()
