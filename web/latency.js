@@ -85,3 +85,35 @@ export class LatencyTracker {
     return { p50_ms: quantile(sorted, 0.5), p90_ms: quantile(sorted, 0.9), samples: sorted.length, interval_ms: interval };
   }
 }
+
+/**
+ * Camera input as a viewer sends it: the newest camera, at most one `camera` message per
+ * `schedule` tick (an animation frame), each with the next input sequence number and its send
+ * time (`now()`, ms) given to `tracker`. `send(message)` says whether the message went out.
+ */
+export class CameraInput {
+  constructor(send, tracker, schedule, now) {
+    this.send = send;
+    this.tracker = tracker;
+    this.schedule = schedule;
+    this.now = now;
+    this.seq = 0;
+    this.camera = null;
+    /** A camera waits for the next tick: a camera the coordinator echoes meanwhile is older. */
+    this.pending = false;
+  }
+
+  set(camera) {
+    this.camera = camera;
+    if (this.pending) return;
+    this.pending = true;
+    this.schedule(() => {
+      this.pending = false;
+      const seq = nextSeq(this.seq);
+      if (this.send({ type: "camera", camera: this.camera, seq })) {
+        this.seq = seq;
+        this.tracker.sent(seq, this.now());
+      }
+    });
+  }
+}

@@ -6,7 +6,7 @@ import { AnimationControls } from "./animation.js";
 import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
 import { Controls } from "./controls.js";
-import { LatencyTracker, nextSeq } from "./latency.js";
+import { CameraInput, LatencyTracker } from "./latency.js";
 import { frameBounds, minDistanceFor } from "./orbit.js";
 import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.js";
 import { Panel } from "./panel.js";
@@ -116,21 +116,12 @@ function viewHeight() {
 }
 
 const latencyTracker = new LatencyTracker();
-let inputSeq = 0;
-let sendScheduled = false;
+const cameraInput = new CameraInput((message) => connection.send(message), latencyTracker,
+  (callback) => requestAnimationFrame(callback), () => performance.now());
 function setCamera(camera) {
   if (session.cell) return; // a wall's cell steers nothing
   state.camera = camera;
-  if (sendScheduled) return;
-  sendScheduled = true;
-  requestAnimationFrame(() => {
-    sendScheduled = false;
-    const seq = nextSeq(inputSeq);
-    if (connection.send({ type: "camera", camera: state.camera, seq })) {
-      inputSeq = seq;
-      latencyTracker.sent(seq, performance.now());
-    }
-  });
+  cameraInput.set(camera);
 }
 
 /** Total latency samples last reported to the coordinator (reset when a coordinator says hello). */
@@ -218,7 +209,7 @@ const controls = new Controls(frameCanvas, {
 });
 
 function adoptCamera(camera) {
-  if (camera && !controls.interacting && !sendScheduled) state.camera = camera;
+  if (camera && !controls.interacting && !cameraInput.pending) state.camera = camera;
 }
 
 function onText(message) {

@@ -3,7 +3,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import {
-  IDLE_GAP_MS, LatencyTracker, MAX_INPUT_SEQ, MAX_PENDING, WINDOW, nextSeq, quantile, seqAfter,
+  CameraInput, IDLE_GAP_MS, LatencyTracker, MAX_INPUT_SEQ, MAX_PENDING, WINDOW, nextSeq, quantile, seqAfter,
 } from "../../web/latency.js";
 
 test("the first frame answering an input gives its latency; later inputs it covers give none", () => {
@@ -95,4 +95,28 @@ test("sequence numbers wrap from MAX_INPUT_SEQ to 1 and stay in order", () => {
   assert.deepEqual([...tracker.pending.keys()], [2]);
   assert.equal(tracker.drawn(MAX_INPUT_SEQ, 45), null);
   assert.equal(tracker.drawn(2, 50), 20);
+});
+
+test("camera input sends the newest camera once per tick, numbered, its time tracked; a refused send keeps the number", () => {
+  const sent = [];
+  const ticks = [];
+  let open = true;
+  const tracker = new LatencyTracker();
+  const input = new CameraInput((message) => open && sent.push(message) > 0, tracker, (tick) => ticks.push(tick),
+    () => 500);
+  input.set({ eye: [1, 0, 0] });
+  input.set({ eye: [2, 0, 0] });
+  assert.equal(ticks.length, 1);
+  assert.equal(input.pending, true);
+  ticks.shift()();
+  assert.deepEqual(sent, [{ type: "camera", camera: { eye: [2, 0, 0] }, seq: 1 }]);
+  assert.equal(input.pending, false);
+  assert.equal(tracker.pending.get(1), 500);
+  open = false;
+  input.set({ eye: [3, 0, 0] });
+  ticks.shift()();
+  open = true;
+  input.set({ eye: [4, 0, 0] });
+  ticks.shift()();
+  assert.deepEqual(sent.at(-1), { type: "camera", camera: { eye: [4, 0, 0] }, seq: 2 });
 });
