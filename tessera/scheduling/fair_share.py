@@ -1,4 +1,4 @@
-"""Fair shares of node time among sessions (issue 19): start-time fair queuing on measured cost,
+"""Fair shares of node time among sessions: start-time fair queuing on measured cost,
 the virtual-time form of Deficit Round Robin (Shreedhar & Varghese 1995; Linux ``sch_drr``).
 
 Each session's *served* time is the node time (busy ms: render + read-back + encode, summed over
@@ -9,18 +9,15 @@ in DRR: otherwise sessions that each keep their frames in flight would get equal
 not equal node time. A frame is charged when it starts, at the session's last measured frame cost (so a
 session with a frame in flight is not picked again for free), and the charge is corrected to the
 measured cost when the frame completes (or refunded when it is dropped); a new session's first
-frame is charged at the costliest other session's last frame (charged less, a session whose first
-frame takes long, a large scan's, was the least served all the while it was drawn, and the
-others, more than a frame ahead of it, waited with nodes free). A session that had no
+frame is charged at the costliest other session's last frame, so a long first frame does not keep
+it the least served while the others wait with nodes free. A session that had no
 work for :data:`IDLE_S` (no frame owed, none in flight) is lifted to the least served of the
 active ones when it wants again: an idle session is owed nothing, and one that joins cannot
 starve the others. Weights scale the charge (a session of weight 2 gets twice the node time).
 A frame drawn while only some nodes hold its session's scene is charged its node time times the
 frame's *scarcity* (the nodes over those that hold the scene): the few holders are the nodes every
-other session's frames wait at too. Unscaled, a session of the 990k scan that one node of three
-held took its fair share of all three nodes' time on that one node (sample after sample of its
-still, 120-250 ms each), and the others' tiles queued behind them (gaps of 0.5 s). The node
-shares reported stay the node time taken. Pure: the clock comes in as ``now`` (s).
+other session's frames wait at too (docs/explanation/sessions.md). The node shares reported stay
+the node time taken. Pure: the clock comes in as ``now`` (s).
 """
 
 from __future__ import annotations

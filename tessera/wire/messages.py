@@ -220,6 +220,8 @@ class NodeHello(Message):
 
 
 class SceneProgress(Message):
+    """Loading scene ``scene``: ``fraction`` done (0…1) and what the node is doing."""
+
     kind = "scene_progress"
     scene: Text
     fraction: Unit
@@ -301,6 +303,8 @@ class SceneReady(Message):
 
 
 class SceneError(Message):
+    """Scene ``scene`` could not be loaded: the loader's ``message``."""
+
     kind = "scene_error"
     scene: Text
     message: Text
@@ -317,6 +321,8 @@ class TileSent(Message):
 
 
 class RenderError(Message):
+    """A tile the node could not render, with the reason (frame 0, tile 0: a failed calibration)."""
+
     kind = "render_error"
     frame: Int
     tile: Int
@@ -324,12 +330,16 @@ class RenderError(Message):
 
 
 class TilesDropped(Message):
+    """Tiles of a cancelled frame the node skipped without rendering them."""
+
     kind = "tiles_dropped"
     frame: Int
     tiles: tuple[Int, ...]
 
 
 class Calibration(Message):
+    """The answer to ``calibrate``: the best of its renders of the region, ms (slowdown included)."""
+
     kind = "calibration"
     ms: Annotated[StrictFloat, Field(gt=0)]
 
@@ -338,6 +348,8 @@ class Calibration(Message):
 
 
 class Welcome(Message):
+    """The coordinator took the node: its id."""
+
     kind = "welcome"
     node_id: Int
 
@@ -475,6 +487,8 @@ class Calibrate(Message):
 
 
 class Cancel(Message):
+    """These frames were superseded: skip their tiles not begun yet."""
+
     kind = "cancel"
     frames: tuple[Int, ...]
 
@@ -511,12 +525,16 @@ class CameraUpdate(Message):
 
 
 class ViewerScene(Message):
+    """A node loaded the session's scene: its bounds and the camera framing it."""
+
     kind = "scene"
     bounds: Bounds
     camera: CameraJson
 
 
 class ViewerError(Message):
+    """The viewer's input was refused: the reason."""
+
     kind = "error"
     message: Text
 

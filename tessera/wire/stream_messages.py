@@ -42,6 +42,8 @@ class StreamChoice(Message):
 
 
 class KeyframeRequest(Message):
+    """The viewer's decoder lost a frame: it waits for a keyframe."""
+
     kind = "keyframe"
 
 

@@ -56,11 +56,15 @@ class ClockPong(Message):
 
 
 class ClockPing(Message):
+    """A wall cell's clock probe: its clock ``t0`` (ms), echoed in ``pong``."""
+
     kind = "ping"
     t0: Number
 
 
 class HaveFrame(Message):
+    """A wall cell decoded frame ``frame`` and holds it, ready to present."""
+
     kind = "have"
     frame: FrameId
 
