@@ -34,7 +34,7 @@ by depth (the fragment shader keeps those strictly between two per-pixel depth t
 each m the m nearest are accumulated in draw order, premultiplied, into a cleared buffer: a
 :class:`tessera.compositing.layers.BlendLayer` the compositor lays over the merged frame.
 
-Objects (issue 11): a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
+Objects: a tile is drawn in a scene state (:class:`node.scene.pose.ScenePose`): each
 batch with its object's model matrix (folded into the view-projection uniform, so an unmoved
 object draws exactly as before) and normal matrix; a moved object is culled per tile in its own
 frame (:mod:`node.culling.objects`; drawn whole among listed chunks), a hidden one not drawn at
@@ -55,7 +55,7 @@ frames (and ``--msaa filter``'s one sample) are resolved by the 3×3 filter of
 :mod:`tessera.antialiasing`, drawn with a guard band of one pixel (clipped to the frame) so that
 the filtered tile is still that region of the filtered whole frame, and with its texture LOD bias.
 
-The progressive still (issue 20): a render may be a still's ``subsample``
+The progressive still: a render may be a still's ``subsample``
 (:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a
 translation applied after the projection (:func:`tessera.scheduling.refinement.jitter_matrix`) —
 tiles, layers and whole frames alike, culling with the same matrix — and textures read with its

@@ -1,19 +1,14 @@
 """Reading a scene file into what the GL thread uploads (:func:`read_scene`), and a child process that
-does it (:class:`SceneReaderProcess`; issue 19: a node loads a new scene without stalling the
-tiles it draws for other sessions).
+does it (:class:`SceneReaderProcess`), so that a node loads a new scene without stalling the tiles
+it draws for other sessions.
 
-Parsing and splitting a large scan is seconds of Python and numpy. In a thread of the node it
-holds the GIL much of that time, so the GL thread's tiles of other scenes wait for it (measured:
-a 0.90 s gap in other sessions' frames while the 990k-triangle scan loaded). The child process
-has a GIL of its own and runs at a lower CPU priority (``nice`` +:data:`READER_NICE`), so on a
-machine short of cores the tiles come first. It is lowered from its first instruction: a thread of
-that priority starts it, and it inherits the niceness, so its start (a new interpreter importing
-numpy, trimesh and the node's modules: 0.9 s of CPU with the bunny's read, measured) and the threads
-numpy starts at import are lowered too (``os.nice`` in the child lowered its main thread only: two
-of its three threads stayed at the node's priority). It sends progress and then the read scene back
-over a pipe (about 60 MB pickled for the 990k scan, unpickled in under 10 ms). Small files and the
-built-in scenes are read in the loader thread: starting the child (importing numpy and trimesh)
-costs more than they take.
+Parsing and splitting a large scan is seconds of Python and numpy; in a thread of the node it would
+hold the GIL the GL thread needs. The child process has a GIL of its own and runs at a lower CPU
+priority (``nice`` +:data:`READER_NICE`), from its first instruction: a thread of that priority
+starts it, so the child and every thread it starts (numpy's included) inherit it. It sends progress
+and then the read scene back over a pipe. Small files and the built-in scenes are read in the loader
+thread: starting the child (a new interpreter importing numpy and trimesh) costs more than they
+take. Why, measured: docs/explanation/design-notes.md.
 """
 
 from __future__ import annotations
