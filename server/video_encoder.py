@@ -1,8 +1,7 @@
-"""One video encoder (PyAV: libx264, libvpx-vp9) of a stream (issue 21): yuv420p pictures in, one
+"""One video encoder (PyAV: libx264, libvpx-vp9) of a stream: yuv420p pictures in, one
 access unit per picture out, at a target bitrate. Low latency: no B-frames, no look-ahead, one
 picture in, its packet out. A new target takes a new encoder (and so a keyframe): neither libx264
-nor libvpx-vp9, as PyAV drives them, follows a bitrate changed on an open encoder (measured: frame
-sizes stayed the same for 20 frames after a tenfold cut).
+nor libvpx-vp9, as PyAV drives them, follows a bitrate changed on an open encoder.
 
 The target is a rate at the stream's nominal frame rate: pictures are timed ``1/fps`` apart whatever
 the nodes' real rate, so each gets ``bitrate / fps`` bits on average and the link never carries more

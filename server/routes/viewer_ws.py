@@ -11,7 +11,7 @@ frames follow it, fitted to ``--max-size``; the default session keeps ``--size``
 opens the bare page shares it). An unknown session closes the socket with 4404, as does closing
 the session.
 
-A display wall's session (issue 22): ``&cell=COL,ROW`` makes the viewer one screen of the wall. It
+A display wall's session: ``&cell=COL,ROW`` makes the viewer one screen of the wall. It
 gets its cell's tiles only (a frame of the cell's size), steers nothing (camera and size are
 refused with the reason), and is frame-locked: it says which frame it holds (``have``), presents
 on ``present`` at the time it names, and reports when (``presented``, on the coordinator's clock, which ``ping`` →
@@ -19,7 +19,7 @@ on ``present`` at the time it names, and reports when (``presented``, on the coo
 closes the socket with 4422 and the reason. A wall's whole-wall viewer (the driver) steers as any;
 the wall's size is fixed, so its size messages are ignored.
 
-Video (issue 21): a viewer gets tiles until it offers the codecs it decodes (``stream_offer``);
+Video: a viewer gets tiles until it offers the codecs it decodes (``stream_offer``);
 the coordinator answers ``stream`` with the transport ``--stream`` allows (a video codec, or tiles
 with the reason; a wall's cells keep their tiles). A video viewer asks for a keyframe when its
 decoder lost a frame (``keyframe``) and reports its link each second (``stream_report``). Feedback
