@@ -93,5 +93,7 @@ def test_a_new_session_from_the_library_and_a_dropped_file_open_in_the_page(coor
         page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)
         scenes = {s["scene"] for s in call(base, "/api/sessions")}
         assert "upload/box.ply" in scenes, scenes
-        assert page.text_content("#session-name").startswith("upload/box.ply")
+        page.wait_for_function("() => document.getElementById('session-name').title === 'scene: upload/box.ply'",
+                               timeout=wait_ms)
+        assert page.text_content("#session-name").startswith("your session · box.ply · ")
         assert errors == [], f"errors in the page: {errors}"

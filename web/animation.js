@@ -15,8 +15,9 @@ export class AnimationControls {
    * @param {Document} doc  holds #animation, #play, #scene-time and #scene-time-text
    * @param {(path: string, init?: object) => Promise<Response>} api  fetch with the viewer's token
    * @param {(message: string) => void} report  shows a failure ("" clears it)
+   * @param {boolean} steering  whether this page may play, pause and jump (a watch page shows the clock only)
    */
-  constructor(doc, api, report) {
+  constructor(doc, api, report, steering = true) {
     this.api = api;
     this.report = report;
     this.section = doc.getElementById("animation");
@@ -26,6 +27,7 @@ export class AnimationControls {
     this.clock = null;
     this.dragging = false;
     this.poller = null;
+    if (!steering) return;
     this.button.addEventListener("click", () => this.put({ playing: !this.clock?.playing }));
     this.slider.addEventListener("input", () => {
       this.dragging = true;
@@ -80,6 +82,7 @@ export class AnimationControls {
   }
 
   async put(body) {
+    this.report("");
     try {
       const response = await this.api("api/animation", {
         method: "PUT",
@@ -87,7 +90,6 @@ export class AnimationControls {
         body: JSON.stringify(body),
       });
       if (!response.ok) throw new Error(`${response.status} ${(await response.text()).slice(0, 200)}`);
-      this.report("");
     } catch (error) {
       this.report(`animation: ${error.message}`);
     }

@@ -1,6 +1,7 @@
 // Side panel: live figures and per-node timing bars from GET /api/stats (polled ~2×/s), the
 // viewer's own input → display latency (shown as it is measured), how frames come (tiles or a
-// video stream, with its bitrate), and the balancer selector backed by GET/PUT /api/balancer.
+// video stream, with its bitrate), and the balancer selector backed by GET/PUT /api/balancer (a
+// watch page shows the balancer's name, no selector). The frame and size figures are the picture's.
 
 import { nodeColor } from "./overlay.js";
 
@@ -93,13 +94,23 @@ const INPUT_LATENCY_TITLE = "Median time from a camera input in this browser to 
 export class Panel {
   /**
    * @param {Document} doc  holds the panel's elements (ids in index.html)
-   * @param {(path: string, init?: object) => Promise<Response>} api  fetch with the viewer's token
+   * @param {(path: string, init?: object) => Promise<Response>} api  fetch of the session's routes
    * @param {(nodes: object[]) => void} onNodes  receives each stats poll's node list (each with
    *   its `slot`, the node number in frame tiles)
+   * @param {{messages: import("./messages.js").Messages, steering: boolean,
+   *   onStats?: (stats: object) => void, onMissing?: () => void}} options  where messages go; whether
+   *   this page may change the session (a watch page may not); each poll's stats; the session is gone
    */
-  constructor(doc, api, onNodes) {
+  constructor(doc, api, onNodes, { messages, steering, onStats = () => {}, onMissing = () => {} }) {
     this.api = api;
     this.onNodes = onNodes;
+    this.messages = messages;
+    this.steering = steering;
+    this.onStats = onStats;
+    this.onMissing = onMissing;
+    this.stopped = false;
+    /** The frame on the picture ({frameId, width, height}), null before one is drawn. */
+    this.picture = null;
     this.figure = (name) => doc.getElementById(`fig-${name}`);
     this.nodes = doc.getElementById("nodes");
     this.scale = doc.getElementById("bar-scale");
@@ -109,9 +120,9 @@ export class Panel {
     }
     this.select = doc.getElementById("balancer");
     this.params = doc.getElementById("balancer-params");
-    this.message = doc.getElementById("panel-message");
+    this.balancerName = doc.getElementById("balancer-name");
     this.balancer = null;
-    this.select.addEventListener("change", () => this.chooseBalancer(this.select.value));
+    if (steering) this.select.addEventListener("change", () => this.chooseBalancer(this.select.value));
   }
 
   start() {
@@ -120,15 +131,33 @@ export class Panel {
   }
 
   async poll() {
+    if (this.stopped) return;
     try {
       const response = await this.api("api/stats");
+      if (response.status === 404) {
+        this.stop();
+        this.onMissing();
+        return;
+      }
       if (!response.ok) throw new Error(`stats: HTTP ${response.status}`);
       this.showStats(await response.json());
-      this.message.textContent = "";
+      this.messages.status("");
     } catch (error) {
-      this.message.textContent = `stats unavailable (${error.message})`;
+      this.messages.status(`stats unavailable (${error.message})`);
     }
     setTimeout(() => this.poll(), POLL_MS);
+  }
+
+  /** No more polls (the session is gone). */
+  stop() {
+    this.stopped = true;
+  }
+
+  /** The frame on the picture: the frame and size figures show it. */
+  showPicture(frameId, width, height) {
+    this.picture = { frameId, width, height };
+    this.figure("frame").textContent = String(frameId);
+    this.figure("size").textContent = `${width}×${height}`;
   }
 
   /** Show the viewer's input → display latency ({p50_ms, p90_ms, samples, interval_ms} or null). */
@@ -156,10 +185,13 @@ export class Panel {
     this.figure("imbalance").textContent = fixed(stats.imbalance, 2);
     this.figure("imbalance-avg").textContent = fixed(stats.imbalance_avg, 2);
     this.figure("latency").textContent = fixed(stats.latency_ms, 0);
-    this.figure("frame").textContent = String(stats.frame ?? "–");
-    this.figure("size").textContent = Array.isArray(stats.size) ? stats.size.join("×") : "–";
+    if (this.picture === null) {   // once a frame is drawn, the figures are the picture's
+      this.figure("frame").textContent = String(stats.frame ?? "–");
+      this.figure("size").textContent = Array.isArray(stats.size) ? stats.size.join("×") : "–";
+    }
     this.showNodes(stats.nodes || []);
     this.onNodes(stats.nodes || []);
+    this.onStats(stats);
     if (stats.balancer && stats.balancer !== this.balancer) this.loadBalancer();
   }
 
@@ -200,13 +232,14 @@ export class Panel {
       if (!response.ok) throw new Error(`balancer: HTTP ${response.status}`);
       this.showBalancer(await response.json());
     } catch (error) {
-      this.message.textContent = `balancer unavailable (${error.message})`;
+      this.messages.status(`balancer unavailable (${error.message})`);
     }
   }
 
   /** Fill the selector from {name, available} and show `params` when given. */
   showBalancer({ name, params, available }) {
     this.balancer = name;
+    this.balancerName.textContent = name;
     const names = available && available.length ? available : [name];
     if ([...this.select.options].map((o) => o.value).join() !== names.join()) {
       this.select.replaceChildren(...names.map((n) => new Option(n, n)));
@@ -218,6 +251,7 @@ export class Panel {
   }
 
   async chooseBalancer(name) {
+    this.messages.clear();
     try {
       const response = await this.api("api/balancer", {
         method: "PUT",
@@ -225,9 +259,8 @@ export class Panel {
         body: JSON.stringify({ name, params: {} }),
       });
       if (!response.ok) throw new Error(`${response.status} ${(await response.text()).slice(0, 200)}`);
-      this.message.textContent = "";
     } catch (error) {
-      this.message.textContent = `could not switch balancer: ${error.message}`;
+      this.messages.say(`could not switch balancer: ${error.message}`);
     }
     this.select.blur();
     await this.loadBalancer();

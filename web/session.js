@@ -25,15 +25,48 @@ export function viewSocketPath(session) {
 }
 
 /**
- * An API path (`api/…`) for the session: a driven session's own routes are under
- * `api/sessions/ID/`; the default session's and a watcher's stay as they are (a watch key opens no
- * API route).
+ * An API path (`api/…`) for the session: a session's own routes are under `api/sessions/KEY/` (its
+ * id, or for a watcher its watch key, which reads them and changes nothing); the default session's
+ * are `api/…` as they are.
  * @param {string} path
  * @param {{key: string | null, watching: boolean}} session
  */
 export function sessionApiPath(path, session) {
-  if (!session.key || session.watching || !path.startsWith("api/")) return path;
+  if (!session.key || !path.startsWith("api/")) return path;
   return `api/sessions/${encodeURIComponent(session.key)}/${path.slice(4)}`;
+}
+
+/** The header a watch page names its watch key in, on every API call (the coordinator refuses any
+ * change made with one). */
+export const WATCH_HEADER = "X-Tessera-Watch";
+
+/**
+ * `fetch` options for an API call of this page: a watcher's carry its watch key in WATCH_HEADER.
+ * @param {object | undefined} init
+ * @param {{key: string | null, watching: boolean}} session
+ */
+export function apiInit(init, session) {
+  if (!session.watching || !session.key) return init;
+  return { ...init, headers: { ...(init?.headers ?? {}), [WATCH_HEADER]: session.key } };
+}
+
+/** Whether this page may change its session: not a watch link, not a wall's cell. */
+export function steers(session) {
+  return !session.watching && !session.cell;
+}
+
+/**
+ * A scene name short enough for the panel: its last path part (`library/cars/truck.glb` →
+ * `truck.glb`; `builtin:cluster` as it is), cut in the middle with "…" beyond `max` characters.
+ * The full name goes in the element's title.
+ * @param {string} name
+ * @param {number} max
+ */
+export function shortSceneName(name, max = 30) {
+  const last = String(name).split("/").filter(Boolean).pop() ?? String(name);
+  if (last.length <= max) return last;
+  const head = Math.ceil((max - 1) / 2);
+  return `${last.slice(0, head)}…${last.slice(last.length - (max - 1 - head))}`;
 }
 
 /**

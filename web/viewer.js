@@ -7,11 +7,12 @@ import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
 import { Controls } from "./controls.js";
 import { CameraInput, LatencyTracker } from "./latency.js";
+import { Messages } from "./messages.js";
 import { frameBounds, minDistanceFor } from "./orbit.js";
 import { drawOverlay, fitFrame, ownershipTiles, readbackTiles } from "./overlay.js";
 import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
-import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "./session.js";
+import { apiInit, frameSizeFor, sessionApiPath, sessionFromQuery, steers, viewSocketPath } from "./session.js";
 import { SessionControls } from "./session_controls.js";
 import { VideoStream, decodableCodecs } from "./video.js";
 import { isVideo, parseVideo } from "./video_protocol.js";
@@ -38,7 +39,11 @@ function address(path, scheme) {
 
 /** The session this page shows (`?session=…[&watch=1]`; none: the default session). */
 const session = sessionFromQuery(location.search);
-const api = (path, init) => fetch(address(sessionApiPath(path, session)), init);
+/** This page may change its session (a watch link and a wall's cell may not: they show no such control). */
+const steering = steers(session);
+document.body.dataset.watching = String(session.watching);
+const api = (path, init) => fetch(address(sessionApiPath(path, session)), apiInit(init, session));
+const messages = new Messages(document);
 
 const state = {
   frameId: null,
@@ -167,6 +172,8 @@ function painted(frame) {
   lastTiles.tiles = frame.tiles.map(({ x, y, w, h, node }) => ({ x, y, w, h, node }));
   if (state.overlay || wallDriver()) redrawOverlay();
   $("frame-badge").textContent = `frame ${frame.frameId}`;
+  panel.showPicture(frame.frameId, frame.width, frame.height);
+  sessionControls.showPicture(frame.width, frame.height);
   state.samples = frame.samples ?? 0;
   showQuality(frame);
 }
@@ -201,15 +208,15 @@ function reportStream() {
   if (video.active) connection.send({ type: "stream_report", ...video.report(performance.now()) });
 }
 
-const controls = new Controls(frameCanvas, {
+const controls = steering ? new Controls(frameCanvas, {
   camera: () => state.camera,
   setCamera,
   viewHeight,
   minDistance: () => minDistanceFor(state.bounds),
-});
+}) : null;
 
 function adoptCamera(camera) {
-  if (camera && !controls.interacting && !cameraInput.pending) state.camera = camera;
+  if (camera && !controls?.interacting && !cameraInput.pending) state.camera = camera;
 }
 
 function onText(message) {
@@ -266,6 +273,7 @@ function onText(message) {
       break;
     case "error":
       console.warn("tessera: coordinator says:", message.message);
+      if (steering) messages.say(message.message);
       break;
     default:
       console.warn("tessera: unknown message", message.type);
@@ -285,12 +293,24 @@ function onState({ state: connectionState, detail }) {
   state.connected = connectionState === "open";
   $("status").dataset.state = connectionState;
   document.body.dataset.connection = connectionState;
-  const label = { connecting: "connecting…", open: "live", closed: "disconnected" }[connectionState];
-  $("status-text").textContent = detail ? `${label} · ${detail}` : label;
+  const label = { connecting: "connecting…", open: "live", closed: "disconnected", gone: "no such session" };
+  $("status-text").textContent = detail && connectionState !== "gone" ? `${label[connectionState]} · ${detail}`
+    : label[connectionState];
+  if (connectionState === "gone") sessionGone();
+}
+
+/** The session does not exist (closed, or a wrong link): the page says so, and stops asking. */
+function sessionGone() {
+  document.body.dataset.connection = "gone";
+  $("status").dataset.state = "closed";
+  $("status-text").textContent = "no such session";
+  $("gone").hidden = false;
+  panel.stop();
+  animation.hide();
 }
 
 function resetView() {
-  if (state.bounds) setCamera(frameBounds(state.bounds, state.camera?.fovy_deg ?? 45));
+  if (steering && state.bounds) setCamera(frameBounds(state.bounds, state.camera?.fovy_deg ?? 45));
 }
 
 const panel = new Panel(document, api, (nodes) => {
@@ -298,10 +318,11 @@ const panel = new Panel(document, api, (nodes) => {
   for (const node of nodes) nodeNames.set(node.slot, node.name ?? `node ${node.id}`);
   nodeReadback = readbackTiles(nodes);
   if (state.overlay) redrawOverlay();
-});
+}, { messages, steering, onStats: (stats) => sessionControls.showStats(stats), onMissing: sessionGone });
 const animation = new AnimationControls(document, api, (message) => {
-  $("panel-message").textContent = message;
-});
+  if (message) messages.say(message);
+  else messages.clear();
+}, steering);
 const connection = new Connection(address(viewSocketPath(session), location.protocol === "https:" ? "wss:" : "ws:"), {
   onText,
   onBinary,
@@ -347,8 +368,10 @@ if (session.key && !session.watching && !session.cell) {
   }).observe(frameCanvas);
 }
 $("toggle-overlay").addEventListener("change", (event) => setOverlay(event.target.checked));
-$("reset-view").addEventListener("click", resetView);
-frameCanvas.addEventListener("dblclick", resetView);
+if (steering) {
+  $("reset-view").addEventListener("click", resetView);
+  frameCanvas.addEventListener("dblclick", resetView);
+}
 document.addEventListener("keydown", (event) => {
   if (event.target instanceof HTMLInputElement || event.target instanceof HTMLSelectElement) return;
   if (event.key === "o" || event.key === "O") setOverlay(!state.overlay);
@@ -356,7 +379,7 @@ document.addEventListener("keydown", (event) => {
 });
 
 const sessionControls = new SessionControls(document, (path, init) => fetch(address(path), init), session,
-  (message) => { $("panel-message").textContent = message; }, (url) => location.assign(url));
+  messages, (url) => location.assign(url));
 
 connection.start();
 if (!session.cell) panel.start();   // a wall cell shows no panel: it polls no stats

@@ -20,7 +20,13 @@ router = APIRouter(tags=["viewer"])
 
 @router.get("/", include_in_schema=False)
 async def index(request: Request) -> FileResponse:
-    page = FileResponse(WEB_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+    """The viewer page; 404 (the same page, which says so and links to the shared session) for a
+    ``?session=`` that does not exist: closed, or a wrong link."""
+    key = request.query_params.get("session")
+    watching = request.query_params.get("watch") in ("1", "true")
+    missing = key is not None and request.app.state.service.find_session(key, watching) is None
+    page = FileResponse(WEB_DIR / "index.html", status_code=404 if missing else 200,
+                        headers={"Cache-Control": "no-cache"})
     token, expected = request.query_params.get("token"), request.app.state.settings.token
     if expected is not None and token is not None and token_ok(expected, token):
         secure = request.url.scheme == "https" or request.headers.get("x-forwarded-proto") == "https"

@@ -3,7 +3,7 @@
 import assert from "node:assert/strict";
 import { afterEach, beforeEach, test } from "node:test";
 
-import { Connection, FIRST_RETRY_MS, MAX_RETRY_MS, retryDelay } from "../../web/connection.js";
+import { CLOSE_NO_SESSION, Connection, FIRST_RETRY_MS, MAX_RETRY_MS, retryDelay } from "../../web/connection.js";
 
 let sockets;
 let timers;
@@ -127,6 +127,15 @@ test("close code 4401 is shown as a wrong token, other closes with their reason"
   fireTimer();
   sockets[2].serverCloses(1006);
   assert.deepEqual(states.at(-1), { state: "closed", detail: "retry in 2.0 s" });
+});
+
+test("a session that does not exist ends the connection: no retry", () => {
+  const { states } = connect();
+  sockets[0].serverOpens();
+  sockets[0].serverCloses(CLOSE_NO_SESSION, "no such session (closed, or a wrong link)");
+  assert.deepEqual(states.at(-1), { state: "gone", detail: "no such session (closed, or a wrong link)" });
+  assert.equal(timers.length, 0, "nothing scheduled");
+  assert.equal(sockets.length, 1);
 });
 
 test("messages go to onText (parsed JSON) or onBinary (the ArrayBuffer)", () => {

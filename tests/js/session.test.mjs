@@ -2,7 +2,9 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 
-import { frameSizeFor, sessionApiPath, sessionFromQuery, viewSocketPath } from "../../web/session.js";
+import {
+  apiInit, frameSizeFor, sessionApiPath, sessionFromQuery, shortSceneName, steers, viewSocketPath, WATCH_HEADER,
+} from "../../web/session.js";
 
 test("a bare page shows the default session", () => {
   const session = sessionFromQuery("");
@@ -19,11 +21,28 @@ test("a drive link reaches the session's own routes", () => {
   assert.equal(sessionApiPath("web/x.js", session), "web/x.js");
 });
 
-test("a watch link watches and opens no session route", () => {
+test("a watch link reads its own session's routes with its watch key, named on every call", () => {
   const session = sessionFromQuery("?session=K&watch=1");
   assert.deepEqual(session, { key: "K", watching: true, cell: null });
   assert.equal(viewSocketPath(session), "ws/view?session=K&watch=1");
-  assert.equal(sessionApiPath("api/stats", session), "api/stats");
+  assert.equal(sessionApiPath("api/stats", session), "api/sessions/K/stats");
+  assert.deepEqual(apiInit({ method: "PUT", headers: { a: "b" } }, session),
+    { method: "PUT", headers: { a: "b", [WATCH_HEADER]: "K" } });
+  assert.deepEqual(apiInit(undefined, session), { headers: { [WATCH_HEADER]: "K" } });
+  assert.equal(steers(session), false);
+  const driver = sessionFromQuery("?session=D");
+  assert.equal(apiInit(undefined, driver), undefined);
+  assert.equal(steers(driver), true);
+  assert.equal(steers(sessionFromQuery("?session=W&cell=0,0")), false);
+});
+
+test("scene names are shortened to their last part, cut in the middle when still long", () => {
+  assert.equal(shortSceneName("library/gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf"), "CesiumMilkTruck.gltf");
+  assert.equal(shortSceneName("builtin:cluster"), "builtin:cluster");
+  assert.equal(shortSceneName("upload/box.ply"), "box.ply");
+  const long = shortSceneName(`upload/${"a".repeat(20)}_${"b".repeat(20)}.glb`, 21);
+  assert.equal(long.length, 21);
+  assert.equal(long, `${"a".repeat(10)}…${"b".repeat(6)}.glb`);
 });
 
 test("a wall cell's page names its cell on the socket", () => {
