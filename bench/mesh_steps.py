@@ -1,0 +1,150 @@
+"""A simulation pushing a new mesh every step through the Python client (issue 33): how many steps a
+second reach the screen, and whether each one does.
+
+``python -m bench.mesh_steps [--nodes 2] [--triangles 100000] [--rate 10] [--steps 20] [--size 640x360]
+[--json OUT]``
+
+A height field of ``--triangles`` triangles (a wave moving a step each time) is uploaded as arrays
+(a GLB written in memory) and shown with ``Session.set_scene`` at most ``--rate`` times a second.
+A second connection reads the session's frames as they are published (``Session.frames``) and
+sorts each into the step it shows (its frame id at or after that step's first frame id, before the
+next step's). Figures: steps per second pushed, the share of steps that reached a published frame,
+each the upload's time (the GLB written in memory, sent, checked by the coordinator) and the switch's.
+Steps per second: the steps after the first over the time from the first one's start until the
+last one was on screen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import math
+import os
+import statistics
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.processes import show_result, start_coordinator
+from tessera.cli_values import size_parser
+from tessera.client import Tessera, TesseraError
+
+
+def height_field(triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, z grid (n+1)², faces (2n², 3)) of a square of about ``triangles`` triangles."""
+    n = max(1, round(math.sqrt(triangles / 2)))
+    xs, zs = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    index = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    return np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], 1), faces
+
+
+def wave(grid: np.ndarray, t: float) -> np.ndarray:
+    """The grid's vertices (N, 3) lifted by a ring wave at time ``t``."""
+    vertices = grid.copy()
+    vertices[:, 1] = 0.15 * np.sin(6 * np.hypot(grid[:, 0], grid[:, 2]) - 4 * t)
+    return vertices
+
+
+class FrameLog:
+    """Frame ids the session publishes, read on a thread of its own until stopped."""
+
+    def __init__(self, session: Any) -> None:
+        self.ids: list[int] = []
+        self.error: str | None = None
+        self._frames = session.frames(timeout=60.0)
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        try:
+            for frame_id, _ in self._frames:
+                self.ids.append(frame_id)
+        except TesseraError as exc:
+            self.error = exc.reason
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    coordinator, url = start_coordinator(["--local-nodes", str(args.nodes), "--size", "160x90"], timeout=120.0)
+    grid, faces = height_field(args.triangles)
+    steps: list[dict[str, float]] = []
+    try:
+        with Tessera(url) as tessera, Tessera(url) as reader:
+            camera = {"eye": [2.0, 1.5, 2.0], "target": [0, 0, 0], "up": [0, 1, 0], "fovy_deg": 45}
+            session = tessera.open_session(tessera.upload((wave(grid, 0.0), faces)), size=args.size, camera=camera)
+            session.snapshot(still=False)
+            log = FrameLog(reader.session(session.id))
+            started = time.monotonic()
+            for step in range(args.steps):
+                due = started + step / args.rate
+                time.sleep(max(0.0, due - time.monotonic()))
+                begin = time.monotonic()
+                name = tessera.upload((wave(grid, 0.1 * (step + 1)), faces))
+                uploaded = time.monotonic()
+                first = session.set_scene(name)
+                steps.append({"first": first, "begin": begin, "upload_s": uploaded - begin,
+                              "switch_s": time.monotonic() - uploaded})
+            final_id, _ = session.snapshot_frame(still=False, after=steps[-1]["first"])
+            shown_at = time.monotonic()
+            elapsed = shown_at - started   # from the first step's start to the last step on screen
+            while not log.ids or log.ids[-1] < final_id:
+                if time.monotonic() - shown_at > 30.0:
+                    break
+                time.sleep(0.05)
+            ids, reader_error = sorted(log.ids), log.error
+    finally:
+        coordinator.stop()
+    firsts = [int(s["first"]) for s in steps]
+    shown = 0
+    for index, first in enumerate(firsts):
+        end = firsts[index + 1] if index + 1 < len(firsts) else math.inf
+        at = bisect.bisect_left(ids, first)
+        shown += at < len(ids) and ids[at] < end
+
+    def quantiles(values: list[float]) -> dict[str, float]:
+        ordered = sorted(values)
+        return {"p50": statistics.median(ordered), "p90": ordered[min(len(ordered) - 1, int(0.9 * len(ordered)))]}
+
+    return {"benchmark": "mesh_steps", "triangles": len(faces), "rate": args.rate, "steps": args.steps,
+            "size": list(args.size), "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed,
+            "steps_shown": shown, "shown_share": shown / len(steps), "frames_seen": len(ids),
+            "upload_s": quantiles([s["upload_s"] for s in steps]),
+            "switch_s": quantiles([s["switch_s"] for s in steps]),
+            "reader_error": reader_error, "load_average": os.getloadavg()}
+
+
+def report(result: dict[str, Any]) -> str:
+    return "\n".join([
+        f"{result['triangles']} triangles a step, asked {result['rate']:g} steps/s, {result['steps']} steps, "
+        f"{result['size'][0]}x{result['size'][1]}, {result['nodes']} local nodes",
+        f"steps/s reached: {result['steps_per_s']:.2f}; steps shown: {result['steps_shown']} of {result['steps']} "
+        f"({100 * result['shown_share']:.0f} %); frames published: {result['frames_seen']}",
+        f"upload (GLB in memory, send, the coordinator's check) p50 {result['upload_s']['p50']:.3f} s, "
+        f"p90 {result['upload_s']['p90']:.3f} s; set_scene p50 {result['switch_s']['p50']:.3f} s",
+        "load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"])])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench.mesh_steps", description=__doc__.splitlines()[0])
+    parser.add_argument("--nodes", type=int, default=2, help="local render nodes (default 2)")
+    parser.add_argument("--triangles", type=int, default=100_000, help="triangles of each step's mesh (100000)")
+    parser.add_argument("--rate", type=float, default=10.0, help="steps per second asked for (default 10)")
+    parser.add_argument("--steps", type=int, default=20, help="steps pushed (default 20)")
+    parser.add_argument("--size", type=size_parser(16, 4096), default=(640, 360), help="frame size WxH (640x360)")
+    parser.add_argument("--json", type=Path, help="write the result as JSON here")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    result = measure(args)
+    show_result(report(result), result, args.json, argv)
+
+
+if __name__ == "__main__":
+    main()
