@@ -5,6 +5,7 @@ equals ``--render-once``."""
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import textwrap
 import threading
@@ -141,6 +142,28 @@ def test_every_method_of_the_client(tessera, tmp_path):
         assert_matches_reference(image, still_reference(str(scene_path("gltf_small/Duck.glb")), camera, (200, 100),
                                                         tmp_path), "the session after set_scene")
     assert session.id not in [info.id for info in tessera.sessions()]
+
+
+def test_the_async_twin_gives_the_same_pictures(tessera):
+    with tessera.open_session(BUNNY, size=(96, 72), camera=CAMERA) as session:
+        still = session.snapshot()
+
+        async def read() -> tuple[np.ndarray, list[int]]:
+            picture = await session.snapshot_async()
+            seen = []
+            async for frame_id, image in session.frames_async(timeout=seconds(60)):
+                assert image.shape == (72, 96, 3)
+                seen.append(frame_id)
+                if len(seen) == 1:
+                    await asyncio.to_thread(session.orbit, 10)
+                if len(seen) == 2:
+                    break
+            return picture, seen
+
+        picture, seen = asyncio.run(read())
+        assert np.array_equal(picture, still) and seen[1] > seen[0]
+    with pytest.raises(TesseraError, match="no such session"):
+        asyncio.run(session.snapshot_async())
 
 
 def test_arrays_upload_equals_the_same_mesh_uploaded_as_a_file(tessera, tmp_path):

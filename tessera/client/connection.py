@@ -36,6 +36,18 @@ class Connection:
             raise from_response(response, what)
         return response
 
+    async def request_async(self, method: str, path: str, **options: Any) -> httpx.Response:
+        """:meth:`request` for asyncio (a connection of its own for the call)."""
+        what = f"{method} /{path}"
+        try:
+            async with httpx.AsyncClient(base_url=self.url, headers=self.http.headers, timeout=self.timeout) as client:
+                response = await client.request(method, path, **options)
+        except httpx.HTTPError as exc:
+            raise from_transport(exc, self.url, what) from None
+        if response.is_error:
+            raise from_response(response, what)
+        return response
+
     def call(self, method: str, path: str, **options: Any) -> Any:
         """:meth:`request`'s JSON answer (None for an empty one)."""
         response = self.request(method, path, **options)

@@ -7,17 +7,18 @@ from __future__ import annotations
 import io
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
+import httpx
 import numpy as np
 from PIL import Image
 
 from tessera.client.connection import Connection
 from tessera.client.errors import TesseraError
-from tessera.client.frames import ViewSocket, composite, decode_frame
+from tessera.client.frames import ViewSocket, composite, decode_frame, frames_async
 from tessera.client.scene_state import Animation, Objects
 from tessera.client.values import SessionInfo, camera_json
 from tessera.geometry import Camera
@@ -60,6 +61,11 @@ def fitted(camera: Camera, bounds: np.ndarray, size: tuple[int, int]) -> Camera:
     direction /= np.linalg.norm(direction)
     eye = center + direction * radius / math.sin(narrowest) * 1.05
     return Camera(tuple(eye.tolist()), tuple(center.tolist()), camera.up, camera.fovy_deg)
+
+
+def frame_of(response: httpx.Response) -> tuple[int, np.ndarray]:
+    """A ``frame.png`` answer: its frame id and (h, w, 3) uint8 image."""
+    return int(response.headers["x-frame-id"]), np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
 
 
 class Session:
@@ -191,9 +197,14 @@ class Session:
         params: dict[str, Any] = {"after": self.changed_at if after is None else after}
         if still:
             params["still"] = "true"
-        response = self.connection.request("GET", self.path + "frame.png", params=params)
-        image = np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
-        return int(response.headers["x-frame-id"]), image
+        return frame_of(self.connection.request("GET", self.path + "frame.png", params=params))
+
+    async def snapshot_async(self, still: bool = True, after: int | None = None) -> np.ndarray:
+        """:meth:`snapshot` for asyncio (the wait does not hold the event loop)."""
+        params: dict[str, Any] = {"after": self.changed_at if after is None else after}
+        if still:
+            params["still"] = "true"
+        return frame_of(await self.connection.request_async("GET", self.path + "frame.png", params=params))[1]
 
     def save(self, path: str | Path, still: bool = True) -> Path:
         """Write :meth:`snapshot` to ``path`` (PNG, or any format Pillow knows by its suffix)."""
@@ -217,6 +228,12 @@ class Session:
                     frame = decode_frame(message)
                     if frame.still or not still_only:
                         yield frame.frame_id, composite(frame)
+
+    def frames_async(self, still_only: bool = False,
+                     timeout: float | None = None) -> AsyncIterator[tuple[int, np.ndarray]]:
+        """:meth:`frames` for asyncio: ``async for frame_id, image in session.frames_async(): …``."""
+        return frames_async(self.connection.url, self.id, self.connection.token, self.connection.timeout, still_only,
+                            timeout)
 
     # ----------------------------------------------------------------- notebook
     def show(self, width: int = 640, height: int = 360, transport: str = "comm") -> TesseraView:
