@@ -32,7 +32,12 @@ class NodeLink:
     #: Sort-last: the data partition version whose share the node holds (``triangles`` are the share's).
     share: int | None = None
     can_calibrate: bool = False
+    #: Its calibration (:mod:`server.calibration`): time, spread (max/min − 1 of its agreeing times),
+    #: measurements, and whether the nodes' speeds differ beyond their spreads.
     calibration_ms: float | None = None
+    calibration_spread: float | None = None
+    calibration_measurements: int = 0
+    speed_distinct: bool = False
     tiles_dropped: int = 0
     #: (frame id, tile id) of the binary tile just received, until its ``tile_sent``.
     last_tile: tuple[int, int] | None = None
@@ -65,6 +70,9 @@ class NodeLink:
             "busy_ms": round(sum(phases.values()), 3),
             "speed": round(schedule.speed, 4),
             "calibration_ms": None if self.calibration_ms is None else round(self.calibration_ms, 3),
+            "calibration_spread": None if self.calibration_spread is None else round(self.calibration_spread, 4),
+            "calibration_measurements": self.calibration_measurements,
+            "speed_distinct": self.speed_distinct,
             "slowdown": self.slowdown,
             "tiles_rendered": schedule.tiles_rendered,
             "tiles_dropped": self.tiles_dropped,

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from server.calibration import CalibrationQueue, calibrate_message
 from server.frame_store import FrameStore, PublishedFrame
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
+from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
 from server.scene_library import SceneLibrary
 from server.session_store import SessionStore
@@ -36,7 +36,6 @@ from server.sessions import Session, new_key
 from server.settings import Settings
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
-from tessera.balancers.hetero import calibration_weights
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
 from tessera.scene.animation import Animation, AnimationError
@@ -116,7 +115,7 @@ class RenderService:
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
         self.cpu_ms = {"receive": 0.0, "publish": 0.0, "merge": 0.0}
-        self.calibration = CalibrationQueue()
+        self.calibration = NodeCalibration(self)
         if self.session_store is not None:
             self._restore_sessions()
 
@@ -303,7 +302,7 @@ class RenderService:
                 self.apply()
             if now >= calibration_at + TIMER_MAX_WAIT_S:
                 calibration_at = now
-                self._start_calibration()
+                self.calibration.advance()
                 self._collect_idle_sessions(now)
                 if self.changed_sessions:
                     self.save_sessions()
@@ -371,7 +370,6 @@ class RenderService:
     def _forget_node(self, link: NodeLink) -> None:
         self.nodes.pop(link.node_id, None)
         self.calibration.forget(link.node_id)
-        self._start_calibration()
 
     def on_node_message(self, link: NodeLink, message: Message) -> None:
         """A control message of :data:`tessera.wire.messages.FROM_NODE` from ``link``."""
@@ -399,7 +397,7 @@ class RenderService:
                 self.scheduler.tiles_skipped(link.node_id, message.frame, message.tiles)
                 link.tiles_dropped += len(message.tiles)
             case Calibration():
-                self._on_calibration(link, message.ms)
+                self.calibration.measured(link, message.ms)
             case RenderError():
                 self._on_render_error(link, message.frame, message.tile, message.message[:300])
 
@@ -409,9 +407,7 @@ class RenderService:
         log.warning("node %d (%s) could not render tile %d of frame %d: %s", link.node_id, link.name, tile_id,
                     frame_id, reason)
         if frame_id == 0:
-            if not self.calibration.finished(link.node_id):
-                raise ProtocolError("calibration failure without a calibrate request")
-            self._start_calibration()
+            self.calibration.failed(link)
             return
         self.scheduler.tile_failed(link.node_id, frame_id, tile_id, time.monotonic())
         self.apply()
@@ -442,8 +438,7 @@ class RenderService:
                  "" if message.share is None else f", its share of partition {message.share}")
         self.apply()
         if link.can_calibrate and self.default in showing:
-            self.calibration.request(link.node_id)
-            self._start_calibration()
+            self.calibration.request([link.node_id])
 
     def _adopt_scene(self, session: Session, message: SceneReady, bounds: np.ndarray, now: float) -> None:
         """The first node that loaded ``session``'s scene reported it: its objects, groups and bounds,
@@ -466,32 +461,10 @@ class RenderService:
 
     # ----------------------------------------------------------------- calibration (seed 003 §1)
     def calibrate_all(self) -> list[int]:
-        """Queue every ready node that can calibrate; returns their ids."""
+        """Measure every ready node that can calibrate again; returns their ids."""
         ids = [n.node_id for n in sorted(self.nodes.values(), key=lambda n: n.node_id) if n.ready and n.can_calibrate]
-        for node_id in ids:
-            self.calibration.request(node_id)
-        self._start_calibration()
+        self.calibration.request(ids)
         return ids
-
-    def _start_calibration(self) -> None:
-        if self.scheduler.default.camera is None:
-            return
-        node_id = self.calibration.next_to_start(time.monotonic())
-        if node_id is not None and node_id in self.nodes:
-            self.nodes[node_id].send(calibrate_message(self.scheduler.default.camera, self.size,
-                                                       self.settings.scene))
-
-    def _on_calibration(self, link: NodeLink, ms: float) -> None:
-        if not self.calibration.finished(link.node_id):
-            raise ProtocolError("calibration result without a calibrate request")
-        link.calibration_ms = ms
-        speeds = calibration_weights({n.node_id: n.calibration_ms for n in self.nodes.values()
-                                      if n.calibration_ms is not None})
-        for node_id, speed in speeds.items():
-            self.scheduler.set_speed(node_id, speed)
-        log.info("node %d (%s) calibrated: %.2f ms; speeds %s", link.node_id, link.name, ms,
-                 {k: round(v, 3) for k, v in speeds.items()})
-        self._start_calibration()
 
     # ----------------------------------------------------------------- tiles and frames
     def on_tile_message(self, link: NodeLink, message: bytes) -> None:

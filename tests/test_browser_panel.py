@@ -44,7 +44,7 @@ EXPLAINED = {
     "imbalance": ("#fig-imbalance", r"busiest node's time ÷ the mean"),
     "imbalance avg": ("#fig-imbalance-avg", r"last 60 frames"),
     "bar scale": ("#bar-scale", r"full bar width is this many ms"),
-    "a node's speed factor": ("#nodes li:first-child .detail", r"×\d\.\d\d: its speed .* slowest node"),
+    "a node's speed": ("#nodes li:first-child .detail", r"its speed measured at start-up"),
     "the legend": (".legend li:nth-child(3)", r"encode: compressing"),
     "the rest line": ("#render-state", r"drawn only when the camera"),
 }

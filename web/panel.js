@@ -54,22 +54,29 @@ export function nodeDetailTitle(node) {
     return `${name} is ${node.state}: it draws no tiles until its scene is loaded`;
   }
   const tiles = Array.isArray(node.tiles) ? node.tiles.length : 0;
+  const spread = Number.isFinite(node.calibration_spread) ? ` (±${Math.round(node.calibration_spread * 100)} %)` : "";
+  const speed = node.speed_distinct
+    ? `×${fixed(node.speed, 2)}: its speed measured at start-up${spread}, relative to the slowest node (×1.00); ` +
+      "the balancer gives faster nodes more of the screen"
+    : `its speed measured at start-up${spread} is the others' within what the measurements spread: no factor is ` +
+      "shown, and the balancer starts every node with the same share";
   return [
     `${fixed(node.busy_ms, 1)} ms: ${name}'s time for its part of the last frame (render + readback + encode + send)`,
     `${tiles} tile${tiles === 1 ? "" : "s"}: the screen rectangles it drew in that frame`,
-    `×${fixed(node.speed, 2)}: its speed measured at start-up, relative to the slowest node (×1.00); ` +
-      "the balancer gives faster nodes more of the screen",
+    speed,
   ].join("\n");
 }
 
-/** One line about a node: busy time, tile count and relative speed, or its state while not ready. */
+/** One line about a node: busy time, tile count and, where the nodes' speeds differ beyond their
+ * measurements' spread, its relative speed; or its state while not ready. */
 export function nodeDetail(node) {
   if (node.state && node.state !== "ready") {
     const progress = Number.isFinite(node.scene_progress) ? ` ${Math.round(node.scene_progress * 100)}%` : "";
     return `${node.state}${progress}`;
   }
   const tiles = Array.isArray(node.tiles) ? node.tiles.length : 0;
-  return `${fixed(node.busy_ms, 1)} ms · ${tiles} tile${tiles === 1 ? "" : "s"} · ×${fixed(node.speed, 2)}`;
+  const speed = node.speed_distinct ? ` · ×${fixed(node.speed, 2)}` : "";
+  return `${fixed(node.busy_ms, 1)} ms · ${tiles} tile${tiles === 1 ? "" : "s"}${speed}`;
 }
 
 /** The viewer's input → display latency: p50 in ms and in frame intervals ("48 ms · 1.3 fr"),

@@ -33,10 +33,11 @@ test("segment widths are percentages of the full scale, missing phases count 0",
   assert.deepEqual(segmentWidths({ render_ms: -3, send_ms: "x" }, 8), [0, 0, 0, 0]);
 });
 
-test("node detail: timings when ready, the loading state otherwise", () => {
-  const ready = { state: "ready", busy_ms: 12.345, tiles: [[0, 0, 1, 1], [1, 0, 1, 1]], speed: 0.8 };
-  assert.equal(nodeDetail(ready), "12.3 ms · 2 tiles · ×0.80");
-  assert.equal(nodeDetail({ busy_ms: 1, tiles: [[0, 0, 1, 1]], speed: 1 }), "1.0 ms · 1 tile · ×1.00");
+test("node detail: timings when ready, the speed where speeds differ, the loading state otherwise", () => {
+  const ready = { state: "ready", busy_ms: 12.345, tiles: [[0, 0, 1, 1], [1, 0, 1, 1]], speed: 3.1, speed_distinct: true };
+  assert.equal(nodeDetail(ready), "12.3 ms · 2 tiles · ×3.10");
+  assert.equal(nodeDetail({ busy_ms: 1, tiles: [[0, 0, 1, 1]], speed: 1, speed_distinct: true }), "1.0 ms · 1 tile · ×1.00");
+  assert.equal(nodeDetail({ ...ready, speed: 1, speed_distinct: false }), "12.3 ms · 2 tiles", "the same speed: none shown");
   assert.equal(nodeDetail({ state: "loading", scene_progress: 0.456 }), "loading 46%");
 });
 
@@ -58,12 +59,15 @@ test("at rest: no frame for 2 s (fps 0) and none in flight; the fps figure says 
 });
 
 test("a node line's hover text explains its busy time, tiles and speed factor", () => {
-  const title = nodeDetailTitle({ name: "n1", busy_ms: 12.34, tiles: [[0, 0, 8, 8], [8, 0, 8, 8]], speed: 1.51 });
-  const lines = title.split("\n");
+  const node = { name: "n1", busy_ms: 12.34, tiles: [[0, 0, 8, 8], [8, 0, 8, 8]], speed: 1.51, speed_distinct: true,
+    calibration_spread: 0.042 };
+  const lines = nodeDetailTitle(node).split("\n");
   assert.equal(lines.length, 3);
   assert.match(lines[0], /^12\.3 ms: n1's time for its part of the last frame/);
   assert.match(lines[1], /^2 tiles: /);
-  assert.match(lines[2], /^×1\.51: its speed .* relative to the slowest node/);
+  assert.match(lines[2], /^×1\.51: its speed measured at start-up \(±4 %\), relative to the slowest node/);
+  const same = nodeDetailTitle({ ...node, speed: 1, speed_distinct: false }).split("\n")[2];
+  assert.match(same, /^its speed measured at start-up \(±4 %\) is the others' .* no factor is shown/);
   assert.match(nodeDetailTitle({ id: 3, state: "loading" }), /^node 3 is loading: /);
 });
 
