@@ -38,6 +38,7 @@ from node.gl.context import GLUnavailableError
 from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, Send
 from node.scene.fetch import SceneFetcher
+from node.scene.pages import resident_mb
 from node.settings import NodeSettings
 from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
 from tessera.scheduling.refinement import Subsample
@@ -80,7 +81,7 @@ class NodeClient:
         self.settings = settings
         self.worker = worker or GLWorker(settings.culling, settings.face_limit, settings.scene_memory_mb << 20,
                                          SceneFetcher(settings.coordinator, settings.token, settings.scene_cache_dir),
-                                         shading=settings.shading)
+                                         shading=settings.shading, cache=settings.cache)
         self.protocol = NodeProtocol(settings.name, settings.token or "", settings.slowdown)
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
@@ -186,7 +187,7 @@ class NodeClient:
         spec = message.scene
 
         def progress(fraction: float, text: str) -> None:
-            update = messages.SceneProgress(scene=spec, fraction=fraction, message=text)
+            update = messages.SceneProgress(scene=spec, fraction=fraction, message=text, rss_mb=round(resident_mb(), 1))
             loop.call_soon_threadsafe(outbox.put_nowait, update)
 
         started = time.perf_counter()
@@ -198,7 +199,10 @@ class NodeClient:
             scene = loaded.scene
             log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
                      len(scene.batches), scene.chunks.chunk_count, (time.perf_counter() - started) * 1e3)
-            outbox.put_nowait(self.protocol.scene_loaded(message, scene, loaded.share_version))
+            ready = self.protocol.scene_loaded(message, scene, loaded.share_version)
+            outbox.put_nowait(ready.model_copy(update={"scene_mb": round(loaded.nbytes / (1 << 20), 2),
+                                                       "held_mb": round(loaded.held_bytes / (1 << 20), 2),
+                                                       "rss_mb": round(resident_mb(), 1)}))
         work.set()
 
     async def _draw(self, action: Draw, outbox: Outbox) -> None:
@@ -276,7 +280,8 @@ class NodeClient:
             started = time.perf_counter()
             await ws.send(packed)
             send_ms = (time.perf_counter() - started) * 1e3
-            sent = messages.TileSent(frame=item.frame, tile=item.tile, send_ms=send_ms, stats=item.stats)
+            sent = messages.TileSent(frame=item.frame, tile=item.tile, send_ms=send_ms, stats=item.stats,
+                                     rss_mb=round(resident_mb(), 1))
             await ws.send(sent.to_text())
 
 

@@ -29,7 +29,7 @@ from node.gl.environment import EnvironmentError
 from node.gl.renderer import TileRenderer
 from node.gl.shading import Antialiasing
 from node.scene.data import SceneData
-from node.scene.loading import load_scene
+from node.scene.ingest import open_cached, read_scene
 from node.scene.mesh import SceneError
 from node.settings import NodeSettings
 from tessera.geometry import Camera, CameraError, default_camera
@@ -76,7 +76,8 @@ def render_once(settings: NodeSettings) -> int:
     try:
         camera = read_camera(settings.camera) if settings.camera is not None else None
         overrides = read_objects(settings.objects) if settings.objects is not None else None
-        scene = load_scene(settings.scene, face_limit=settings.face_limit)
+        scene = open_cached(read_scene(settings.scene, settings.scene, settings.face_limit, None,
+                                       lambda fraction, message: None, settings.cache), settings.scene)
         state = _state(scene, settings.time, overrides, settings.objects)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()

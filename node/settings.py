@@ -14,6 +14,7 @@ from pathlib import Path
 from node.container_name import DOCKER_MARKER, container_name, is_unexpanded_template
 from node.culling.switch import CullMode
 from node.gl.shading import AUTO_MSAA, FILTER_MSAA, MSAA_CHOICES, ShadingOptions
+from node.scene.cache_folder import DEFAULT_CACHE_MB, CacheFolder
 from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import command_name, number_parser, parse_background, size_parser
@@ -56,12 +57,18 @@ class NodeSettings:
     objects: Path | None = None
     scene_memory_mb: int = DEFAULT_SCENE_MEMORY_MB
     scene_cache_dir: Path = DEFAULT_CACHE_DIR
+    scene_cache_mb: int = DEFAULT_CACHE_MB
     msaa: int = AUTO_MSAA
     environment: Path | None = None
     #: ``--render-once``: the still's samples (the coordinator's default ``--still-samples``).
     samples: int = DEFAULT_STILL_SAMPLES
     #: ``--render-once``: the interactive frame (one sample, not shifted) instead of the still.
     interactive: bool = False
+
+    @property
+    def cache(self) -> CacheFolder:
+        """The scene cache folder (``--scene-cache-dir``, ``--scene-cache-mb``)."""
+        return CacheFolder(self.scene_cache_dir, self.scene_cache_mb << 20)
 
     @property
     def shading(self) -> ShadingOptions:
@@ -112,6 +119,7 @@ def positive_int_parser(what: str) -> Callable[[str], int]:
 
 parse_face_limit = positive_int_parser("face limit")
 parse_scene_memory = positive_int_parser("scene memory")
+parse_cache_size = positive_int_parser("scene cache size")
 
 
 def parse_msaa(text: str) -> int:
@@ -176,8 +184,11 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--scene-memory-mb", DEFAULT_SCENE_MEMORY_MB, "memory for the scenes a node holds at once (their vertex "
         "and index buffers and arrays); after a load the least recently used others are released until they fit",
         type=parse_scene_memory, metavar="MB")
-    add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder for scene files fetched from the coordinator (a scene the "
-        "node cannot open itself), named by their SHA-256", type=Path, metavar="DIR")
+    add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder of the scene cache: every scene file is read once into "
+        "ready-to-draw arrays kept here by its SHA-256 and mapped on the next load, by any node sharing the folder "
+        "(also the files fetched from the coordinator); delete its contents to clear it", type=Path, metavar="DIR")
+    add("--scene-cache-mb", DEFAULT_CACHE_MB, "size bound of the scene cache folder: after each new entry the "
+        "least recently used ones are deleted until it fits", type=parse_cache_size, metavar="MB")
     add("--msaa", "auto", "anti-aliasing of tiles and whole frames: 1 (off), 2, 4 or 8 samples per pixel (capped at "
         "what the GL offers; on llvmpipe 2 is two samples drawn as a frame twice as wide and resolved by a 3x3 "
         "filter, 1.2-2.0x the frame time of filter, where 4 multisamples cost 2.6-3.5x that of 1), filter (1 sample "

@@ -41,6 +41,12 @@ class NodeLink:
     tiles_dropped: int = 0
     #: (frame id, tile id) of the binary tile just received, until its ``tile_sent``.
     last_tile: tuple[int, int] | None = None
+    #: Issue 31: its resident memory and what it holds for scenes (MB, as it last said), each
+    #: scene's MB by spec, and the scenes it is loading: spec → (fraction, message).
+    rss_mb: float | None = None
+    held_mb: float | None = None
+    scene_mb: dict[str, float] = field(default_factory=dict)
+    loading: dict[str, tuple[float, str]] = field(default_factory=dict)
     outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
 
     @property
@@ -74,6 +80,8 @@ class NodeLink:
             "calibration_measurements": self.calibration_measurements,
             "speed_distinct": self.speed_distinct,
             "slowdown": self.slowdown,
+            "rss_mb": self.rss_mb,
+            "held_mb": self.held_mb,
             "tiles_rendered": schedule.tiles_rendered,
             "tiles_dropped": self.tiles_dropped,
             "outstanding": len(schedule.outstanding),

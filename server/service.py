@@ -357,6 +357,16 @@ class RenderService:
         return messages.LoadScene(scene=spec, background=self.settings.background or DEFAULT_BACKGROUND, share=share,
                                   url=url, sha256=sha256)
 
+    def scene_on_nodes(self, scene: str) -> dict[str, Any]:
+        """How the nodes hold scene ``scene`` (:meth:`server.sessions.SessionHost.scene_on_nodes`)."""
+        loading = [link.loading[scene] for link in self.nodes.values() if scene in link.loading]
+        holding = sum(scene in link.scene_mb and scene not in link.loading for link in self.nodes.values())
+        least = min(loading, default=None)
+        return {"loading": None if least is None else {
+                    "fraction": round(least[0], 3), "message": least[1], "nodes_ready": holding,
+                    "nodes": holding + len(loading)},
+                "scene_mb": {link.name: link.scene_mb[scene] for link in self.nodes.values() if scene in link.scene_mb}}
+
     def remove_node(self, link: NodeLink) -> None:
         """The node's connection ended: what it owed goes to the others."""
         if self.nodes.get(link.node_id) is not link:
@@ -376,10 +386,13 @@ class RenderService:
         match message:
             case SceneProgress():
                 link.progress, link.scene_message = message.fraction, message.message[:200]
+                link.loading[message.scene] = (message.fraction, link.scene_message)
+                link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
             case SceneReady():
                 self._on_scene_ready(link, message)
             case SceneError():
                 link.state, link.scene_message = "error", message.message[:500]
+                link.loading.pop(message.scene, None)
                 log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
                 for session in self._showing(message.scene):
                     if session.state != "ready":
@@ -391,6 +404,7 @@ class RenderService:
                     raise ProtocolError(f"tile_sent for tile {message.tile} of frame {message.frame}, which is not "
                                         "the tile this node just sent")
                 link.last_tile = None
+                link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
                 self.scheduler.tile_sent(link.node_id, message.frame, message.tile, message.send_ms, message.stats)
                 self.metrics.tile_sent(message.send_ms)
             case TilesDropped():
@@ -427,6 +441,12 @@ class RenderService:
         bounds = np.asarray(message.bounds, dtype=np.float64)
         link.bounds, link.triangles, link.share = bounds, message.triangles, message.share
         link.state, link.progress, link.scene_message = "ready", 1.0, "ready"
+        spec = message.scene or self.settings.scene
+        link.loading.pop(spec, None)
+        if message.scene_mb is not None:
+            link.scene_mb[spec] = message.scene_mb
+        link.held_mb = message.held_mb if message.held_mb is not None else link.held_mb
+        link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
         now = time.monotonic()
         showing = self._showing(message.scene)
         for session in showing:

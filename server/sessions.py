@@ -48,6 +48,11 @@ class SessionHost(Protocol):
     def fetch_of(self, scene: str) -> tuple[str, str] | None:
         """Where a node fetches scene file ``scene`` (its URL and sha256), if it is a library file."""
 
+    def scene_on_nodes(self, scene: str) -> dict[str, Any]:
+        """How the nodes hold scene ``scene``: ``loading`` (its least advanced load: fraction and
+        message, and how many nodes hold it of those loading or holding it; None when none loads it)
+        and ``scene_mb`` (MB each node holds for it, by node name)."""
+
 #: Random bytes of a session id and of its watch key (128 bits each).
 KEY_BYTES = 16
 
@@ -217,7 +222,8 @@ class Session:
                 "node_share": round(self.service.scheduler.fair.node_share(self.id, now), 4),
                 "node_busy_ms": round(self.service.scheduler.fair.busy_ms(self.id, now), 3), "state": self.state,
                 "error": self.error, "camera": self.camera.to_json() if self.camera else None,
-                "idle_s": round(self.idle_for(now), 1), "wall": self.wall.to_json() if self.wall else None}
+                "idle_s": round(self.idle_for(now), 1), "wall": self.wall.to_json() if self.wall else None,
+                **self.service.scene_on_nodes(self.scene)}
 
 
 def fit_size(size: tuple[int, int], largest: tuple[int, int], smallest: int = 16) -> tuple[int, int]:

@@ -24,6 +24,11 @@ from node.gl.context import create_gl_context
 
 #: The real scenes: $TESSERA_TEST_SCENES (scripts/test sets it), else ../shared/scenes.
 SCENES = Path(os.environ.get("TESSERA_TEST_SCENES") or REPO.parent / "shared" / "scenes")
+#: The scene cache every node and render-once of a test run uses (inherited by the processes it
+#: starts): a folder of its own, so runs (of other checkouts too) never share entries.
+if "TESSERA_SCENE_CACHE_DIR" not in os.environ:
+    os.environ["TESSERA_SCENE_CACHE_DIR"] = tempfile.mkdtemp(prefix="tessera-test-scene-cache-")
+    atexit.register(shutil.rmtree, os.environ["TESSERA_SCENE_CACHE_DIR"], ignore_errors=True)
 TIMEOUT_SCALE = float(os.environ.get("TESSERA_TEST_TIMEOUT_SCALE", "1.0"))
 
 

@@ -19,6 +19,7 @@ from node.gl.resident import SceneNotLoadedError, estimated_bytes
 from node.gl.worker import GLWorker
 from node.scene.fetch import SceneFetcher
 from node.scene.loading import load_scene
+from node.scene.mesh import SceneError
 from node.scene.shares import keep_share
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, default_camera
 from tessera.wire.messages import DepthRequest, LoadScene, ShareSpec
@@ -134,10 +135,11 @@ def test_the_least_recently_used_scenes_are_released_over_the_budget(ctx):
     assert after_traffic == [(CLUSTER, None), (TRAFFIC, None)], "spheres was used before cluster"
 
     async def tiny(worker: GLWorker) -> list:
-        await worker.load(LoadScene(scene=TRAFFIC), no_progress)
+        with pytest.raises(SceneError, match="more than this node's --scene-memory-mb 0; serve it in sort-last mode"):
+            await worker.load(LoadScene(scene=TRAFFIC), no_progress)
         return await worker.held()
 
-    assert run_with_worker(tiny, memory_bytes=1) == [(TRAFFIC, None)], "the scene just loaded stays, over budget"
+    assert run_with_worker(tiny, memory_bytes=1) == [], "a scene larger than the budget is refused, naming sort-last"
 
 
 class HeldFetcher(SceneFetcher):

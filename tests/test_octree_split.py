@@ -1,5 +1,6 @@
 """Octree pre-split (seed 002 §3.4): every face in exactly one chunk, chunks under the limit,
-contiguous ranges, tight boxes, octree cells; on a synthetic mesh and on the 990k-triangle scan."""
+contiguous ranges, tight boxes, octree cells (a face in the cell of its first vertex in Morton
+order), the new vertex order; on a synthetic mesh and on the 990k-triangle scan."""
 
 from __future__ import annotations
 
@@ -34,13 +35,17 @@ def check_split(positions: np.ndarray, faces: np.ndarray, split: ChunkSplit, fac
     np.maximum.at(hi, chunk_of_face, corners.max(axis=1))
     assert np.array_equal(split.bounds[:, 0], lo), "chunk boxes are not the tight min of their faces"
     assert np.array_equal(split.bounds[:, 1], hi), "chunk boxes are not the tight max of their faces"
+    assert np.array_equal(np.sort(split.vertex_order), np.arange(len(positions))), "not a permutation of the vertices"
+    assert split.faces.dtype == np.uint32
+    assert np.array_equal(split.vertex_order[split.faces], split.reorder(faces)), "renumbered faces differ"
 
 
 def check_octree_cells(positions: np.ndarray, faces: np.ndarray, split: ChunkSplit, face_limit: int) -> None:
-    """Each chunk is one octree cell, and it was split only because its parent was over the limit."""
-    corner_a, corner_b, corner_c = (positions[faces[:, k]] for k in range(3))
-    centroids = (corner_a + corner_b + corner_c) / np.float32(3.0)
-    codes = morton_codes(centroids, *octree_root(positions))[split.face_order]
+    """Each chunk is one octree cell (of its faces' first vertices in Morton order, which is the new
+    vertex order), and it was split only because its parent was over the limit."""
+    vertex_codes = morton_codes(positions, *octree_root(positions))[split.vertex_order]
+    assert np.all(np.diff(vertex_codes.astype(np.int64)) >= 0), "vertices are not in Morton order"
+    codes = vertex_codes[split.faces.min(axis=1)]
     for chunk in range(split.chunk_count):
         depth = int(split.depths[chunk])
         prefixes = codes[split.starts[chunk]:split.ends[chunk]] >> np.uint64(3 * (MAX_DEPTH - depth))

@@ -19,9 +19,11 @@ from websockets.datastructures import Headers
 from websockets.http11 import Request, Response
 
 from node.client import NodeClient
+from node.scene.cache import CACHE_FORMAT
 from node.scene.fetch import SceneFetcher, http_origin, resolve_url
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
+from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.settings import NodeSettings
 from tessera.wire.protocol import unpack_tile
 from tests.conftest import scene_path, seconds
@@ -209,4 +211,9 @@ def test_a_node_loads_a_scene_file_its_coordinator_serves(bunny_bytes, tmp_path)
     assert (header.frame_id, header.tile_id) == (1, 0)
     assert error["type"] == "scene_error" and error["scene"] == "/elsewhere/bun_zipper.ply"
     assert f"not {WRONG}" in error["message"]
-    assert [p.name for p in tmp_path.iterdir()] == [f"{hashlib.sha256(bunny_bytes).hexdigest()}.ply"]
+    digest = hashlib.sha256(bunny_bytes).hexdigest()
+    files = sorted(p.name for p in tmp_path.iterdir() if p.is_file())
+    assert files == [f"{digest}-f{DEFAULT_FACE_LIMIT}-v{CACHE_FORMAT}.lock", f"{digest}.ply"], \
+        "the fetched file (and the lock of the cache entry built from it), nothing of the wrong download"
+    assert [p.name for p in tmp_path.iterdir() if p.is_dir() and not p.name.startswith(".")] == \
+        [f"{digest}-f{DEFAULT_FACE_LIMIT}-v{CACHE_FORMAT}"], "the scene cache entry, beside the file"

@@ -1,7 +1,9 @@
 """The scene reader process (node/scene/read_process.py): a large file read in a child process is
-the same scene as read in the node's own thread, with its progress relayed; a broken file's reason
-comes back; a child killed mid-read fails that read clearly and the next read starts a new one;
-and the GL worker sends files at or over its threshold there (and draws them like any other)."""
+the same scene as read in the node's own thread, with its progress relayed; with a cache folder it
+answers the entry it built, which opens as the scene read here; a broken file's reason comes back; a
+child killed mid-read fails that read clearly and the next read starts a new one; closing the reader
+kills a child that is ingesting at once; and the GL worker sends files at or over its threshold
+there (and draws them like any other)."""
 
 from __future__ import annotations
 
@@ -15,10 +17,13 @@ import pytest
 
 from node.gl.worker import GLWorker
 from node.scene.mesh import SceneError
-from node.scene.read_process import READER_NICE, SceneReaderProcess, read_scene, reads_in_process
+from node.scene.cache_folder import CacheFolder
+from node.scene.data import SceneData
+from node.scene.ingest import open_cached, read_scene
+from node.scene.read_process import READER_NICE, SceneReaderProcess, reads_in_process
 from tessera.geometry import Rect, default_camera
 from tessera.wire.messages import LoadScene, ShareSpec
-from tests.conftest import scene_path
+from tests.conftest import scene_path, seconds
 
 BUNNY = "bunny/bun_zipper.ply"
 LUCY = "large_scan/stanford_lucy_240k.ply"
@@ -37,12 +42,29 @@ def test_a_file_read_in_the_child_is_the_scene_read_here(reader):
     progress: list[tuple[float, str]] = []
     there = reader.read(path, "library/bunny.ply", 4096, share, lambda f, m: progress.append((f, m)))
     here = read_scene(path, "library/bunny.ply", 4096, share, lambda f, m: None)
-    assert there.scene.name == here.scene.name == "library/bunny.ply"
-    assert there.scene.triangle_count == here.scene.triangle_count > 0
-    assert np.array_equal(there.scene.bounds, here.scene.bounds)
-    assert all(np.array_equal(a, b) for a, b in zip(there.packed, here.packed, strict=True))
+    assert isinstance(there, SceneData) and isinstance(here, SceneData)
+    assert there.name == here.name == "library/bunny.ply"
+    assert there.triangle_count == here.triangle_count > 0
+    assert np.array_equal(there.bounds, here.bounds)
+    assert all(np.array_equal(a.faces, b.faces) and np.array_equal(a.positions, b.positions)
+               for a, b in zip(there.batches, here.batches, strict=True))
     assert progress[0][1] == "reading bun_zipper.ply" and progress[-1][1].startswith("keeping share 2")
-    assert reader.read(path, "again", 4096, None, lambda f, m: None).scene.triangle_count > 0, "the child serves again"
+    again = reader.read(path, "again", 4096, None, lambda f, m: None)
+    assert isinstance(again, SceneData) and again.triangle_count > 0, "the child serves again"
+
+
+def test_with_a_cache_folder_the_child_answers_the_entry_it_built(reader, tmp_path: Path):
+    path = str(scene_path(BUNNY))
+    folder = CacheFolder(tmp_path / "cache")
+    share = ShareSpec(version=1, index=0, weights=(1.0, 1.0))
+    for wanted in (None, share):
+        entry = reader.read(path, "library/bunny.ply", 4096, wanted, lambda f, m: None, folder)
+        assert isinstance(entry, Path) and entry.parent == folder.root
+        scene = open_cached(entry, "library/bunny.ply")
+        here = read_scene(path, "library/bunny.ply", 4096, wanted, lambda f, m: None)
+        assert isinstance(here, SceneData)
+        assert scene.name == "library/bunny.ply" and scene.triangle_count == here.triangle_count
+        assert np.array_equal(scene.bounds, here.bounds)
 
 
 def test_every_thread_of_the_child_runs_at_the_lower_priority_and_the_callers_keeps_its_own(reader):
@@ -61,7 +83,7 @@ def test_a_broken_file_comes_back_with_its_reason(reader, tmp_path: Path):
     broken.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\nend_header\n\x00\x01")
     with pytest.raises(SceneError, match=r"broken\.ply: corrupt or unreadable PLY"):
         reader.read(str(broken), "broken.ply", 4096, None, lambda f, m: None)
-    assert reader.read(str(scene_path(BUNNY)), "b", 4096, None, lambda f, m: None).scene.triangle_count > 0
+    assert isinstance(reader.read(str(scene_path(BUNNY)), "b", 4096, None, lambda f, m: None), SceneData)
 
 
 def test_a_child_killed_mid_read_fails_the_read_and_the_next_read_starts_another(reader):
@@ -73,7 +95,34 @@ def test_a_child_killed_mid_read_fails_the_read_and_the_next_read_starts_another
 
     with pytest.raises(SceneError, match=r"scene reader process died \(exit code -9\)"):
         reader.read(lucy, "lucy", 4096, None, kill_on_first_progress)
-    assert reader.read(lucy, "lucy", 4096, None, lambda f, m: None).scene.triangle_count == 239_768
+    read = reader.read(lucy, "lucy", 4096, None, lambda f, m: None)
+    assert isinstance(read, SceneData) and read.triangle_count == 239_768
+
+
+def test_closing_the_reader_kills_a_child_that_is_ingesting(reader, tmp_path: Path):
+    """A load nobody needs any more stops: the node's worker closes the reader when it stops, and
+    the read under way fails at once, leaving no entry."""
+    lucy = str(scene_path(LUCY))
+    folder = CacheFolder(tmp_path / "cache")
+    failed: list[BaseException] = []
+
+    def read() -> None:
+        try:
+            reader.read(lucy, "lucy", 4096, None, lambda f, m: m.startswith("read") and started.set(), folder)
+        except SceneError as exc:
+            failed.append(exc)
+
+    started = threading.Event()
+    thread = threading.Thread(target=read)
+    thread.start()
+    assert started.wait(seconds(60))
+    reader.close()
+    thread.join(seconds(10))
+    assert not thread.is_alive() and failed and "died" in str(failed[0])
+    assert not list(folder.root.glob("*/table.json")), "no entry is left by the killed builder"
+    entry = reader.read(lucy, "lucy", 4096, None, lambda f, m: None, folder)
+    assert isinstance(entry, Path) and open_cached(entry, "lucy").triangle_count == 239_768
+    assert not list(folder.root.glob(".*.tmp")), "the next builder removes what the killed one left"
 
 
 def test_files_over_the_threshold_are_read_in_the_child(tmp_path: Path):

@@ -13,33 +13,19 @@ import numpy as np
 
 from node.gl.shading import ShaderVariant, fragment_shader, vertex_shader
 from node.scene.mesh import MeshBatch
+from node.scene.packing import vertex_extras
 
-#: Layout of :func:`vertex_extras`: tangent (xyz, w), second uv set.
+#: Layout of :func:`node.scene.packing.vertex_extras`: tangent (xyz, w), second uv set.
 EXTRAS_FORMAT = "4f 2f"
 EXTRAS_ATTRIBUTES = ("in_tangent", "in_uv1")
 #: Per texture slot (:data:`node.scene.material.TEXTURE_SLOTS`) one uv matrix and set.
 SLOT_COUNT = 5
 
 
-def vertex_extras(batches: Sequence[MeshBatch]) -> np.ndarray | None:
-    """(V, 6) float32 rows of tangent and second uv for all ``batches``' vertices in order (zeros
-    where a batch has none: a zero tangent makes the shader derive the frame), or None when no
-    batch has either."""
-    if all(batch.tangents is None and batch.uvs1 is None for batch in batches):
-        return None
-    parts = []
-    for batch in batches:
-        count = batch.vertex_count
-        tangents = batch.tangents if batch.tangents is not None else np.zeros((count, 4), np.float32)
-        uvs1 = batch.uvs1 if batch.uvs1 is not None else np.zeros((count, 2), np.float32)
-        parts.append(np.concatenate([tangents, uvs1], axis=1, dtype=np.float32))
-    return np.concatenate(parts)
-
-
 class ShaderPrograms:
     """The programs of ``batches`` on ``ctx``: for each variant they need (:attr:`variants`, one a
     batch), without and with discards; vertex arrays over ``content`` (the renderer's vertex buffer
-    specs) and :func:`vertex_extras` when any batch has them, drawing ``index_buffer`` (uint32);
+    specs) and :func:`node.scene.packing.vertex_extras` when any batch has them, drawing ``index_buffer`` (uint32);
     samplers bound to ``units`` (uniform name → texture unit)."""
 
     def __init__(self, ctx: moderngl.Context, batches: Sequence[MeshBatch], content: list[tuple[Any, ...]],

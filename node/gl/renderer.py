@@ -82,6 +82,8 @@ from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
+from node.scene.packing import PackedGeometry, gpu_indices, pack
+from node.scene.pages import release_pages
 from node.scene.pose import ScenePose
 from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, resolve_pair_filter
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
@@ -90,7 +92,8 @@ from tessera.scheduling import refinement
 from tessera.scheduling.refinement import Accumulator, Subsample, jitter_matrix
 
 GL_SRGB8_ALPHA8 = 0x8C43
-VERTEX_FORMAT = "3f 3f 2f 4f"
+#: Bytes of geometry copied to the GL at a time.
+UPLOAD_BLOCK_BYTES = 8 << 20
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
@@ -154,14 +157,6 @@ class RenderedTile:
                 "cull_ms": round(self.cull_ms, 4), "cull_path": self.cull_path}
 
 
-def interleave_vertices(batch: MeshBatch) -> np.ndarray:
-    """(N, 12) float32 rows of position, normal, uv (zeros if none), colour (ones if none)."""
-    count = batch.vertex_count
-    uvs = batch.uvs if batch.uvs is not None else np.zeros((count, 2), np.float32)
-    colors = batch.colors if batch.colors is not None else np.ones((count, 4), np.float32)
-    return np.concatenate([batch.positions, batch.normals, uvs, colors], axis=1, dtype=np.float32)
-
-
 def headlight_direction(camera: Camera) -> tuple[float, float, float]:
     """World-space unit vector towards the camera-attached light (:data:`HEADLIGHT_VIEW`)."""
     rotation = look_at(camera.eye, camera.target, camera.up)[:3, :3]
@@ -178,22 +173,34 @@ def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
         raise ValueError(f"tile {rect.as_list()} is empty or outside the {width}x{height} frame")
 
 
-def pack_geometry(batches: Sequence[MeshBatch]) -> tuple[np.ndarray, np.ndarray]:
-    """(V, 12) float32 vertices and (3F,) uint32 indices of all ``batches``, in order: the vertex and
-    index buffers' contents (no GL: a loader thread may pack them)."""
-    vertex_parts, index_parts = [], []
-    base_vertex = 0
-    for batch in batches:
-        vertex_parts.append(interleave_vertices(batch))
-        index_parts.append(batch.faces.reshape(-1) + np.uint32(base_vertex))
-        base_vertex += batch.vertex_count
-    return np.concatenate(vertex_parts), np.concatenate(index_parts).astype(np.uint32)
+def upload_geometry(ctx: moderngl.Context, packed: PackedGeometry,
+                    batch_index_bounds: np.ndarray) -> tuple[moderngl.Buffer, moderngl.Buffer]:
+    """The vertex and index buffers of ``packed`` (batch b's indices are [batch_index_bounds[b],
+    batch_index_bounds[b + 1])), written a block at a time: from a scene cache's mapped arrays no
+    more than a block is copied in host memory besides what the GL keeps (:mod:`node.scene.cache`
+    drops the mapped pages once uploaded)."""
+    vertices, indices = packed.vertices, packed.indices
+    vertex_buffer = ctx.buffer(reserve=max(vertices.nbytes, 1))
+    index_buffer = ctx.buffer(reserve=max(indices.nbytes, 4))
+    rows = max(1, UPLOAD_BLOCK_BYTES // max(1, vertices.dtype.itemsize))
+    for first in range(0, len(vertices), rows):
+        block = vertices[first:first + rows]
+        vertex_buffer.write(np.ascontiguousarray(block), offset=first * vertices.dtype.itemsize)
+        release_pages(vertices, first, first + len(block))
+    scratch = np.empty(UPLOAD_BLOCK_BYTES // 4, np.uint32)
+    for first in range(0, len(indices), scratch.size):
+        end = min(first + scratch.size, len(indices))
+        index_buffer.write(gpu_indices(indices, batch_index_bounds, packed.vertex_bounds, first, end, scratch),
+                           offset=first * 4)
+        release_pages(indices, first, end)
+    return vertex_buffer, index_buffer
 
 
 class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
-    ``shading``; use it only on the thread that owns ``ctx``. ``packed``: :func:`pack_geometry` of
-    the scene's batches when already done (None: packed here). ``samples``: the multisample count
+    ``shading``; use it only on the thread that owns ``ctx``. ``packed``: the scene's batches as
+    :func:`node.scene.packing.pack` packs them, when already done or mapped from a scene cache
+    (None: packed here). ``samples``: the multisample count
     drawn with; ``paired``: plain tiles and whole frames drawn twice as wide, two samples a pixel;
     ``filtered``: those frames resolved by :mod:`tessera.antialiasing`'s filter (all three as
     :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). Raises
@@ -203,7 +210,7 @@ class TileRenderer:
     def __init__(self, ctx: moderngl.Context, scene: SceneData,
                  background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.AUTO,
                  switch_params: SwitchParams = SwitchParams(),
-                 packed: tuple[np.ndarray, np.ndarray] | None = None,
+                 packed: PackedGeometry | None = None,
                  shading: ShadingOptions = ShadingOptions()) -> None:
         self.ctx = ctx
         self.scene = scene
@@ -215,12 +222,13 @@ class TileRenderer:
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.lighting = ImageLighting(ctx, lighting)
-        vertices, indices = pack_geometry(scene.batches) if packed is None else packed
-        self.vertex_buffer = ctx.buffer(vertices)
-        self.index_buffer = ctx.buffer(indices)
+        packed = pack(scene.batches) if packed is None else packed
+        chunks = scene.chunks
+        self.vertex_buffer, self.index_buffer = upload_geometry(ctx, packed,
+                                                                chunks.index_bounds[chunks.batch_bounds])
         #: The programs of the batches' shader variants, without and with discards (:meth:`_program_key`).
         self.shaders = ShaderPrograms(
-            ctx, scene.batches, [(self.vertex_buffer, VERTEX_FORMAT, "in_position", "in_normal", "in_uv", "in_color")],
+            ctx, scene.batches, [(self.vertex_buffer, packed.layout.gl_format, *packed.layout.attributes)],
             self.index_buffer, SAMPLER_UNITS)
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)

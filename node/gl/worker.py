@@ -3,12 +3,16 @@ scenes are uploaded and drawn — plain tiles, depth tiles (:mod:`node.gl.depth_
 calibration renders — for :class:`node.client.NodeClient`, which awaits each call.
 
 A node holds several scenes at once (issue 19: :mod:`node.gl.resident`, within a memory budget) and
-draws a tile of whichever a ``render`` names. A scene is read — fetched when the node cannot open
-it (:mod:`node.scene.fetch`), parsed, split into chunks, its share kept, its buffers packed — off
-the GL thread, so the seconds a big scan takes to parse never hold back tiles of the scenes
-already held: a loader thread fetches it and reads it, a large file in a child process of lower
-CPU priority (:mod:`node.scene.read_process`: a thread would hold the GIL the GL thread needs).
-Only its upload (tens of ms for a million triangles) runs on the GL thread, between two tiles.
+draws a tile of whichever a ``render`` names. A scene is made ready — fetched when the node cannot
+open it (:mod:`node.scene.fetch`), then ingested once into the scene cache (issue 31: read, split
+into chunks, packed, written; a sort-last share written as an entry of its own,
+:mod:`node.scene.ingest`) and mapped — off the GL thread, so the seconds a big scan takes never hold
+back tiles of the scenes already held: a loader thread fetches and opens it, a large file ingested
+in a child process of lower CPU priority (:mod:`node.scene.read_process`: a thread would hold the
+GIL the GL thread needs). Only its upload runs on the GL thread, between two tiles.
+
+A scene (or share) whose GPU buffers exceed the memory budget is refused with the reason, naming
+sort-last as the mode that serves it (its buffers are all host memory on llvmpipe).
 """
 
 from __future__ import annotations
@@ -29,11 +33,15 @@ from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, rende
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
+from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
+from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
+from node.scene.mesh import SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.scene.read_process import READ_IN_PROCESS_BYTES, ReadScene, SceneReaderProcess, read_scene, reads_in_process
+from node.scene.packing import gpu_bytes
+from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
@@ -83,10 +91,13 @@ class DepthRender:
 
 @dataclass(frozen=True, slots=True)
 class LoadedScene:
-    """A scene held, as a load answers: its data and the partition version of its share (None: whole)."""
+    """A scene held, as a load answers: its data, the partition version of its share (None: whole),
+    the bytes it is counted for and those of every scene held (:mod:`node.gl.resident`)."""
 
     scene: SceneData
     share_version: int | None
+    nbytes: int = 0
+    held_bytes: int = 0
 
 
 class GLWorker:
@@ -103,7 +114,7 @@ class GLWorker:
     def __init__(self, culling: CullMode = CullMode.AUTO, face_limit: int = DEFAULT_FACE_LIMIT,
                  memory_bytes: int = DEFAULT_SCENE_MEMORY_MB << 20, fetcher: SceneFetcher | None = None,
                  read_in_process_bytes: int = READ_IN_PROCESS_BYTES,
-                 shading: ShadingOptions = ShadingOptions()) -> None:
+                 shading: ShadingOptions = ShadingOptions(), cache: CacheFolder | None = None) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
         self._reader = SceneReaderProcess()
@@ -112,7 +123,7 @@ class GLWorker:
         self._scenes = ResidentScenes(memory_bytes)
         self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
         self.culling, self.face_limit, self.fetcher = culling, face_limit, fetcher
-        self.shading = shading
+        self.shading, self.cache = shading, cache
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
@@ -153,21 +164,29 @@ class GLWorker:
         loaded: LoadedScene = await self._call(self._upload, key, request, read, progress)
         return loaded
 
-    def _read(self, request: LoadScene, progress: ProgressCallback) -> ReadScene:
-        """In the loader thread: fetch (if need be), then parse, split, keep the share, pack (here,
-        or a large file in the scene reader process)."""
+    def _read(self, request: LoadScene, progress: ProgressCallback) -> SceneData:
+        """In the loader thread: fetch (if need be), then ingest or open its cache entry (here, or a
+        large file in the scene reader process) and map it; refuse it when it exceeds the budget."""
         spec, share = request.scene, request.share
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
+        known = request.sha256 if source != spec else None
         read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
-        return read(source, spec, self.face_limit, share, progress)
+        scene = open_cached(read(source, spec, self.face_limit, share, progress, self.cache, known), spec)
+        needed, budget = gpu_bytes(scene) + scene.nbytes, self._scenes.budget_bytes
+        if needed > budget:
+            mode = "serve it in sort-last mode (coordinator --mode sort-last), where each node holds a share" \
+                if share is None else "add nodes, so that each share is smaller"
+            raise SceneError(f"{spec}: needs {needed / (1 << 20):.0f} MB, more than this node's --scene-memory-mb "
+                             f"{budget / (1 << 20):.0f}; {mode}")
+        return scene
 
-    def _upload(self, key: SceneKey, request: LoadScene, read: ReadScene, progress: ProgressCallback) -> LoadedScene:
-        """On the GL thread: upload ``read``, hold it, release the least recently used others over budget."""
+    def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData, progress: ProgressCallback) -> LoadedScene:
+        """On the GL thread: upload ``scene``, hold it, release the least recently used others over budget."""
         assert self._ctx is not None
-        scene, share = read.scene, request.share
+        share = request.share
         progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         background = DEFAULT_BACKGROUND if request.background is None else request.background
-        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=read.packed,
+        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=scene.geometry,
                                 shading=self.shading)
         version = None if share is None else share.version
         held = ResidentScene(key, renderer, PlanningScene.of(scene, renderer.culler.bvh), version,
@@ -175,7 +194,7 @@ class GLWorker:
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))
-        return LoadedScene(scene, version)
+        return LoadedScene(scene, version, held.nbytes, self._scenes.total_bytes)
 
     def _reuse(self, key: SceneKey, request: LoadScene) -> LoadedScene | None:
         """The scene of ``key`` if held, with ``request``'s background and share version; else None."""
@@ -185,7 +204,7 @@ class GLWorker:
         if request.background is not None:
             held.renderer.background = request.background
         held.share_version = None if request.share is None else request.share.version
-        return LoadedScene(held.renderer.scene, held.share_version)
+        return LoadedScene(held.renderer.scene, held.share_version, held.nbytes, self._scenes.total_bytes)
 
     async def held(self) -> list[SceneKey]:
         """The keys of the scenes held, least recently used first."""
@@ -232,8 +251,9 @@ class GLWorker:
             self._ctx = None
 
     def close(self) -> None:
-        """Stop the loader thread (waits for a scene being read) and the scene reader process, free
-        GL resources on the GL thread and stop it (waits for a running draw)."""
+        """Kill the scene reader process (a scene it ingests is not needed any more), stop the loader
+        thread, free GL resources on the GL thread and stop it (waits for a running draw)."""
+        self._reader.close()
         self._loader.shutdown(wait=True, cancel_futures=True)
         self._reader.close()
         self._executor.submit(self._close)

@@ -3,9 +3,10 @@ octree (:func:`node.scene.octree.octree_split`). The chunk boxes are what per-ti
 (seed 001); the tree over them is built by the culling package (:mod:`node.culling.bvh`). No GL
 here.
 
-Splitting only re-orders a batch's faces, and its vertices into the order the re-ordered faces
-first use them (so a chunk's vertices sit together in memory, which makes culled tiles faster on
-llvmpipe: docs/explanation/culling.md); attribute values and materials stay. The renderer's one index buffer
+Splitting only re-orders a batch's faces, and its vertices into Morton order (so a chunk's vertices
+sit together in memory, which makes culled tiles faster on llvmpipe: docs/explanation/culling.md); attribute
+values and materials stay. A batch without normals gets its smooth normals once its vertices have
+their final order (:mod:`node.scene.normals`). The renderer's one index buffer
 (batches in order, 3 indices per face) holds every chunk as a contiguous index range. Chunks are
 numbered in that buffer's order, so chunk i + 1 starts where chunk i ends.
 
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from node.scene.mesh import MeshBatch
+from node.scene.normals import smooth_vertex_normals
 from node.scene.octree import DEFAULT_FACE_LIMIT, octree_split
 
 #: Most primitive groups sent to the coordinator (seed 003's DPBP). The coordinator projects them
@@ -141,18 +143,23 @@ class SceneChunks:
 def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> tuple[
         list[MeshBatch], SceneChunks]:
     """Split every non-blended batch over ``face_limit`` faces by octree; returns the batches (faces
-    re-ordered into chunk order where split) and their :class:`SceneChunks`."""
+    and vertices re-ordered where split, smooth normals computed where missing) and their
+    :class:`SceneChunks`."""
     if face_limit < 1:
         raise ValueError(f"face limit must be ≥ 1, got {face_limit}")
     out, chunk_batch, face_counts, boxes = [], [], [], []
     for number, batch in enumerate(batches):
         if batch.alpha_mode == "BLEND" or batch.triangle_count <= face_limit:
-            out.append(batch)
             counts, batch_boxes = np.array([batch.triangle_count]), batch.bounds()[None].astype(np.float32)
         else:
-            split = octree_split(batch.positions, batch.faces, face_limit)
-            out.append(_vertices_in_first_use_order(dataclasses.replace(batch, faces=split.reorder(batch.faces))))
+            split = octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None)
+            batch = batch.with_vertices(split.vertex_order, split.faces)
+            if split.normals is not None:
+                batch = dataclasses.replace(batch, normals=split.normals)
             counts, batch_boxes = split.face_counts, split.bounds
+        if batch.normals is None:
+            batch = dataclasses.replace(batch, normals=smooth_vertex_normals(batch.positions, batch.faces))
+        out.append(batch)
         chunk_batch.append(np.full(counts.size, number, np.int64))
         face_counts.append(counts)
         boxes.append(batch_boxes)
@@ -167,13 +174,3 @@ def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_L
         face_limit=face_limit,
     )
     return out, chunks
-
-
-def _vertices_in_first_use_order(batch: MeshBatch) -> MeshBatch:
-    """``batch`` with its vertices renumbered in the order its faces first use them (unused ones last)."""
-    used, first_use = np.unique(batch.faces.reshape(-1), return_index=True)
-    order = np.concatenate([used[np.argsort(first_use)],
-                            np.setdiff1d(np.arange(batch.vertex_count), used, assume_unique=True)])
-    new_index = np.empty_like(order)
-    new_index[order] = np.arange(order.size)
-    return batch.with_vertices(order, new_index[batch.faces])

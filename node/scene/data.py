@@ -14,6 +14,8 @@ import numpy as np
 from node.scene.chunks import PrimitiveGroups, SceneChunks, split_batches
 from node.scene.mesh import MeshBatch, SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from node.scene.packing import PackedGeometry
+from node.scene.pages import is_mapped
 from tessera.scene.animation import Animation, sample_animations
 from tessera.scene.graph import ObjectGraph, SceneObject
 from tessera.scene.state import ObjectPatch, SceneState, SceneStateError
@@ -35,6 +37,9 @@ class SceneData:
     chunks: SceneChunks
     objects: ObjectGraph
     animations: tuple[Animation, ...] = ()
+    #: The batches' geometry as the GPU takes it, when it is at hand already (mapped from a scene
+    #: cache, :mod:`node.scene.cache`; the batches' arrays are views of it); None: packed on upload.
+    geometry: PackedGeometry | None = None
 
     @classmethod
     def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT,
@@ -52,7 +57,10 @@ class SceneData:
             raise SceneError(f"{name}: no triangles")
         kept.sort(key=lambda b: b.alpha_mode == "BLEND")
         split, chunks = split_batches(kept, face_limit)
-        boxes = np.array([b.bounds() for b in split], dtype=np.float64)
+        # A batch's box is its chunks' (each tight over its faces' corners).
+        lo = np.minimum.reduceat(chunks.boxes[:, 0], chunks.batch_bounds[:-1], axis=0)
+        hi = np.maximum.reduceat(chunks.boxes[:, 1], chunks.batch_bounds[:-1], axis=0)
+        boxes = np.stack([lo, hi], axis=1).astype(np.float64)
         bounds = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
         triangles = sum(b.triangle_count for b in split)
         try:
@@ -74,11 +82,12 @@ class SceneData:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of its batches' arrays (positions, normals, faces, uvs, colours, textures, tangents,
-        second uvs), an array batches share (a texture) once."""
+        """Bytes of its batches' arrays held in memory (positions, normals, faces, uvs, colours,
+        textures, tangents, second uvs), an array batches share (a texture) once; arrays mapped from a
+        file (a scene cache's) are not counted: their pages leave once uploaded."""
         arrays = {id(a): a for b in self.batches
                   for a in (b.positions, b.normals, b.faces, b.uvs, b.colors, b.texture, b.tangents, b.uvs1)
-                  if a is not None}
+                  if a is not None and not is_mapped(a)}
         return sum(a.nbytes for a in arrays.values())
 
     def state_at(self, time: float, overrides: Mapping[str, ObjectPatch] | None = None) -> SceneState:

@@ -31,8 +31,10 @@ from node.scene.data import SceneData
 from node.scene.gltf_vertices import VertexExtras, position_key, vertex_extras
 from node.scene.material import DEFAULT_METALLIC, DEFAULT_ROUGHNESS, MaterialExtras, SurfaceMaterial, material_extras
 from node.scene.mesh import DEFAULT_BASE_COLOR, MeshBatch, SceneError
+from node.scene.normals import normalized, smooth_vertex_normals
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from node.scene.ply import read_ply
 from tessera.scene.animation import Animation
 from tessera.scene.graph import SceneObject
 
@@ -62,6 +64,11 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
         raise SceneError(f"{spec}: no such file")
     report(0.0, f"reading {path.name}")
     started = time.perf_counter()
+    if suffix == ".ply":
+        batch = _ply_batch(path)
+        report(0.3, f"read {path.name} in {time.perf_counter() - started:.1f} s: {batch.triangle_count} triangles; "
+                    "splitting into chunks")
+        return SceneData.from_batches(spec, [batch], face_limit, [SceneObject(path.stem)])
     try:
         import trimesh
 
@@ -79,6 +86,18 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
     except Exception as exc:
         raise SceneError(f"{spec}: corrupt geometry ({_one_line(exc)})") from None
     return SceneData.from_batches(spec, batches, face_limit, objects, animations)
+
+
+def _ply_batch(path: Path) -> MeshBatch:
+    """The one batch of the PLY file at ``path`` (:mod:`node.scene.ply`): its normals when it has
+    them (else computed once split), its colours when it has them (sRGB bytes made linear)."""
+    mesh = read_ply(path)
+    if len(mesh.faces) == 0:
+        raise SceneError(f"{path}: no triangles")
+    faces = _drop_nonfinite_faces(mesh.vertices, mesh.faces)
+    normals = None if mesh.normals is None else normalized(mesh.normals)
+    colors = None if mesh.colors is None else _linear_rgba(mesh.colors)
+    return MeshBatch(name=path.stem, positions=mesh.vertices, normals=normals, faces=faces, colors=colors)
 
 
 def _file_objects(path: Path, scene: Any) -> tuple[list[SceneObject], dict[str, int] | None, tuple[Animation, ...],
@@ -172,14 +191,11 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
     world = vertices @ transform[:3, :3].T + transform[:3, 3]
     faces = _drop_nonfinite_faces(world, faces)
-    if normals is None:
-        world_normals = smooth_vertex_normals(world, faces)
-    else:
-        world_normals = _normalize(normals @ np.linalg.inv(transform[:3, :3]))
+    world_normals = None if normals is None else normalized(normals @ np.linalg.inv(transform[:3, :3]))
     return MeshBatch(
         name=name,
         positions=world.astype(np.float32),
-        normals=world_normals.astype(np.float32),
+        normals=None if world_normals is None else world_normals.astype(np.float32),
         faces=faces.astype(np.uint32),
         uvs=uvs,
         colors=colors,
@@ -203,7 +219,7 @@ def _vertex_extras(surface: SurfaceMaterial, extras: VertexExtras | None,
     tangents = None
     if extras.tangents is not None and surface.normal_texture is not None:
         linear = transform[:3, :3]
-        xyz = _normalize(extras.tangents[:, :3].astype(np.float64) @ linear.T)
+        xyz = normalized(extras.tangents[:, :3].astype(np.float64) @ linear.T)
         w = np.where(extras.tangents[:, 3:] < 0.0, -1.0, 1.0) * np.sign(np.linalg.det(linear))
         tangents = np.concatenate([xyz, w], axis=1).astype(np.float32)
     uses_set_1 = any(uv.uv_set == 1 for uv in surface.uv_transforms)
@@ -250,27 +266,10 @@ def _surface_material(material: Any, converted: bool, has_uvs: bool, textures: d
 
 
 def _drop_nonfinite_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    finite = np.isfinite(positions).all(axis=1)
+    finite = np.isfinite(positions)
     if finite.all():
         return faces
-    return faces[finite[faces].all(axis=1)]
-
-
-def _normalize(vectors: np.ndarray) -> np.ndarray:
-    lengths = np.linalg.norm(vectors, axis=1, keepdims=True)
-    return np.divide(vectors, lengths, out=np.zeros_like(vectors), where=lengths > 0.0)
-
-
-def smooth_vertex_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted smooth normals (N, 3) float64 for ``positions`` (N, 3) and ``faces`` (F, 3)."""
-    corners = positions[faces]
-    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    summed = np.zeros((len(positions), 3))
-    for axis in range(3):
-        for corner in range(3):
-            summed[:, axis] += np.bincount(faces[:, corner], weights=face_normals[:, axis],
-                                           minlength=len(positions))
-    return _normalize(summed)
+    return faces[finite.all(axis=1)[faces].all(axis=1)]
 
 
 def _linear_rgba(colors: np.ndarray) -> np.ndarray:

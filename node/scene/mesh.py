@@ -22,7 +22,9 @@ class SceneError(ValueError):
 class MeshBatch:
     """One drawable mesh in world space (one material, one draw call over an index range).
 
-    ``positions`` (N, 3) float32, ``normals`` (N, 3) float32 unit length, ``faces`` (F, 3) uint32,
+    ``positions`` (N, 3) float32, ``normals`` (N, 3) float32 unit length (float16 when mapped from a
+    scene cache; None: smooth normals are computed when the scene is split, after the vertices have
+    their final order), ``faces`` (F, 3) uint32,
     ``uvs`` (N, 2) float32 with origin bottom-left (GL convention) or None, ``colors`` (N, 4)
     float32 linear 0…1 or None, ``base_color`` (4,) float32 linear, ``texture`` (h, w, 4) uint8
     sRGB with row 0 at the top of the image or None. ``alpha_mode`` is glTF's OPAQUE, MASK or BLEND.
@@ -35,7 +37,7 @@ class MeshBatch:
 
     name: str
     positions: np.ndarray
-    normals: np.ndarray
+    normals: np.ndarray | None
     faces: np.ndarray
     uvs: np.ndarray | None = None
     colors: np.ndarray | None = None
@@ -62,7 +64,7 @@ class MeshBatch:
         def take(values: np.ndarray | None) -> np.ndarray | None:
             return None if values is None else values[order]
 
-        return dataclasses.replace(self, positions=self.positions[order], normals=self.normals[order],
+        return dataclasses.replace(self, positions=self.positions[order], normals=take(self.normals),
                                    uvs=take(self.uvs), colors=take(self.colors), tangents=take(self.tangents),
                                    uvs1=take(self.uvs1), faces=np.asarray(faces, np.uint32))
 

@@ -4,19 +4,25 @@ faces, so that a chunk rarely spans several tiles and per-tile culling can skip 
 The seed subdivides a leaf's bounding box into eight while it holds too many faces, keeping only
 non-empty children. Here the root cell is the cube on the mesh's bounding box (:func:`octree_root`),
 so cells are cubes at every level: compact chunks whose screen footprints stay small from any
-viewpoint (the same tile redundancy with fewer chunks than halving an elongated box:
-docs/explanation/culling.md). Every face goes to the octree cell holding its centroid; the whole adaptive
-octree is found at once from the faces' Morton codes (sorting by code lists every cell's faces
-contiguously, in depth-first octree order), level by level with numpy, no per-face loop.
+viewpoint (docs/explanation/culling.md). The whole adaptive octree is found from Morton codes with two sorts and
+no per-face loop (issue 31: linear-time preprocessing, tens of millions of faces a second):
 
-Only the face order changes: vertices, normals and materials stay as they are. Chunk ``i`` is
-``faces[face_order][starts[i]:ends[i]]``, so the renderer keeps one index buffer and draws ranges.
-Chunks come in octree depth-first (Morton) order, so neighbouring chunks are neighbours in space and
-visible chunks often form longer contiguous ranges.
+1. the vertices are sorted by the Morton code of their position (:func:`morton_codes`, at
+   :data:`MAX_DEPTH` levels): the mesh's new vertex order, so the vertices of a chunk sit together
+   in memory (culled tiles fetch few) and a range of chunks uses a narrow range of vertices;
+2. each face belongs to the cell of its first vertex in that order (the one of lowest code), and the
+   faces are sorted by it: sorting by code lists every cell's faces contiguously, in depth-first
+   octree order;
+3. level by level, a cell within the limit becomes a chunk, the others are split.
 
-Interpretation: a cell still over the limit at ``max_depth`` (all its centroids quantise to one
-point, e.g. many faces sharing a centroid) cannot be split in space; it is cut into consecutive
-pieces of ``face_limit`` faces, so the limit always holds.
+Each sort is one ``numpy.sort`` of 64-bit keys that hold the code above the item's number, so no
+``argsort`` is needed. Chunk ``i`` is ``split.faces[starts[i]:ends[i]]``: the renderer keeps one
+index buffer and draws ranges. Chunks come in Morton order, so neighbouring chunks are neighbours in
+space and visible chunks often form longer contiguous ranges.
+
+Interpretation: a cell still over the limit at ``max_depth`` (all its faces' first vertices quantise
+to one point) cannot be split in space; it is cut into consecutive pieces of ``face_limit`` faces,
+so the limit always holds.
 """
 
 from __future__ import annotations
@@ -25,27 +31,49 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene.face_pass import face_pass, for_blocks
+
 #: Default most faces per chunk: about the largest limit that keeps sort-first redundancy
 #: (triangles drawn by 16 tiles / by the whole frame, both culled) within 1.10 (docs/explanation/culling.md).
 DEFAULT_FACE_LIMIT = 192
-#: Octree depth of the Morton code (21 bits per axis fill a uint64).
-MAX_DEPTH = 21
+#: Octree depth of the Morton codes: 12 bits per axis, 4096 cells along the root cube's side, so a
+#: code (36 bits) and an item number up to 2**28 share one 64-bit sort key.
+MAX_DEPTH = 12
+#: Items (vertices, faces) numbered in a sort key's low bits.
+ITEM_BITS = 64 - 3 * MAX_DEPTH
+
+
+def _spread_table(bits: int) -> np.ndarray:
+    """(2**bits,) uint64: each value's bits spread three apart (bit b to bit 3b)."""
+    values = np.arange(1 << bits, dtype=np.uint64)
+    spread = np.zeros_like(values)
+    for bit in range(bits):
+        spread |= ((values >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit)
+    return spread
+
+
+_SPREAD = _spread_table(MAX_DEPTH)
 
 
 @dataclass(frozen=True, slots=True)
 class ChunkSplit:
-    """Chunks of one mesh as contiguous ranges of its re-ordered faces.
+    """A mesh's chunks and its new order.
 
-    ``face_order`` (F,) int64: new face k is old face ``face_order[k]``. ``starts``/``ends`` (C,)
-    int64: chunk i is new faces [starts[i], ends[i]). ``bounds`` (C, 2, 3) float32: each chunk's
-    tight [min, max] box over its faces' vertices. ``depths`` (C,) int64: octree level of its cell.
+    ``vertex_order`` (V,) int64: new vertex k is old vertex ``vertex_order[k]``; ``face_order`` (F,)
+    int64: new face k is old face ``face_order[k]``; ``faces`` (F, 3) uint32: the faces in the new
+    order, numbering the vertices in the new order. ``starts``/``ends`` (C,) int64: chunk i is new
+    faces [starts[i], ends[i]). ``bounds`` (C, 2, 3) float32: each chunk's tight [min, max] box over
+    its faces' vertices. ``depths`` (C,) int64: octree level of its cell.
     """
 
+    vertex_order: np.ndarray
     face_order: np.ndarray
+    faces: np.ndarray
     starts: np.ndarray
     ends: np.ndarray
     bounds: np.ndarray
     depths: np.ndarray
+    normals: np.ndarray | None = None
 
     @property
     def chunk_count(self) -> int:
@@ -56,56 +84,67 @@ class ChunkSplit:
         """(C,) int64 faces per chunk."""
         return self.ends - self.starts
 
-    @property
-    def index_starts(self) -> np.ndarray:
-        """(C,) int64 first index of each chunk in the re-ordered triangle index buffer."""
-        return self.starts * 3
-
-    @property
-    def index_ends(self) -> np.ndarray:
-        """(C,) int64 one past each chunk's last index in the re-ordered index buffer."""
-        return self.ends * 3
-
     def reorder(self, faces: np.ndarray) -> np.ndarray:
-        """The (F, 3) index buffer with faces in chunk order (same dtype as ``faces``)."""
+        """The old (F, 3) index buffer with faces in chunk order, still numbering the old vertices
+        (same dtype as ``faces``)."""
         return np.ascontiguousarray(faces[self.face_order])
-
-
-def _spread_bits(values: np.ndarray) -> np.ndarray:
-    """Insert two zero bits after each of the low 21 bits of ``values`` (uint64)."""
-    v = values.astype(np.uint64) & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-    return v
 
 
 def octree_root(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) (3,) float64 of the root cell: the cube with the bounding box's low corner and its
     longest side, over ``positions`` (V, 3)."""
-    lo = np.asarray(positions, dtype=np.float64).min(axis=0)
-    side = float((np.asarray(positions, dtype=np.float64).max(axis=0) - lo).max())
+    points = np.asarray(positions)
+    lo = points.min(axis=0).astype(np.float64)
+    side = float((points.max(axis=0).astype(np.float64) - lo).max())
     return lo, lo + side
 
 
 def morton_codes(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: int = MAX_DEPTH) -> np.ndarray:
-    """(N,) uint64 Morton codes of ``points`` (N, 3) in the box [lo, hi] at octree ``depth``.
+    """(N,) uint64 Morton codes of ``points`` (N, 3) in the box [lo, hi] at octree ``depth`` (≤
+    :data:`MAX_DEPTH`).
 
     Bits 3·(depth−L)…3·(depth−L)+2 of a code name the child taken at level L, so a code shifted
     right by 3·(depth−L) names the level-L cell (each level halves the box along every axis).
     """
-    extent = np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
-    cells = float(1 << depth)
-    grid = np.floor((np.asarray(points, np.float64) - lo) / extent * cells)
-    grid = np.clip(grid, 0, cells - 1).astype(np.uint64)
-    return (_spread_bits(grid[:, 0]) << np.uint64(2)) | (_spread_bits(grid[:, 1]) << np.uint64(1)) | \
-        _spread_bits(grid[:, 2])
+    if not 0 <= depth <= MAX_DEPTH:
+        raise ValueError(f"depth must be in [0, {MAX_DEPTH}], got {depth}")
+    points = np.asarray(points)
+    lo = np.asarray(lo, np.float64)
+    cells = 1 << depth
+    scale = cells / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    codes = np.zeros(len(points), np.uint64)
+    cell = np.empty(len(points), np.float64)
+    index = np.empty(len(points), np.intp)
+    for axis, shift in ((0, 2), (1, 1), (2, 0)):
+        np.subtract(points[:, axis], lo[axis], out=cell)
+        cell *= scale[axis]
+        np.clip(cell, 0, cells - 1, out=cell)
+        index[:] = cell
+        codes |= _SPREAD.take(index) << np.uint64(shift)
+    return codes
+
+
+def sorted_by_code(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(order (N,) int64, sorted codes (N,) uint64) of ``codes`` (N,) uint64 < 2**(64 − item bits):
+    a stable sort by code, by one ``numpy.sort`` of keys holding the code above the item's number."""
+    count = codes.size
+    item_bits = max(1, int(count - 1).bit_length())
+    if count and int(codes.max()) >= 1 << (64 - item_bits):
+        order = np.argsort(codes, kind="stable")
+        return order, codes[order]
+    keys = codes << np.uint64(item_bits)
+    keys |= np.arange(count, dtype=np.uint64)
+    keys.sort()
+    order = (keys & np.uint64((1 << item_bits) - 1)).astype(np.int64)
+    keys >>= np.uint64(item_bits)
+    return order, keys
 
 
 def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEFAULT_FACE_LIMIT,
-                 max_depth: int = MAX_DEPTH) -> ChunkSplit:
+                 max_depth: int = MAX_DEPTH, normals: bool = False) -> ChunkSplit:
     """Split a mesh (``positions`` (V, 3) float32, ``faces`` (F, 3) integer) into octree chunks of
-    at most ``face_limit`` faces each; every face lands in exactly one chunk."""
+    at most ``face_limit`` faces each; every face lands in exactly one chunk. ``normals``: also its
+    smooth vertex normals, in the new vertex order (:mod:`node.scene.face_pass`)."""
     if face_limit < 1:
         raise ValueError(f"face_limit must be ≥ 1, got {face_limit}")
     if not 0 <= max_depth <= MAX_DEPTH:
@@ -114,46 +153,84 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     faces = np.asarray(faces)
     if positions.ndim != 2 or positions.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
         raise ValueError(f"expected positions (V, 3) and faces (F, 3), got {positions.shape} {faces.shape}")
-    face_total = faces.shape[0]
+    face_total, vertex_total = faces.shape[0], positions.shape[0]
     if face_total == 0:
         empty = np.zeros(0, np.int64)
-        return ChunkSplit(empty, empty, empty, np.zeros((0, 2, 3), np.float32), empty)
+        return ChunkSplit(np.arange(vertex_total), empty, np.zeros((0, 3), np.uint32), empty, empty,
+                          np.zeros((0, 2, 3), np.float32), empty)
 
-    corner_a, corner_b, corner_c = (positions[faces[:, k]] for k in range(3))
-    centroids = (corner_a + corner_b + corner_c) / np.float32(3.0)
-    codes = morton_codes(centroids, *octree_root(positions), max_depth)
-    face_order = np.argsort(codes, kind="stable")
-    codes = codes[face_order]
+    vertex_order, vertex_codes = sorted_by_code(morton_codes(positions, *octree_root(positions), max_depth))
+    rank = np.empty(vertex_total, np.uint32)
+    rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
+    renumbered = np.empty((face_total, 3), np.uint32)
+    first_vertex = np.empty(face_total, np.uint64)
 
-    found_starts, found_counts, found_depths = [], [], []
-    active = np.arange(face_total)  # sorted positions of faces whose cell is still over the limit
+    def renumber(first: int, end: int, out: np.ndarray = renumbered, lowest: np.ndarray = first_vertex) -> None:
+        block = rank.take(faces[first:end].astype(np.intp))
+        out[first:end] = block
+        lowest[first:end] = np.minimum(np.minimum(block[:, 0], block[:, 1]), block[:, 2])
+
+    for_blocks(face_total, renumber)
+    del renumber
+    face_order, first_sorted = sorted_by_code(first_vertex)
+    del first_vertex
+    new_faces = np.empty((face_total, 3), np.uint32)
+
+    def reorder(first: int, end: int, old: np.ndarray = renumbered) -> None:
+        new_faces[first:end] = old.take(face_order[first:end], axis=0)
+
+    for_blocks(face_total, reorder)
+    del reorder, renumbered
+    starts, ends, depths = _cells(vertex_codes.take(first_sorted.astype(np.intp)), face_limit, max_depth)
+    swept = face_pass(positions.take(vertex_order, axis=0), new_faces, starts, normals)
+    return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals)
+
+
+def _cells(codes: np.ndarray, face_limit: int, max_depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(starts, ends, depths) (C,) int64 of the adaptive octree's leaves over sorted face ``codes``.
+
+    Two neighbours in code order first fall into different cells at the level of their codes'
+    highest differing bit, so each cell boundary is found once, with its level; then level by level
+    the cells still over the limit are cut at that level's boundaries. Work grows with the faces,
+    not with the faces times the depth."""
+    face_total = codes.size
+    differing = codes[1:] ^ codes[:-1]
+    highest = np.frexp(differing.astype(np.float64))[1] - 1          # highest set bit; -1 where equal
+    boundary_level = np.where(differing > 0, max_depth - highest // 3, max_depth + 1).astype(np.int8)
+    del differing, highest
+    found_starts, found_ends, found_depths = [], [], []
+    open_starts, open_ends = np.zeros(1, np.int64), np.full(1, face_total, np.int64)
     for depth in range(max_depth + 1):
-        prefix = codes[active] >> np.uint64(3 * (max_depth - depth))
-        cell_first = np.flatnonzero(np.concatenate(([True], prefix[1:] != prefix[:-1])))
-        counts = np.diff(np.append(cell_first, active.size))
-        small = counts <= face_limit
-        found_starts.append(active[cell_first[small]])
-        found_counts.append(counts[small])
-        found_depths.append(np.full(int(small.sum()), depth))
-        active = active[np.repeat(~small, counts)]
-        if active.size == 0:
+        if depth > 0:
+            cuts = np.flatnonzero(boundary_level == depth) + 1           # a cell of this level starts there
+            inside = np.searchsorted(open_starts, cuts, side="right") - 1
+            cuts = cuts[(inside >= 0) & (cuts < open_ends[np.maximum(inside, 0)])]
+            bounds = np.union1d(open_starts, cuts)
+            ends = np.append(bounds[1:], 0)
+            last = np.searchsorted(bounds, open_ends, side="left") - 1     # the last piece of each open cell
+            ends[last] = open_ends
+            open_starts, open_ends = bounds, ends
+        small = open_ends - open_starts <= face_limit
+        found_starts.append(open_starts[small])
+        found_ends.append(open_ends[small])
+        found_depths.append(np.full(int(small.sum()), depth, np.int64))
+        open_starts, open_ends = open_starts[~small], open_ends[~small]
+        if open_starts.size == 0:
             break
-    if active.size:  # cells that cannot be split in space: cut them into limit-sized pieces
-        leftover = codes[active]
-        cell_first = np.flatnonzero(np.concatenate(([True], leftover[1:] != leftover[:-1])))
-        rank = np.arange(active.size) - np.repeat(cell_first, np.diff(np.append(cell_first, active.size)))
-        piece_first = np.flatnonzero(rank % face_limit == 0)
-        found_starts.append(active[piece_first])
-        found_counts.append(np.diff(np.append(piece_first, active.size)))
-        found_depths.append(np.full(piece_first.size, max_depth))
-
-    starts = np.concatenate(found_starts).astype(np.int64)
+    if open_starts.size:  # cells that cannot be split in space: cut them into limit-sized pieces
+        lengths = open_ends - open_starts
+        pieces = -(-lengths // face_limit)
+        first = np.repeat(open_starts, pieces) + face_limit * (
+            np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces))
+        found_starts.append(first)
+        found_ends.append(np.minimum(first + face_limit, np.repeat(open_ends, pieces)))
+        found_depths.append(np.full(first.size, max_depth, np.int64))
+    starts = np.concatenate(found_starts)
     order = np.argsort(starts)
-    starts = starts[order]
-    ends = starts + np.concatenate(found_counts).astype(np.int64)[order]
-    depths = np.concatenate(found_depths).astype(np.int64)[order]
-    face_lo = np.minimum(np.minimum(corner_a, corner_b), corner_c)[face_order]
-    face_hi = np.maximum(np.maximum(corner_a, corner_b), corner_c)[face_order]
-    bounds = np.stack([np.minimum.reduceat(face_lo, starts, axis=0),
-                       np.maximum.reduceat(face_hi, starts, axis=0)], axis=1)
-    return ChunkSplit(face_order.astype(np.int64), starts, ends, bounds, depths)
+    return starts[order], np.concatenate(found_ends)[order], np.concatenate(found_depths)[order]
+
+
+def chunk_boxes(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(C, 2, 3) float32 tight [min, max] boxes of the chunks that start at faces ``starts`` (C,) of
+    ``faces`` (F, 3) over ``positions`` (V, 3) float32 (each chunk runs to the next one's start)."""
+    return face_pass(positions, faces, starts, normals=False).boxes

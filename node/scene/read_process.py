@@ -1,63 +1,41 @@
-"""Reading a scene file into what the GL thread uploads (:func:`read_scene`), and a child process that
-does it (:class:`SceneReaderProcess`), so that a node loads a new scene without stalling the tiles
+"""A child process that makes scene files ready to draw (:class:`SceneReaderProcess`, running
+:func:`node.scene.ingest.read_scene`), so that a node loads a new scene without stalling the tiles
 it draws for other sessions.
 
-Parsing and splitting a large scan is seconds of Python and numpy; in a thread of the node it would
-hold the GIL the GL thread needs. The child process has a GIL of its own and runs at a lower CPU
-priority (``nice`` +:data:`READER_NICE`), from its first instruction: a thread of that priority
-starts it, so the child and every thread it starts (numpy's included) inherit it. It sends progress
-and then the read scene back over a pipe. Small files and the built-in scenes are read in the loader
-thread: starting the child (a new interpreter importing numpy and trimesh) costs more than they
-take. Why, measured: docs/explanation/design-notes.md.
+Ingesting a large scan is seconds of Python and numpy; in a thread of the node it would hold the
+GIL the GL thread needs. The child process has a GIL of its own and runs at a lower CPU priority
+(``nice`` +:data:`READER_NICE`), from its first instruction: a thread of that priority starts it,
+so the child and every thread it starts (numpy's included) inherit it. It sends progress and then
+what it made back over a pipe: the scene cache entry's path (the node maps the entry; the geometry
+never crosses the pipe), or, without a cache folder, the scene itself pickled. Small files and the
+built-in scenes are read in the loader thread: starting the child (a new interpreter importing
+numpy and trimesh) costs more than they take. Why, measured: docs/explanation/design-notes.md.
+
+A node that stops kills the child at once: a load nobody needs any more does not go on for the
+seconds a big file takes (an entry half built is never seen: :mod:`node.scene.cache`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import multiprocessing
 import os
 import threading
-from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from node.gl.renderer import pack_geometry
+from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
-from node.scene.loading import ProgressCallback, load_scene
+from node.scene.ingest import read_scene
+from node.scene.loading import ProgressCallback
 from node.scene.mesh import SceneError
-from node.scene.shares import keep_share
 from tessera.wire.messages import ShareSpec
 
 #: Files at least this large (bytes) are read in the child process.
 READ_IN_PROCESS_BYTES = 4 << 20
 #: How much lower the child's CPU priority is than the node's (``nice`` increment).
 READER_NICE = 10
-
-
-@dataclass(frozen=True, eq=False)
-class ReadScene:
-    """A scene read for upload: its data and :func:`node.gl.renderer.pack_geometry` of its batches
-    (interleaved vertices float32 (V, k), indices uint32 (3·T,))."""
-
-    scene: SceneData
-    packed: tuple[np.ndarray, np.ndarray]
-
-
-def read_scene(source: str, spec: str, face_limit: int, share: ShareSpec | None,
-               progress: ProgressCallback) -> ReadScene:
-    """Parse ``source`` (a path or ``builtin:NAME``; the scene is named ``spec``), split into chunks of
-    at most ``face_limit`` faces, keep ``share`` (None: the whole scene), pack. Raises SceneError."""
-    scene = load_scene(source, progress, face_limit)
-    if source != spec:
-        scene = dataclasses.replace(scene, name=spec)
-    if share is not None:
-        progress(0.8, f"keeping share {share.index + 1} of {len(share.weights)}")
-        scene = keep_share(scene, share.weights, share.index)
-    return ReadScene(scene, pack_geometry(scene.batches))
 
 
 def reads_in_process(source: str, threshold_bytes: int = READ_IN_PROCESS_BYTES) -> bool:
@@ -78,12 +56,13 @@ class SceneReaderProcess:
         self._process: multiprocessing.process.BaseProcess | None = None
         self._connection: Connection | None = None
 
-    def read(self, source: str, spec: str, face_limit: int, share: ShareSpec | None,
-             progress: ProgressCallback) -> ReadScene:
-        """:func:`read_scene` in the child; its progress reaches ``progress`` here. Raises its SceneError."""
+    def read(self, source: str, spec: str, face_limit: int, share: ShareSpec | None, progress: ProgressCallback,
+             folder: CacheFolder | None = None, sha256: str | None = None) -> SceneData | Path:
+        """:func:`node.scene.ingest.read_scene` in the child; its progress reaches ``progress`` here.
+        Raises its SceneError."""
         connection = self._started()
         try:
-            connection.send((source, spec, face_limit, share))
+            connection.send((source, spec, face_limit, share, folder, sha256))
             while True:
                 kind, *payload = connection.recv()
                 if kind == "progress":
@@ -91,7 +70,7 @@ class SceneReaderProcess:
                 elif kind == "error":
                     raise SceneError(payload[0])
                 else:
-                    result: ReadScene = payload[0]
+                    result: SceneData | Path = payload[0]
                     return result
         except (EOFError, OSError):
             code = self._stop()
@@ -99,7 +78,10 @@ class SceneReaderProcess:
                              "while reading it; out of memory?") from None
 
     def close(self) -> None:
-        """Stop the child (a read under way is lost)."""
+        """Kill the child at once (a read under way fails with SceneError in its caller's thread)."""
+        process = self._process
+        if process is not None and process.is_alive():
+            process.kill()
         self._stop()
 
     def _started(self) -> Connection:
@@ -151,12 +133,12 @@ def _serve(connection: Connection) -> None:
 
     while True:
         try:
-            source, spec, face_limit, share = connection.recv()
+            source, spec, face_limit, share, folder, sha256 = connection.recv()
         except (EOFError, OSError):
             return
         answer: tuple[Any, ...]
         try:
-            answer = ("scene", read_scene(source, spec, face_limit, share, report))
+            answer = ("scene", read_scene(source, spec, face_limit, share, report, folder, sha256))
         except SceneError as exc:
             answer = ("error", str(exc))
         except Exception as exc:   # whatever breaks a read goes back as its reason

@@ -220,12 +220,17 @@ class NodeHello(Message):
 
 
 class SceneProgress(Message):
-    """Loading scene ``scene``: ``fraction`` done (0…1) and what the node is doing."""
+    """Loading scene ``scene``: ``fraction`` done (0…1) and what the node is doing (the stage, with
+    bytes read or triangles); ``rss_mb``: the node's resident memory now."""
 
     kind = "scene_progress"
     scene: Text
     fraction: Unit
     message: Text
+    rss_mb: NonNegative | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return self._without_none(super().to_json(), "rss_mb")
 
 
 class SceneGroups(BaseModel):
@@ -296,10 +301,15 @@ class SceneReady(Message):
     #: Sort-last: the data partition version whose share the node loaded (``triangles`` are the
     #: share's, ``bounds`` the whole scene's).
     share: Annotated[StrictInt, Field(ge=1)] | None = None
+    #: Issue 31: MB the node holds for this scene (its GPU buffers and what it keeps in memory), MB
+    #: of every scene it holds (counted against its ``--scene-memory-mb``), its resident memory.
+    scene_mb: NonNegative | None = None
+    held_mb: NonNegative | None = None
+    rss_mb: NonNegative | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Without ``share`` when the node holds the whole scene, without ``scene`` when None."""
-        return self._without_none(super().to_json(), "scene", "share")
+        """Without ``share`` when the node holds the whole scene, without the other optional fields when None."""
+        return self._without_none(super().to_json(), "scene", "share", "scene_mb", "held_mb", "rss_mb")
 
 
 class SceneError(Message):
@@ -318,6 +328,11 @@ class TileSent(Message):
     tile: Int
     send_ms: NonNegative
     stats: dict[CounterName, Counter] = Field(default_factory=dict)
+    #: The node's resident memory (MB) when it sent the tile (issue 31); None from older nodes.
+    rss_mb: NonNegative | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return self._without_none(super().to_json(), "rss_mb")
 
 
 class RenderError(Message):

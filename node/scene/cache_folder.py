@@ -1,0 +1,189 @@
+"""The scene cache folder (issue 31, ``--scene-cache-dir``): entries named by the content they were
+built from, built once by whichever process needs one first, kept within a size bound.
+
+- **By content.** An entry is named ``<sha256>-f<face limit>-v<format>`` (:mod:`node.scene.cache`), the
+  SHA-256 of the scene file's bytes, as the coordinator names uploads: the same file in two
+  sessions, after a restart or on a node that joins is the same entry. So that a file is not hashed
+  again on every open, the digest of a path is remembered with the file's size, modification time and
+  inode (``paths/``), as ``git`` remembers its index.
+- **Built once.** A process that finds no entry takes the entry's lock (``<name>.lock``, ``flock``),
+  looks again, and builds it only if still absent; the others wait on the lock and then open what it
+  built. A lock dies with its process, so a builder killed midway leaves its temporary directory
+  (removed by the next builder) and no entry.
+- **Bounded.** After each build, the least recently opened entries and fetched files are deleted
+  until the folder is within ``limit_bytes`` (the one just built stays). An entry being built (its
+  lock held) is not deleted; a process that mapped an entry keeps its pages when it is.
+
+To clear the cache, delete the folder (or its contents) while no node runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from node.scene.cache import CACHE_FORMAT, TABLE, CacheError, Progress, entry_info, read_table, remove_entry
+
+#: Bytes hashed at a time.
+HASH_BLOCK = 8 << 20
+#: Seconds between two looks at a lock another process holds.
+LOCK_POLL_S = 0.1
+#: The folder's default bound, in MiB (``--scene-cache-mb``).
+DEFAULT_CACHE_MB = 20480
+
+
+def entry_name(sha256: str, face_limit: int) -> str:
+    """The name of the entry of the file whose SHA-256 is ``sha256``, split with ``face_limit``."""
+    return f"{sha256}-f{face_limit}-v{CACHE_FORMAT}"
+
+
+def share_name(whole: str, weights: tuple[float, ...], index: int) -> str:
+    """The name of share ``index`` over ``weights`` of entry ``whole``."""
+    digest = hashlib.sha256(json.dumps([float(w) for w in weights]).encode()).hexdigest()[:12]
+    return f"{whole}-s{index}of{len(weights)}-{digest}"
+
+
+@dataclass(frozen=True, slots=True)
+class CacheFolder:
+    """The cache folder ``root``, kept within ``limit_bytes``."""
+
+    root: Path
+    limit_bytes: int = DEFAULT_CACHE_MB << 20
+
+    def content_hash(self, path: Path, progress: Progress) -> str:
+        """The SHA-256 of the file at ``path``: remembered while its size, modification time and inode
+        stay the same, else read and hashed (progress reported by bytes)."""
+        stat = path.stat()
+        key = hashlib.sha1(str(path.resolve()).encode()).hexdigest()
+        remembered = self.root / "paths" / f"{key}.json"
+        signature = [str(path.resolve()), stat.st_size, stat.st_mtime_ns, stat.st_ino, stat.st_dev]
+        with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+            known = json.loads(remembered.read_text())
+            if known["signature"] == signature:
+                return str(known["sha256"])
+        digest, done = hashlib.sha256(), 0
+        with path.open("rb") as file:
+            while block := file.read(HASH_BLOCK):
+                digest.update(block)
+                done += len(block)
+                progress(0.1 * done / max(stat.st_size, 1), f"hashing {path.name}: {done >> 20} of "
+                                                            f"{stat.st_size >> 20} MB")
+        sha256 = digest.hexdigest()
+        with contextlib.suppress(OSError):
+            self._write_atomically(remembered, json.dumps({"signature": signature, "sha256": sha256}))
+        return sha256
+
+    def _write_atomically(self, path: Path, text: str) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f".{path.name}.{os.getpid()}.part")
+        partial.write_text(text)
+        os.replace(partial, path)
+
+    def entry(self, name: str) -> Path:
+        return self.root / name
+
+    def ensure(self, name: str, build: Callable[[Path], int], progress: Progress) -> Path:
+        """The entry ``name``: used as it is when there, else built by ``build(directory)`` (which
+        writes it atomically and returns its bytes) under the entry's lock, once among the processes
+        sharing the folder; then the folder is trimmed to its bound. An entry that fails to read
+        (another format, torn) is removed and built again."""
+        directory = self.entry(name)
+        if self._usable(directory):
+            self._touch(directory)
+            return directory
+        self.root.mkdir(parents=True, exist_ok=True)
+        with self._locked(name, progress):
+            if self._usable(directory):
+                self._touch(directory)
+                return directory
+            remove_entry(directory)
+            for stale in self.root.glob(f".{name}.*.tmp"):
+                shutil.rmtree(stale, ignore_errors=True)
+            build(directory)
+        self.trim(keep=name)
+        return directory
+
+    def _usable(self, directory: Path) -> bool:
+        try:
+            read_table(directory)
+        except CacheError:
+            return False
+        return True
+
+    def _touch(self, directory: Path) -> None:
+        with contextlib.suppress(OSError):
+            os.utime(directory / TABLE)
+
+    @contextlib.contextmanager
+    def _locked(self, name: str, progress: Progress) -> Iterator[None]:
+        """Hold the lock of entry ``name``, waiting (and saying so) while another process holds it."""
+        with (self.root / f"{name}.lock").open("a") as lock:
+            waited = False
+            while True:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if not waited:
+                        progress(0.1, "waiting for another process building the scene cache")
+                        waited = True
+                    time.sleep(LOCK_POLL_S)
+            try:
+                yield
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+
+    def held(self, name: str) -> bool:
+        """Whether some process holds the lock of entry ``name`` (building or using it)."""
+        path = self.root / f"{name}.lock"
+        if not path.exists():
+            return False
+        with path.open("a") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(lock, fcntl.LOCK_UN)
+            return False
+
+    def usage(self) -> list[tuple[float, int, Path]]:
+        """(last used, bytes, path) of every entry and fetched file in the folder."""
+        items = []
+        for path in self.root.iterdir() if self.root.is_dir() else ():
+            if path.name.startswith(".") or path.name == "paths" or path.suffix == ".lock":
+                continue
+            with contextlib.suppress(OSError, CacheError):
+                if path.is_dir():
+                    items.append(((path / TABLE).stat().st_mtime, entry_info(path).bytes, path))
+                else:
+                    stat = path.stat()
+                    items.append((max(stat.st_mtime, stat.st_atime), stat.st_size, path))
+        return items
+
+    def trim(self, keep: str | None = None) -> list[Path]:
+        """Delete the least recently used entries and files until the folder is within its bound
+        (never ``keep``, nor an entry whose lock is held); returns what was deleted."""
+        items = sorted(self.usage())
+        total = sum(size for _, size, _ in items)
+        removed = []
+        for _, size, path in items:
+            if total <= self.limit_bytes:
+                break
+            if path.name == keep or self.held(path.name):
+                continue
+            if path.is_dir():
+                remove_entry(path)
+            else:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            total -= size
+            removed.append(path)
+        return removed

@@ -1,0 +1,101 @@
+"""A scene file made ready to draw once (issue 31): read, split into chunks, normals computed,
+packed and written as a scene cache entry (:mod:`node.scene.cache`) in the cache folder
+(:mod:`node.scene.cache_folder`), then opened by mapping it. Sort-last shares are entries of their
+own, read from the whole scene's entry. Built-in scenes, and files when no cache folder is given, are
+read into memory as before. No GL here.
+
+The entry is checked before it is handed on (every array's CRC-32; a share's check covers the
+share): one that fails is removed and built again, so a torn or corrupt cache is never drawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+from node.scene.cache import CacheError, Progress, open_entry, remove_entry, write_entry, write_share
+from node.scene.cache_folder import CacheFolder, entry_name, share_name
+from node.scene.data import SceneData
+from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
+from node.scene.mesh import SceneError
+from node.scene.packing import pack
+from node.scene.shares import keep_share
+from tessera.wire.messages import ShareSpec
+
+#: How many times an entry that fails its check is built again before the load fails.
+REBUILDS = 1
+
+
+def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress) -> Callable[[Path], int]:
+    """Read ``source`` and write its entry; the builder :meth:`CacheFolder.ensure` calls. Returns bytes."""
+    def build(directory: Path) -> int:
+        scene = load_scene(str(source), progress, face_limit)
+        progress(0.8, f"writing the scene cache: {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
+        return write_entry(directory, scene, pack(scene.batches),
+                           {"sha256": sha256, "bytes": source.stat().st_size, "name": source.name})
+    return build
+
+
+def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder: CacheFolder, progress: Progress,
+                 sha256: str | None = None) -> Path:
+    """The checked entry of ``source`` (its ``share`` only, when given) in ``folder``, built first if
+    need be; ``sha256``: the file's digest when known. Raises SceneError."""
+    digest = sha256 or folder.content_hash(source, progress)
+    for attempt in range(REBUILDS + 1):
+        whole = folder.ensure(entry_name(digest, face_limit), build_entry(source, face_limit, digest, progress),
+                              progress)
+        entry = whole if share is None else folder.ensure(
+            share_name(whole.name, share.weights, share.index),
+            _share_builder(whole, share, {"sha256": digest, "name": source.name}), progress)
+        try:
+            progress(0.9, "checking the scene cache")
+            open_entry(entry, source.name, verify=True)
+            return entry
+        except CacheError as exc:
+            remove_entry(entry)
+            if entry != whole:
+                remove_entry(whole)
+            if attempt == REBUILDS:
+                raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
+            progress(0.1, f"the scene cache failed its check ({exc}); building it again")
+    raise AssertionError("unreachable")
+
+
+def _share_builder(whole: Path, share: ShareSpec, source: dict[str, str]) -> Callable[[Path], int]:
+    def build(directory: Path) -> int:
+        try:
+            scene = open_entry(whole, source["name"], verify=False)
+            return write_share(directory, scene, share.weights, share.index, source)
+        except CacheError as exc:
+            raise SceneError(f"{source['name']}: {exc}") from None
+    return build
+
+
+def read_scene(source: str, spec: str, face_limit: int, share: ShareSpec | None, progress: Progress,
+               folder: CacheFolder | None = None, sha256: str | None = None) -> SceneData | Path:
+    """``source`` (a path or ``builtin:NAME``; the scene is named ``spec``) made ready: the entry to
+    open (:func:`open_cached`) for a file when ``folder`` is given, else the scene read into memory
+    (only ``share`` kept). Raises SceneError."""
+    if folder is not None and not source.startswith(BUILTIN_PREFIX):
+        path = Path(source)
+        if not path.is_file() or path.suffix.lower() not in SUPPORTED_SUFFIXES:
+            load_scene(source, progress, face_limit)   # raises SceneError with the usual reason
+        return cached_scene(path, face_limit, share, folder, progress, sha256)
+    scene = load_scene(source, progress, face_limit)
+    if source != spec:
+        scene = dataclasses.replace(scene, name=spec)
+    if share is not None:
+        progress(0.8, f"keeping share {share.index + 1} of {len(share.weights)}")
+        scene = keep_share(scene, share.weights, share.index)
+    return scene
+
+
+def open_cached(read: SceneData | Path, spec: str) -> SceneData:
+    """The scene :func:`read_scene` made ready: an entry opened (checked already) and named ``spec``."""
+    if isinstance(read, SceneData):
+        return read
+    try:
+        return open_entry(read, spec, verify=False)
+    except CacheError as exc:
+        raise SceneError(f"{spec}: {exc}") from None

@@ -1,0 +1,233 @@
+"""The scene cache (issue 31, node/scene/cache.py, cache_folder.py, ingest.py): an entry opens as the
+scene read directly (arrays, chunks, materials, objects, animations); a corrupt, truncated or
+other-version entry is built again, never drawn; processes sharing a folder build an entry once;
+a builder killed midway leaves no entry; the folder keeps to its bound; the digest of a path is
+remembered until the file changes; a share reads only its part."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from node.scene.cache import CACHE_FORMAT, TABLE, CacheError, entry_info, open_entry, share_chunks
+from node.scene.cache_folder import CacheFolder, entry_name
+from node.scene.data import SceneData
+from node.scene.ingest import cached_scene, open_cached, read_scene
+from node.scene.loading import load_scene
+from node.scene.mesh import SceneError
+from tessera.wire.messages import ShareSpec
+from tests.conftest import scene_path, seconds
+
+BUNNY = "bunny/bun_zipper.ply"
+LUCY = "large_scan/stanford_lucy_240k.ply"
+TRUCK = "gltf_small/CesiumMilkTruck/CesiumMilkTruck.gltf"
+ENGINE = "gltf_small/2CylinderEngine.glb"
+DIORAMA = "multi_object/sd_macross_city_diorama.glb"
+
+
+def no_progress(fraction: float, message: str) -> None:
+    pass
+
+
+def cached(path: Path, folder: CacheFolder, share: ShareSpec | None = None) -> SceneData:
+    entry = read_scene(str(path), str(path), 192, share, no_progress, folder)
+    assert isinstance(entry, Path)
+    return open_cached(entry, str(path))
+
+
+def assert_same_scene(cached_scene: SceneData, direct: SceneData) -> None:
+    assert cached_scene.triangle_count == direct.triangle_count
+    assert np.array_equal(cached_scene.bounds, direct.bounds)
+    for name in ("batch", "index_bounds", "batch_bounds", "boxes"):
+        assert np.array_equal(getattr(cached_scene.chunks, name), getattr(direct.chunks, name)), name
+    assert cached_scene.objects.to_json() == direct.objects.to_json()
+    assert [a.keyframes_json() for a in cached_scene.animations] == [a.keyframes_json() for a in direct.animations]
+    assert len(cached_scene.batches) == len(direct.batches)
+    for a, b in zip(cached_scene.batches, direct.batches, strict=True):
+        # trimesh names a glTF's graph nodes anew at each read: the mesh's part of the name is what stays
+        assert a.name.split("/")[-1] == b.name.split("/")[-1]
+        assert (a.owner, a.alpha_mode, a.alpha_cutoff) == (b.owner, b.alpha_mode, b.alpha_cutoff)
+        assert np.array_equal(a.base_color, b.base_color)
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces)
+        assert b.normals is not None and np.array_equal(a.normals, b.normals.astype(np.float16))
+        for attribute in ("uvs", "colors", "tangents", "uvs1", "texture"):
+            mine, theirs = getattr(a, attribute), getattr(b, attribute)
+            assert (mine is None) == (theirs is None), attribute
+            assert mine is None or np.array_equal(mine, theirs), attribute
+        for key in ("metallic", "roughness", "emissive", "normal_scale", "occlusion_strength", "uv_transforms"):
+            assert getattr(a.material, key) == getattr(b.material, key), key
+        for mine, theirs in zip(a.material.textures(), b.material.textures(), strict=True):
+            assert (mine is None) == (theirs is None) and (mine is None or np.array_equal(mine, theirs))
+
+
+@pytest.mark.parametrize("relative", [BUNNY, TRUCK, ENGINE, DIORAMA])
+def test_an_entry_opens_as_the_scene_read_directly(tmp_path, relative):
+    path = scene_path(relative)
+    folder = CacheFolder(tmp_path / "cache")
+    first = cached(path, folder)
+    assert_same_scene(first, load_scene(str(path)))
+    assert first.geometry is not None and first.nbytes == sum(
+        t.nbytes for t in {id(t): t for b in first.batches for t in (b.texture, *b.material.textures())
+                           if t is not None}.values()), "only textures are held in memory; geometry is mapped"
+    again = cached(path, folder)
+    assert_same_scene(again, first)
+
+
+def corrupt_vertices(entry: Path) -> None:
+    path = entry / "vertices.npy"
+    data = bytearray(path.read_bytes())
+    data[-100] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def truncate_indices(entry: Path) -> None:
+    path = entry / "indices.npy"
+    path.write_bytes(path.read_bytes()[:-12])
+
+
+def other_format(entry: Path) -> None:
+    table = json.loads((entry / TABLE).read_text())
+    table["format"] = CACHE_FORMAT + 1
+    (entry / TABLE).write_text(json.dumps(table))
+
+
+def garbage_table(entry: Path) -> None:
+    (entry / TABLE).write_text("{not json")
+
+
+@pytest.mark.parametrize("damage", [corrupt_vertices, truncate_indices, other_format, garbage_table])
+def test_a_damaged_entry_is_built_again_and_never_opened(tmp_path, damage):
+    path = scene_path(BUNNY)
+    folder = CacheFolder(tmp_path / "cache")
+    first = read_scene(str(path), "bunny", 192, None, no_progress, folder)
+    assert isinstance(first, Path)
+    damage(first)
+    with pytest.raises(CacheError):
+        open_entry(first, "bunny", verify=True)
+    messages: list[str] = []
+    again = read_scene(str(path), "bunny", 192, None, lambda f, m: messages.append(m), folder)
+    assert again == first
+    assert any(m.startswith("read") for m in messages), "the entry was built again"
+    assert_same_scene(open_cached(again, "bunny"), load_scene(str(path)))
+
+
+def build_in_child(path: str, root: str, log: str) -> None:
+    """Build (or wait for, then open) the entry of ``path``; write down whether this process read the file."""
+    messages: list[str] = []
+    entry = read_scene(path, path, 192, None, lambda f, m: messages.append(m), CacheFolder(Path(root)))
+    Path(log).write_text(json.dumps({"read": any(m.startswith("read") for m in messages), "entry": str(entry),
+                                     "waited": any("waiting for another process" in m for m in messages)}))
+
+
+def test_processes_sharing_a_folder_build_an_entry_once(tmp_path):
+    context = multiprocessing.get_context("spawn")
+    logs = [tmp_path / f"log{n}.json" for n in range(3)]
+    children = [context.Process(target=build_in_child, args=(str(scene_path(LUCY)), str(tmp_path / "cache"), str(log)))
+                for log in logs]
+    for child in children:
+        child.start()
+    for child in children:
+        child.join(seconds(120))
+        assert child.exitcode == 0
+    results = [json.loads(log.read_text()) for log in logs]
+    assert sum(r["read"] for r in results) == 1, results
+    assert len({r["entry"] for r in results}) == 1
+    entries = [p for p in (tmp_path / "cache").iterdir() if p.is_dir() and (p / TABLE).exists()]
+    assert len(entries) == 1
+
+
+def build_and_hang(path: str, root: str) -> None:
+    """Build the entry of ``path`` but stop for good before renaming it into place."""
+    import node.scene.cache as cache
+
+    def hang(*args: object) -> None:
+        time.sleep(3600)
+
+    cache.os.rename = hang  # type: ignore[assignment]
+    read_scene(path, path, 192, None, no_progress, CacheFolder(Path(root)))
+
+
+def test_a_builder_killed_midway_leaves_no_entry_and_the_next_builds_it(tmp_path):
+    root = tmp_path / "cache"
+    child = multiprocessing.get_context("spawn").Process(target=build_and_hang, args=(str(scene_path(BUNNY)), str(root)))
+    child.start()
+    deadline = time.monotonic() + seconds(60)
+    while not list(root.glob(".*.tmp/" + TABLE)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert list(root.glob(".*.tmp/" + TABLE)), "the builder wrote its whole entry, not yet renamed"
+    child.kill()
+    child.join()
+    assert not [p for p in root.iterdir() if not p.name.startswith(".") and (p / TABLE).exists()], \
+        "no entry without its rename"
+    scene = cached(scene_path(BUNNY), CacheFolder(root))
+    assert scene.triangle_count == 69_451
+    assert not list(root.glob(".*.tmp")), "the next builder removed the killed one's temporary directory"
+
+
+def test_the_folder_keeps_to_its_bound_dropping_the_least_recently_used(tmp_path):
+    root = tmp_path / "cache"
+    sizes = {}
+    for relative in (BUNNY, LUCY):
+        path = read_scene(str(scene_path(relative)), relative, 192, None, no_progress, CacheFolder(root))
+        assert isinstance(path, Path)
+        sizes[relative] = entry_info(path).bytes
+        os.utime(path / TABLE, (time.time() - 100, time.time() - 100))   # the oldest use
+    folder = CacheFolder(root, limit_bytes=sizes[BUNNY] + sizes[LUCY] - 1)
+    cached(scene_path(BUNNY), folder)       # used again: now the newest
+    kept = read_scene(str(scene_path(DIORAMA)), DIORAMA, 192, None, no_progress, folder)
+    assert isinstance(kept, Path)
+    entries = {p.name for p in root.iterdir() if p.is_dir() and (p / TABLE).exists()}
+    assert kept.name in entries and len(entries) < 3
+    assert entry_name(folder.content_hash(scene_path(LUCY), no_progress), 192) not in entries, "lucy was used least"
+
+
+def test_a_paths_digest_is_remembered_until_the_file_changes(tmp_path):
+    copy = tmp_path / "model.ply"
+    copy.write_bytes(scene_path(BUNNY).read_bytes())
+    folder = CacheFolder(tmp_path / "cache")
+    hashed: list[str] = []
+    first = folder.content_hash(copy, lambda f, m: hashed.append(m))
+    assert hashed and folder.content_hash(copy, lambda f, m: hashed.append("again")) == first
+    assert "again" not in hashed
+    copy.write_bytes(scene_path(BUNNY).read_bytes() + b"\n")
+    assert folder.content_hash(copy, no_progress) != first
+
+
+def test_a_share_is_the_chunks_of_its_part_and_reads_only_them(tmp_path):
+    path = scene_path(LUCY)
+    folder = CacheFolder(tmp_path / "cache")
+    whole = cached(path, folder)
+    weights = (1.0, 2.0, 1.0)
+    parts = [cached(path, folder, ShareSpec(version=1, index=index, weights=weights)) for index in range(3)]
+    assert sum(p.triangle_count for p in parts) == whole.triangle_count
+    for index, part in enumerate(parts):
+        keep = share_chunks(whole, weights, index)
+        assert part.chunks.chunk_count == int(keep.sum())
+        assert np.array_equal(part.chunks.boxes, whole.chunks.boxes[keep])
+        assert np.array_equal(part.chunks.face_counts, whole.chunks.face_counts[keep])
+        assert np.array_equal(part.bounds, whole.bounds) and part.objects.to_json() == whole.objects.to_json()
+        (mine,), (theirs,) = part.batches, whole.batches
+        corners = mine.positions[mine.faces]
+        first = np.flatnonzero(keep)
+        expected = np.concatenate([theirs.faces[whole.chunks.index_bounds[c] // 3:whole.chunks.index_bounds[c + 1] // 3]
+                                   for c in first])
+        assert np.array_equal(corners, theirs.positions[expected]), "the share's triangles are the whole's"
+        assert mine.vertex_count == np.unique(expected).size, "only the vertices its faces use"
+    assert parts[1].triangle_count > parts[0].triangle_count
+
+
+def test_a_missing_or_broken_file_gives_its_one_line_reason_and_no_entry(tmp_path):
+    folder = CacheFolder(tmp_path / "cache")
+    broken = tmp_path / "broken.ply"
+    broken.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nend_header\n")
+    for path, reason in ((tmp_path / "absent.ply", "no such file"), (broken, "corrupt or unreadable PLY")):
+        with pytest.raises(SceneError, match=reason):
+            cached_scene(path, 192, None, folder, no_progress) if path.exists() else \
+                read_scene(str(path), str(path), 192, None, no_progress, folder)
+    assert not [p for p in (tmp_path / "cache").iterdir() if p.is_dir() and (p / TABLE).exists()]
