@@ -127,8 +127,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     for row in rows:
         rate = row["triangles"] / row["cold"]["seconds"] / 1e6 if "cold" in row else float("nan")
         ratio = row["baseline"]["seconds"] / row["cold"]["seconds"] if "baseline" in row and "cold" in row else None
-        lines.append(f"{row['input'][:40]:40s} {row['triangles'] / 1e6:6.2f} {row['mb']:6.0f} {seconds(row, 'cold'):>7s} "
-                     f"{rate:7.1f} {seconds(row, 'warm'):>7s} {seconds(row, 'trimesh'):>8s} "
+        lines.append(f"{row['input'][:40]:40s} {row['triangles'] / 1e6:6.2f} {row['mb']:6.0f} "
+                     f"{seconds(row, 'cold'):>7s} {rate:7.1f} {seconds(row, 'warm'):>7s} {seconds(row, 'trimesh'):>8s} "
                      f"{seconds(row, 'baseline'):>9s} {'-' if ratio is None else f'{ratio:.1f}x':>9s} "
                      f"{seconds(row, 'pyvista'):>8s}   "
                      + "/".join(rss(row, kind) for kind in ("cold", "warm", "trimesh", "baseline", "pyvista")))

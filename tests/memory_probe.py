@@ -42,7 +42,8 @@ async def probe(spec: str, cache: Path, share: ShareSpec | None) -> dict[str, fl
         geometry = loaded.scene.geometry
         return {"before_mb": before, "loaded_mb": loaded_mb, "loading_peak_mb": loading_peak_mb,
                 "drawn_mb": resident_mb(), "peak_mb": peak_mb(),
-                "gpu_mb": 0.0 if geometry is None else geometry.nbytes / (1 << 20), "scene_mb": loaded.nbytes / (1 << 20),
+                "gpu_mb": 0.0 if geometry is None else geometry.nbytes / (1 << 20),
+                "scene_mb": loaded.nbytes / (1 << 20),
                 "triangles": loaded.scene.triangle_count}
     finally:
         await asyncio.to_thread(worker.close)

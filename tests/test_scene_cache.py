@@ -155,7 +155,8 @@ def build_and_hang(path: str, root: str) -> None:
 
 def test_a_builder_killed_midway_leaves_no_entry_and_the_next_builds_it(tmp_path):
     root = tmp_path / "cache"
-    child = multiprocessing.get_context("spawn").Process(target=build_and_hang, args=(str(scene_path(BUNNY)), str(root)))
+    child = multiprocessing.get_context("spawn").Process(target=build_and_hang,
+                                                         args=(str(scene_path(BUNNY)), str(root)))
     child.start()
     deadline = time.monotonic() + seconds(60)
     while not list(root.glob(".*.tmp/" + TABLE)) and time.monotonic() < deadline:

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from node.gl.worker import GLWorker
-from node.scene.mesh import SceneError
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.ingest import open_cached, read_scene
+from node.scene.mesh import SceneError
 from node.scene.read_process import READER_NICE, SceneReaderProcess, reads_in_process
 from tessera.geometry import Rect, default_camera
 from tessera.wire.messages import LoadScene, ShareSpec

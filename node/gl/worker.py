@@ -40,7 +40,6 @@ from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
 from node.scene.mesh import SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.scene.packing import gpu_bytes
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
@@ -172,7 +171,7 @@ class GLWorker:
         known = request.sha256 if source != spec else None
         read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
         scene = open_cached(read(source, spec, self.face_limit, share, progress, self.cache, known), spec)
-        needed, budget = gpu_bytes(scene) + scene.nbytes, self._scenes.budget_bytes
+        needed, budget = scene.gpu_bytes + scene.nbytes, self._scenes.budget_bytes
         if needed > budget:
             mode = "serve it in sort-last mode (coordinator --mode sort-last), where each node holds a share" \
                 if share is None else "add nodes, so that each share is smaller"

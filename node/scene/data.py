@@ -14,7 +14,7 @@ import numpy as np
 from node.scene.chunks import PrimitiveGroups, SceneChunks, split_batches
 from node.scene.mesh import MeshBatch, SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.scene.packing import PackedGeometry
+from node.scene.packing import PackedGeometry, VertexLayout
 from node.scene.pages import is_mapped
 from tessera.scene.animation import Animation, sample_animations
 from tessera.scene.graph import ObjectGraph, SceneObject
@@ -79,6 +79,15 @@ class SceneData:
     @property
     def vertex_count(self) -> int:
         return sum(b.vertex_count for b in self.batches)
+
+    @property
+    def gpu_bytes(self) -> int:
+        """Bytes of its vertex and index buffers as :func:`node.scene.packing.pack` lays them out
+        (what the GPU holds of it; on llvmpipe, host memory)."""
+        if self.geometry is not None:
+            return self.geometry.nbytes
+        stride = VertexLayout.of(self.batches).stride
+        return sum(b.vertex_count for b in self.batches) * stride + 12 * self.triangle_count
 
     @property
     def nbytes(self) -> int:

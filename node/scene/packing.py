@@ -13,14 +13,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from node.scene.mesh import MeshBatch
-
-if TYPE_CHECKING:
-    from node.scene.data import SceneData
 
 #: Bytes of indices converted at a time when batches are made one buffer.
 INDEX_BLOCK = 1 << 22
@@ -127,14 +123,6 @@ def pack(batches: Sequence[MeshBatch]) -> PackedGeometry:
         np.zeros(0, np.uint32)
     layout = VertexLayout.of(batches)
     return PackedGeometry(layout, pack_vertices(batches, layout), indices, np.concatenate(([0], np.cumsum(counts))))
-
-
-def gpu_bytes(scene: SceneData) -> int:
-    """Bytes of ``scene``'s vertex and index buffers as :func:`pack` lays them (what the GPU holds)."""
-    if scene.geometry is not None:
-        return scene.geometry.nbytes
-    layout = VertexLayout.of(scene.batches)
-    return sum(b.vertex_count for b in scene.batches) * layout.stride + 12 * scene.triangle_count
 
 
 def gpu_indices(indices: np.ndarray, index_bounds: np.ndarray, vertex_bounds: np.ndarray, first: int, end: int,
