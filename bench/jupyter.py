@@ -83,11 +83,13 @@ def write_notebook(path: Path, cells: list[str]) -> Path:
 
 #: The notebook view's state (``el.tesseraView`` of its output element), or null before it renders.
 VIEW_STATE_JS = """() => {
+  const median = (values) => values && values.length ? [...values].sort((a, b) => a - b)[values.length >> 1] : null;
   const box = document.querySelector(".tessera-view");
   const state = box && box.parentElement.tesseraView;
   return state ? {framesDrawn: state.framesDrawn, frameId: state.frameId, still: state.still, size: state.size,
                   camera: state.camera, inputLatency: state.inputLatency, error: state.error,
-                  transport: state.transport} : null;
+                  transport: state.transport, inputHopMs: state.inputHopMs,
+                  frameHopMs: median(state.frameHops), relayWaitMs: median(state.relayWaits)} : null;
 }"""
 
 

@@ -11,7 +11,8 @@ Each page measures its own input → frame latency with the viewer's tracker (we
 a camera input sent to the first frame drawn that answers it), p50 and p90 over the newest 60
 answers, and the mean interval between answering frames. The three take turns, the order rotating
 every round; the table gives each one's median over the rounds, and the comm's and the direct
-socket's p50 over the page's.
+socket's p50 over the page's. The comm's own cost is measured apart, on this machine's clock: a
+frame's time from the kernel's relay to the page, and an input's from the page to the kernel.
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size", f"{width}x{height}",
          "--allowed-origins", f"http://127.0.0.1:{lab_port}"], timeout=120.0)
     rounds: dict[str, list[dict[str, float]]] = {name: [] for name in TRANSPORTS}
+    hops: list[dict[str, float]] = []
     try:
         with tempfile.TemporaryDirectory(prefix="tessera-bench-notebook-") as folder, contextlib.ExitStack() as stack:
             root = Path(folder)
@@ -108,14 +110,21 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                     drag(page, canvas, args.drag_s)
                     time.sleep(1.0)
                     rounds[name].append(page.evaluate(latency_js))
+                    if name == "comm":
+                        view = notebook.evaluate(VIEW_STATE_JS)
+                        hops.append({"frame_ms": view["frameHopMs"], "input_ms": view["inputHopMs"],
+                                     "relay_wait_ms": view["relayWaitMs"]})
             sizes = {"comm": notebook.evaluate(VIEW_STATE_JS)["size"], "page": viewer.evaluate("window.tessera.size")}
     finally:
         coordinator.stop()
     figures = {name: {key: statistics.median(r[key] for r in rounds[name])
                       for key in ("p50_ms", "p90_ms", "interval_ms", "samples")} for name in TRANSPORTS}
+    comm_hops = {key: statistics.median(h[key] for h in hops if h[key] is not None)
+                 for key in ("frame_ms", "input_ms", "relay_wait_ms")}
     return {"benchmark": "notebook", "scene": args.scene, "size": [width, height], "nodes": args.nodes,
             "rounds": args.rounds, "drag_s": args.drag_s, "frame_sizes": sizes, "transports": figures,
-            "per_round": rounds, "comm_over_page_p50": figures["comm"]["p50_ms"] / figures["page"]["p50_ms"],
+            "per_round": rounds, "comm_hops": comm_hops,
+            "comm_over_page_p50": figures["comm"]["p50_ms"] / figures["page"]["p50_ms"],
             "direct_over_page_p50": figures["direct"]["p50_ms"] / figures["page"]["p50_ms"],
             "load_average": os.getloadavg()}
 
@@ -127,6 +136,10 @@ def report(result: dict[str, Any]) -> str:
     for name, row in result["transports"].items():
         lines.append(f"{name:<10}{row['p50_ms']:>9.1f}{row['p90_ms']:>9.1f}{row['interval_ms']:>13.1f}"
                      f"{row['samples']:>9.0f}")
+    hops = result["comm_hops"]
+    lines.append(f"the comm's own hops (median): kernel -> page {hops['frame_ms']:.1f} ms a frame, "
+                 f"page -> kernel {hops['input_ms']:.1f} ms an input; a frame waited {hops['relay_wait_ms']:.1f} ms "
+                 "in the relay for the page's acknowledgements")
     lines.append(f"comm / page p50: {result['comm_over_page_p50']:.2f} (goal <= 1.25); "
                  f"direct / page p50: {result['direct_over_page_p50']:.2f}")
     lines.append("load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"]))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
@@ -39,6 +40,8 @@ ACK_TIMEOUT_S = 1.0
 #: How often the relay looks at the acknowledgement timeout while no message comes, s.
 POLL_S = 0.25
 TRANSPORTS = ("comm", "direct")
+#: Hop times (page → kernel) kept for the median the frames carry back.
+HOPS_KEPT = 60
 
 
 class ViewedSession(Protocol):
@@ -56,7 +59,7 @@ class CommRelay:
     the page acknowledges them; the page's input goes to the socket (:meth:`forward`)."""
 
     def __init__(self, open_socket: Callable[[], ViewSocket], control: Callable[[dict[str, Any]], None],
-                 frame: Callable[[bytes], None]) -> None:
+                 frame: Callable[[bytes, float], None]) -> None:
         self.open_socket = open_socket
         self.control = control
         self.frame = frame
@@ -65,6 +68,8 @@ class CommRelay:
         self.in_flight = 0
         self.sent_at = 0.0
         self.waiting: bytes | None = None
+        #: When the frame waiting came off the socket (monotonic s).
+        self.waiting_since = 0.0
         self.latest: bytes | None = None
         #: The newest hello, with the camera and bounds updated since: what a page opened later needs.
         self.hello: dict[str, Any] | None = None
@@ -84,7 +89,9 @@ class CommRelay:
         if self.hello is not None:
             self.control(self.hello)
         with self.lock:
-            self.in_flight, self.waiting = 0, self.waiting or self.latest
+            if self.waiting is None:
+                self.waiting, self.waiting_since = self.latest, time.monotonic()
+            self.in_flight = 0
             self._send_waiting(time.monotonic())
 
     def _relay(self) -> None:
@@ -105,7 +112,8 @@ class CommRelay:
                     if self.waiting is not None:
                         self.frames_dropped += 1
                     self.waiting = self.latest = message
-                    self._send_waiting(time.monotonic())
+                    self.waiting_since = time.monotonic()
+                    self._send_waiting(self.waiting_since)
             else:
                 self._remember(message)
                 self.control(message)
@@ -129,7 +137,7 @@ class CommRelay:
         self.in_flight += 1
         self.sent_at = now
         self.frames_sent += 1
-        self.frame(message)
+        self.frame(message, now - self.waiting_since)
 
     def acknowledged(self) -> None:
         """The page took a frame: room for the newest one waiting."""
@@ -179,16 +187,28 @@ class TesseraView(anywidget.AnyWidget):
         super().__init__(width=int(width), height=int(height), transport=transport, direct_url=direct_url)
         self.session = session
         self.relay: CommRelay | None = None
+        #: How long the page's last messages took to reach the kernel (ms, this machine's clock).
+        self.input_hops: deque[float] = deque(maxlen=HOPS_KEPT)
         if transport == "comm":
             self.relay = CommRelay(lambda: ViewSocket(connection.url, session.id, connection.token, connection.timeout),
                                    lambda message: self.send({"type": "control", "message": message}),
-                                   lambda frame: self.send({"type": "frame"}, buffers=[frame]))
+                                   self._send_frame)
         self.on_msg(self._from_page)
+
+    def _send_frame(self, frame: bytes, waited_s: float) -> None:
+        """A frame to the page, stamped with this machine's clock (ms), how long it waited in the
+        relay for the page's acknowledgements (ms), and the page's input's recent time to the kernel
+        (the median, ms): what the comm itself costs, both ways."""
+        hops = sorted(self.input_hops)
+        self.send({"type": "frame", "sent_ms": time.time() * 1000.0, "waited_ms": waited_s * 1000.0,
+                   "input_hop_ms": hops[len(hops) // 2] if hops else None}, buffers=[frame])
 
     def _from_page(self, _widget: Any, content: dict[str, Any], _buffers: list[Any]) -> None:
         if self.relay is None:
             return
         kind = content.get("type")
+        if isinstance(content.get("sent_ms"), (int, float)):
+            self.input_hops.append(time.time() * 1000.0 - content["sent_ms"])
         if kind == "ready":
             self.relay.start()
         elif kind == "ack":

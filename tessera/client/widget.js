@@ -33,7 +33,7 @@ function render({ model, el }) {
   canvas.tabIndex = 0;
   const state = { camera: null, bounds: null, frameId: null, framesDrawn: 0, still: false, samples: 0,
     stillSamples: null, inputLatency: null, size: null, error: "", transport: model.get("transport"),
-    drawnAt: [] };
+    drawnAt: [], frameHops: [], relayWaits: [], inputHopMs: null };
   // Read-only state for tests and the console, as the viewer page's window.tessera.
   el.tesseraView = state;
 
@@ -128,9 +128,15 @@ function render({ model, el }) {
     transport = connection;
     connection.start();
   } else {
-    transport = { send: (message) => { model.send({ type: "viewer", message }); return true; } };
+    transport = { send: (message) => { model.send({ type: "viewer", message, sent_ms: Date.now() }); return true; } };
     model.on("msg:custom", (message, buffers) => {
       if (message.type === "frame" && buffers.length) {
+        // What the comm costs: the kernel → page hop of each frame, the page → kernel hop of input.
+        state.frameHops.push(Date.now() - message.sent_ms);
+        if (state.frameHops.length > 60) state.frameHops.shift();
+        state.inputHopMs = message.input_hop_ms;
+        state.relayWaits.push(message.waited_ms);
+        if (state.relayWaits.length > 60) state.relayWaits.shift();
         const view = buffers[0];
         const buffer = view.buffer.slice(view.byteOffset, view.byteOffset + view.byteLength);
         // Acknowledged once handed to the compositor: the kernel then sends the newest frame it holds.
