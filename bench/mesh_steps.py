@@ -21,6 +21,7 @@ import bisect
 import math
 import os
 import statistics
+import tempfile
 import threading
 import time
 from collections.abc import Sequence
@@ -70,7 +71,9 @@ class FrameLog:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    coordinator, url = start_coordinator(["--local-nodes", str(args.nodes), "--size", "160x90"], timeout=120.0)
+    data = tempfile.TemporaryDirectory(prefix="tessera-bench-mesh-steps-")   # the uploads, removed after
+    coordinator, url = start_coordinator(["--local-nodes", str(args.nodes), "--size", "160x90", "--data-dir",
+                                          data.name], timeout=120.0)
     grid, faces = height_field(args.triangles)
     steps: list[dict[str, float]] = []
     try:
@@ -99,6 +102,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             ids, reader_error = sorted(log.ids), log.error
     finally:
         coordinator.stop()
+        data.cleanup()
     firsts = [int(s["first"]) for s in steps]
     shown = 0
     for index, first in enumerate(firsts):
