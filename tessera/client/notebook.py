@@ -218,6 +218,7 @@ class TesseraView(anywidget.AnyWidget):
 
     def close(self) -> None:
         """Stop relaying and close the widget (the session stays open)."""
-        if self.relay is not None:
-            self.relay.stop()
+        relay = getattr(self, "relay", None)   # None too for a view whose arguments were refused
+        if relay is not None:
+            relay.stop()
         super().close()
