@@ -95,6 +95,7 @@ def test_the_wheel_holds_the_viewer_and_only_tesseras_packages(wheel):
     assert top_level == {"tessera", "server", "node"}, "bench/ and tests/ need a checkout; nothing else is ours"
     viewer = {name.removeprefix("server/viewer/") for name in names if name.startswith("server/viewer/")}
     assert {path.name for path in (REPO / "web").iterdir() if path.is_file()} <= viewer
+    assert {"tessera/client/widget.js", "tessera/client/widget.css"} <= set(names), "the notebook view's front end"
 
 
 def test_installed_commands_serve_the_viewer_and_render_from_any_folder(installed, user_folder, tmp_path):
@@ -102,6 +103,9 @@ def test_installed_commands_serve_the_viewer_and_render_from_any_folder(installe
     for command in ("tessera-server", "tessera-node"):
         helped = run([str(bin_dir / command), "--help"], 60, cwd=user_folder, env=installed)
         assert helped.stdout.startswith(f"usage: {command} "), helped.stdout[:200]
+    # The notebook view's front end is made of the viewer's modules, found in the installed package.
+    run([str(bin_dir / "python"), "-c", "from tessera.client.widget_bundle import widget_module; "
+         "assert 'const module_compositor' in widget_module()"], 60, cwd=user_folder, env=installed)
 
     out = tmp_path / "once.png"
     run([str(bin_dir / "tessera-node"), "--render-once", str(out), "--scene", "builtin:spheres",
