@@ -210,7 +210,10 @@ class TesseraView(anywidget.AnyWidget):
         if isinstance(content.get("sent_ms"), (int, float)):
             self.input_hops.append(time.time() * 1000.0 - content["sent_ms"])
         if kind == "ready":
-            self.relay.start()
+            try:
+                self.relay.start()
+            except TesseraError as exc:   # the coordinator refused or is gone: the view's stats line says why
+                self.send({"type": "control", "message": {"type": "error", "message": exc.reason}})
         elif kind == "ack":
             self.relay.acknowledged()
         elif kind == "viewer" and isinstance(content.get("message"), dict):
