@@ -79,6 +79,50 @@ def make_path(kind: str, bounds: np.ndarray, frames: int = DEFAULT_FRAMES, dt_ms
     return {"dt_ms": dt_ms, "frames": cameras}
 
 
+#: Random cameras (:func:`random_cameras`): elevation range (degrees above the horizontal plane
+#: through the target), distance as a multiple of the distance that frames the bounding sphere, the
+#: target's offset from the centre in bounding radii, and the vertical field of view (degrees).
+RANDOM_ELEVATION_DEG = (-30.0, 75.0)
+RANDOM_DISTANCE = (0.55, 1.6)
+RANDOM_TARGET_OFFSET = 0.3
+RANDOM_FOVY_DEG = (30.0, 60.0)
+
+
+def random_cameras(bounds: np.ndarray, count: int, seed: int = 0, aspect: float = 16 / 9) -> list[Camera]:
+    """``count`` cameras around the scene ``bounds`` (2, 3), drawn from ``seed`` (the same seed, the
+    same cameras): the eye at a uniformly random azimuth, an elevation in
+    :data:`RANDOM_ELEVATION_DEG` (uniform in its sine: even over that band of the sphere), at
+    :data:`RANDOM_DISTANCE` × the distance that frames the bounding sphere at its field of view and
+    ``aspect`` (log-uniform: as many near as far; never inside the bounding sphere), looking at a point up to
+    :data:`RANDOM_TARGET_OFFSET` bounding radii from the centre, Y up, a field of view in
+    :data:`RANDOM_FOVY_DEG`. Near and far are left to the scene bounds, as everywhere."""
+    if count < 0:
+        raise ValueError(f"count must be >= 0, got {count}")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+    low, high = (math.sin(math.radians(e)) for e in RANDOM_ELEVATION_DEG)
+    cameras = []
+    for _ in range(count):
+        fovy = float(rng.uniform(*RANDOM_FOVY_DEG))
+        half_fov = math.radians(fovy) / 2.0
+        framing = radius / math.sin(min(half_fov, math.atan(math.tan(half_fov) * aspect)))
+        distance = framing * math.exp(rng.uniform(*np.log(RANDOM_DISTANCE)))
+        offset = rng.normal(size=3)
+        offset *= RANDOM_TARGET_OFFSET * radius * float(rng.uniform()) ** (1 / 3) / max(np.linalg.norm(offset), 1e-12)
+        distance = max(distance, 1.1 * radius + float(np.linalg.norm(offset)))   # the eye outside the bounding sphere
+        azimuth = float(rng.uniform(0.0, 2.0 * math.pi))
+        rise = float(rng.uniform(low, high))
+        flat = math.sqrt(1.0 - rise * rise)
+        direction = np.array([math.sin(azimuth) * flat, rise, math.cos(azimuth) * flat])
+        target = center + offset
+        camera = Camera(eye=tuple(np.round(target + direction * distance, 6).tolist()),
+                        target=tuple(np.round(target, 6).tolist()), fovy_deg=round(fovy, 3))
+        cameras.append(camera)
+    return cameras
+
+
 def surface_focus(positions: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """(3,) the vertex of ``positions`` (N, 3) nearest the default camera's eye for ``bounds``."""
     eye = np.asarray(default_camera(bounds).eye)

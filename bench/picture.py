@@ -22,15 +22,18 @@
   process meanwhile (every llvmpipe thread; less sensitive to other work on the machine). The
   settings of a scene take turns frame by frame, so
   that a change of load touches them alike.
-- Progressive still (issue 20): per scene, the same cameras rendered as the still of each
-  ``--still-samples`` count with the node's default shading (``--msaa auto``), against the same
-  reference: ``psnr_mean_db`` / ``psnr_min_db`` / ``off16_fraction`` as above, ``frame_ms`` the mean
-  time of one sample's frame, ``still_ms`` that times the samples (the nodes' time until the still
-  converges on one node). Each count is rendered apart (its samples' texture LOD bias depends on
-  it). Per scene also the
-  coordinator's CPU per sample (:class:`server.still_refinement.StillRefiner`'s work on a whole
-  frame): ``decode_ms`` (of a PNG sample), ``accumulate_ms`` (add and mean), ``encode_ms`` (the
-  converged still's PNG), ``refinement_encode_ms`` (a refinement frame's JPEG).
+- Progressive still (issues 20, 37): per scene, the same cameras rendered as the still of each
+  ``--still-samples`` count (``auto``: the service's adaptive still, which stops where its
+  estimated error reaches its target) with the node's default shading (``--msaa auto``), against
+  the same reference: ``psnr_mean_db`` / ``psnr_min_db`` / ``off16_fraction`` as above,
+  ``samples_mean`` / ``samples_max`` the samples taken, ``estimate_min_db`` the adaptive still's
+  least estimate of its PSNR against its converged image, ``frame_ms`` the mean time of one
+  sample's frame, ``still_ms`` / ``still_ms_max`` the time of the still's samples (the nodes' time
+  until the still converges on one node), mean and most. Each count is rendered apart (its
+  samples' texture LOD bias depends on it). Per scene also the coordinator's CPU per sample
+  (:class:`server.still_refinement.StillRefiner`'s work on a whole frame, the first camera):
+  ``decode_ms`` (of a PNG sample), ``accumulate_ms`` (add and mean), ``encode_ms`` (the converged
+  still's PNG), ``refinement_encode_ms`` (a refinement frame's JPEG).
 - ``environment_ms``: the environment's prefiltering at start-up (once per process).
 """
 
@@ -62,8 +65,9 @@ from node.scene.loading import load_scene
 from node.scene.material import SurfaceMaterial
 from node.settings import parse_msaa, parse_size
 from server.still_refinement import REFINEMENT_QUALITY
+from tessera.cli_values import parse_still_samples
 from tessera.geometry import Camera
-from tessera.scheduling.refinement import MAX_STILL_SAMPLES, Accumulator, subsample
+from tessera.scheduling.refinement import ADAPTIVE, Accumulator, StillPlan, Subsample, accumulate_still
 from tessera.wire.codec import Codec, decode, encode
 
 SHARED_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
@@ -114,15 +118,17 @@ def material_contrast(ctx: moderngl.Context, size: tuple[int, int], shading: Sha
 def supersampled(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
                  factor: int = SUPERSAMPLING) -> np.ndarray:
     """(h, w, 3) uint8: ``camera`` rendered at ``factor``× the size with one sample per pixel (the
-    renderer's own count and resolve filter are put aside), each factor×factor block averaged."""
+    renderer's own count and resolve filter are put aside), each factor×factor block averaged
+    (summed in integers, then rounded to the nearest level: a 1080p reference's 7680x4320 frame
+    never becomes floats)."""
     samples, filtered = renderer.samples, renderer.filtered
     renderer.samples, renderer.filtered = 1, False
     try:
-        large = renderer.render_frame(camera, (size[0] * factor, size[1] * factor)).pixels.astype(np.float64)
+        large = renderer.render_frame(camera, (size[0] * factor, size[1] * factor)).pixels
     finally:
         renderer.samples, renderer.filtered = samples, filtered
-    blocks = large.reshape(size[1], factor, size[0], factor, 3).mean(axis=(1, 3))
-    return np.rint(blocks).astype(np.uint8)
+    sums = large.reshape(size[1], factor, size[0], factor, 3).sum(axis=(1, 3), dtype=np.uint32)
+    return np.rint(sums / float(factor * factor)).astype(np.uint8)
 
 
 def orbit_cameras(scene: SceneData, frames: int) -> list[Camera]:
@@ -132,18 +138,19 @@ def orbit_cameras(scene: SceneData, frames: int) -> list[Camera]:
 
 def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
                          settings: Sequence[int], repeats: int = 3,
-                         cameras: Sequence[Camera] | None = None) -> dict[str, Any]:
+                         cameras: Sequence[Camera] | None = None, scene: SceneData | None = None) -> dict[str, Any]:
     """The ``--msaa`` rows of one scene (see the module docstring) at ``cameras`` (None: ``frames``
-    of an orbit); each frame is timed ``repeats`` times, the settings in turn."""
-    scene = load_scene(scene_spec)
+    of an orbit); each frame is timed ``repeats`` times, the settings in turn. ``scene``: the
+    scene already loaded (None: loaded here)."""
+    scene = load_scene(scene_spec) if scene is None else scene
     cameras = orbit_cameras(scene, frames) if cameras is None else cameras
     renderers = {msaa: TileRenderer(ctx, scene, shading=ShadingOptions(msaa=msaa)) for msaa in settings}
-    references = [supersampled(renderers[settings[0]], camera, size) for camera in cameras]
     found: dict[int, dict[str, list[float]]] = {msaa: {"psnr": [], "off": [], "wall": [], "cpu": []}
                                                 for msaa in settings}
     for renderer in renderers.values():
         renderer.render_frame(cameras[0], size)
-    for camera, reference in zip(cameras, references, strict=True):
+    for camera in cameras:
+        reference = supersampled(renderers[settings[0]], camera, size)
         for _ in range(repeats):
             for msaa, renderer in renderers.items():
                 started, started_cpu = time.perf_counter(), time.process_time()
@@ -161,51 +168,86 @@ def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int
              "frame_cpu_ms": float(np.median(found[msaa]["cpu"]))} for msaa, renderer in renderers.items()]
     for renderer in renderers.values():
         renderer.release()
-    return {"scene": scene_spec, "frames": len(cameras), "rows": rows}
+    return {"scene": scene_spec, "size": list(size), "frames": len(cameras), "rows": rows}
+
+
+def still_plan(count: int) -> StillPlan:
+    """A ``--still-samples`` count as the service samples it (0, :data:`ADAPTIVE`: its default
+    adaptive still)."""
+    return StillPlan(count) if count != ADAPTIVE else StillPlan(ADAPTIVE)
 
 
 def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int], frames: int,
-                  sample_counts: Sequence[int], cameras: Sequence[Camera] | None = None) -> dict[str, Any]:
+                  sample_counts: Sequence[int], cameras: Sequence[Camera] | None = None,
+                  scene: SceneData | None = None) -> dict[str, Any]:
     """The progressive still rows of one scene (see the module docstring) at ``cameras`` (None:
-    ``frames`` of an orbit)."""
-    scene = load_scene(scene_spec)
+    ``frames`` of an orbit); a count of :data:`ADAPTIVE` is the service's adaptive still (its
+    ``samples_mean`` / ``samples_max`` taken, ``estimate_min_db`` its least estimate). The
+    coordinator's costs are measured on the first camera's samples."""
+    scene = load_scene(scene_spec) if scene is None else scene
     cameras = orbit_cameras(scene, frames) if cameras is None else cameras
     renderer = TileRenderer(ctx, scene)
-    found: dict[int, dict[str, list[float]]] = {n: {"psnr": [], "off": []} for n in sample_counts}
+    found: dict[int, dict[str, list[float]]] = {n: {"psnr": [], "off": [], "taken": [], "estimate": [], "ms": []}
+                                                for n in sample_counts}
     frame_ms: list[float] = []
     coordinator: dict[str, list[float]] = {"decode_ms": [], "accumulate_ms": [], "encode_ms": [],
                                            "refinement_encode_ms": []}
     renderer.render_frame(cameras[0], size)
-    for camera in cameras:
+
+    def draw(camera: Camera, sample: Subsample | None, timed: list[float]) -> np.ndarray:
+        started = time.perf_counter()
+        pixels = renderer.render_frame(camera, size, subsample=sample).pixels
+        timed.append((time.perf_counter() - started) * 1e3)
+        return pixels
+
+    for index, camera in enumerate(cameras):
         reference = supersampled(renderer, camera, size)
         for count in sample_counts:
-            accumulator = Accumulator(size)
-            for sample in range(count):
-                started = time.perf_counter()
-                pixels = renderer.render_frame(camera, size, subsample=subsample(sample, count)).pixels
-                frame_ms.append((time.perf_counter() - started) * 1e3)
-                decoded, spent = cpu_ms(decode, encode(pixels, Codec.PNG), Codec.PNG, size[0], size[1])
-                coordinator["decode_ms"].append(spent)
-                started_cpu = time.thread_time()
-                accumulator.add(decoded)
-                accumulator.finish_sample()
-                still = accumulator.mean()
-                coordinator["accumulate_ms"].append((time.thread_time() - started_cpu) * 1e3)
-                coordinator["encode_ms"].append(cpu_ms(encode, still, Codec.PNG)[1])
-                coordinator["refinement_encode_ms"].append(cpu_ms(encode, still, Codec.JPEG, REFINEMENT_QUALITY)[1])
+            timed: list[float] = []
+            accumulator = accumulate_still(lambda sample, timed=timed: draw(camera, sample, timed), size,  # noqa: B023
+                                           still_plan(count))
+            still = accumulator.mean()
+            frame_ms += timed
             found[count]["psnr"].append(psnr(still, reference))
+            found[count]["taken"].append(accumulator.count)
+            found[count]["ms"].append(sum(timed))
+            if accumulator.estimate_db is not None:
+                found[count]["estimate"].append(accumulator.estimate_db)
             error = np.abs(still.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
             found[count]["off"].append(float(np.mean(error > OFF_LEVELS)))
+            if index == 0 and count == sample_counts[-1]:
+                coordinator_costs(renderer, camera, size, still_plan(count), coordinator)
     sample_ms = float(np.mean(frame_ms))
-    rows = [{"samples": count, "psnr_mean_db": reported_psnr(float(np.mean(found[count]["psnr"]))),
+    rows = [{"samples": count, "adaptive": count == ADAPTIVE,
+             "psnr_mean_db": reported_psnr(float(np.mean(found[count]["psnr"]))),
              "psnr_min_db": reported_psnr(float(np.min(found[count]["psnr"]))),
              "off16_fraction": float(np.mean(found[count]["off"])), "frame_ms": sample_ms,
-             "still_ms": sample_ms * count} for count in sample_counts]
+             "samples_mean": float(np.mean(found[count]["taken"])), "samples_max": int(max(found[count]["taken"])),
+             "estimate_min_db": reported_psnr(min(found[count]["estimate"])) if found[count]["estimate"] else None,
+             "still_ms": float(np.mean(found[count]["ms"])), "still_ms_max": float(max(found[count]["ms"]))}
+            for count in sample_counts]
     renderer.release()
-    return {"scene": scene_spec, "frames": len(cameras), "msaa": renderer.samples, "paired": renderer.paired,
-            "filtered": renderer.filtered,
-            "rows": rows,
+    return {"scene": scene_spec, "size": list(size), "frames": len(cameras), "msaa": renderer.samples,
+            "paired": renderer.paired, "filtered": renderer.filtered, "rows": rows,
             "coordinator": {key: float(np.mean(values)) for key, values in coordinator.items()}}
+
+
+def coordinator_costs(renderer: TileRenderer, camera: Camera, size: tuple[int, int], plan: StillPlan,
+                      costs: dict[str, list[float]]) -> None:
+    """The coordinator's CPU per sample of ``plan``'s still at ``camera``
+    (:class:`server.still_refinement.StillRefiner`'s work on a whole frame), appended to ``costs``."""
+    accumulator = Accumulator(size, plan)
+    while not accumulator.converged:
+        pixels = renderer.render_frame(camera, size, subsample=plan.subsample(accumulator.count)).pixels
+        decoded, spent = cpu_ms(decode, encode(pixels, Codec.PNG), Codec.PNG, size[0], size[1])
+        costs["decode_ms"].append(spent)
+        started_cpu = time.thread_time()
+        accumulator.add(decoded)
+        accumulator.finish_sample()
+        still = accumulator.mean()
+        costs["accumulate_ms"].append((time.thread_time() - started_cpu) * 1e3)
+        costs["encode_ms"].append(cpu_ms(encode, still, Codec.PNG)[1])
+        costs["refinement_encode_ms"].append(cpu_ms(encode, still, Codec.JPEG, REFINEMENT_QUALITY)[1])
 
 
 def cpu_ms(call: Callable[..., Any], *args: Any) -> tuple[Any, float]:
@@ -216,9 +258,10 @@ def cpu_ms(call: Callable[..., Any], *args: Any) -> tuple[Any, float]:
 
 
 def parse_still_counts(text: str) -> list[int]:
-    counts = sorted({int(part) for part in text.split(",") if part.strip()})
-    if not counts or not all(1 <= count <= MAX_STILL_SAMPLES for count in counts):
-        raise argparse.ArgumentTypeError(f"still sample counts are 1..{MAX_STILL_SAMPLES}, got {text!r}")
+    """``--still-samples``: counts 1…:data:`MAX_STILL_SAMPLES` and ``auto`` (:data:`ADAPTIVE`, listed first)."""
+    counts = sorted({parse_still_samples(part) for part in text.split(",") if part.strip()})
+    if not counts:
+        raise argparse.ArgumentTypeError(f"no still sample count given in {text!r}")
     return counts
 
 
@@ -259,31 +302,44 @@ def table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def scene_label(result: dict[str, Any]) -> str:
+    """A scene's name with its frame size when the result has one: 'bun_zipper.ply 640x360'."""
+    size = result.get("size")
+    return Path(result["scene"]).name + (f" {size[0]}x{size[1]}" if size else "")
+
+
 def antialiasing_table(scenes: Sequence[dict[str, Any]]) -> str:
     """The ``--msaa`` rows of :func:`measure_antialiasing`'s ``scenes``, one line each."""
-    lines = [f"{'scene':<40} {'msaa':>8} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} {'CPU ms':>7}"]
+    lines = [f"{'scene':<44} {'msaa':>8} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} {'CPU ms':>7}"]
     for scene in scenes:
         for row in scene["rows"]:
-            lines.append(f"{Path(scene['scene']).name:<40} {setting_name(row):>8} {row['psnr_mean_db']:>8.2f} "
+            lines.append(f"{scene_label(scene):<44} {setting_name(row):>8} {row['psnr_mean_db']:>8.2f} "
                          f"{row['psnr_min_db']:>6.2f} {row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} "
                          f"{row.get('frame_cpu_ms', math.nan):>7.1f}")
     return "\n".join(lines)
 
 
 def still_table(stills: Sequence[dict[str, Any]]) -> str:
-    """The rows of :func:`measure_still`'s ``stills``, one line each, and the coordinator's cost."""
-    lines = [f"{'progressive still':<40} {'N':>4} {'PSNR dB':>8} {'min':>6} {'off>16':>7} {'frame ms':>9} "
-             f"{'still ms':>9}"]
+    """The rows of :func:`measure_still`'s ``stills``, one line each, and the coordinator's cost:
+    N (``auto``: the adaptive still, then the samples it took, mean and most), PSNR mean and worst,
+    the least estimate, a sample's frame ms, the still's ms on one node (mean and most)."""
+    lines = [f"{'progressive still':<44} {'N':>4} {'taken':>9} {'PSNR dB':>8} {'min':>6} {'est min':>7} {'off>16':>7} "
+             f"{'frame ms':>9} {'still ms':>9} {'max':>6}"]
     for scene in stills:
         for row in scene["rows"]:
             drawn = drawn_name({"samples": scene["msaa"], **scene})
-            lines.append(f"{Path(scene['scene']).name + ' (msaa ' + drawn + ')':<40} "
-                         f"{row['samples']:>4} {row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
-                         f"{row['off16_fraction'] * 100:>6.2f}% {row['frame_ms']:>9.1f} {row['still_ms']:>9.0f}")
+            taken = f"{row.get('samples_mean', row['samples']):.1f}/{row.get('samples_max', row['samples'])}"
+            estimate = row.get("estimate_min_db")
+            lines.append(f"{scene_label(scene) + ' (msaa ' + drawn + ')':<44} "
+                         f"{'auto' if row.get('adaptive') else row['samples']:>4} {taken:>9} "
+                         f"{row['psnr_mean_db']:>8.2f} {row['psnr_min_db']:>6.2f} "
+                         f"{'-' if estimate is None else f'{estimate:.1f}':>7} {row['off16_fraction'] * 100:>6.2f}% "
+                         f"{row['frame_ms']:>9.1f} {row['still_ms']:>9.0f} {row.get('still_ms_max', math.nan):>6.0f}")
         cost = scene["coordinator"]
-        lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
-                     f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms (PNG) or "
-                     f"{cost['refinement_encode_ms']:.1f} ms (a refinement's JPEG)")
+        if cost:
+            lines.append(f"  coordinator CPU per sample: decode {cost['decode_ms']:.1f} ms, accumulate "
+                         f"{cost['accumulate_ms']:.1f} ms, encode {cost['encode_ms']:.1f} ms (PNG) or "
+                         f"{cost['refinement_encode_ms']:.1f} ms (a refinement's JPEG)")
     return "\n".join(lines)
 
 
@@ -296,8 +352,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=2)
     parser.add_argument("--msaa", type=parse_counts, default=[AUTO_MSAA, FILTER_MSAA, 1, 4],
                         help="settings compared, of auto, filter, 1, 2, 4, 8 (default auto,filter,1,4)")
-    parser.add_argument("--still-samples", type=parse_still_counts, default=[1, 2, 4, 8, 16, 32],
-                        help="progressive still sample counts (default 1,2,4,8,16,32)")
+    parser.add_argument("--still-samples", type=parse_still_counts, default=[ADAPTIVE, 1, 2, 4, 8, 16, 32],
+                        help="progressive still sample counts, auto the adaptive still (default auto,1,2,4,8,16,32)")
     parser.add_argument("--material-size", type=parse_size, default=(256, 256))
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)

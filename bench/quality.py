@@ -1,13 +1,18 @@
 """Interactive tile quality: bytes per frame against PSNR for JPEG qualities, with PNG (the lossless
 still frame) and RAW for reference.
 
-``python -m bench.quality --scene S [--scene S2 …] --path P [--path P2 …] [--size 1280x720]
-[--frames 12] [--qualities 30,40,50,60,70,80,85,90,95] [--json OUT]``
+``python -m bench.quality [--scene S …] (--path P [--path P2 …] | --cameras N [--seed 0])
+[--size 1280x720 | --sizes 640x360,1280x720,1920x1080] [--frames 12]
+[--qualities 30,40,50,60,70,80,85,90,95 | none] [--msaa auto,…] [--still-samples auto,…] [--json OUT]``
 
-Each ``--path`` is a camera path JSON (``bench/paths/*.json``, ``--frames`` evenly spaced cameras
-of it) or a kind of :func:`bench.paths.make_path` (``orbit``, ``flythrough``, ``zoom``: ``--frames``
-cameras made for that scene's bounds). One ``--path`` serves every scene; several pair with the
-scenes in order.
+Cameras: each ``--path`` is a camera path JSON (``bench/paths/*.json``, ``--frames`` evenly spaced
+cameras of it) or a kind of :func:`bench.paths.make_path` (``orbit``, ``flythrough``, ``zoom``:
+``--frames`` cameras made for that scene's bounds); one ``--path`` serves every scene, several pair
+with the scenes in order. ``--cameras N`` instead: N random cameras around each scene
+(:func:`bench.paths.random_cameras`, drawn from ``--seed`` and the scene's name: the same cameras
+every run, others for each scene), for the JPEG rows and the picture rows alike. Without
+``--scene``, the scenes of :mod:`bench.picture` (the diorama, truck, engine and four scans).
+``--sizes``: every figure at each frame size (the cameras' aspect follows the size).
 
 Each camera is rendered as one full frame with :class:`node.gl.renderer.TileRenderer` (one GL context
 for the run), then encoded with :func:`tessera.wire.codec.encode` at each JPEG quality (4:2:0 chroma
@@ -25,13 +30,16 @@ below q90, 4:4:4 from q90, as the codec does), as PNG and as RAW, and decoded ag
 Per scene, ``quality_for_35db`` and ``quality_for_40db`` are the smallest JPEG quality whose mean
 PSNR reaches 35 and 40 dB (``null`` if none does): a reading aid for the interactive default.
 
-Picture quality (issue 20), with ``--msaa auto,filter,1,2,4,8`` and/or ``--still-samples
-1,2,4,8,16,32``: at ``--picture-frames`` (default 2) evenly spaced cameras of the scene's path,
-each ``--msaa`` setting's interactive frame and each sample count's progressive still against the
-same camera rendered 4×4 supersampled, and their time per frame (``antialiasing`` and ``still`` per
-scene in the JSON; figures and rows as :mod:`bench.picture` defines them, whose functions measure
-them). Lambert against PBR shading is timed by ``python -m bench.shading``, which runs the tree
-before PBR beside this one.
+Picture quality (issues 20, 37), with ``--msaa auto,filter,1,2,4,8`` and/or ``--still-samples
+auto,1,2,4,8,16,32`` (``auto``: the service's adaptive still): at ``--picture-frames`` (default 2)
+evenly spaced cameras of the scene's path, or every random camera, each ``--msaa`` setting's
+interactive frame and each sample count's progressive still against the same camera rendered 4×4
+supersampled, and their time per frame (``antialiasing`` and ``still`` per scene and size in the
+JSON; figures and rows as :mod:`bench.picture` defines them, whose functions measure them).
+``summary`` in the JSON (and the last table): per setting and frame size, over every scene and
+camera, the mean PSNR and the worst (with the scene it came from), and for stills the most samples
+and the longest still. Lambert against PBR shading is timed by ``python -m bench.shading``, which
+runs the tree before PBR beside this one.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ import json
 import platform
 import sys
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -52,13 +61,15 @@ from PIL import Image, JpegImagePlugin
 
 from bench.culling import read_path
 from bench.images import psnr
-from bench.paths import KINDS, make_path, surface_focus
+from bench.paths import KINDS, make_path, random_cameras, surface_focus
 from bench.picture import (
+    DEFAULT_SCENES,
     antialiasing_table,
     measure_antialiasing,
     measure_still,
     parse_counts,
     parse_still_counts,
+    setting_name,
     still_table,
 )
 from node.gl.context import create_gl_context, renderer_string
@@ -78,7 +89,9 @@ CHROMA = {0: "4:4:4", 1: "4:2:2", 2: "4:2:0"}
 
 
 def parse_qualities(text: str) -> list[int]:
-    """'30,50,90' → [30, 50, 90], sorted, each 1…100."""
+    """'30,50,90' → [30, 50, 90], sorted, each 1…100; 'none' → [] (no JPEG rows)."""
+    if text.strip().lower() == "none":
+        return []
     qualities = sorted({int(part) for part in text.split(",") if part.strip()})
     if not qualities or not all(1 <= q <= 100 for q in qualities):
         raise argparse.ArgumentTypeError(f"JPEG qualities are integers 1..100, got {text!r}")
@@ -113,6 +126,12 @@ def warm_up_codecs() -> None:
         decode(encode(pixels, codec), codec, 8, 8)
 
 
+def camera_seed(scene_spec: str, seed: int) -> int:
+    """The random cameras' seed for a scene: ``seed`` and the scene's name (stable across runs and
+    scene orders)."""
+    return seed * 1_000_003 + zlib.crc32(scene_spec.encode())
+
+
 def scene_cameras(path_spec: str, scene: SceneData, frames: int) -> list[Camera]:
     """``frames`` cameras: evenly spaced ones of a path JSON file, or a :data:`bench.paths.KINDS`
     path made for ``scene``'s bounds (zoom focused on the vertex nearest the default eye)."""
@@ -128,13 +147,9 @@ def settings(qualities: list[int]) -> list[tuple[str, Codec, int]]:
     return [(f"jpeg q{q}", Codec.JPEG, q) for q in qualities] + [("png", Codec.PNG, 0), ("raw", Codec.RAW, 0)]
 
 
-def measure_scene(ctx: moderngl.Context, scene_spec: str, path_spec: str, size: tuple[int, int], frames: int,
-                  qualities: list[int]) -> dict[str, Any]:
-    """Render the path's cameras of one scene and measure every codec setting on each frame."""
-    started = time.perf_counter()
-    scene = load_scene(scene_spec)
-    load_s = time.perf_counter() - started
-    cameras = scene_cameras(path_spec, scene, frames)
+def measure_scene(ctx: moderngl.Context, scene_spec: str, scene: SceneData, load_s: float, cameras: list[Camera],
+                  size: tuple[int, int], qualities: list[int]) -> dict[str, Any]:
+    """Render ``cameras`` of one scene and measure every codec setting on each frame."""
     renderer = TileRenderer(ctx, scene)
     width, height = size
     samples: dict[str, dict[str, list[float]]] = {
@@ -173,7 +188,7 @@ def measure_scene(ctx: moderngl.Context, scene_spec: str, path_spec: str, size: 
             "decode_ms": round(float(np.mean(sample["decode_ms"])), 3),
         })
     report: dict[str, Any] = {
-        "scene": scene_spec, "path": path_spec, "frames": len(cameras), "triangles": scene.triangle_count,
+        "scene": scene_spec, "size": list(size), "frames": len(cameras), "triangles": scene.triangle_count,
         "load_s": round(load_s, 2), "render_ms_mean": round(float(np.mean(render_ms)), 2), "rows": rows,
     }
     for mark in PSNR_MARKS_DB:
@@ -184,7 +199,7 @@ def measure_scene(ctx: moderngl.Context, scene_spec: str, path_spec: str, size: 
 
 
 def print_scene(report: dict[str, Any], size: tuple[int, int]) -> None:
-    print(f"\n{report['scene']}: path {report['path']}, {report['frames']} frames at {size[0]}x{size[1]}, "
+    print(f"\n{report['scene']}: {report['cameras']}, {report['frames']} frames at {size[0]}x{size[1]}, "
           f"{report['triangles']:,} triangles, render+readback {report['render_ms_mean']:.0f} ms/frame")
     print(f"{'setting':<10}{'chroma':>7}{'KB/frame':>10}{'Mbit/s@30':>11}{'PSNR mean':>11}{'PSNR min':>10}"
           f"{'>8 lvl':>9}{'max err':>8}{'enc ms':>8}{'dec ms':>8}")
@@ -199,56 +214,127 @@ def print_scene(report: dict[str, Any], size: tuple[int, int]) -> None:
     print("smallest JPEG quality with mean PSNR " + "; ".join(marks))
 
 
+def summary(scenes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per picture setting (an ``--msaa`` row or a still's count) and frame size, over every scene
+    and camera: ``psnr_mean_db`` (the mean of the scenes' means), ``psnr_worst_db`` and the scene
+    it came from; for stills also ``samples_max`` and ``still_ms_max``."""
+    groups: dict[tuple[str, str], list[tuple[dict[str, Any], str]]] = {}
+    for scene in scenes:
+        size = "x".join(map(str, scene["size"]))
+        for row in scene.get("antialiasing", {}).get("rows", []):
+            groups.setdefault((f"interactive {setting_name(row)}", size), []).append((row, scene["scene"]))
+        for row in scene.get("still", {}).get("rows", []):
+            name = "auto" if row.get("adaptive") else str(row["samples"])
+            groups.setdefault((f"still {name}", size), []).append((row, scene["scene"]))
+    out = []
+    for (setting, size), rows in groups.items():
+        worst, worst_scene = min(((row["psnr_min_db"], scene) for row, scene in rows), key=lambda pair: pair[0])
+        entry: dict[str, Any] = {"setting": setting, "size": size, "scenes": len(rows),
+                                 "psnr_mean_db": round(float(np.mean([row["psnr_mean_db"] for row, _ in rows])), 2),
+                                 "psnr_worst_db": worst, "worst_scene": worst_scene}
+        if setting.startswith("still"):
+            entry["samples_max"] = max(row["samples_max"] for row, _ in rows)
+            entry["still_ms_max"] = round(max(row["still_ms_max"] for row, _ in rows), 1)
+        else:
+            entry["frame_ms_max"] = round(max(row["frame_ms"] for row, _ in rows), 1)
+        out.append(entry)
+    return out
+
+
+def summary_table(entries: list[dict[str, Any]]) -> str:
+    lines = [f"{'worst case over scenes and cameras':<36} {'size':>10} {'mean dB':>8} {'worst dB':>9} "
+             f"{'most N':>7} {'ms max':>8}  worst scene"]
+    for entry in entries:
+        most = entry.get("samples_max", "")
+        ms = entry.get("still_ms_max", entry.get("frame_ms_max"))
+        lines.append(f"{entry['setting']:<36} {entry['size']:>10} {entry['psnr_mean_db']:>8.2f} "
+                     f"{entry['psnr_worst_db']:>9.2f} {most:>7} {ms:>8.1f}  {Path(entry['worst_scene']).name}")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     args_list = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog="python -m bench.quality", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", action="append", required=True, help="scene file or builtin:NAME (repeatable)")
-    parser.add_argument("--path", action="append", required=True,
+    parser.add_argument("--scene", action="append",
+                        help="scene file or builtin:NAME (repeatable; default: bench.picture's scenes)")
+    parser.add_argument("--path", action="append",
                         help=f"camera path JSON or one of {', '.join(KINDS)} (repeatable: one per scene, in order)")
+    parser.add_argument("--cameras", type=int, help="instead of --path: this many random cameras around each scene")
+    parser.add_argument("--seed", type=int, default=0, help="the random cameras' seed (default 0)")
     parser.add_argument("--size", type=parse_size, default=(1280, 720), help="WxH (default 1280x720)")
+    parser.add_argument("--sizes", type=lambda text: [parse_size(part) for part in text.split(",") if part.strip()],
+                        help="WxH,WxH,…: every figure at each of these sizes (instead of --size)")
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
-                        help=f"evenly spaced cameras per scene (default {DEFAULT_FRAMES})")
+                        help=f"evenly spaced cameras per scene of a --path (default {DEFAULT_FRAMES})")
     parser.add_argument("--qualities", type=parse_qualities, default=list(DEFAULT_QUALITIES),
-                        help="JPEG qualities, comma-separated (default " + ",".join(map(str, DEFAULT_QUALITIES)) + ")")
+                        help="JPEG qualities, comma-separated (default " + ",".join(map(str, DEFAULT_QUALITIES))
+                             + "), or none for no JPEG rows")
     parser.add_argument("--msaa", type=parse_counts, default=[],
                         help="also the interactive frame's PSNR against the 4x4 supersampled one and its time at "
                              "these --msaa settings (of auto, filter, 1, 2, 4, 8)")
     parser.add_argument("--still-samples", type=parse_still_counts, default=[],
-                        help="also the progressive still's PSNR against it at these sample counts")
+                        help="also the progressive still's PSNR against it at these sample counts (auto: the "
+                             "adaptive still)")
     parser.add_argument("--picture-frames", type=int, default=2,
-                        help="cameras of each path those are measured at (default 2)")
+                        help="cameras of each path those are measured at (default 2; every random camera)")
     parser.add_argument("--json", type=Path, help="write the report here")
     args = parser.parse_args(args_list)
-    if len(args.path) not in (1, len(args.scene)):
+    scenes_given = args.scene or list(DEFAULT_SCENES)
+    if args.cameras is None and not args.path:
+        parser.error("give --path (a camera path per scene, or one for all) or --cameras N")
+    if args.cameras is not None and (args.path or args.cameras < 1):
+        parser.error("--cameras N (N >= 1) replaces --path")
+    if args.path and len(args.path) not in (1, len(scenes_given)):
         parser.error(f"give one --path for all scenes or one per scene; got {len(args.path)} for "
-                     f"{len(args.scene)} scenes")
+                     f"{len(scenes_given)} scenes")
     if args.frames < 1 or args.picture_frames < 1:
         parser.error("--frames and --picture-frames must be at least 1")
-    paths = args.path * len(args.scene) if len(args.path) == 1 else args.path
+    paths = (args.path * len(scenes_given) if len(args.path) == 1 else args.path) if args.path else []
+    sizes = args.sizes or [args.size]
     warm_up_codecs()
     ctx = create_gl_context()
     renderer_name = renderer_string(ctx)
     print(f"{renderer_name}; python {platform.python_version()}")
     scenes = []
-    for scene_spec, path_spec in zip(args.scene, paths, strict=True):
-        scenes.append(measure_scene(ctx, scene_spec, path_spec, args.size, args.frames, args.qualities))
-        print_scene(scenes[-1], args.size)
-        cameras = scene_cameras(path_spec, load_scene(scene_spec), args.picture_frames) \
-            if args.msaa or args.still_samples else []
-        if args.msaa:
-            scenes[-1]["antialiasing"] = measure_antialiasing(ctx, scene_spec, args.size, len(cameras), args.msaa,
-                                                              cameras=cameras)
-            print(antialiasing_table([scenes[-1]["antialiasing"]]))
-        if args.still_samples:
-            scenes[-1]["still"] = measure_still(ctx, scene_spec, args.size, len(cameras), args.still_samples,
-                                                cameras=cameras)
-            print(still_table([scenes[-1]["still"]]))
+    for index, scene_spec in enumerate(scenes_given):
+        started = time.perf_counter()
+        scene = load_scene(scene_spec)
+        load_s = time.perf_counter() - started
+        for size in sizes:
+            if args.cameras is not None:
+                cameras = random_cameras(scene.bounds, args.cameras, camera_seed(scene_spec, args.seed),
+                                         aspect=size[0] / size[1])
+                described, picture_cameras = f"{args.cameras} random cameras (seed {args.seed})", cameras
+            else:
+                cameras = scene_cameras(paths[index], scene, args.frames)
+                described = f"path {paths[index]}"
+                picture_cameras = scene_cameras(paths[index], scene, args.picture_frames) \
+                    if args.msaa or args.still_samples else []
+            report = measure_scene(ctx, scene_spec, scene, load_s, cameras, size, args.qualities) \
+                if args.qualities else {"scene": scene_spec, "size": list(size), "frames": len(cameras), "rows": []}
+            report["cameras"] = described
+            scenes.append(report)
+            if args.qualities:
+                print_scene(report, size)
+            if args.msaa:
+                report["antialiasing"] = measure_antialiasing(ctx, scene_spec, size, len(picture_cameras), args.msaa,
+                                                              cameras=picture_cameras, scene=scene)
+                print(antialiasing_table([report["antialiasing"]]), flush=True)
+            if args.still_samples:
+                report["still"] = measure_still(ctx, scene_spec, size, len(picture_cameras), args.still_samples,
+                                                cameras=picture_cameras, scene=scene)
+                print(still_table([report["still"]]), flush=True)
     ctx.release()
+    worst = summary(scenes)
+    if worst:
+        print("\n" + summary_table(worst))
     if args.json is not None:
-        meta = {"scenes": args.scene, "paths": paths, "size": list(args.size), "frames": args.frames,
+        meta = {"scenes": scenes_given, "paths": paths, "cameras": args.cameras, "seed": args.seed,
+                "size": list(sizes[0]), "sizes": [list(size) for size in sizes], "frames": args.frames,
                 "qualities": args.qualities, "renderer": renderer_name, "python": platform.python_version(),
                 "argv": args_list}
-        args.json.write_text(json.dumps({"meta": meta, "scenes": scenes}, indent=2, allow_nan=False) + "\n")
+        args.json.write_text(json.dumps({"meta": meta, "scenes": scenes, "summary": worst}, indent=2,
+                                        allow_nan=False) + "\n")
     return 0
 
 

@@ -91,6 +91,7 @@ from node.scene.loading import load_scene
 from node.settings import NodeSettings
 from tessera.cli_values import size_parser
 from tessera.geometry import Camera
+from tessera.scheduling.refinement import ADAPTIVE, StillPlan
 from tessera.wire.video import VideoCodec, codec_string
 
 #: ``tiles`` and every video codec of the protocol
@@ -220,9 +221,9 @@ class References:
         """(h, w, 3) uint8."""
         return self.renderer.render_frame(Camera.from_json(camera), self.size, self.state).pixels
 
-    def still(self, camera: dict[str, Any], samples: int) -> np.ndarray:
-        """The converged still of ``samples`` samples (``--render-once``), (h, w, 3) uint8."""
-        return self.renderer.render_still(Camera.from_json(camera), self.size, samples, self.state)
+    def still(self, camera: dict[str, Any], plan: StillPlan) -> np.ndarray:
+        """The converged still sampled as ``plan`` says (``--render-once``), (h, w, 3) uint8."""
+        return self.renderer.render_still(Camera.from_json(camera), self.size, plan, self.state)
 
     def release(self) -> None:
         self.renderer.release()
@@ -244,10 +245,19 @@ def psnr_figures(values: list[float], prefix: str) -> dict[str, Any]:
             f"{prefix}_min": min(reported) if reported else None, f"{prefix}_frames": len(reported)}
 
 
-def rest_figures(run: dict[str, Any], references: References | None, samples: int) -> dict[str, Any]:
+def still_plan_of(stats: dict[str, Any]) -> StillPlan:
+    """How the coordinator samples its still, from ``/api/stats``' ``still_samples``."""
+    figures = stats.get("still_samples") or {}
+    wanted = int(figures.get("wanted") or 1)
+    if figures.get("adaptive"):
+        return StillPlan(ADAPTIVE, wanted, float(figures["target_db"]))
+    return StillPlan(wanted)
+
+
+def rest_figures(run: dict[str, Any], references: References | None, plan: StillPlan) -> dict[str, Any]:
     """The rest's figures (``--rest-s``): the still's arrival after the last input (s), its size
     (KB) and the refinements' before it, whether it equals the coordinator's still of that frame
-    (``/api/frame.png``) and its PSNR against render-once's still of ``samples`` samples; then,
+    (``/api/frame.png``) and its PSNR against render-once's still sampled as ``plan`` says; then,
     moving again, the first answer's delay (ms) and the frames decoded per second."""
     rest, viewer = run["rest"], run["viewer"]
     still = rest["still"]
@@ -263,7 +273,7 @@ def rest_figures(run: dict[str, Any], references: References | None, samples: in
         out.update({"still_s": round(still[0] - rest["last_input"], 3), "still_kb": round(len(still[3]) / 1000, 1),
                     "still_exact": rest["still_source"] is not None and np.array_equal(image, rest["still_source"])})
         if references is not None:
-            out["still_psnr"] = reported_psnr(compare(image, references.still(rest["camera"], samples)))
+            out["still_psnr"] = reported_psnr(compare(image, references.still(rest["camera"], plan)))
     out["resume_ms"] = round((answers[0] - rest["resumed"]) * 1000.0, 1) if answers else None
     out["fps_resumed"] = round(len(decoded) / (rest["resume_end"] - rest["resumed"]), 2)
     return out
@@ -347,7 +357,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                                        url.replace("http://", "ws://", 1) + "/ws/node", "--nodes", str(args.nodes)])
         with httpx.Client(base_url=url, timeout=120) as client:
             stats = wait_ready(client, args.nodes)
-            still_samples = int((stats.get("still_samples") or {}).get("wanted") or 1)
+            still_plan = still_plan_of(stats)
             for transport in args.transports:
                 runs[transport] = play(args, url, client, transport, player)
     finally:
@@ -359,7 +369,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         result: dict[str, Any] = {t: figures(run, references) for t, run in runs.items()}
         for transport, run in runs.items():
             if run.get("rest") is not None:
-                result[transport].update(rest_figures(run, references, still_samples))
+                result[transport].update(rest_figures(run, references, still_plan))
     finally:
         if references is not None:
             references.release()
@@ -367,7 +377,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                      "size": list(args.size), "nodes": args.nodes, "synthetic": args.synthetic,
                      "input_hz": args.input_hz, "moving_s": args.moving_s, "server_args": args.server_args,
                      "throttle_mbps": args.throttle_mbps, "rest_s": args.rest_s, "resume_s": args.resume_s,
-                     "still_samples": still_samples,
+                     "still_samples": "auto" if still_plan.adaptive else still_plan.samples,
                      "renderer": stats["nodes"][0]["renderer"]}
     return result
 

@@ -3,11 +3,13 @@ reference image every composited frame is checked against. ``--face-limit`` and 
 as on a serving node; neither changes the image. ``--msaa`` and ``--environment`` shade as on a
 serving node (a hybrid or sort-last frame, drawn at one sample, equals ``--msaa 1``).
 
-Without ``--interactive`` the image is the progressive still (issue 20) the live service converges
-to with its defaults: ``--samples N`` whole frames (default the coordinator's ``--still-samples``),
-each shifted by its sample's jitter, accumulated exactly as the coordinator does
-(:meth:`node.gl.renderer.TileRenderer.render_still`). ``--interactive``: the interactive frame, one
-sample, not shifted (what ``--samples 1`` also gives).
+Without ``--interactive`` the image is the progressive still (issues 20, 37) the live service
+converges to with its defaults: whole frames, each shifted by its sample's jitter, accumulated
+exactly as the coordinator does and until the same estimate says it converged (``--samples auto``,
+``--samples-max``, ``--target-db``: the coordinator's ``--still-samples``, ``--still-samples-max``,
+``--still-target-db`` defaults), or ``--samples N`` of them
+(:func:`tessera.scheduling.refinement.accumulate_still`). ``--interactive``: the interactive frame,
+one sample, not shifted (what ``--samples 1`` also gives).
 
 The frame shows the scene state (issue 11) at ``--time T`` seconds (default 0): the scene's
 animations sampled at T, then the poses of ``--objects STATE.json``, ``{name: {"translation",
@@ -34,6 +36,7 @@ from node.scene.mesh import SceneError
 from node.settings import NodeSettings
 from tessera.geometry import Camera, CameraError, default_camera
 from tessera.scene.state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
+from tessera.scheduling.refinement import accumulate_still
 from tessera.wire.codec import encode_png
 
 
@@ -87,8 +90,13 @@ def render_once(settings: NodeSettings) -> int:
             frame = renderer.render_frame(camera, settings.size, state)
             pixels, drawn, samples = frame.pixels, f"{frame.triangles} drawn, {frame.cull_path} culling", 1
         else:
-            pixels, samples = renderer.render_still(camera, settings.size, settings.samples, state), settings.samples
-            drawn = f"{samples} jittered sample{'s' if samples > 1 else ''}"
+            still = accumulate_still(lambda subsample: renderer.render_frame(camera, settings.size, state,
+                                                                             subsample).pixels,
+                                     settings.size, settings.still_plan)
+            pixels, samples = still.mean(), still.count
+            estimate = "" if still.estimate_db is None else f", estimated {min(still.estimate_db, 100.0):.1f} dB " \
+                "from its converged image"
+            drawn = f"{samples} jittered sample{'s' if samples > 1 else ''}{estimate}"
         render_ms = (time.perf_counter() - started) * 1e3
         settings.render_once.write_bytes(encode_png(pixels))
     except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError,

@@ -17,9 +17,22 @@ from node.gl.shading import AUTO_MSAA, FILTER_MSAA, MSAA_CHOICES, ShadingOptions
 from node.scene.cache_folder import DEFAULT_CACHE_MB, CacheFolder
 from node.scene.fetch import DEFAULT_CACHE_DIR
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from tessera.cli_values import command_name, number_parser, parse_background, size_parser
+from tessera.cli_values import (
+    command_name,
+    number_parser,
+    parse_background,
+    parse_samples_max,
+    parse_still_samples,
+    parse_target_db,
+    size_parser,
+)
 from tessera.geometry import DEFAULT_BACKGROUND
-from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, MAX_STILL_SAMPLES
+from tessera.scheduling.refinement import (
+    DEFAULT_MAX_STILL_SAMPLES,
+    DEFAULT_STILL_SAMPLES,
+    DEFAULT_STILL_TARGET_DB,
+    StillPlan,
+)
 from tessera.wire.messages import MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
@@ -60,8 +73,11 @@ class NodeSettings:
     scene_cache_mb: int = DEFAULT_CACHE_MB
     msaa: int = AUTO_MSAA
     environment: Path | None = None
-    #: ``--render-once``: the still's samples (the coordinator's default ``--still-samples``).
+    #: ``--render-once``: the still's samples (the coordinator's default ``--still-samples``: adaptive,
+    #: at most ``samples_max``, until its estimate reaches ``target_db``).
     samples: int = DEFAULT_STILL_SAMPLES
+    samples_max: int = DEFAULT_MAX_STILL_SAMPLES
+    target_db: float = DEFAULT_STILL_TARGET_DB
     #: ``--render-once``: the interactive frame (one sample, not shifted) instead of the still.
     interactive: bool = False
 
@@ -69,6 +85,11 @@ class NodeSettings:
     def cache(self) -> CacheFolder:
         """The scene cache folder (``--scene-cache-dir``, ``--scene-cache-mb``)."""
         return CacheFolder(self.scene_cache_dir, self.scene_cache_mb << 20)
+
+    @property
+    def still_plan(self) -> StillPlan:
+        """How ``--render-once`` samples the still."""
+        return StillPlan(self.samples, self.samples_max, self.target_db)
 
     @property
     def shading(self) -> ShadingOptions:
@@ -80,17 +101,6 @@ class NodeSettings:
 parse_time = number_parser(note=" of seconds")
 #: A slowdown factor ≥ 1.
 parse_slowdown = number_parser(1.0)
-
-
-def parse_samples(text: str) -> int:
-    """A still's sample count, 1…:data:`MAX_STILL_SAMPLES`."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if not 1 <= value <= MAX_STILL_SAMPLES:
-        raise argparse.ArgumentTypeError(f"samples must be an integer 1..{MAX_STILL_SAMPLES}, got {text!r}")
-    return value
 
 
 def parse_culling(text: str) -> CullMode:
@@ -196,9 +206,14 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "sort-last) are drawn at 1, unfiltered", type=parse_msaa, metavar="N")
     add("--environment", None, "Radiance .hdr environment (equirectangular) lighting the scene; default a "
         "neutral studio generated at start-up", type=Path, metavar="FILE.hdr")
-    add("--samples", DEFAULT_STILL_SAMPLES, "--render-once renders the still of this many jittered samples "
-        "(default: the coordinator's --still-samples default, so the image is the still it converges to)",
-        type=parse_samples, metavar="N")
+    add("--samples", "auto", "--render-once renders the still of this many jittered samples, or auto (default): "
+        "until it converges, as the coordinator's --still-samples default, so the image is the still it converges to",
+        type=parse_still_samples, metavar="N")
+    add("--samples-max", str(DEFAULT_MAX_STILL_SAMPLES), "most samples of --render-once's adaptive still (the "
+        "coordinator's --still-samples-max)", type=parse_samples_max, metavar="N")
+    add("--target-db", repr(DEFAULT_STILL_TARGET_DB), "--render-once's adaptive still stops once its estimated PSNR "
+        "against its converged image reaches this, dB (the coordinator's --still-target-db)", type=parse_target_db,
+        metavar="DB")
     parser.add_argument("--interactive", action="store_true",
                         help="--render-once renders the interactive frame (one sample, not shifted), not the still")
     return parser

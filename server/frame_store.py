@@ -29,7 +29,8 @@ class PublishedFrame:
     ``scene_time`` (s): its scene state (None: the base pose); ``tile_states``: the state each
     tile's node says it rendered (the tile header's tag); ``samples``: the samples a progressive
     still's frame holds (issue 20; 0: a frame not accumulated), ``still`` then meaning the
-    converged one."""
+    converged one; ``estimate_db``: a still's estimated PSNR against its converged image (issue 37;
+    None: not estimated)."""
 
     frame_id: int
     camera: Camera
@@ -42,6 +43,7 @@ class PublishedFrame:
     scene_time: float | None = None
     tile_states: tuple[int, ...] = ()
     samples: int = 0
+    estimate_db: float | None = None
     _viewer_message: bytes | None = field(default=None, repr=False)
 
     @property

@@ -34,6 +34,7 @@ from server.scene_library import SceneLibrary
 from server.session_store import SessionStore
 from server.sessions import Session, new_key
 from server.settings import Settings
+from server.still_refinement import Refined, still_figures
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.decomposition.wall_cells import WallLayout
@@ -520,29 +521,30 @@ class RenderService:
             return
         self._show(session, job, self._frame_tiles(job))
 
-    def _show(self, session: Session, job: FrameJob, tiles: list, samples: int = 0) -> None:
-        """Publish ``job`` to the session's store and viewers with ``tiles``; ``samples``: a
-        progressive still's samples (then it is the still once it holds all of them)."""
+    def _show(self, session: Session, job: FrameJob, tiles: list, refined: Refined | None = None) -> None:
+        """Publish ``job`` to the session's store and viewers with ``tiles``; ``refined``: what a
+        progressive still's sample made (then the frame is the still once it converged)."""
         started = time.thread_time()
         state = job.state
         frame = PublishedFrame(job.frame_id, job.camera, job.size, tiles, time.monotonic(),
-                               still=job.still and (samples == 0 or job.converged), inputs=job.inputs,
+                               still=job.still and (refined is None or refined.converged), inputs=job.inputs,
                                state_version=None if state is None else state.version,
                                scene_time=None if state is None else state.time,
                                tile_states=tuple(t.header.state if t.header else 0 for t in job.tiles),
-                               samples=samples)
+                               samples=0 if refined is None else refined.samples,
+                               estimate_db=None if refined is None else refined.estimate_db)
         session.store.add(frame)
         if session.viewers.slots:
             session.viewers.publish_frame(frame)
         self.cpu_ms["publish"] += (time.thread_time() - started) * 1000.0
 
     def _refine(self, session: Session, job: FrameJob) -> None:
-        """A progressive still's sample (issue 20): accumulated on the still thread
+        """A progressive still's sample (issues 20, 37): accumulated on the still thread
         (:class:`server.still_refinement.StillRefiner`), the running mean published when it is done
         and shown (the converged one, refinements of enough samples) unless something changed since
-        (input cancels the refinement at once)."""
+        (input cancels the refinement at once); once converged, the scheduler stops the samples."""
         codec, quality = self.scheduler.sessions[job.session].codec(True)
-        done = session.refiner.submit(job.sample, job.samples, job.size, self._frame_tiles(job), codec, quality)
+        done = session.refiner.submit(job.sample, job.plan, job.size, self._frame_tiles(job), codec, quality)
         loop = asyncio.get_running_loop()
 
         def back_to_the_loop(future: Future) -> None:
@@ -559,11 +561,15 @@ class RenderService:
             log.error("session %s… still sample %d not accumulated: %s", session.id[:6], job.sample, done.exception())
             return
         frames = self.scheduler.sessions.get(job.session)
-        tiles = done.result()
-        if (tiles is None or self.sessions.get(session.id) is not session or frames is None
+        refined: Refined | None = done.result()
+        if (refined is None or self.sessions.get(session.id) is not session or frames is None
                 or frames.demand.version != job.version or job.frame_id <= session.store.last_id):
             return
-        self._show(session, job, tiles, samples=job.sample + 1)
+        if refined.converged:
+            self.scheduler.still_converged(time.monotonic(), job.version, job.session)
+        self._show(session, job, refined.tiles, refined)
+        if refined.converged:
+            self.apply()
 
     # ----------------------------------------------------------------- reporting
     def describe(self, session: Session | None = None, public: bool = False) -> dict[str, Any]:
@@ -586,7 +592,7 @@ class RenderService:
             "frames_in_flight": len(frames.frames),
             "frames_cancelled": frames.frames_cancelled,
             "still": bool(latest and latest.still),
-            "still_samples": {"done": latest.samples if latest else 0, "wanted": frames.demand.still_samples},
+            "still_samples": still_figures(latest, frames.demand.still_plan),
             "settled": session.settled,
             "scene": session.name,
             "scene_state": session.scene_state(),

@@ -12,7 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from server.origins import normalise_origins, path_prefix
-from tessera.cli_values import command_name, number_parser, parse_background, size_parser
+from tessera.cli_values import (
+    command_name,
+    number_parser,
+    parse_background,
+    parse_samples_max,
+    parse_still_samples,
+    parse_target_db,
+    size_parser,
+)
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
@@ -182,7 +190,8 @@ class Settings(SchedulerConfig):
     ``max_in_flight``, ``max_fps``, ``tile_timeout_s``, ``mode``, ``depth_strip``, ``background``,
     …; :meth:`scheduler_config` hands them on) and the service's own below."""
 
-    #: The coordinator's still accumulates samples (the scheduler alone renders one still frame).
+    #: The coordinator's still accumulates samples until it converges (the scheduler alone renders
+    #: one still frame).
     still_samples: int = DEFAULT_STILL_SAMPLES
     host: str = "127.0.0.1"
     port: int = 8000
@@ -287,9 +296,15 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                         help=f"JPEG quality of a jpeg still frame (default {defaults.still_quality})")
     parser.add_argument("--still-delay-ms", type=POSITIVE,
                         help=f"quiet time before the still frame, ms (default {defaults.still_delay_ms:g})")
-    parser.add_argument("--still-samples", type=_count,
-                        help="jittered frames the still accumulates once nothing changed (the progressive still; "
-                             f"1: one frame, not shifted; at most 127; default {defaults.still_samples})")
+    parser.add_argument("--still-samples", type=parse_still_samples,
+                        help="jittered frames the still accumulates once nothing changed (the progressive still): "
+                             "auto (default) until its estimated PSNR against the converged image reaches "
+                             "--still-target-db, or a fixed count (1: one frame, not shifted; at most 127)")
+    parser.add_argument("--still-samples-max", type=parse_samples_max,
+                        help=f"most samples of an adaptive still (default {defaults.still_samples_max})")
+    parser.add_argument("--still-target-db", type=parse_target_db,
+                        help="an adaptive still stops once its estimated PSNR against the image it converges to "
+                             f"reaches this, dB (default {defaults.still_target_db:g})")
     parser.add_argument("--settle-frames", type=_count,
                         help="at most this many frames more after a change while the balancer's partition "
                              f"still moves (default {defaults.settle_frames})")

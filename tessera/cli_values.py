@@ -8,6 +8,8 @@ import math
 from collections.abc import Callable
 from pathlib import PurePath
 
+from tessera.scheduling.refinement import ADAPTIVE, MAX_STILL_SAMPLES
+
 
 def command_name(argv0: str, module: str) -> str:
     """How the user started the process, for its usage line: the console script's name
@@ -60,3 +62,31 @@ def parse_background(text: str) -> tuple[float, float, float]:
     if len(rgb) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rgb):
         raise argparse.ArgumentTypeError(f"background must be '#rrggbb' or 'r,g,b' in 0…1, got {text!r}")
     return rgb  # type: ignore[return-value]
+
+
+def integer_parser(minimum: int, maximum: int, what: str, words: dict[str, int] | None = None) -> Callable[[str], int]:
+    """A parser of an integer ``minimum``…``maximum`` (or one of ``words``, e.g. auto → 0); ``what``
+    names it in the error message."""
+    words = words or {}
+
+    def parse_integer(text: str) -> int:
+        if text.strip().lower() in words:
+            return words[text.strip().lower()]
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if not minimum <= value <= maximum:
+            named = "".join(f"{word} or " for word in words)
+            raise argparse.ArgumentTypeError(f"{what} must be {named}an integer {minimum}..{maximum}, got {text!r}")
+        return value
+
+    return parse_integer
+
+
+#: A still's samples: ``auto`` (:data:`ADAPTIVE`: until it converges) or a count 1…:data:`MAX_STILL_SAMPLES`.
+parse_still_samples = integer_parser(1, MAX_STILL_SAMPLES, "samples", {"auto": ADAPTIVE})
+#: An adaptive still's most samples, 2…:data:`MAX_STILL_SAMPLES`.
+parse_samples_max = integer_parser(2, MAX_STILL_SAMPLES, "most samples")
+#: An adaptive still's target, dB PSNR against its converged image.
+parse_target_db = number_parser(0.0, above=True, note=" dB")

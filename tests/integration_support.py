@@ -35,14 +35,14 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workd
     """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
     ``objects`` poses, ``msaa`` samples: ``--time``, ``--objects``, ``--msaa``) of the interactive
     frame (``--interactive``), or with ``still_samples`` the progressive still of that many
-    samples (``--samples N``); (h, w, 3) uint8."""
+    samples (``--samples N``; 0, ``ADAPTIVE``: ``--samples auto``); (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))
     out = workdir / f"reference-{index}.png"
     extra = [] if scene_time is None else ["--time", repr(float(scene_time))]
     extra += [] if msaa is None else ["--msaa", str(msaa)]
-    extra += ["--interactive"] if still_samples is None else ["--samples", str(still_samples)]
+    extra += ["--interactive"] if still_samples is None else ["--samples", str(still_samples or "auto")]
     if objects is not None:
         objects_file = workdir / f"objects-{index}.json"
         objects_file.write_text(json.dumps(objects))

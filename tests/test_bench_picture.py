@@ -38,6 +38,6 @@ def test_picture_benchmark_reports_materials_and_antialiasing(tmp_path) -> None:
     single, sixteen = still["rows"]
     assert (single["samples"], sixteen["samples"]) == (1, 16) and still["msaa"] >= 1
     assert sixteen["psnr_mean_db"] > single["psnr_mean_db"] + 3.0, "the progressive still nears the reference"
-    assert sixteen["still_ms"] == pytest.approx(16 * sixteen["frame_ms"])
+    assert sixteen["samples_mean"] == sixteen["samples_max"] == 16 and sixteen["still_ms"] > single["still_ms"] > 0.0
     assert all(still["coordinator"][key] > 0.0 for key in ("decode_ms", "accumulate_ms", "encode_ms",
                                                            "refinement_encode_ms"))

@@ -73,14 +73,15 @@ OVERLAY_COLOUR_COUNTS_JS = """(palette) => {
 # The panel shows the viewer's own input → display latency as a number ("48 ms · 1.3 fr").
 INPUT_LATENCY_SHOWN_JS = """() => /^\\d+ ms/.test(document.getElementById("fig-input-latency").textContent)"""
 
-# The frame on screen is the converged still frame, in the badge (with its samples, as many as the
-# hello said the coordinator accumulates; a one-sample still is not accumulated: 0) and in window.tessera.
+# The frame on screen is the converged still frame, in the badge (with its samples: as many as the
+# hello said the coordinator accumulates, at most that many for an adaptive still; a one-sample still
+# is not accumulated: 0) and in window.tessera.
 STILL_SHOWN_JS = """() => {
   const badge = document.getElementById("quality-badge");
-  const samples = window.tessera.samples;
+  const { samples, stillSamples, stillAdaptive } = window.tessera;
   return badge.dataset.quality === "still" && window.tessera.still === true &&
     badge.textContent === (samples > 1 ? `still · ${samples} samples` : "still") &&
-    samples === (window.tessera.stillSamples > 1 ? window.tessera.stillSamples : 0);
+    (stillAdaptive ? samples > 1 && samples <= stillSamples : samples === (stillSamples > 1 ? stillSamples : 0));
 }"""
 
 # From now on, every text the quality badge shows, in order, in window.badgesShown.
@@ -159,11 +160,12 @@ def drive_viewer(context, base_url: str, screenshot: Path, nodes: int) -> None:
         shown = page.evaluate("window.badgesShown")
         assert "interactive" in shown, shown
         badges = shown[len(shown) - shown[::-1].index("interactive"):]   # since the last interactive frame
-        wanted = page.evaluate("window.tessera.stillSamples")
-        refining = [int(text.split()[1].split("/")[0]) for text in badges if text.startswith("refining")]
-        assert wanted > 1 and refining and refining == sorted(refining) and max(refining) < wanted, badges
-        assert all(text.endswith(f"/{wanted}") for text in badges if text.startswith("refining")), badges
-        assert badges[-1] == f"still · {wanted} samples", badges
+        most, converged = page.evaluate("[window.tessera.stillSamples, window.tessera.samples]")
+        assert page.evaluate("window.tessera.stillAdaptive"), "the default still is adaptive"
+        refining = [int(text.split()[2]) for text in badges if text.startswith("refining")]
+        assert all(re.fullmatch(r"refining · \d+ samples", text) for text in badges if text.startswith("refining"))
+        assert refining and refining == sorted(refining) and max(refining) < converged <= most, badges
+        assert badges[-1] == f"still · {converged} samples", badges
         viewer_id = page.evaluate("window.tessera.viewerId")
         wait_until(lambda: viewer_input_latency(base_url, viewer_id).get("samples", 0) > 0, seconds(30),
                    f"GET /api/stats to show viewer {viewer_id}'s input → display latency")

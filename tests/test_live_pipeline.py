@@ -66,10 +66,16 @@ def test_nothing_renders_while_nothing_changes_and_the_next_camera_renders_again
     first = client.put("/api/camera", json=camera).json()["frame"]
     frame_id, _ = fetch_frame(client, first)
     assert frame_id >= first
-    after = wait_until(lambda: (s := stats(client))["settled"] and s, seconds(60), "the still frame, settled")
-    assert after["still"], "settled means the still is shown"
+    after = wait_until(lambda: settled_and_shown(client), seconds(60), "the still frame, settled")
     assert after["coordinator_cpu"]["frames"] >= published + 2, "an interactive frame, then the still frame"
     assert all(n["tiles_rendered"] > r for n, r in zip(after["nodes"], rendered, strict=True))
+
+
+def settled_and_shown(client: httpx.Client) -> dict | None:
+    """The stats once settled; on every look before, settled never without the still shown."""
+    figures = stats(client)
+    assert figures["still"] or not figures["settled"], f"settled while the still is not shown: {figures}"
+    return figures if figures["settled"] else None
 
 
 def test_waiting_for_a_frame_that_is_not_coming_renders_one(live):

@@ -17,11 +17,16 @@ from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect, view_projection
 from tessera.scheduling.actions import RenderTiles
 from tessera.scheduling.refinement import (
+    ADAPTIVE,
+    ADAPTIVE_LOD_BIAS,
+    CHECKS,
     MAX_STILL_SAMPLES,
     Accumulator,
     RefinementPlan,
+    StillPlan,
     Subsample,
     accumulate,
+    accumulate_still,
     jitter,
     jitter_matrix,
     lod_bias,
@@ -122,9 +127,88 @@ def test_refinement_plan_counts_the_samples_started() -> None:
         plan.start()
     plan.restart()
     assert plan.owed and plan.start() == 0
-    for bad in (0, MAX_STILL_SAMPLES + 1):
+    for bad in (-1, MAX_STILL_SAMPLES + 1):
         with pytest.raises(ValueError):
             RefinementPlan(bad)
+    adaptive = RefinementPlan(StillPlan(ADAPTIVE, max_samples=4))
+    assert [adaptive.start() for _ in range(2)] == [0, 1] and adaptive.owed
+    adaptive.finish()
+    assert not adaptive.owed, "converged: no more samples"
+    adaptive.restart()
+    assert [adaptive.start() for _ in range(4)] == [0, 1, 2, 3] and not adaptive.owed, "at most max_samples"
+
+
+def test_an_adaptive_plan_checks_at_the_halton_counts_and_reads_textures_as_the_reference() -> None:
+    plan = StillPlan(ADAPTIVE, max_samples=40, target_db=47.0)
+    assert plan.adaptive and plan.most == 40 and plan.checks() == (8, 16, 24, 32, 40)
+    assert plan.subsample(5) == Subsample(jitter(5, 40), ADAPTIVE_LOD_BIAS) and plan.subsample(0) is not None
+    assert StillPlan(8).checks() == (8,) and StillPlan(1).checks() == () and StillPlan(1).subsample(0) is None
+    assert StillPlan(8).subsample(3) == subsample(3, 8)
+    assert not plan.done(16, None) and not plan.done(16, 46.9) and plan.done(16, 47.0) and plan.done(40, None)
+    assert not StillPlan(8).done(7, 99.0) and StillPlan(8).done(8, 10.0), "a fixed count ignores the estimate"
+    for bad in ({"samples": 128}, {"samples": -1}, {"max_samples": 1}, {"max_samples": 128}, {"target_db": 0.0}):
+        with pytest.raises(ValueError):
+            StillPlan(**{"samples": ADAPTIVE, **bad})
+
+
+def test_the_estimate_is_the_rms_difference_of_the_mean_and_its_first_halfs_mean_exactly() -> None:
+    """At each check the accumulator's estimate is the PSNR of the mean of all n samples against
+    the mean of the first n // 2, computed exactly from the sums (whatever the tile order), the
+    copies of the halves' sums are dropped once used (at most two kept at a time), and an adaptive
+    still converges at the first check whose estimate reaches the target, its mean the rounded mean
+    of the samples up to there."""
+    rng = np.random.default_rng(11)
+    truth = rng.integers(40, 216, (5, 7, 3)).astype(np.float64)
+    frames = [np.clip(truth + rng.normal(0, 24 / (k + 1), truth.shape), 0, 255).astype(np.uint8) for k in range(32)]
+    plan = StillPlan(ADAPTIVE, max_samples=32, target_db=99.0)
+    whole, tiled = Accumulator((7, 5), plan), Accumulator((7, 5), plan)
+    kept = []
+    for count, frame in enumerate(frames, 1):
+        whole.add(frame)
+        whole.finish_sample()
+        tiled.add(frame[:, 3:], 3)
+        tiled.add(frame[:, :3])
+        tiled.finish_sample()
+        kept.append(sum(v is not None for v in whole._halves.values()))
+        if count in CHECKS:
+            means = np.cumsum(np.stack(frames[:count]).astype(np.float64), axis=0)
+            expected = np.mean((means[count - 1] / count - means[count // 2 - 1] / (count // 2)) ** 2)
+            assert whole.estimated_at == count
+            assert whole.estimate_db == pytest.approx(10 * np.log10(255.0 ** 2 / expected), rel=1e-12)
+            assert tiled.estimate_db == whole.estimate_db
+    assert max(kept) <= 2 and whole.converged and whole.count == 32, "an unreachable target: at most max_samples"
+    for count in (16, 32):
+        reached = StillPlan(ADAPTIVE, max_samples=32, target_db=estimate_after(frames, count) - 1e-9)
+        render, seen = drawing(frames)
+        still = accumulate_still(render, (7, 5), reached)
+        assert still.count == count and seen == [reached.subsample(k) for k in range(count)]
+        assert np.array_equal(still.mean(), accumulate(frames[:count]))
+    flat = Accumulator((2, 2), StillPlan(ADAPTIVE, max_samples=8))
+    for _ in range(8):
+        flat.add(np.full((2, 2, 3), 9, np.uint8))
+        flat.finish_sample()
+    assert flat.estimate_db == np.inf and flat.converged
+
+
+def estimate_after(frames: list[np.ndarray], count: int) -> float:
+    """The estimate an adaptive accumulator makes after ``count`` of ``frames`` (a check)."""
+    accumulator = Accumulator(frames[0].shape[1::-1], StillPlan(ADAPTIVE, max_samples=MAX_STILL_SAMPLES))
+    for frame in frames[:count]:
+        accumulator.add(frame)
+        accumulator.finish_sample()
+    assert accumulator.estimated_at == count and accumulator.estimate_db is not None
+    return accumulator.estimate_db
+
+
+def drawing(frames: list[np.ndarray]):
+    """A render callback that draws ``frames`` in turn, and the subsamples it was asked for."""
+    seen: list[Subsample | None] = []
+
+    def render(sub: Subsample | None) -> np.ndarray:
+        seen.append(sub)
+        return frames[len(seen) - 1]
+
+    return render, seen
 
 
 def test_demand_asks_for_the_still_samples_one_at_a_time_and_a_change_restarts_them() -> None:
@@ -179,10 +263,10 @@ def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -
         sub = job.subsample
         assert job.still and sub is not None and sub.lod_bias == pytest.approx(-0.5 * np.log2(3))
         assert {(m.jitter, m.lod_bias) for m in messages} == {(sub.offset, sub.lod_bias)}
-        frames.append((job.sample, job.samples, job.converged))
+        frames.append((job.sample, job.samples))
         actions = finish(s, frame_id, now)
         assert published(actions) == [frame_id]
-    assert frames == [(0, 3, False), (1, 3, False), (2, 3, True)]
+    assert frames == [(0, 3), (1, 3), (2, 3)]
     assert s.default.settled and s.next_deadline(0.5) is None
     for now in (1.0, 10.0):
         s.tick(now)
@@ -199,6 +283,50 @@ def test_the_scheduler_renders_the_still_samples_one_frame_each_then_nothing() -
     (interactive,) = s.in_flight
     assert not s.in_flight[interactive].still and s.in_flight[interactive].subsample is None
     assert renders(actions), "the interactive frame starts at once"
+
+
+def test_an_adaptive_still_takes_samples_until_the_coordinator_says_it_converged() -> None:
+    """An adaptive still's samples (the reference's texture LOD bias) keep coming until the
+    coordinator reports the still converged: the samples in flight are then dropped, nothing more
+    renders, and the session is settled; a report for an older state changes nothing; unreported,
+    the samples stop at the most."""
+    s = scheduler(still_delay_ms=0, still_samples=ADAPTIVE, still_samples_max=12)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    finish(s, 1, 0.05)
+    s.tick(0.1)
+    version = s.default.demand.version
+    s.still_converged(0.1, version - 1)
+    samples, now = [], 0.1
+    while len(samples) < 8:
+        job = s.in_flight[min(s.in_flight)]
+        assert job.still and job.subsample == StillPlan(ADAPTIVE, 12).subsample(job.sample)
+        samples.append(job.sample)
+        now += 0.05
+        finish(s, job.frame_id, now)
+        s.tick(now)
+    assert samples == list(range(8)) and any(job.still for job in s.in_flight.values()), "the next sample is on its way"
+    s.drain()
+    in_flight = set(s.in_flight)
+    s.still_converged(now, version)
+    actions = s.drain()
+    assert in_flight and not s.in_flight, "the samples in flight are dropped"
+    assert max(in_flight) in {f for frames in cancels(actions).values() for f in frames}, "nodes skip the queued one"
+    assert s.default.settled and s.next_deadline(now) is None
+    s.tick(now + 5.0)
+    assert s.drain() == [] and not s.in_flight, "once converged nothing renders"
+    s.still_converged(now, version)
+    assert s.drain() == []
+    s.set_camera(camera(1), 10.0)
+    started = []
+    for step in range(1, 40):
+        s.tick(10.0 + 0.05 * step)
+        if not s.in_flight:
+            break
+        job = s.in_flight[min(s.in_flight)]
+        started += [job.sample] if job.still else []
+        finish(s, job.frame_id, 10.0 + 0.05 * step)
+    assert started == list(range(12)) and s.default.settled, "unreported, the still stops at its most samples"
 
 
 def test_the_next_sample_goes_ahead_to_nodes_ending_the_one_before_and_input_drops_both() -> None:
@@ -280,7 +408,7 @@ def test_a_one_sample_still_is_not_jittered() -> None:
     finish(s, 1, 0.05)
     s.tick(0.1)
     (still,) = s.in_flight.values()
-    assert still.still and still.converged and still.subsample is None
+    assert still.still and still.samples == 1 and still.subsample is None
     assert all(a.message.jitter is None and a.message.lod_bias is None
                and not {"jitter", "lod_bias"} & set(a.message.to_json())
                for a in s.drain() if isinstance(a, RenderTiles))
@@ -315,26 +443,51 @@ def test_the_coordinator_refiner_shows_the_converged_mean_exactly_and_skips_a_sa
     def image(out: list) -> np.ndarray:
         return np.concatenate([decode(t[3], t[1], t[0].w, t[0].h) for t in out], axis=1)
 
+    plan = StillPlan(samples)
     with ThreadPoolExecutor(1) as pool:
         refiner = StillRefiner(pool)
         for sample in range(samples):
             codec = Codec.RAW if sample % 2 else Codec.PNG
-            out = refiner.submit(sample, samples, (6, 4), tiles(frames[sample], codec), Codec.PNG, 95).result()
+            refined = refiner.submit(sample, plan, (6, 4), tiles(frames[sample], codec), Codec.PNG, 95).result()
             if sample + 1 < FIRST_SHOWN:
-                assert out is None, "too few samples to show"
+                assert refined is None, "too few samples to show"
                 continue
-            assert out is not None and [t[0] for t in out] == rects and [t[2] for t in out] == [0, 1]
+            assert refined is not None and refined.samples == sample + 1
+            assert refined.converged == (sample + 1 == samples)
+            out = refined.tiles
+            assert [t[0] for t in out] == rects and [t[2] for t in out] == [0, 1]
             expected = accumulate(frames[:sample + 1])
             if sample + 1 < samples:
                 assert {t[1] for t in out} == {Codec.JPEG} and psnr(image(out), expected) > 30.0
             else:
                 assert {t[1] for t in out} == {Codec.PNG} and np.array_equal(image(out), expected)
-        assert refiner.submit(samples + 2, samples, (6, 4), tiles(frames[0]), Codec.PNG, 95).result() is None
+        assert refiner.submit(samples + 2, plan, (6, 4), tiles(frames[0]), Codec.PNG, 95).result() is None
         assert refiner.pending == samples + 1 and refiner.cpu_ms > 0.0
         # A later sample submitted before the thread takes a refinement: that refinement is not shown.
         gate = threading.Event()
         pool.submit(gate.wait)
-        waiting = [refiner.submit(k, samples, (6, 4), tiles(frames[k]), Codec.PNG, 95) for k in range(samples)]
+        waiting = [refiner.submit(k, plan, (6, 4), tiles(frames[k]), Codec.PNG, 95) for k in range(samples)]
         gate.set()
         shown = [k + 1 for k, future in enumerate(waiting) if future.result() is not None]
         assert shown == [FIRST_SHOWN, samples], "the first refinement shown always, then the converged still"
+
+
+def test_the_refiner_stops_an_adaptive_still_where_it_converged_and_adds_no_later_sample() -> None:
+    """An adaptive still is converged at the first check whose estimate reaches the target: that
+    sample's result is the still (the exact mean in the still codec, with its estimate), and the
+    samples already on their way after it are not added."""
+    rng = np.random.default_rng(8)
+    truth = rng.integers(0, 256, (4, 6, 3)).astype(np.float64)
+    frames = [np.clip(truth + rng.normal(0, 3.0, truth.shape), 0, 255).astype(np.uint8) for _ in range(24)]
+    rect = Rect(0, 0, 6, 4)
+    plan = StillPlan(ADAPTIVE, max_samples=24, target_db=estimate_after(frames, 16) - 1e-9)
+    with ThreadPoolExecutor(1) as pool:
+        refiner = StillRefiner(pool)
+        results = [refiner.submit(k, plan, (6, 4), [(rect, Codec.RAW, 0, frames[k].tobytes())], Codec.PNG, 95).result()
+                   for k in range(20)]
+    converged = [r for r in results if r is not None and r.converged]
+    assert len(converged) == 1 and converged[0].samples == 16 and results[15] is converged[0]
+    assert converged[0].estimate_db == pytest.approx(estimate_after(frames, 16))
+    (tile,) = converged[0].tiles
+    assert tile[1] is Codec.PNG and np.array_equal(decode(tile[3], Codec.PNG, 6, 4), accumulate(frames[:16]))
+    assert results[16:] == [None] * 4, "samples after convergence are not added"

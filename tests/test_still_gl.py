@@ -1,7 +1,8 @@
-"""The progressive still on real GL (issue 20): jittered tiles join into the jittered frame bit for
-bit, the accumulated still is the mean of the jittered frames and comes closer to the 4×4
-supersampled frame than one sample, and ``--render-once`` renders that still by default
-(``--samples N``, ``--interactive``)."""
+"""The progressive still on real GL (issues 20, 37): jittered tiles join into the jittered frame bit
+for bit, the accumulated still is the mean of the jittered frames and comes closer to the 4×4
+supersampled frame than one sample, the adaptive still stops at a check where its estimate reached
+its target and that estimate does not overstate how near it is to the image its samples converge
+to, and ``--render-once`` renders the adaptive still by default (``--samples N``, ``--interactive``)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,14 @@ from bench.picture import supersampled
 from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from tessera.geometry import Camera, Rect
-from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES, accumulate, subsample
+from tessera.scheduling.refinement import (
+    ADAPTIVE,
+    DEFAULT_STILL_SAMPLES,
+    StillPlan,
+    accumulate,
+    accumulate_still,
+    subsample,
+)
 from tests.conftest import scene_path
 from tests.test_render_gl import run_render_once
 
@@ -57,6 +65,21 @@ def test_the_still_is_the_mean_of_its_jittered_samples_and_nears_the_supersample
     assert psnr(still, reference) > one + 3.0, "accumulated samples come closer to the supersampled frame"
 
 
+def test_the_adaptive_still_stops_where_its_estimate_reaches_the_target_and_does_not_overstate_it(bunny) -> None:
+    camera = Camera.from_json(CAMERA)
+    plan = StillPlan(ADAPTIVE, max_samples=64, target_db=44.0)
+
+    def draw(sample):
+        return bunny.render_frame(camera, SIZE, subsample=sample).pixels
+
+    still = accumulate_still(draw, SIZE, plan)
+    assert still.count in plan.checks() and still.count < plan.most and still.estimate_db >= plan.target_db
+    longer = accumulate_still(draw, SIZE, StillPlan(ADAPTIVE, max_samples=64, target_db=99.0))
+    assert longer.count == 64
+    assert psnr(still.mean(), longer.mean()) >= still.estimate_db - 0.5, "the estimate does not overstate"
+    assert np.array_equal(bunny.render_still(camera, SIZE, plan), still.mean())
+
+
 def test_render_once_renders_the_still_by_default(tmp_path, bunny) -> None:
     (tmp_path / "camera.json").write_text(json.dumps(CAMERA))
     args = ("--scene", str(scene_path("bunny/bun_zipper.ply")), "--camera", str(tmp_path / "camera.json"),
@@ -68,6 +91,7 @@ def test_render_once_renders_the_still_by_default(tmp_path, bunny) -> None:
     for name, extra in (("still.png", ()), ("two.png", ("--samples", "2")), ("interactive.png", ("--interactive",))):
         result = run_render_once(tmp_path, name, *args, *extra)
         assert result.returncode == 0, result.stderr
+        assert name != "still.png" or "estimated" in result.stdout, result.stdout
         image = np.asarray(Image.open(io.BytesIO((tmp_path / name).read_bytes())).convert("RGB"))
         assert np.array_equal(image, expected[name]), name
     result = run_render_once(tmp_path, "bad.png", *args, "--samples", "0")

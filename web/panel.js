@@ -47,6 +47,15 @@ export function fpsText(stats) {
   return atRest(stats) ? "at rest" : fixed(Number(stats.fps), 1);
 }
 
+/** The still figure from the stats' `still_samples` ({done, estimated_psnr_db, …}): "16 samples · ≈49.3 dB"
+ * when the picture shown holds samples, "–" for an interactive frame. */
+export function stillText(stats) {
+  const still = stats.still_samples ?? {};
+  if (!(Number(still.done) > 0)) return "–";
+  const estimate = Number.isFinite(still.estimated_psnr_db) ? ` · ≈${fixed(still.estimated_psnr_db, 1)} dB` : "";
+  return `${still.done} sample${still.done === 1 ? "" : "s"}${stats.still ? "" : " (refining)"}${estimate}`;
+}
+
 /** What a node line's figures mean, shown on hover. */
 export function nodeDetailTitle(node) {
   const name = node.name ?? `node ${node.id}`;
@@ -196,6 +205,7 @@ export class Panel {
       this.figure("frame").textContent = String(stats.frame ?? "–");
       this.figure("size").textContent = Array.isArray(stats.size) ? stats.size.join("×") : "–";
     }
+    this.figure("still").textContent = stillText(stats);
     this.showNodes(stats.nodes || []);
     this.onNodes(stats.nodes || []);
     this.onStats(stats);

@@ -53,6 +53,8 @@ const state = {
   // coordinator accumulates (hello's still_samples).
   samples: 0,
   stillSamples: null,
+  // The still stops when it converged (hello's still_adaptive): stillSamples is then the most it takes.
+  stillAdaptive: false,
   inputLatency: null,
   camera: null,
   framesDrawn: 0,
@@ -146,7 +148,8 @@ function showQuality(frame) {
     badge.textContent = samples > 1 ? `still · ${samples} samples` : "still";
   } else if (samples > 0) {
     badge.dataset.quality = "refining";
-    badge.textContent = `refining ${samples}/${state.stillSamples ?? "?"}`;
+    badge.textContent = state.stillAdaptive ? `refining · ${samples} samples`
+      : `refining ${samples}/${state.stillSamples ?? "?"}`;
   } else {
     badge.dataset.quality = "interactive";
     badge.textContent = "interactive";
@@ -226,6 +229,7 @@ function onText(message) {
       if (session.key && !session.watching && !session.cell) setTimeout(sendSize, 0);
       state.viewerId = message.viewer;
       state.stillSamples = message.still_samples ?? null;
+      state.stillAdaptive = message.still_adaptive === true;
       samplesReported = 0;
       shownId = null;
       hellos += 1;

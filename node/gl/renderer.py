@@ -88,8 +88,7 @@ from node.scene.pose import ScenePose
 from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, resolve_pair_filter
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
-from tessera.scheduling import refinement
-from tessera.scheduling.refinement import Accumulator, Subsample, jitter_matrix
+from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, jitter_matrix
 
 GL_SRGB8_ALPHA8 = 0x8C43
 #: Bytes of geometry copied to the GL at a time.
@@ -473,16 +472,15 @@ class TileRenderer:
         ``subsample`` of a still (None: a plain frame)."""
         return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, subsample=subsample)
 
-    def render_still(self, camera: Camera, size: tuple[int, int], samples: int,
+    def render_still(self, camera: Camera, size: tuple[int, int], samples: StillPlan | int,
                      state: SceneState | None = None) -> np.ndarray:
-        """The progressive still of ``samples`` whole frames, each drawn as its sample's subsample,
-        accumulated (:mod:`tessera.scheduling.refinement`): what the coordinator publishes as the
-        still of a rested camera with ``--still-samples samples``; (h, w, 3) uint8."""
-        accumulator = Accumulator(size)
-        for sample in range(samples):
-            accumulator.add(self.render_frame(camera, size, state, refinement.subsample(sample, samples)).pixels)
-            accumulator.finish_sample()
-        return accumulator.mean()
+        """The progressive still of ``samples`` (a :class:`StillPlan`, or a fixed count) of whole
+        frames, each drawn as its sample's subsample, accumulated until it converged
+        (:func:`tessera.scheduling.refinement.accumulate_still`): what the coordinator publishes as
+        the still of a rested camera with the same plan; (h, w, 3) uint8."""
+        plan = samples if isinstance(samples, StillPlan) else StillPlan(samples)
+        return accumulate_still(lambda subsample: self.render_frame(camera, size, state, subsample).pixels,
+                                size, plan).mean()
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
               view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None) -> None:

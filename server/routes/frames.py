@@ -10,6 +10,7 @@ from fastapi.responses import Response
 from server.frame_store import PublishedFrame, encode_frame_png
 from server.routes.deps import get_session, require_token
 from server.sessions import Session
+from server.still_refinement import reported_estimate
 from tessera.wire.codec import CodecError
 
 router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
@@ -25,11 +26,12 @@ async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None
     seconds (default ``--frame-wait-s``); a frame is rendered for the request when none is kept or
     on its way (frames render on demand). With ``still=true`` and ``after``, the first *still*
     frame with id ≥ K: the one rendered with ``--still-codec`` once nothing changed.
-    With ``--still-samples N`` above 1 the still is progressive (issue 20): the frames refining it
-    are not still frames; the still frame is the converged one, of all N samples.
+    The still is progressive (issues 20, 37; unless ``--still-samples 1``): the frames refining it
+    are not still frames; the still frame is the converged one.
     Header ``X-Frame-Id``; ``X-Frame-Still`` 1 or 0; ``X-Frame-Samples``, the samples a progressive
-    still's frame holds (0: a frame that is not accumulated); for a scene with objects, ``X-State-Version``
-    and ``X-Scene-Time`` (s, ``repr`` of the float: exact) of the frame's scene state, and
+    still's frame holds (0: a frame that is not accumulated); ``X-Frame-Estimated-Psnr``, a still's
+    estimated PSNR against its converged image in dB (absent when not estimated); for a scene with
+    objects, ``X-State-Version`` and ``X-Scene-Time`` (s, ``repr`` of the float: exact) of the frame's scene state, and
     ``X-Tile-States``, the state tag each tile's node reported (tile order). The image is lossless PNG of the tiles as
     received: an interactive frame with ``--codec jpeg`` carries the JPEG tiles' loss.
     ``X-Composite-Ms``: CPU time to decode and paste the tiles; ``X-Png-Encode-Ms``: PNG encoding.
@@ -55,6 +57,7 @@ async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None
     return Response(png, media_type="image/png", headers={
         "X-Frame-Id": str(frame.frame_id), "X-Tile-Codec": frame.tiles[0][1].name.lower() if frame.tiles else "",
         "X-Frame-Still": "1" if frame.still else "0", "X-Frame-Samples": str(frame.samples), **state_headers(frame),
+        **({} if frame.estimate_db is None else {"X-Frame-Estimated-Psnr": str(reported_estimate(frame.estimate_db))}),
         "X-Composite-Ms": f"{decode_ms:.3f}", "X-Png-Encode-Ms": f"{encode_ms:.3f}", "Cache-Control": "no-store"})
 
 

@@ -147,7 +147,8 @@ async def viewer_socket(ws: WebSocket) -> None:
         size=session.size if cell is None or session.wall is None else session.wall.cell, viewer=slot.viewer_id,
         camera=session.camera, bounds=session.bounds.tolist() if session.bounds is not None else None,
         balancer=session.balancer.name, balancers=tuple(sorted(BALANCERS)), frame=session.store.last_id,
-        still_samples=session.frames.demand.still_samples if settings.still_codec is not None else None))
+        still_samples=session.frames.demand.still_plan.most if settings.still_codec is not None else None,
+        still_adaptive=settings.still_codec is not None and session.frames.demand.still_plan.adaptive))
     if session.wall is not None:
         slot.put_control(WallHello(wall=session.wall.to_json(), cell=cell))
     if session.store.latest is not None:

@@ -18,7 +18,7 @@ from PIL import Image
 from tessera.balancers.base import Partition, TileTiming
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
-from tessera.scheduling.refinement import Subsample, subsample
+from tessera.scheduling.refinement import ONE_FRAME, StillPlan, Subsample
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
@@ -68,7 +68,7 @@ class FrameJob:
     nodes reported no objects), one partition, every tile tracked.
 
     ``still``: the lossless frame rendered once motion stopped (else an interactive frame), sample
-    ``sample`` (0-based) of a progressive still of ``samples`` (:mod:`tessera.scheduling.refinement`);
+    ``sample`` (0-based) of a progressive still sampled as ``plan`` says (:mod:`tessera.scheduling.refinement`);
     ``version``: the scheduler's state version it shows, ``changed_at`` when that state arrived
     (seconds, the scheduler's clock); ``inputs``: each viewer's newest input sequence number
     it accounts for; ``depth``: the hybrid or sort-last request its tiles are rendered with (None:
@@ -101,7 +101,7 @@ class FrameJob:
     ahead: bool = False
     one_by_one: bool = False
     sample: int = 0
-    samples: int = 1
+    plan: StillPlan = ONE_FRAME
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
@@ -109,7 +109,7 @@ class FrameJob:
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
                state: SceneState | None = None, depth: DepthRequest | None = None,
                session: str = DEFAULT_SESSION, scene: str | None = None, sample: int = 0,
-               samples: int = 1, parts: Sequence[Rect | None] = ()) -> FrameJob:
+               plan: StillPlan = ONE_FRAME, parts: Sequence[Rect | None] = ()) -> FrameJob:
         """``parts``: for each tile of ``partition``, the tile it is a piece of (empty: none is)."""
         parts = parts or [None] * len(partition.tiles)
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id, part_of=part)
@@ -117,7 +117,7 @@ class FrameJob:
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
                   inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene,
-                  sample=sample, samples=samples)
+                  sample=sample, plan=plan)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -127,14 +127,14 @@ class FrameJob:
         return self.tiles_done == len(self.tiles)
 
     @property
-    def subsample(self) -> Subsample | None:
-        """How its tiles are drawn: a still's sample's jitter and LOD bias (None: a plain frame)."""
-        return subsample(self.sample, self.samples) if self.still else None
+    def samples(self) -> int:
+        """The most samples of its still (1: a frame not accumulated)."""
+        return self.plan.most
 
     @property
-    def converged(self) -> bool:
-        """The last sample of a still: the still viewers are told about."""
-        return self.still and self.sample == self.samples - 1
+    def subsample(self) -> Subsample | None:
+        """How its tiles are drawn: a still's sample's jitter and LOD bias (None: a plain frame)."""
+        return self.plan.subsample(self.sample) if self.still else None
 
     @property
     def timings_complete(self) -> bool:

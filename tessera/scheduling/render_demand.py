@@ -2,14 +2,15 @@
 the state asks for. A frame is owed when something changed since the newest frame started, while
 an animation plays, for at most ``settle_frames`` more frames after a change while the partition
 still moves, and, in the still codec, after nothing changed for ``still_delay_s`` and no
-interactive frame is in flight: the progressive still's ``still_samples`` frames one after the
-other (:mod:`tessera.scheduling.refinement`); a sample may start while the one before is in flight
-(the frame scheduler caps how many), so that no node idles between them. Pure: the clock comes in
-as ``now`` (s)."""
+interactive frame is in flight: the progressive still's samples one frame after the other
+(:mod:`tessera.scheduling.refinement`: a fixed count, or an adaptive still's until the coordinator
+says it converged, :meth:`RenderDemand.still_converged`); a sample may start while the one before
+is in flight (the frame scheduler caps how many), so that no node idles between them. Pure: the
+clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
 
-from tessera.scheduling.refinement import RefinementPlan
+from tessera.scheduling.refinement import RefinementPlan, StillPlan
 
 INTERACTIVE = "interactive"
 STILL = "still"
@@ -20,7 +21,8 @@ class RenderDemand:
     version a frame started with, whose still's every sample started, whose still is being
     refined (:attr:`refinement`: its samples started), a published frame showed."""
 
-    def __init__(self, settle_frames: int, still_delay_s: float, still_frames: bool, still_samples: int = 1) -> None:
+    def __init__(self, settle_frames: int, still_delay_s: float, still_frames: bool,
+                 still_samples: StillPlan | int = 1) -> None:
         self.settle_frames, self.still_delay_s, self.still_frames = settle_frames, still_delay_s, still_frames
         self.refinement = RefinementPlan(still_samples)
         self.version = 0
@@ -40,9 +42,19 @@ class RenderDemand:
     def still_dropped(self, version: int) -> None:
         """A still frame of ``version`` was dropped: when nothing changed since (e.g. the nodes'
         data partition did), that still starts again from its first sample."""
-        if version == self.version:
+        if version == self.version and not (self._refining == version and self.refinement.finished):
             self._still = min(self._still, version - 1)
             self.refinement.restart()
+
+    def still_converged(self, version: int) -> bool:
+        """The coordinator found the still of ``version`` converged (an adaptive still's estimate
+        reached its target): no more samples are owed. False when that still is not the one being
+        refined (the state changed since) or was already done."""
+        if version != self.version or self._refining != version or self.refinement.finished:
+            return False
+        self.refinement.finish()
+        self._still = version
+        return True
 
     def owed(self, now: float, animating: bool, partition_moving: bool, interactive_in_flight: bool,
              ignore_quiet: bool = False) -> str | None:
@@ -86,9 +98,9 @@ class RenderDemand:
         return 0
 
     @property
-    def still_samples(self) -> int:
-        """Samples a still accumulates."""
-        return self.refinement.samples
+    def still_plan(self) -> StillPlan:
+        """How a still is sampled."""
+        return self.refinement.plan
 
     @property
     def shown(self) -> bool:

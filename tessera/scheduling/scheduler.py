@@ -14,7 +14,7 @@ What it decides:
   ``settle_frames`` more frames after a change, and only while the partition still moves), or
   when the still frame is owed: once nothing changed for ``still_delay_ms``, frames in the
   lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality): the progressive
-  still's ``still_samples`` jittered samples, one frame after the other, the next sent ahead to
+  still's jittered samples (``still_samples``, or until it converges), one frame after the other, the next sent ahead to
   nodes ending their tile of the one before (:mod:`tessera.scheduling.refinement`; their adapter
   accumulates them and shows the mean, so when every node is on the coordinator's machine the
   samples' tiles travel raw: no PNG to encode on the nodes nor to check and decode on the
@@ -97,7 +97,7 @@ from tessera.scheduling.actions import (
 from tessera.scheduling.fair_share import FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
-from tessera.scheduling.refinement import MAX_STILL_SAMPLES
+from tessera.scheduling.refinement import DEFAULT_MAX_STILL_SAMPLES, DEFAULT_STILL_TARGET_DB, StillPlan
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
 from tessera.video.budget import full_analysis
@@ -121,11 +121,12 @@ FIRST_FRAME_PIECES = 4
 class SchedulerConfig:
     """What the scheduler is told, with the defaults the coordinator's settings take over
     (:class:`server.settings.Settings` extends this class; nothing is defined twice but
-    ``still_samples``: 1 here, one still frame; the coordinator's is measured).
+    ``still_samples``: 1 here, one still frame; the coordinator's is adaptive).
 
     ``size`` (w, h) px; ``codec``/``interactive_quality``: tiles while things change;
     ``still_codec`` (None: no still frame) and ``still_quality`` (JPEG only) once nothing changed
-    for ``still_delay_ms``, ``still_samples`` jittered frames accumulated into the still;
+    for ``still_delay_ms``, ``still_samples`` jittered frames accumulated into the still (0:
+    adaptive, until its estimate reaches ``still_target_db``, at most ``still_samples_max``);
     ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border strip (px);
     ``background``: the clear colour, linear RGB in [0, 1] (None: the default), which the depth
     modes' merge paints where no node drew."""
@@ -137,6 +138,8 @@ class SchedulerConfig:
     still_quality: int = 95
     still_delay_ms: float = 200.0
     still_samples: int = 1
+    still_samples_max: int = DEFAULT_MAX_STILL_SAMPLES
+    still_target_db: float = DEFAULT_STILL_TARGET_DB
     settle_frames: int = 2
     max_in_flight: int = 2
     max_fps: float = 60.0
@@ -155,12 +158,16 @@ class SchedulerConfig:
             raise ValueError("max_in_flight must be >= 1")
         if not self.max_fps > 0.0:
             raise ValueError("max_fps must be > 0")
-        if not 1 <= self.still_samples <= MAX_STILL_SAMPLES:
-            raise ValueError(f"still_samples must be 1..{MAX_STILL_SAMPLES}, got {self.still_samples}")
+        assert self.still_plan   # its checks raise ValueError
         if self.still_delay_ms < 0.0 or self.settle_frames < 0 or not self.tile_timeout_s > 0.0:
             raise ValueError("still_delay_ms and settle_frames must be >= 0, tile_timeout_s > 0")
         if not (self.backup_factor > 1.0 and self.backup_floor_s >= 0.0 and self.max_tile_failures >= 1):
             raise ValueError("backup_factor must be > 1, backup_floor_s >= 0, max_tile_failures >= 1")
+
+    @property
+    def still_plan(self) -> StillPlan:
+        """How a still is sampled."""
+        return StillPlan(self.still_samples, self.still_samples_max, self.still_target_db)
 
     @property
     def still_delay_s(self) -> float:
@@ -456,6 +463,15 @@ class FrameScheduler:
         if node is not None:
             self.table.skipped(node, frame_id, tile_ids)
 
+    def still_converged(self, now: float, version: int, session_id: str = DEFAULT_SESSION) -> None:
+        """The coordinator found the session's still of ``version`` converged: no more samples are
+        owed, and those in flight (started before it knew) are dropped."""
+        session = self.sessions.get(session_id)
+        if session is not None and session.demand.still_converged(version):
+            for job in [job for job in session.frames.values() if job.still]:
+                self._cancel(job, now)
+            self._advance(now)
+
     def tick(self, now: float) -> None:
         """Time passed: back up stragglers' tiles, drop nodes that owe a tile for over
         ``tile_timeout_s``, start what is due."""
@@ -618,7 +634,7 @@ class FrameScheduler:
     def _start_frame(self, session: SessionFrames, now: float, still: bool) -> None:
         ready = self.table.holding(session.ready)
         width, height = session.size
-        raw = ((session.demand.still_samples > 1 if still else session.video_only and full_analysis(session.size))
+        raw = ((session.demand.still_plan.most > 1 if still else session.video_only and full_analysis(session.size))
                and all(n.local for n in ready) and width * height <= self.config.size[0] * self.config.size[1])
         scarcity = self._scarcity(session)
         job, error = session.start_frame(self.next_frame_id, ready, now, still, raw_tiles=raw,

@@ -23,6 +23,7 @@ from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.frame_stats import FrameStats
 from tessera.scheduling.node_table import NodeSchedule
+from tessera.scheduling.refinement import ONE_FRAME
 from tessera.scheduling.render_demand import STILL, RenderDemand
 from tessera.wire.codec import Codec
 
@@ -43,7 +44,7 @@ class SessionFrames:
         #: The scene's objects, animations and state log (None: frames show the base pose).
         self.scene: SceneTimeline | None = None
         self.demand = RenderDemand(config.settle_frames, config.still_delay_s, config.still_codec is not None,
-                                   config.still_samples)
+                                   config.still_plan)
         self.inputs: dict[Hashable, int] = {}
         #: Projected primitive groups for a camera and the frame's scene state (None: the base pose)
         #: (seed 003 DPBP), for balancers that use them.
@@ -131,7 +132,7 @@ class SessionFrames:
                               version=self.demand.version, changed_at=self.demand.changed_at,
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
-                              samples=self.demand.still_samples if still else 1, parts=parts)
+                              plan=self.demand.still_plan if still else ONE_FRAME, parts=parts)
         job.one_by_one = pieces > 1
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job

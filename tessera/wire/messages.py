@@ -514,7 +514,8 @@ class Cancel(Message):
 class ViewerHello(Message):
     """A viewer's first message: frame size, its id, the newest camera and the scene's bounds (null
     until known), the balancer and those available, the last published frame id, and the samples
-    the still frame accumulates (issue 20's progressive still; None: no still frame)."""
+    the still frame accumulates (issue 20's progressive still; None: no still frame; with
+    ``still_adaptive``, the most it takes: it stops when it converged, issue 37)."""
 
     kind = "hello"
     size: tuple[Int, Int]
@@ -525,6 +526,7 @@ class ViewerHello(Message):
     balancers: tuple[Text, ...]
     frame: Int
     still_samples: Int | None = None
+    still_adaptive: StrictBool = False
 
 
 class CameraUpdate(Message):

@@ -4,7 +4,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import {
-  PHASES, PHASE_MEANING, atRest, fpsText, inputLatencyText, niceScale, nodeDetail, nodeDetailTitle,
+  PHASES, PHASE_MEANING, atRest, fpsText, inputLatencyText, niceScale, nodeDetail, nodeDetailTitle, stillText,
   segmentWidths, transportText,
 } from "../../web/panel.js";
 
@@ -81,4 +81,12 @@ test("the transport figure names tiles, or the codec with the stream's target", 
   assert.equal(transportText("tiles", null), "tiles");
   assert.equal(transportText("h264", null), "h264");
   assert.equal(transportText("h264", { bitrate: 2_500_000, max_fps: 60 }), "h264 · 2.5 Mbit/s · 60 fps");
+});
+
+test("the still figure says the samples the picture holds and their estimated PSNR", () => {
+  assert.equal(stillText({ still: false, still_samples: { done: 0, estimated_psnr_db: null } }), "–");
+  assert.equal(stillText({}), "–");
+  assert.equal(stillText({ still: true, still_samples: { done: 16, estimated_psnr_db: 49.34 } }), "16 samples · ≈49.3 dB");
+  assert.equal(stillText({ still: false, still_samples: { done: 5, estimated_psnr_db: null } }), "5 samples (refining)");
+  assert.equal(stillText({ still: true, still_samples: { done: 1 } }), "1 sample");
 });
