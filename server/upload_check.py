@@ -15,6 +15,7 @@ The child prints one JSON line: ``{"triangles": N}``, ``{"refused": REASON}`` or
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import json
 import resource
@@ -72,11 +73,12 @@ def _last_line(text: str) -> str:
 
 
 def _caused_by_memory(exc: BaseException | None) -> bool:
-    """Whether ``exc`` or an exception it was raised from or while handling is a MemoryError (the
-    loader turns any exception, MemoryError included, into a SceneError with its text)."""
+    """Whether ``exc`` or an exception it was raised from or while handling is a MemoryError, or an
+    OSError of ENOMEM (a memory map refused under the cap); the loader turns any exception into a
+    SceneError with its text."""
     seen: set[int] = set()
     while exc is not None and id(exc) not in seen:
-        if isinstance(exc, MemoryError):
+        if isinstance(exc, MemoryError) or (isinstance(exc, OSError) and exc.errno == errno.ENOMEM):
             return True
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__

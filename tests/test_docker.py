@@ -267,6 +267,10 @@ def test_viewer_from_the_host_draws_a_frame_and_shows_the_node_names(deployment,
         cut = page.evaluate("() => [...document.querySelectorAll('#nodes .name')]"
                             ".filter((e) => e.scrollWidth > e.clientWidth).map((e) => e.textContent)")
         assert cut == [], f"names cut off in the panel: {cut}"
+        # The picker offers the mounted scenes folder's files (issue 38).
+        page.wait_for_function("() => [...document.querySelectorAll('#scene-pick option')].some("
+                               f"(o) => o.value === {json.dumps('library/' + SCENE)})", timeout=seconds(30) * 1000)
+        assert not page.is_visible("#library-hint") and "drop a scene file" in page.text_content("#upload-hint")
 
 
 def test_containers_are_read_only_without_capabilities(deployment):
