@@ -35,6 +35,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
 from node.gl.context import GLUnavailableError
+from node.gl.view_tools import ViewTools
 from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, Send
 from node.scene.fetch import SceneFetcher
@@ -214,7 +215,7 @@ class NodeClient:
             return
         try:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
-                                                Subsample.of(job.jitter, job.lod_bias))
+                                                Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job))
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             for tile in action.sent:
                 outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
@@ -239,7 +240,7 @@ class NodeClient:
         job, request, state = action.render, action.tile, action.state
         try:
             drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
-                                                   Subsample.of(job.jitter, job.lod_bias))
+                                                   Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job))
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

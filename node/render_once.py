@@ -13,15 +13,18 @@ one sample, not shifted (what ``--samples 1`` also gives).
 
 The frame shows the scene state (issue 11) at ``--time T`` seconds (default 0): the scene's
 animations sampled at T, then the poses of ``--objects STATE.json``, ``{name: {"translation",
-"rotation", "scale", "visible"}}`` with any subset of those fields per object."""
+"rotation", "scale", "visible"}}`` with any subset of those fields per object; ``--clip CLIP.json``
+cuts it by clip planes and a section box (issue 35, as ``PUT /api/sessions/{id}/clip`` takes them)
+and ``--highlight NAME`` draws an object selected."""
 
 from __future__ import annotations
 
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import moderngl
 
@@ -30,6 +33,7 @@ from node.gl.context import GLUnavailableError, create_gl_context
 from node.gl.environment import EnvironmentError
 from node.gl.renderer import TileRenderer
 from node.gl.shading import Antialiasing
+from node.gl.view_tools import ViewTools
 from node.scene.data import SceneData
 from node.scene.ingest import open_cached, read_scene
 from node.scene.mesh import SceneError
@@ -37,7 +41,11 @@ from node.settings import NodeSettings
 from tessera.geometry import Camera, CameraError, default_camera
 from tessera.scene.state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
 from tessera.scheduling.refinement import accumulate_still
+from tessera.tools.clipping import ClipError, ClipState
 from tessera.wire.codec import encode_png
+
+T = TypeVar("T")
+E = TypeVar("E", bound=Exception)
 
 
 def read_json(path: Path, what: str, error: type[Exception]) -> Any:
@@ -52,24 +60,35 @@ def read_json(path: Path, what: str, error: type[Exception]) -> Any:
         raise error(f"{what} file {path}: invalid JSON ({exc})") from None
 
 
+def read_parsed(path: Path, what: str, error: type[E], parse: Callable[[Any], T]) -> T:
+    """``parse`` of the JSON in ``path``; raises ``error`` naming ``what`` file, the path and the
+    reason (``parse`` raises ``error`` for content it refuses)."""
+    data = read_json(path, what, error)
+    try:
+        return parse(data)
+    except error as exc:
+        raise error(f"{what} file {path}: {exc}") from None
+
+
 def read_camera(path: Path) -> Camera:
     """Parse a camera JSON file; raises CameraError whose message names the file and the reason."""
-    data = read_json(path, "camera", CameraError)
-    try:
-        return Camera.from_json(data)
-    except CameraError as exc:
-        raise CameraError(f"camera file {path}: {exc}") from None
+    return read_parsed(path, "camera", CameraError, Camera.from_json)
 
 
 def read_objects(path: Path) -> dict[str, ObjectPatch]:
     """Parse an object state file; raises SceneStateError whose message names the file and the reason."""
-    data = read_json(path, "objects", SceneStateError)
-    if not isinstance(data, dict):
-        raise SceneStateError(f"objects file {path}: must be a JSON object of name: state")
-    try:
+
+    def patches(data: Any) -> dict[str, ObjectPatch]:
+        if not isinstance(data, dict):
+            raise SceneStateError("must be a JSON object of name: state")
         return {str(name): ObjectPatch.from_json(value, str(name)) for name, value in data.items()}
-    except SceneStateError as exc:
-        raise SceneStateError(f"objects file {path}: {exc}") from None
+
+    return read_parsed(path, "objects", SceneStateError, patches)
+
+
+def read_clip(path: Path) -> ClipState:
+    """Parse a clip state file; raises ClipError whose message names the file and the reason."""
+    return read_parsed(path, "clip", ClipError, ClipState.from_json)
 
 
 def render_once(settings: NodeSettings) -> int:
@@ -79,12 +98,16 @@ def render_once(settings: NodeSettings) -> int:
     try:
         camera = read_camera(settings.camera) if settings.camera is not None else None
         overrides = read_objects(settings.objects) if settings.objects is not None else None
+        clip = read_clip(settings.clip) if settings.clip is not None else None
         scene = open_cached(read_scene(settings.scene, settings.scene, settings.face_limit, None,
                                        lambda fraction, message: None, settings.cache), settings.scene)
         state = _state(scene, settings.time, overrides, settings.objects)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
         renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling, shading=settings.shading)
+        if settings.highlight is not None:
+            scene.objects.lookup(settings.highlight)
+        renderer.use_tools(ViewTools(clip, settings.highlight))
         started = time.perf_counter()
         if settings.interactive:
             frame = renderer.render_frame(camera, settings.size, state)
@@ -99,7 +122,7 @@ def render_once(settings: NodeSettings) -> int:
             drawn = f"{samples} jittered sample{'s' if samples > 1 else ''}{estimate}"
         render_ms = (time.perf_counter() - started) * 1e3
         settings.render_once.write_bytes(encode_png(pixels))
-    except (CameraError, SceneError, SceneStateError, GLUnavailableError, CullingUnavailableError,
+    except (CameraError, SceneError, SceneStateError, ClipError, GLUnavailableError, CullingUnavailableError,
             EnvironmentError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

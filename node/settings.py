@@ -68,6 +68,10 @@ class NodeSettings:
     face_limit: int = DEFAULT_FACE_LIMIT
     time: float = 0.0
     objects: Path | None = None
+    #: ``--render-once``: clip planes and section box (JSON file, :mod:`tessera.tools.clipping`).
+    clip: Path | None = None
+    #: ``--render-once``: the object drawn selected (tinted).
+    highlight: str | None = None
     scene_memory_mb: int = DEFAULT_SCENE_MEMORY_MB
     scene_cache_dir: Path = DEFAULT_CACHE_DIR
     scene_cache_mb: int = DEFAULT_CACHE_MB
@@ -189,6 +193,10 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         type=parse_time)
     add("--objects", None, "object state JSON file for --render-once, {name: {translation, rotation, scale, "
         "visible}} (any subset of those)", type=Path, metavar="STATE.json")
+    add("--clip", None, "clip planes and section box JSON file for --render-once, {planes: [{point, normal}], box: "
+        "{min, max}, cap, cap_color} (as PUT /api/sessions/ID/clip takes)", type=Path, metavar="CLIP.json")
+    add("--highlight", None, "--render-once draws this object selected (tinted, with its descendants)",
+        metavar="NAME")
     add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into chunks of at most this many faces at load, so that each "
         "tile draws only the chunks it sees", type=parse_face_limit)
     add("--scene-memory-mb", DEFAULT_SCENE_MEMORY_MB, "memory for the scenes a node holds at once (their vertex "

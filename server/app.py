@@ -16,12 +16,14 @@ from server.routes import (
     animation,
     balancer,
     camera,
+    clipping,
     frames,
     health,
     node_ws,
     nodes,
     objects,
     scenes,
+    selection,
     sessions,
     stats,
     viewer_ws,
@@ -62,7 +64,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.include_router(module.router)
     app.include_router(stats.metrics_router)
     for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other
-        for module in (stats, camera, objects, animation, frames, balancer):
+        for module in (stats, camera, objects, animation, frames, balancer, clipping, selection):
             app.include_router(module.router, prefix=prefix)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

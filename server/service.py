@@ -253,6 +253,7 @@ class RenderService:
             self.scheduler.set_balancer(create_balancer(balancer["name"], balancer["params"]), time.monotonic(),
                                         session.id)
         session.pending_state = record.get("scene_state")
+        session.restore_clip(record.get("clip"))
         log.info("session %s… restored: %s", session.id[:6], session.name)
 
     def close_session(self, session: Session, reason: str = "session closed") -> None:

@@ -28,6 +28,7 @@ from tessera.scene.state import ObjectPatch, SceneStateError
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.scheduler import FrameScheduler
 from tessera.scheduling.session_frames import SessionFrames
+from tessera.tools.clipping import ClipError, ClipState
 
 
 class SessionHost(Protocol):
@@ -135,6 +136,27 @@ class Session:
         SceneStateError, and nothing changes, for a bad value."""
         return self._event(lambda now: self.service.scheduler.set_animation(now, playing, time_s, speed, self.id))
 
+    def set_clip(self, clip: ClipState | None) -> int:
+        """Cut the frames by ``clip``'s planes and box (None or nothing active: no cut) from the
+        frame whose id this returns on (issue 35)."""
+        clip = clip if clip is not None and clip.active else None
+
+        def change(now: float) -> int:
+            self.frames.clip = clip
+            return self.service.scheduler.invalidate(now, self.id)
+
+        return self._event(change)
+
+    def select(self, name: str | None) -> int:
+        """Draw object ``name`` selected (tinted, with its descendants; None: nothing) from the
+        frame whose id this returns on. The caller checks the name is one of the scene's."""
+
+        def change(now: float) -> int:
+            self.frames.highlight = name
+            return self.service.scheduler.invalidate(now, self.id)
+
+        return self._event(change)
+
     def resize(self, size: tuple[int, int]) -> int:
         """Frames of ``size`` (w, h) from now on; returns the first frame id of that size."""
         return self._event(lambda now: self.service.scheduler.resize(size, now, self.id))
@@ -174,13 +196,15 @@ class Session:
         scene, now = self.frames.scene, time.monotonic()
         state = None if scene is None else {
             "poses": {name: patch.to_json() for name, patch in scene.overrides.items()},
-            "playing": scene.playing, "time": scene.time_at(now), "speed": scene.speed}
+            "playing": scene.playing, "time": scene.time_at(now), "speed": scene.speed,
+            "selection": self.frames.highlight}
         return {"id": self.id, "watch_key": self.watch_key, "label": self.label, "name": self.name,
                 "scene": self.scene, "fetch": self.service.fetch_of(self.scene), "size": list(self.size),
                 "camera": self.camera.to_json() if self.camera else None,
                 "balancer": {"name": self.balancer.name, "params": self.balancer.params},
                 "wall": self.wall.to_json() if self.wall else None,
-                "scene_state": state if state is not None else self.pending_state}
+                "scene_state": state if state is not None else self.pending_state,
+                "clip": None if self.frames.clip is None else self.frames.clip.to_json()}
 
     def restore_state(self, state: dict[str, Any], now: float) -> None:
         """Object poses and the animation clock of :meth:`record`, once the scene is known; a pose
@@ -193,6 +217,15 @@ class Session:
                 continue
         with contextlib.suppress(SceneStateError):   # a value the scene no longer takes: its clock as it is
             scheduler.set_animation(now, bool(state.get("playing")), state.get("time"), state.get("speed"), self.id)
+        selection = state.get("selection")
+        if isinstance(selection, str) and self.frames.scene is not None and selection in self.frames.scene.graph.index:
+            self.frames.highlight = selection
+            scheduler.invalidate(now, self.id)
+
+    def restore_clip(self, data: Any) -> None:
+        """The clip state of :meth:`record` (one that no longer reads is dropped)."""
+        with contextlib.suppress(ClipError):
+            self.frames.clip = None if data is None else ClipState.from_json(data)
 
     # ----------------------------------------------------------------- what users read
     def next_frame_id(self) -> int:

@@ -31,11 +31,13 @@ SCENE_FILES = {
 
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
                 scene_time: float | None = None, objects: dict[str, Any] | None = None,
-                msaa: int | None = None, still_samples: int | None = None) -> np.ndarray:
+                msaa: int | None = None, still_samples: int | None = None, clip: dict[str, Any] | None = None,
+                highlight: str | None = None) -> np.ndarray:
     """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
-    ``objects`` poses, ``msaa`` samples: ``--time``, ``--objects``, ``--msaa``) of the interactive
-    frame (``--interactive``), or with ``still_samples`` the progressive still of that many
-    samples (``--samples N``; 0, ``ADAPTIVE``: ``--samples auto``); (h, w, 3) uint8."""
+    ``objects`` poses, ``msaa`` samples, the ``clip`` state and ``highlight``: ``--time``,
+    ``--objects``, ``--msaa``, ``--clip``, ``--highlight``) of the interactive frame
+    (``--interactive``), or with ``still_samples`` the progressive still of that many samples
+    (``--samples N``; 0, ``ADAPTIVE``: ``--samples auto``); (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))
@@ -47,6 +49,11 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workd
         objects_file = workdir / f"objects-{index}.json"
         objects_file.write_text(json.dumps(objects))
         extra += ["--objects", str(objects_file)]
+    if clip is not None:
+        clip_file = workdir / f"clip-{index}.json"
+        clip_file.write_text(json.dumps(clip))
+        extra += ["--clip", str(clip_file)]
+    extra += [] if highlight is None else ["--highlight", highlight]
     result = subprocess.run(
         [PYTHON, "-m", "node", "--render-once", str(out), "--scene", scene, "--camera", str(camera_file),
          "--size", f"{size[0]}x{size[1]}", *extra],

@@ -50,6 +50,7 @@ from node.culling.order import ChunkGroups, front_to_back
 from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
 from node.scene.chunks import DrawRuns, SceneChunks
 from tessera.geometry import Rect
+from tessera.tools.clipping import clipped_boxes
 
 
 class CullingUnavailableError(RuntimeError):
@@ -113,6 +114,10 @@ class TileCuller:
         bounds = chunks.batch_bounds
         self._gpu_batches = [(b, int(bounds[b]), int(bounds[b + 1] - bounds[b])) for b in range(bounds.size - 1)]
         self.gpu_bvh: GpuBvh | None = None
+        #: The frame's clip half-spaces (P, 4) world space (None: nothing cut) and the chunks they
+        #: cut away wholly (:meth:`set_clip`).
+        self.clip: np.ndarray | None = None
+        self._clipped: np.ndarray | None = None
         if mode in (CullMode.GPU, CullMode.HYBRID) and ctx.version_code >= 430:
             index = chunks.index_bounds
             self.gpu_bvh = GpuBvh(ctx, self.bvh, index[:-1], index[1:], bounds[chunks.batch + 1])
@@ -126,6 +131,8 @@ class TileCuller:
         state = self._slots.get(slot)
         if state is None:
             state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
+        if self.clip is not None:   # chunks wholly cut away are culled like those outside the tile
+            return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj)
         if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
             return self._cull_gpu(state, planes)
         return self._cull_cpu(state, planes, view_proj)
@@ -136,13 +143,23 @@ class TileCuller:
         its row of ``models`` (len, 4, 4) (:meth:`MovedCuller.cull`; mode off: all of them)."""
         planes = (None if self.mode is CullMode.OFF or not batches
                   else frustum_planes_from_matrix(view_proj, size, rect))
+        if planes is not None and self.clip is not None:
+            planes = np.vstack((planes, self.clip))
         return self.moved.cull(planes, batches, models)
+
+    def set_clip(self, halfspaces: np.ndarray | None) -> None:
+        """Cull the chunks wholly outside one of the world ``halfspaces`` (P, 4) too (None: none),
+        on the CPU (the GPU path tests six planes; the clip distances cut what it keeps)."""
+        self.clip = None if halfspaces is None else np.asarray(halfspaces, dtype=np.float64).reshape(-1, 4)
+        self._clipped = None if self.clip is None else clipped_boxes(self.chunks.boxes, self.clip)
 
     def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None) -> TileCull:
         """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer
         draws when hybrid ownership or a sort-last share decided (path "list"); nearest first under
         the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`)."""
         ids = np.asarray(chunk_ids, dtype=np.int64)
+        if self._clipped is not None and ids.size:
+            ids = ids[~self._clipped[ids]]
         heads = np.flatnonzero(np.diff(ids, prepend=-2) != 1)
         first, end = ids[heads], np.append(ids[heads[1:] - 1], ids[-1:]) + 1
         runs = (self.chunks.runs(first, end) if view_proj is None

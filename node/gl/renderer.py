@@ -79,6 +79,7 @@ from node.culling.tiles import TileCull, TileCuller
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
 from node.gl.programs import ShaderPrograms
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
+from node.gl.view_tools import ViewTools, ViewToolsGL
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.mesh import MeshBatch
@@ -229,8 +230,13 @@ class TileRenderer:
         self.shaders = ShaderPrograms(
             ctx, scene.batches, [(self.vertex_buffer, packed.layout.gl_format, *packed.layout.attributes)],
             self.index_buffer, SAMPLER_UNITS)
+        #: The vertex buffer's format and attribute names (the id pass draws from it too).
+        self.vertex_format = (packed.layout.gl_format, *packed.layout.attributes)
         self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.textures = self._upload_textures(scene.batches)
+        #: The frame's clip planes, section box and highlight (:meth:`use_tools`).
+        self.view = ViewToolsGL(ctx, scene)
+        self._set_uniforms(self.view.uniforms())
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
@@ -316,6 +322,18 @@ class TileRenderer:
         pixels = (resolve_pair_filter if paired else resolve_filter)(tile.pixels, rect, drawn)
         return dataclasses.replace(tile, rect=rect, pixels=pixels,
                                    render_ms=tile.render_ms + (time.perf_counter() - filtering) * 1e3)
+
+    def use_tools(self, tools: ViewTools | None) -> None:
+        """Draw with the frame's ``tools`` (clip planes, section box, highlight; None: none) from
+        now on (:mod:`node.gl.view_tools`); the culler drops chunks they cut away. ValueError for
+        tools that cannot be drawn (an unknown object, too many half-spaces)."""
+        if self.view.use(tools):
+            self._set_uniforms(self.view.uniforms())
+            self.culler.set_clip(self.view.halfspaces if self.view.halfspaces.size else None)
+
+    def _set_uniforms(self, values: dict[str, Any]) -> None:
+        for name, value in values.items():
+            self._set_uniform(name, value)
 
     def pose_of(self, state: SceneState | None) -> ScenePose:
         """The pose of ``state``, kept for the next tiles of the same state."""
@@ -493,6 +511,7 @@ class TileRenderer:
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self.view.bind()
         self._blending = False
         if not self.multi_draw:
             assert culled.runs is not None, "GPU culling draws its commands by multi-draw-indirect"
@@ -543,7 +562,8 @@ class TileRenderer:
         """Batch ``number``'s program: its shader variant, with discards when it is alpha-masked or
         peeled. Without discards the depth test runs before the shader, so fragments behind what is
         drawn are not shaded (chunks come nearest first: :mod:`node.culling.order`)."""
-        return self.shaders.key(number, self._peeling or self.scene.batches[number].alpha_mode == "MASK")
+        return self.shaders.key(number, self._peeling or self.view.discards
+                                or self.scene.batches[number].alpha_mode == "MASK")
 
     def _use_model(self, pose: ScenePose, owner: int, view_proj: np.ndarray) -> None:
         """Set the matrices of object ``owner`` (−1: an unmoved one, drawn with ``view_proj`` as is)."""
@@ -572,6 +592,7 @@ class TileRenderer:
         program["u_metallic"].value = material.metallic
         program["u_roughness"].value = material.roughness
         program["u_emissive"].value = material.emissive
+        program["u_tint"].value = self.view.tint(number)
         if not variant.textured:
             return
         if variant.normal_map:

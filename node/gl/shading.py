@@ -125,6 +125,8 @@ uniform mat4 u_view_projection;
 uniform mat4 u_model;
 uniform mat3 u_normal_matrix;
 uniform vec3 u_eye;
+uniform vec4 u_clip[8];   // the frame's clip half-spaces (node.gl.view_tools): kept where dot >= 0
+out float gl_ClipDistance[8];
 in vec3 in_position;
 in vec3 in_normal;
 in vec2 in_uv;
@@ -149,7 +151,9 @@ out vec2 v_uv1;
 #endif
 """ + IRRADIANCE + """
 void main() {
-    v_position = (u_model * vec4(in_position, 1.0)).xyz;
+    vec4 world = u_model * vec4(in_position, 1.0);
+    v_position = world.xyz;
+    for (int i = 0; i < 8; ++i) gl_ClipDistance[i] = dot(u_clip[i], world);
     v_normal = u_normal_matrix * in_normal;
 #if !NORMAL_MAP
     float normal_length = length(v_normal);
@@ -197,6 +201,13 @@ uniform bool u_peel;
 uniform sampler2D u_floor;
 uniform sampler2D u_ceil;
 uniform ivec2 u_origin;
+uniform bool u_cap;          // the frame cuts the scene: the inside of cut surfaces is capped
+uniform vec3 u_cap_color;
+uniform vec4 u_tint;         // the selected object's tint (sRGB, amount)
+#if DISCARDS
+uniform vec4 u_clip_extra[4];   // clip half-spaces beyond the 8 clip distances
+uniform int u_clip_extra_count;
+#endif
 in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
@@ -303,6 +314,8 @@ vec3 perturbed_normal(vec3 n, vec3 tangent_normal, vec2 uv) {
 
 void main() {
 #if DISCARDS
+    for (int i = 0; i < u_clip_extra_count; ++i)
+        if (dot(u_clip_extra[i].xyz, v_position) + u_clip_extra[i].w < 0.0) discard;
     if (u_peel) {
         ivec2 texel = ivec2(gl_FragCoord.xy) - u_origin;
         if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
@@ -334,6 +347,10 @@ void main() {
     // Two-sided: a normal facing away is flipped (its tangent frame with it), and E(−n) is the
     // even part less the odd one.
     float side = dot(geometric, v) < 0.0 ? -1.0 : 1.0;
+    if (u_cap && side < 0.0 && !gl_FrontFacing) {   // the inside of a cut surface: a solid cap
+        f_color = vec4(mix(u_cap_color, u_tint.rgb, u_tint.a), 1.0);
+        return;
+    }
     vec3 n = geometric * side;
 #if NORMAL_MAP
     vec2 normal_uv = slot_uv(2);
@@ -394,7 +411,7 @@ void main() {
 #else
     color += u_emissive;
 #endif
-    f_color = vec4(linear_to_srgb(clamp(pbr_neutral(color), 0.0, 1.0)), base.a);
+    f_color = vec4(mix(linear_to_srgb(clamp(pbr_neutral(color), 0.0, 1.0)), u_tint.rgb, u_tint.a), base.a);
 }
 """
 

@@ -33,6 +33,7 @@ from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, rende
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
+from node.gl.view_tools import ViewTools
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
@@ -212,29 +213,35 @@ class GLWorker:
 
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                      state: SceneState | None = None, scene: str | None = None,
-                     subsample: Subsample | None = None) -> RenderedTile:
+                     subsample: Subsample | None = None, tools: ViewTools | None = None) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
-        (None: the base pose), as ``subsample`` of a still (None: a plain frame); ``slot`` (the tile id)
-        keys the tile's hybrid culling switch. Raises SceneNotLoadedError for a scene not held."""
-        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample)
+        (None: the base pose), as ``subsample`` of a still (None: a plain frame), with the frame's
+        ``tools`` (clip, highlight; None: none); ``slot`` (the tile id) keys the tile's hybrid
+        culling switch. Raises SceneNotLoadedError for a scene not held."""
+        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
-                state: SceneState | None, scene: str | None, subsample: Subsample | None) -> RenderedTile:
-        return self._scenes.find(scene).renderer.render_tile(camera, size, rect, slot, state=state,
-                                                             subsample=subsample)
+                state: SceneState | None, scene: str | None, subsample: Subsample | None,
+                tools: ViewTools | None) -> RenderedTile:
+        renderer = self._scenes.find(scene).renderer
+        renderer.use_tools(tools)
+        return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,
-                           subsample: Subsample | None = None) -> DepthRender:
+                           subsample: Subsample | None = None, tools: ViewTools | None = None) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
-        version; ``subsample`` as :meth:`render`'s. Raises SceneNotLoadedError for a scene or share not held."""
-        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample)
+        version; ``subsample`` and ``tools`` as :meth:`render`'s. Raises SceneNotLoadedError for a
+        scene or share not held."""
+        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
-                      state: SceneState | None, scene: str | None, subsample: Subsample | None) -> DepthRender:
+                      state: SceneState | None, scene: str | None, subsample: Subsample | None,
+                      tools: ViewTools | None) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
+        renderer.use_tools(tools)
         started = time.perf_counter()
         plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id)
         plan_ms = (time.perf_counter() - started) * 1e3

@@ -19,6 +19,7 @@ from tessera.balancers.base import Partition, TileTiming
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
 from tessera.scheduling.refinement import ONE_FRAME, StillPlan, Subsample
+from tessera.tools.clipping import ClipState
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.messages import DepthRequest, Render, RenderTile
@@ -75,7 +76,8 @@ class FrameJob:
     sort-first), its tiles then depth tiles; ``ahead``: started while no node holding its scene was
     idle, for one ending its last tile (dispatch ahead); ``one_by_one``: its tiles are pieces of
     the frame that go to a node one at a time, the next when the one before came back (a pull
-    frame: an idle node holding the scene takes one too).
+    frame: an idle node holding the scene takes one too); ``clip`` and ``highlight``: the
+    session's clip planes and section box and its selected object when it started (issue 35).
     """
 
     frame_id: int
@@ -102,6 +104,8 @@ class FrameJob:
     one_by_one: bool = False
     sample: int = 0
     plan: StillPlan = ONE_FRAME
+    clip: ClipState | None = None
+    highlight: str | None = None
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
@@ -109,7 +113,8 @@ class FrameJob:
                changed_at: float = 0.0, inputs: dict[object, int] | None = None,
                state: SceneState | None = None, depth: DepthRequest | None = None,
                session: str = DEFAULT_SESSION, scene: str | None = None, sample: int = 0,
-               plan: StillPlan = ONE_FRAME, parts: Sequence[Rect | None] = ()) -> FrameJob:
+               plan: StillPlan = ONE_FRAME, parts: Sequence[Rect | None] = (), clip: ClipState | None = None,
+               highlight: str | None = None) -> FrameJob:
         """``parts``: for each tile of ``partition``, the tile it is a piece of (empty: none is)."""
         parts = parts or [None] * len(partition.tiles)
         tiles = [TileJob(i, t.rect, None if partition.pull else t.node_id, part_of=part)
@@ -117,7 +122,7 @@ class FrameJob:
         job = cls(frame_id, camera, size, codec, jpeg_quality, partition.pull, tiles, started_at,
                   partition=partition, still=still, version=version, changed_at=changed_at,
                   inputs=dict(inputs or {}), state=state, depth=depth, session=session, scene=scene,
-                  sample=sample, plan=plan)
+                  sample=sample, plan=plan, clip=clip, highlight=highlight)
         if partition.pull:
             job.pull_queue.extend(range(len(tiles)))
         return job
@@ -150,7 +155,7 @@ class FrameJob:
                       tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect, part_of=self.tiles[i].part_of)
                                   for i in tile_ids), state=state,
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
-                      lod_bias=None if sub is None else sub.lod_bias)
+                      lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight)
 
     def pull_next(self) -> list[int]:
         """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the

@@ -25,6 +25,7 @@ from tessera.scheduling.frame_stats import FrameStats
 from tessera.scheduling.node_table import NodeSchedule
 from tessera.scheduling.refinement import ONE_FRAME
 from tessera.scheduling.render_demand import STILL, RenderDemand
+from tessera.tools.clipping import ClipState
 from tessera.wire.codec import Codec
 
 
@@ -68,6 +69,10 @@ class SessionFrames:
         #: Every viewer of the session takes it as video (issue 21): interactive tiles from nodes on
         #: the coordinator's machine come raw, the encoder's source without a lossy step.
         self.video_only = False
+        #: The clip planes and section box its frames are cut by, and the object drawn selected
+        #: (issue 35): frame-synchronous, bound when a frame starts (None: none).
+        self.clip: ClipState | None = None
+        self.highlight: str | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -132,7 +137,8 @@ class SessionFrames:
                               version=self.demand.version, changed_at=self.demand.changed_at,
                               inputs=dict(self.inputs), state=state, depth=self.mode.depth_request(partition),
                               session=self.id, scene=self.scene_key, sample=sample,
-                              plan=self.demand.still_plan if still else ONE_FRAME, parts=parts)
+                              plan=self.demand.still_plan if still else ONE_FRAME, parts=parts,
+                              clip=self.clip, highlight=self.highlight)
         job.one_by_one = pieces > 1
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job

@@ -36,7 +36,8 @@ coordinator → node
   rendered in list order, each sent as soon as done, in the message's scene ``state`` (a full
   state, or a delta on the one the node was sent last); with ``depth`` (:class:`DepthRequest`,
   issue 10) as depth tiles of the hybrid or sort-last mode; pieces of one tile cut at a display
-  wall's cell edges (:class:`RenderTile` ``part_of``) drawn as one
+  wall's cell edges (:class:`RenderTile` ``part_of``) drawn as one; cut by the session's ``clip``
+  planes and section box, its selected object tinted (``highlight``, issue 35)
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), of a ``scene`` likewise, in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
 
@@ -73,6 +74,7 @@ from pydantic import (
 
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta, state_from_json
+from tessera.tools.clipping import ClipState
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
 
@@ -123,6 +125,10 @@ def _state(value: Any) -> SceneState | StateDelta:
     return value if isinstance(value, SceneState | StateDelta) else state_from_json(value)
 
 
+def _clip(value: Any) -> ClipState:
+    return ClipState.from_json(value)
+
+
 def _counter(value: Any) -> int | float | str:
     if isinstance(value, str) and len(value) <= MAX_COUNTER_TEXT:
         return value
@@ -151,6 +157,8 @@ Counter = Annotated[int | float | str, PlainValidator(_counter)]
 #: A scene state or a delta (:func:`tessera.scene.state.state_from_json`).
 StateJson = Annotated[SceneState | StateDelta, PlainValidator(_state), PlainSerializer(lambda state: state.to_json())]
 CounterName = Annotated[StrictStr, Field(max_length=MAX_COUNTER_TEXT)]
+#: Clip planes and a section box (:class:`tessera.tools.clipping.ClipState`).
+ClipJson = Annotated[ClipState, PlainValidator(_clip), PlainSerializer(ClipState.to_json)]
 #: A SHA-256 digest: 64 lowercase hex digits.
 Sha256 = Annotated[StrictStr, Field(pattern=r"^[0-9a-f]{64}$")]
 Url = Annotated[StrictStr, Field(min_length=1, max_length=MAX_URL)]
@@ -474,12 +482,17 @@ class Render(Message):
     jitter: tuple[Jitter, Jitter] | None = None
     #: The texture LOD bias of a progressive still's sample (≤ 0); None: no bias.
     lod_bias: Annotated[StrictFloat, Field(ge=-8.0, le=0.0)] | None = None
+    #: The session's clip planes and section box (issue 35); None: nothing is cut.
+    clip: ClipJson | None = None
+    #: The selected object, tinted with its descendants (issue 35); None: none.
+    highlight: Text | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first, without ``scene``, ``jitter`` and ``lod_bias`` when None, without
-        a tile's ``part_of`` when None."""
-        data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias")
+        ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip`` and
+        ``highlight`` when None, without a tile's ``part_of`` when None."""
+        data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias", "clip",
+                                  "highlight")
         for tile in data["tiles"]:
             if tile["part_of"] is None:
                 del tile["part_of"]
