@@ -37,7 +37,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidSta
 from node.gl.context import GLUnavailableError
 from node.gl.view_tools import ViewTools
 from node.gl.worker import GLWorker
-from node.protocol import Draw, Load, Measure, NodeProtocol, Send
+from node.protocol import Draw, Load, Measure, NodeProtocol, PickPixel, Send
 from node.scene.fetch import SceneFetcher
 from node.scene.pages import resident_mb
 from node.settings import NodeSettings
@@ -181,6 +181,8 @@ class NodeClient:
                     await self._calibrate(action, outbox)
                 case Draw():
                     await self._draw(action, outbox)
+                case PickPixel():
+                    await self._pick(action.request, outbox)
 
     async def _load_scene(self, message: messages.LoadScene, outbox: Outbox, work: asyncio.Event) -> None:
         """Load ``message``'s scene, tell the protocol how it ended and queue its answer."""
@@ -251,6 +253,17 @@ class NodeClient:
             self._encoder, encode_depth_message, job.frame, request, drawn.depth_layer(), drawn.core,
             drawn.blend_layer(), (render_ms, readback_ms), job.codec, job.jpeg_quality, state, drawn.share, stats)
         outbox.put_nowait(PendingTile(job.frame, request.tile, packed, stats))
+
+    async def _pick(self, request: messages.Pick, outbox: Outbox) -> None:
+        """Answer a ``pick`` (issue 35): the id pass of its pixel on the GL thread, then its result,
+        or the reason it could not be told."""
+        try:
+            hit = await self.worker.pick(request)
+        except Exception as exc:  # a scene or share not held, a GL failure: answer with the reason
+            outbox.put_nowait(messages.PickResult(id=request.id, hit=False, error=" ".join(str(exc).split())[:300]))
+            return
+        answer = {"hit": False} if hit is None else hit.to_json()
+        outbox.put_nowait(messages.PickResult(id=request.id, **answer))
 
     async def _calibrate(self, action: Measure, outbox: Outbox) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and

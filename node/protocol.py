@@ -23,9 +23,11 @@ holds several scenes (issue 19), so the rest is:
   drawn as one: :class:`Draw`), each once the one before is done, so a
   ``cancel`` received meanwhile drops the tiles not begun, reported together in a
   ``tiles_dropped`` after the frame's last tile (a cancelled frame waits for no load);
+- ``pick`` (issue 35): handed out before the jobs waiting (after the tile being drawn), its state
+  whole and not applied to the replica (the renders' deltas stay based on what they were);
 - a message that names one of these kinds but is malformed is refused in its turn, as far as it
   can be read: a ``render``'s tiles fail with ``render_error``, a ``calibrate`` fails, a
-  ``load_scene`` is a ``scene_error``.
+  ``load_scene`` is a ``scene_error``, a ``pick`` is answered with its error.
 """
 
 from __future__ import annotations
@@ -88,13 +90,20 @@ class Measure:
 
 
 @dataclass(frozen=True, slots=True)
+class PickPixel:
+    """Answer ``request``: draw the id pass of its pixel and send a ``pick_result``."""
+
+    request: messages.Pick
+
+
+@dataclass(frozen=True, slots=True)
 class Send:
     """Send ``message`` to the coordinator, after what is already on its way."""
 
     message: messages.Message
 
 
-NodeAction = Load | Draw | Measure | Send
+NodeAction = Load | Draw | Measure | PickPixel | Send
 
 
 def load_key(request: messages.LoadScene) -> LoadKey:
@@ -159,6 +168,7 @@ class NodeProtocol:
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
         self._replica = StateReplica()
         self._jobs: deque[Job] = deque()
+        self._picks: deque[messages.Pick] = deque()
         self._ready: deque[NodeAction] = deque()
         self._frame: _FrameTiles | None = None
         self._load_count = 0
@@ -173,6 +183,7 @@ class NodeProtocol:
         self.welcomed = False
         self._replica = StateReplica()
         self._jobs.clear()
+        self._picks.clear()
         self._ready.clear()
         self._frame = None
         self._newest_scene = None
@@ -205,6 +216,8 @@ class NodeProtocol:
                 self._receive_load(message)
             case messages.Render() | messages.Calibrate():
                 self._jobs.append(self._scene_job(message))
+            case messages.Pick():
+                self._picks.append(message)
 
     def _receive_load(self, request: messages.LoadScene) -> None:
         """Queue ``request``'s load; one of its key waiting already is superseded by it."""
@@ -236,6 +249,8 @@ class NodeProtocol:
             if load is not None:
                 pending = self._running[load] = self._waiting.pop(load)
                 return Load(pending.request)
+            if self._picks:
+                return PickPixel(self._picks.popleft())
             if self._frame is not None:
                 self._next_tile(self._frame)
                 continue
@@ -299,6 +314,8 @@ class NodeProtocol:
             self._ready.append(Send(messages.RenderError(frame=0, tile=0, message=f"calibration failed: {reason}")))
         elif error.kind == messages.LoadScene.kind:
             self._ready.append(Send(messages.SceneError(scene=str(data.get("scene")), message=reason)))
+        elif error.kind == messages.Pick.kind and _is_int(data.get("id")) and data["id"] >= 0:
+            self._ready.append(Send(messages.PickResult(id=data["id"], hit=False, error=reason)))
 
     def _fail_tiles(self, frame: int, tiles: list[int], reason: str) -> None:
         self._ready.extend(Send(messages.RenderError(frame=frame, tile=tile, message=reason)) for tile in tiles)

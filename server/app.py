@@ -22,6 +22,7 @@ from server.routes import (
     node_ws,
     nodes,
     objects,
+    picking,
     scenes,
     selection,
     sessions,
@@ -64,7 +65,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.include_router(module.router)
     app.include_router(stats.metrics_router)
     for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other
-        for module in (stats, camera, objects, animation, frames, balancer, clipping, selection):
+        for module in (stats, camera, objects, animation, frames, balancer, clipping, selection, picking):
             app.include_router(module.router, prefix=prefix)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

@@ -30,6 +30,7 @@ from server.frame_store import FrameStore, PublishedFrame
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
+from server.picking import PickDesk
 from server.scene_library import SceneLibrary
 from server.session_store import SessionStore
 from server.sessions import Session, new_key
@@ -53,6 +54,7 @@ from tessera.wire.messages import (
     Cancel,
     Message,
     NodeHello,
+    PickResult,
     RenderError,
     SceneError,
     SceneProgress,
@@ -117,6 +119,8 @@ class RenderService:
         self._tasks: list[asyncio.Task] = []
         self.cpu_ms = {"receive": 0.0, "publish": 0.0, "merge": 0.0}
         self.calibration = NodeCalibration(self)
+        #: Picks waiting for their nodes' answers (issue 35).
+        self.picks = PickDesk(self)
         if self.session_store is not None:
             self._restore_sessions()
 
@@ -382,6 +386,14 @@ class RenderService:
     def _forget_node(self, link: NodeLink) -> None:
         self.nodes.pop(link.node_id, None)
         self.calibration.forget(link.node_id)
+        self.picks.node_left(link.node_id)
+
+    def send_to(self, node_id: int, message: Message) -> bool:
+        """Send ``message`` to node ``node_id``; False when it is gone."""
+        link = self.nodes.get(node_id)
+        if link is not None:
+            link.send(message)
+        return link is not None
 
     def on_node_message(self, link: NodeLink, message: Message) -> None:
         """A control message of :data:`tessera.wire.messages.FROM_NODE` from ``link``."""
@@ -416,6 +428,8 @@ class RenderService:
                 self.calibration.measured(link, message.ms)
             case RenderError():
                 self._on_render_error(link, message.frame, message.tile, message.message[:300])
+            case PickResult():
+                self.picks.answered(link.node_id, message)
 
     def _on_render_error(self, link: NodeLink, frame_id: int, tile_id: int, reason: str) -> None:
         """A tile the node could not render goes to another node (the scheduler decides when a node

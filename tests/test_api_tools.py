@@ -1,6 +1,8 @@
-"""Clip planes, the section box and the selection on a real coordinator with real local nodes
-(issue 35): the still of a clipped and selected session equals ``--render-once`` with the same
-clip state and highlight, and bad input is refused with a 4xx and its reason, changing nothing."""
+"""Clip planes, the section box, the selection and picking on a real coordinator with real local
+nodes (issue 35): the still of a clipped and selected session equals ``--render-once`` with the
+same clip state and highlight; picks name what the pixel sees, the point within half a pixel's
+footprint of geometry of known position, in sort-first and sort-last; bad input is refused with a
+4xx and its reason, changing nothing."""
 
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tessera.geometry import Camera, view_projection
+from tessera.tools.picking import pixel_ray
 from tests.conftest import seconds
 from tests.integration_support import assert_matches_reference, render_once, stats, wait_ready_nodes, wait_until
 
@@ -100,3 +104,59 @@ def test_selection_and_clip_of_unknown_sessions_and_objects(coordinator) -> None
         assert refused.status_code == 403
     finally:
         client.delete(f"/api/sessions/{session['id']}")
+
+
+def project(point, camera: Camera, bounds, size=SIZE) -> tuple[int, int]:
+    clip = view_projection(camera, size, np.asarray(bounds)) @ np.append(np.asarray(point, dtype=float), 1.0)
+    return int((clip[0] / clip[3] + 1) / 2 * size[0]), int((1 - clip[1] / clip[3]) / 2 * size[1])
+
+
+def check_picks(client: httpx.Client, prefix: str = "/api") -> None:
+    """Picks of the spheres' centres name them; a ground pixel's point is within half a pixel's
+    footprint of where its ray meets y = 0; the sky is no hit."""
+    client.put(f"{prefix}/camera", json=CAMERA).raise_for_status()
+    bounds = client.get(f"{prefix}/camera").json()["bounds"]
+    camera = Camera.from_json(CAMERA)
+    objects = {o["name"]: o for o in client.get(f"{prefix}/objects").json()}
+    for name in ("sphere0", "sphere3"):
+        centre = np.mean(objects[name]["bounds"], axis=0)
+        x, y = project(centre, camera, bounds)
+        hit = client.get(f"{prefix}/pick", params={"x": x, "y": y}).raise_for_status().json()
+        assert hit["hit"] and hit["object"] == name, hit
+        assert abs(np.linalg.norm(np.asarray(hit["point"]) - centre) - 0.35) < 0.01
+    x, y = project([-1.5, 0.0, 1.5], camera, bounds)
+    hit = client.get(f"{prefix}/pick", params={"x": x, "y": y}).json()
+    assert hit["object"] == "ground" and np.allclose(hit["normal"], [0, 1, 0])
+    origin, direction = pixel_ray(camera, SIZE, np.asarray(bounds), x, y)
+    truth = origin + direction * (-origin[1] / direction[1])
+    footprint = hit["depth"] * 2 * math.tan(math.radians(CAMERA["fovy_deg"]) / 2) / SIZE[1]
+    assert np.linalg.norm(np.asarray(hit["point"]) - truth) <= 0.5 * footprint
+    assert client.get(f"{prefix}/pick", params={"x": 2, "y": 2}).json() == {"hit": False}
+
+
+def test_picks_name_what_the_pixel_sees(coordinator) -> None:
+    _, client = coordinator
+    check_picks(client)
+
+
+@pytest.mark.parametrize("params, status, words", [
+    ({"x": SIZE[0], "y": 0}, 422, "outside the 320x180 frame"),
+    ({"x": 0, "y": SIZE[1] + 5}, 422, "outside"),
+    ({"x": -1, "y": 0}, 422, "greater than or equal to 0"),
+    ({"x": "nan", "y": 0}, 422, "valid integer"),
+    ({"y": 0}, 422, "missing"),
+])
+def test_bad_picks_are_refused_with_a_reason(coordinator, params, status: int, words: str) -> None:
+    _, client = coordinator
+    response = client.get("/api/pick", params=params)
+    assert response.status_code == status and words in response.text, response.text
+    assert client.get("/api/sessions/nosuchsession/pick", params={"x": 1, "y": 1}).status_code == 404
+
+
+def test_sort_last_picks_the_nearest_share(coordinator_factory) -> None:
+    started = coordinator_factory("--scene", SCENE, "--size", f"{SIZE[0]}x{SIZE[1]}", "--local-nodes", "2",
+                                  "--mode", "sort-last")
+    with httpx.Client(base_url=started.url, timeout=seconds(60)) as client:
+        wait_ready_nodes(client, 2)
+        wait_until(lambda: not stats(client)["partition"]["pending"], seconds(120), "every share loaded")
+        check_picks(client)

@@ -76,6 +76,7 @@ import numpy as np
 
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
+from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
 from node.gl.programs import ShaderPrograms
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
@@ -90,6 +91,7 @@ from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, res
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, jitter_matrix
+from tessera.tools.picking import PickHit
 
 GL_SRGB8_ALPHA8 = 0x8C43
 #: Bytes of geometry copied to the GL at a time.
@@ -237,6 +239,7 @@ class TileRenderer:
         #: The frame's clip planes, section box and highlight (:meth:`use_tools`).
         self.view = ViewToolsGL(ctx, scene)
         self._set_uniforms(self.view.uniforms())
+        self._id_pass: IdPass | None = None
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
         self._framebuffer: moderngl.Framebuffer | None = None
@@ -330,6 +333,14 @@ class TileRenderer:
         if self.view.use(tools):
             self._set_uniforms(self.view.uniforms())
             self.culler.set_clip(self.view.halfspaces if self.view.halfspaces.size else None)
+
+    def pick(self, camera: Camera, size: tuple[int, int], x: int, y: int,
+             state: SceneState | None = None) -> PickHit | None:
+        """What the centre of pixel (``x``, ``y``) of the ``size`` frame sees in ``state``, cut by the
+        tools in use: an id pass of that pixel alone (:mod:`node.gl.id_pass`); None: background."""
+        if self._id_pass is None:
+            self._id_pass = IdPass(self)
+        return self._id_pass.pick(camera, size, x, y, state)
 
     def _set_uniforms(self, values: dict[str, Any]) -> None:
         for name, value in values.items():
@@ -615,6 +626,8 @@ class TileRenderer:
             if framebuffer is not None:
                 _release_framebuffer(framebuffer)
         self._framebuffer = self._multisampled = None
+        if self._id_pass is not None:
+            self._id_pass.release()
         self.culler.release()
         self.lighting.release()
         for texture in self.textures.values():

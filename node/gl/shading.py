@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from node.culling.switch import SOFTWARE_RENDERERS
+from node.gl.view_tools import CLIP_FRAGMENT, CLIP_VERTEX
 from node.scene.mesh import MeshBatch
 
 #: Radiance of the key light (white), a directional light attached to the camera.
@@ -122,11 +123,8 @@ vec3 irradiance_odd(vec3 n) {
 
 VERTEX_SHADER = """
 uniform mat4 u_view_projection;
-uniform mat4 u_model;
 uniform mat3 u_normal_matrix;
 uniform vec3 u_eye;
-uniform vec4 u_clip[8];   // the frame's clip half-spaces (node.gl.view_tools): kept where dot >= 0
-out float gl_ClipDistance[8];
 in vec3 in_position;
 in vec3 in_normal;
 in vec2 in_uv;
@@ -149,11 +147,9 @@ out vec4 v_tangent;
 in vec2 in_uv1;
 out vec2 v_uv1;
 #endif
-""" + IRRADIANCE + """
+""" + IRRADIANCE + CLIP_VERTEX + """
 void main() {
-    vec4 world = u_model * vec4(in_position, 1.0);
-    v_position = world.xyz;
-    for (int i = 0; i < 8; ++i) gl_ClipDistance[i] = dot(u_clip[i], world);
+    v_position = world_position(in_position).xyz;
     v_normal = u_normal_matrix * in_normal;
 #if !NORMAL_MAP
     float normal_length = length(v_normal);
@@ -204,10 +200,6 @@ uniform ivec2 u_origin;
 uniform bool u_cap;          // the frame cuts the scene: the inside of cut surfaces is capped
 uniform vec3 u_cap_color;
 uniform vec4 u_tint;         // the selected object's tint (sRGB, amount)
-#if DISCARDS
-uniform vec4 u_clip_extra[4];   // clip half-spaces beyond the 8 clip distances
-uniform int u_clip_extra_count;
-#endif
 in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
@@ -227,6 +219,9 @@ in vec4 v_tangent;
 in vec2 v_uv1;
 #endif
 out vec4 f_color;
+#if DISCARDS
+""" + CLIP_FRAGMENT + """
+#endif
 """ + IRRADIANCE + """
 #if UV_TRANSFORM
 // Per texture slot (base colour, metallic-roughness, normal, occlusion, emissive): its coordinate
@@ -314,8 +309,7 @@ vec3 perturbed_normal(vec3 n, vec3 tangent_normal, vec2 uv) {
 
 void main() {
 #if DISCARDS
-    for (int i = 0; i < u_clip_extra_count; ++i)
-        if (dot(u_clip_extra[i].xyz, v_position) + u_clip_extra[i].w < 0.0) discard;
+    if (cut_away(v_position)) discard;
     if (u_peel) {
         ivec2 texel = ivec2(gl_FragCoord.xy) - u_origin;
         if (gl_FragCoord.z <= texelFetch(u_floor, texel, 0).r || gl_FragCoord.z >= texelFetch(u_ceil, texel, 0).r)
@@ -347,9 +341,12 @@ void main() {
     // Two-sided: a normal facing away is flipped (its tangent frame with it), and E(−n) is the
     // even part less the odd one.
     float side = dot(geometric, v) < 0.0 ? -1.0 : 1.0;
-    if (u_cap && side < 0.0 && !gl_FrontFacing) {   // the inside of a cut surface: a solid cap
-        f_color = vec4(mix(u_cap_color, u_tint.rgb, u_tint.a), 1.0);
-        return;
+    if (u_cap) {   // the inside of a cut surface (its normals turn from the eye): a solid cap
+        vec3 facing = cross(dFdx(v_position), dFdy(v_position));
+        if (dot(geometric, facing) * dot(v, facing) < 0.0) {
+            f_color = vec4(mix(u_cap_color, u_tint.rgb, u_tint.a), 1.0);
+            return;
+        }
     }
     vec3 n = geometric * side;
 #if NORMAL_MAP

@@ -9,10 +9,10 @@ capped in a solid colour, the selected object tinted. Part of the frame-synchron
   (a box with more than two planes) are tested per fragment, by the program variant with discards.
 * **Culling.** The renderer's culler adds the half-spaces to each tile's frustum planes: a chunk
   wholly cut away is not drawn at all (:func:`tessera.tools.clipping.clipped_boxes`).
-* **Caps.** With a cut active, a fragment of a back face (wound clockwise on screen) whose normal
-  points away from the eye, the inside of a closed surface seen through the cut, is drawn in the
-  cap colour, flat: the cut face looks solid. Open surfaces show their inside in it too; an object
-  mirrored by a negative scale is capped on its inside only where its normals say so.
+* **Caps.** With a cut active, a fragment whose normal points to the side of its triangle turned
+  away from the eye (the triangle's facing taken from the screen-space derivatives of the position,
+  whatever its winding), the inside of a closed surface seen through the cut, is drawn in the cap
+  colour, flat: the cut face looks solid. Open surfaces show their inside in it too.
 * **Highlight.** The batches of the selected object and its descendants are tinted
   (:data:`HIGHLIGHT_TINT`) after tone mapping.
 
@@ -41,6 +41,28 @@ HIGHLIGHT_TINT = (1.0, 0.72, 0.12, 0.45)
 NO_TINT = (0.0, 0.0, 0.0, 0.0)
 #: A plane every point is on the kept side of (distance 1).
 KEEP_ALL = (0.0, 0.0, 0.0, 1.0)
+#: GLSL of a vertex shader that cuts: ``world_position(position)`` is the object's vertex moved by
+#: ``u_model``, its clip distances written.
+CLIP_VERTEX = """
+uniform mat4 u_model;
+uniform vec4 u_clip[8];   // the frame's clip half-spaces (node.gl.view_tools): kept where dot >= 0
+out float gl_ClipDistance[8];
+vec4 world_position(vec3 position) {
+    vec4 world = u_model * vec4(position, 1.0);
+    for (int i = 0; i < 8; ++i) gl_ClipDistance[i] = dot(u_clip[i], world);
+    return world;
+}
+"""
+#: GLSL of a fragment shader that cuts what the clip distances cannot: ``cut_away(world position)``.
+CLIP_FRAGMENT = """
+uniform vec4 u_clip_extra[4];   // clip half-spaces beyond the 8 clip distances
+uniform int u_clip_extra_count;
+bool cut_away(vec3 position) {
+    for (int i = 0; i < u_clip_extra_count; ++i)
+        if (dot(u_clip_extra[i].xyz, position) + u_clip_extra[i].w < 0.0) return true;
+    return false;
+}
+"""
 
 
 @dataclass(frozen=True, slots=True)

@@ -47,7 +47,8 @@ from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
-from tessera.wire.messages import DepthRequest, LoadScene
+from tessera.tools.picking import PickHit
+from tessera.wire.messages import DepthRequest, LoadScene, Pick
 
 log = logging.getLogger("tessera.node")
 
@@ -249,6 +250,17 @@ class GLWorker:
             return DepthRender(None, None, None, plan_ms, share)
         layer, blend = render_plan(renderer, camera, size, plan, state, subsample)
         return DepthRender(layer, plan.exclusive, blend, plan_ms, share)
+
+    async def pick(self, request: Pick) -> PickHit | None:
+        """What ``request``'s pixel sees (its scene, or share, in its state, cut by its clip); None:
+        background. Raises SceneNotLoadedError for a scene or share not held."""
+        return await self._call(self._pick, request)
+
+    def _pick(self, request: Pick) -> PickHit | None:
+        renderer = self._scenes.find(request.scene, request.share).renderer
+        renderer.use_tools(ViewTools(request.clip))
+        state = request.state if isinstance(request.state, SceneState) else None
+        return renderer.pick(request.camera, request.size, request.x, request.y, state)
 
     def _close(self) -> None:
         self._scenes.release_all()

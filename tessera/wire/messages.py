@@ -25,6 +25,8 @@ node → coordinator
 * ``tiles_dropped`` :class:`TilesDropped` — tiles of a cancelled frame skipped unrendered
 * ``calibration`` :class:`Calibration` — answer to ``calibrate``: the best of ``repeats`` renders
   of ``rect``, no output sent, slowdown included
+* ``pick_result`` :class:`PickResult` — answer to ``pick``: what the pixel's centre sees, or why
+  it could not be told
 
 coordinator → node
 
@@ -40,6 +42,9 @@ coordinator → node
   planes and section box, its selected object tinted (``highlight``, issue 35)
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), of a ``scene`` likewise, in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
+* ``pick`` :class:`Pick` (issue 35) — which surface one pixel's centre sees, drawn as an id pass
+  of that pixel alone, ahead of the tiles queued (its state is whole: it leaves the node's scene
+  state as it was)
 
 coordinator → viewer: ``hello`` :class:`ViewerHello`, ``camera`` :class:`CameraUpdate` (another
 viewer or the API moved it), ``scene`` :class:`ViewerScene` (the first node loaded it), ``error``
@@ -521,6 +526,59 @@ class Cancel(Message):
     frames: tuple[Int, ...]
 
 
+class Pick(Message):
+    """Request ``id``: which surface the centre of pixel (``x``, ``y``) of a ``size`` frame of
+    ``camera`` sees, of scene spec ``scene`` (None: the scene loaded last) in the whole scene
+    ``state`` (None: the base pose), cut by ``clip``; in sort-last, of the node's share of
+    partition ``share``."""
+
+    kind = "pick"
+    id: Annotated[StrictInt, Field(ge=0)]
+    camera: CameraJson
+    size: Size
+    x: Annotated[StrictInt, Field(ge=0, lt=MAX_SIDE)]
+    y: Annotated[StrictInt, Field(ge=0, lt=MAX_SIDE)]
+    scene: Text | None = None
+    state: StateJson | None = None
+    clip: ClipJson | None = None
+    share: Annotated[StrictInt, Field(ge=1)] | None = None
+
+    @model_validator(mode="after")
+    def _pixel_in_frame_state_whole(self) -> Self:
+        if self.x >= self.size[0] or self.y >= self.size[1] or isinstance(self.state, StateDelta):
+            raise ValueError(f"pixel ({self.x}, {self.y}) outside the {self.size[0]}x{self.size[1]} frame, or a delta")
+        return self
+
+    def to_json(self) -> dict[str, Any]:
+        return self._without_none(super().to_json(), "scene", "state", "clip", "share")
+
+
+class PickResult(Message):
+    """The answer to pick ``id``: ``hit`` and, when it is, the ``object`` (its name), the
+    ``primitive`` (the triangle's number among the object's), the world ``point``, the unit
+    ``normal`` facing the eye and the ``depth`` (the point's distance from the eye); ``error``: why
+    the node could not tell (then ``hit`` is false)."""
+
+    kind = "pick_result"
+    id: Annotated[StrictInt, Field(ge=0)]
+    hit: StrictBool
+    object: Text | None = None
+    primitive: Annotated[StrictInt, Field(ge=0)] | None = None
+    point: Vec3 | None = None
+    normal: Vec3 | None = None
+    depth: NonNegative | None = None
+    error: Text | None = None
+
+    @model_validator(mode="after")
+    def _whole_hit(self) -> Self:
+        if self.hit and None in (self.object, self.primitive, self.point, self.normal, self.depth):
+            raise ValueError("a hit names its object, primitive, point, normal and depth")
+        return self
+
+    def to_json(self) -> dict[str, Any]:
+        return self._without_none(super().to_json(), "object", "primitive", "point", "normal", "depth", "error")
+
+
 # ------------------------------------------------------------------------------------------ viewers
 
 
@@ -587,9 +645,9 @@ class ViewerSize(Message):
 
 
 #: What the coordinator accepts from a node after its hello.
-FROM_NODE = (SceneProgress, SceneReady, SceneError, TileSent, TilesDropped, RenderError, Calibration)
+FROM_NODE = (SceneProgress, SceneReady, SceneError, TileSent, TilesDropped, RenderError, Calibration, PickResult)
 #: What a node accepts from the coordinator.
-TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel)
+TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel, Pick)
 #: What the coordinator accepts from a viewer.
 FROM_VIEWER = (CameraUpdate, LatencyReport, ViewerSize)
 
