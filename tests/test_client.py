@@ -237,3 +237,15 @@ def test_a_coordinator_gone_mid_call_is_one_clear_error(tmp_path):
                 tessera.scenes()
     finally:
         lonely.proc.stop()
+
+
+def test_a_scene_that_fails_to_load_is_an_error_with_the_nodes_reason(coordinator_factory, tmp_path):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\nnot numbers\n")
+    coordinator = coordinator_factory("--local-nodes", "1", "--size", "64x48", "--scenes-dir", str(scenes))
+    with Tessera(coordinator.url, timeout=seconds(120)) as tessera, \
+            tessera.open_session("library/broken.ply") as session:
+        with pytest.raises(TesseraError, match="did not load") as failed:
+            session.snapshot()
+        assert "broken.ply" in failed.value.reason and failed.value.reason.split("did not load: ", 1)[1]

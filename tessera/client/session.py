@@ -63,6 +63,10 @@ def fitted(camera: Camera, bounds: np.ndarray, size: tuple[int, int]) -> Camera:
     return Camera(tuple(eye.tolist()), tuple(center.tolist()), camera.up, camera.fovy_deg)
 
 
+#: The longest wait ``GET …/frame.png`` takes (its ``timeout``, s).
+MAX_FRAME_WAIT_S = 300.0
+
+
 def frame_of(response: httpx.Response) -> tuple[int, np.ndarray]:
     """A ``frame.png`` answer: its frame id and (h, w, 3) uint8 image."""
     return int(response.headers["x-frame-id"]), np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
@@ -194,17 +198,22 @@ class Session:
 
     def snapshot_frame(self, still: bool = True, after: int | None = None) -> tuple[int, np.ndarray]:
         """:meth:`snapshot` with the frame's id."""
-        params: dict[str, Any] = {"after": self.changed_at if after is None else after}
-        if still:
-            params["still"] = "true"
-        return frame_of(self.connection.request("GET", self.path + "frame.png", params=params))
+        self.wait_ready()   # a scene that failed to load is an error with its reason, not a wait for frames
+        return frame_of(self.connection.request("GET", self.path + "frame.png", params=self._frame_query(still, after)))
 
     async def snapshot_async(self, still: bool = True, after: int | None = None) -> np.ndarray:
         """:meth:`snapshot` for asyncio (the wait does not hold the event loop)."""
-        params: dict[str, Any] = {"after": self.changed_at if after is None else after}
+        return frame_of(await self.connection.request_async("GET", self.path + "frame.png",
+                                                            params=self._frame_query(still, after)))[1]
+
+    def _frame_query(self, still: bool, after: int | None) -> dict[str, Any]:
+        """``frame.png``'s query: from ``after`` (default: every change made here), still or not,
+        the coordinator waiting for it almost as long as this client waits for the answer."""
+        params: dict[str, Any] = {"after": self.changed_at if after is None else after,
+                                  "timeout": round(min(MAX_FRAME_WAIT_S, max(1.0, 0.9 * self.connection.timeout)), 1)}
         if still:
             params["still"] = "true"
-        return frame_of(await self.connection.request_async("GET", self.path + "frame.png", params=params))[1]
+        return params
 
     def save(self, path: str | Path, still: bool = True) -> Path:
         """Write :meth:`snapshot` to ``path`` (PNG, or any format Pillow knows by its suffix)."""
