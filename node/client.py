@@ -38,7 +38,9 @@ from node.gl.context import GLUnavailableError
 from node.gl.view_tools import ViewTools
 from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, PickPixel, Send
+from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
+from node.scene.lod import LodTree, group_levels
 from node.scene.pages import resident_mb
 from node.settings import NodeSettings
 from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
@@ -137,6 +139,8 @@ class NodeClient:
     async def _session(self, ws: ClientConnection) -> None:
         work = asyncio.Event()
         outbox: Outbox = asyncio.Queue()
+        self.worker.levels_listener = lambda spec, share, tree, scene: outbox.put_nowait(
+            levels_ready(spec, share, tree, scene))
         loads: set[asyncio.Task[None]] = set()
         tasks = [asyncio.create_task(self._receive(ws, work)), asyncio.create_task(self._send_loop(ws, outbox)),
                  asyncio.create_task(self._job_loop(work, outbox, loads))]
@@ -206,6 +210,8 @@ class NodeClient:
             outbox.put_nowait(ready.model_copy(update={"scene_mb": round(loaded.nbytes / (1 << 20), 2),
                                                        "held_mb": round(loaded.held_bytes / (1 << 20), 2),
                                                        "rss_mb": round(resident_mb(), 1)}))
+            if loaded.levels is not None:
+                outbox.put_nowait(levels_ready(spec, loaded.share_version, loaded.levels, scene))
         work.set()
 
     async def _draw(self, action: Draw, outbox: Outbox) -> None:
@@ -217,7 +223,8 @@ class NodeClient:
             return
         try:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
-                                                Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job))
+                                                Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
+                                                job.lod_error_px or 0.0)
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             for tile in action.sent:
                 outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
@@ -242,7 +249,8 @@ class NodeClient:
         job, request, state = action.render, action.tile, action.state
         try:
             drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
-                                                   Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job))
+                                                   Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
+                                                   job.lod_error_px or 0.0)
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return
@@ -297,6 +305,16 @@ class NodeClient:
             sent = messages.TileSent(frame=item.frame, tile=item.tile, send_ms=send_ms, stats=item.stats,
                                      rss_mb=round(resident_mb(), 1))
             await ws.send(sent.to_text())
+
+
+def levels_ready(spec: str, share: int | None, tree: LodTree, scene: SceneData) -> messages.LevelsReady:
+    """The ``levels_ready`` of scene ``spec`` (share version ``share``), ``scene``, whose levels are
+    ``tree``: with its primitive groups' levels (:func:`node.scene.lod.group_levels`)."""
+    errors, triangles, boxes = group_levels(tree, scene.groups.chunk_starts, scene.chunks.face_counts,
+                                            scene.chunks.boxes)
+    return messages.LevelsReady(scene=spec, share=share, nodes=tree.node_count, triangles=int(tree.triangles.sum()),
+                                group_errors=errors.tolist(), group_triangles=triangles.round(1).tolist(),
+                                group_boxes=boxes.tolist())
 
 
 def run_node(settings: NodeSettings) -> int:

@@ -35,7 +35,8 @@ from node.gl.renderer import TileRenderer
 from node.gl.shading import Antialiasing
 from node.gl.view_tools import ViewTools
 from node.scene.data import SceneData
-from node.scene.ingest import open_cached, read_scene
+from node.scene.ingest import cached_levels, open_cached, read_scene
+from node.scene.lod import read_lod
 from node.scene.mesh import SceneError
 from node.settings import NodeSettings
 from tessera.geometry import Camera, CameraError, default_camera
@@ -99,18 +100,24 @@ def render_once(settings: NodeSettings) -> int:
         camera = read_camera(settings.camera) if settings.camera is not None else None
         overrides = read_objects(settings.objects) if settings.objects is not None else None
         clip = read_clip(settings.clip) if settings.clip is not None else None
-        scene = open_cached(read_scene(settings.scene, settings.scene, settings.face_limit, None,
-                                       lambda fraction, message: None, settings.cache), settings.scene)
+        made = read_scene(settings.scene, settings.scene, settings.face_limit, None, lambda fraction, message: None,
+                          settings.cache)
+        scene = open_cached(made, settings.scene)
         state = _state(scene, settings.time, overrides, settings.objects)
         camera = camera or default_camera(scene.bounds)
         ctx = create_gl_context()
-        renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling, shading=settings.shading)
+        renderer = TileRenderer(ctx, scene, settings.background, culling=settings.culling, shading=settings.shading,
+                                packed=scene.geometry)
         if settings.highlight is not None:
             scene.objects.lookup(settings.highlight)
         renderer.use_tools(ViewTools(clip, settings.highlight))
+        if settings.interactive and settings.lod_error_px > 0.0 and isinstance(made, Path):
+            levels = cached_levels(made, settings.cache, lambda fraction, message: None)
+            if levels is not None:
+                renderer.attach_lod(read_lod(levels))
         started = time.perf_counter()
         if settings.interactive:
-            frame = renderer.render_frame(camera, settings.size, state)
+            frame = renderer.render_frame(camera, settings.size, state, lod_error_px=settings.lod_error_px)
             pixels, drawn, samples = frame.pixels, f"{frame.triangles} drawn, {frame.cull_path} culling", 1
         else:
             still = accumulate_still(lambda subsample: renderer.render_frame(camera, settings.size, state,

@@ -33,7 +33,7 @@ from tessera.scheduling.refinement import (
     DEFAULT_STILL_TARGET_DB,
     StillPlan,
 )
-from tessera.wire.messages import MAX_SIDE
+from tessera.wire.messages import MAX_LOD_ERROR_PX, MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"
@@ -84,6 +84,8 @@ class NodeSettings:
     target_db: float = DEFAULT_STILL_TARGET_DB
     #: ``--render-once``: the interactive frame (one sample, not shifted) instead of the still.
     interactive: bool = False
+    #: ``--render-once --interactive``: the levels-of-detail bound in pixels (0: full detail).
+    lod_error_px: float = 0.0
 
     @property
     def cache(self) -> CacheFolder:
@@ -134,6 +136,8 @@ def positive_int_parser(what: str) -> Callable[[str], int]:
 parse_face_limit = positive_int_parser("face limit")
 parse_scene_memory = positive_int_parser("scene memory")
 parse_cache_size = positive_int_parser("scene cache size")
+#: A levels-of-detail bound in pixels, 0 (full detail) … :data:`tessera.wire.messages.MAX_LOD_ERROR_PX`.
+parse_lod_error = number_parser(0.0, note=" of pixels", maximum=MAX_LOD_ERROR_PX)
 
 
 def parse_msaa(text: str) -> int:
@@ -222,6 +226,9 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--target-db", repr(DEFAULT_STILL_TARGET_DB), "--render-once's adaptive still stops once its estimated PSNR "
         "against its converged image reaches this, dB (the coordinator's --still-target-db)", type=parse_target_db,
         metavar="DB")
+    add("--lod-error-px", 0.0, "--render-once --interactive draws the levels of detail whose error on screen is at "
+        "most this many pixels, as a serving node draws a moving frame with the coordinator's bound (0: full "
+        "detail)", type=parse_lod_error, metavar="PX")
     parser.add_argument("--interactive", action="store_true",
                         help="--render-once renders the interactive frame (one sample, not shifted), not the still")
     return parser

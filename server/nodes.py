@@ -46,6 +46,8 @@ class NodeLink:
     rss_mb: float | None = None
     held_mb: float | None = None
     scene_mb: dict[str, float] = field(default_factory=dict)
+    #: Scenes whose levels of detail it holds: spec → their triangles (issue 32).
+    levels: dict[str, int] = field(default_factory=dict)
     loading: dict[str, tuple[float, str]] = field(default_factory=dict)
     outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
 

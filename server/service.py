@@ -52,6 +52,7 @@ from tessera.wire import messages
 from tessera.wire.messages import (
     Calibration,
     Cancel,
+    LevelsReady,
     Message,
     NodeHello,
     PickResult,
@@ -360,8 +361,9 @@ class RenderService:
         """Load ``scene`` (None: ``--scene``), with where to fetch it for a session's library file."""
         spec = scene or self.settings.scene
         url, sha256 = self._fetch.get(spec, (None, None))
+        levels = True if self.settings.lod_error_px > 0.0 and self.settings.mode != "hybrid" else None
         return messages.LoadScene(scene=spec, background=self.settings.background or DEFAULT_BACKGROUND, share=share,
-                                  url=url, sha256=sha256)
+                                  url=url, sha256=sha256, levels=levels)
 
     def scene_on_nodes(self, scene: str) -> dict[str, Any]:
         """How the nodes hold scene ``scene`` (:meth:`server.sessions.SessionHost.scene_on_nodes`)."""
@@ -404,6 +406,14 @@ class RenderService:
                 link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
             case SceneReady():
                 self._on_scene_ready(link, message)
+            case LevelsReady():
+                link.levels[message.scene] = message.triangles
+                tables = None if None in (message.group_errors, message.group_triangles, message.group_boxes) else \
+                    (np.asarray(message.group_errors), np.asarray(message.group_triangles),
+                     np.asarray(message.group_boxes))
+                for session in self._showing(message.scene):
+                    self.scheduler.levels_ready(link.node_id, session.id, tables)
+                self.apply()
             case SceneError():
                 link.state, link.scene_message = "error", message.message[:500]
                 link.loading.pop(message.scene, None)

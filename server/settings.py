@@ -28,6 +28,7 @@ from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.video.link_rate import MIN_BITRATE
 from tessera.video.transport import STREAM_MODES
 from tessera.wire.codec import Codec
+from tessera.wire.messages import MAX_LOD_ERROR_PX
 
 DEFAULT_SCENE = "builtin:cluster"
 #: The best measured balancer (docs/benchmarks/balance.md: bench.balance on Lucy's orbit, fly-through and orbit
@@ -61,6 +62,7 @@ MAX_TILE_BYTES_PER_PIXEL = 12
 #: Messages per second, 0 for no limit.
 RATE = number_parser(0.0, note=" (0: no limit)")
 POSITIVE = number_parser(0.0, above=True)
+LOD_PIXELS = number_parser(0.0, note=" of pixels", maximum=MAX_LOD_ERROR_PX)
 
 
 def auto_node_message_bytes(size: tuple[int, int]) -> int:
@@ -311,6 +313,16 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--max-in-flight", type=int,
                         help=f"frames rendering at once (default {defaults.max_in_flight})")
     parser.add_argument("--max-fps", type=POSITIVE, help=f"frame rate cap (default {defaults.max_fps:g})")
+    parser.add_argument("--lod-error-px", type=LOD_PIXELS, metavar="PX",
+                        help="levels of detail: a moving frame draws each part of a big model at the coarsest "
+                             "level whose error on screen is at most this many pixels, and the still after it at "
+                             f"full detail (default {defaults.lod_error_px:g}; 0: always full detail)")
+    parser.add_argument("--lod-max-error-px", type=LOD_PIXELS, metavar="PX",
+                        help="the most that bound is raised to while frames are slower than --target-fps "
+                             f"(default {defaults.lod_max_error_px:g})")
+    parser.add_argument("--target-fps", type=POSITIVE,
+                        help="the moving frame rate levels of detail aim at: the bound rises while frames take "
+                             f"longer and falls back when they are quick (default {defaults.target_fps:g})")
     parser.add_argument("--tile-timeout-s", type=POSITIVE,
                         help="seconds before a node that owes a tile is dropped "
                              f"(default {defaults.tile_timeout_s:g})")

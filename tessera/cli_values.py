@@ -33,16 +33,19 @@ def size_parser(minimum: int, maximum: int) -> Callable[[str], tuple[int, int]]:
     return parse_size
 
 
-def number_parser(minimum: float = -math.inf, above: bool = False, note: str = "") -> Callable[[str], float]:
-    """A parser of a finite number ≥ ``minimum`` (> when ``above``); ``note`` ends the error message."""
+def number_parser(minimum: float = -math.inf, above: bool = False, note: str = "",
+                  maximum: float = math.inf) -> Callable[[str], float]:
+    """A parser of a finite number ≥ ``minimum`` (> when ``above``) and ≤ ``maximum``; ``note`` ends
+    the error message."""
     bound = "" if minimum == -math.inf else f" {'>' if above else '>='} {minimum:g}"
+    bound += "" if maximum == math.inf else f"{' and' if bound else ''} <= {maximum:g}"
 
     def parse_number(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not math.isfinite(value) or value < minimum or (above and value == minimum):
+        if not math.isfinite(value) or value < minimum or (above and value == minimum) or value > maximum:
             raise argparse.ArgumentTypeError(f"must be a finite number{bound}{note}, got {text!r}")
         return value
 

@@ -26,6 +26,9 @@ from node.gl.context import create_gl_context
 SCENES = Path(os.environ.get("TESSERA_TEST_SCENES") or REPO.parent / "shared" / "scenes")
 #: The scene cache every node and render-once of a test run uses (inherited by the processes it
 #: starts): a folder of its own, so runs (of other checkouts too) never share entries.
+#: Moving frames are compared with ``--render-once --interactive`` (full detail) in many tests: the
+#: coordinators they start draw moving frames at full detail unless a test asks for levels of detail.
+os.environ.setdefault("TESSERA_LOD_ERROR_PX", "0")
 if "TESSERA_SCENE_CACHE_DIR" not in os.environ:
     os.environ["TESSERA_SCENE_CACHE_DIR"] = tempfile.mkdtemp(prefix="tessera-test-scene-cache-")
     atexit.register(shutil.rmtree, os.environ["TESSERA_SCENE_CACHE_DIR"], ignore_errors=True)

@@ -24,6 +24,7 @@ from tessera.wire.messages import (
     DepthRequest,
     InvalidMessage,
     LatencyReport,
+    LevelsReady,
     LoadScene,
     Message,
     NodeHello,
@@ -102,7 +103,18 @@ SESSIONS: list[Message] = [
 ]
 
 
-@pytest.mark.parametrize("message", [*EXAMPLES, *SESSIONS], ids=lambda m: type(m).__name__)
+#: Big models (issues 31, 32): memory in progress, levels of detail, a frame's bound.
+BIG_MODELS: list[Message] = [
+    SceneProgress(scene="big.ply", fraction=0.3, message="reading big.ply", rss_mb=812.5),
+    LevelsReady(scene="big.ply", nodes=40, triangles=90_000),
+    LevelsReady(scene="big.ply", share=2, nodes=2, triangles=900, group_errors=[[0.0, 0.25]],
+                group_triangles=[[1000.0, 250.0]], group_boxes=[[[0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1.5]]]),
+    Render(frame=3, camera=CAMERA, size=(64, 48), codec=Codec.JPEG,
+           tiles=(RenderTile(tile=0, rect=Rect(0, 0, 64, 48)),), lod_error_px=0.5),
+]
+
+
+@pytest.mark.parametrize("message", [*EXAMPLES, *SESSIONS, *BIG_MODELS], ids=lambda m: type(m).__name__)
 def test_every_message_round_trips_through_its_text(message):
     text = message.to_text()
     data = json.loads(text)
@@ -116,7 +128,7 @@ def test_every_kind_is_catalogued_once_per_direction():
     for direction in (FROM_NODE, TO_NODE, FROM_VIEWER):
         kinds = [cls.kind for cls in direction]
         assert len(kinds) == len(set(kinds)), kinds
-    assert {type(m) for m in EXAMPLES} >= {*FROM_NODE, *TO_NODE, *FROM_VIEWER}
+    assert {type(m) for m in [*EXAMPLES, *BIG_MODELS]} >= {*FROM_NODE, *TO_NODE, *FROM_VIEWER}
 
 
 def test_render_carries_the_wire_forms():

@@ -96,7 +96,8 @@ async def play_coordinator(coordinator: FakeCoordinator,
     while (message := await receive_json(ws))["type"] == "scene_progress":
         progress.append(message["fraction"])
     assert message["type"] == "scene_ready" and progress == sorted(progress) and progress
-    assert set(message) == {"type", "scene", "triangles", "bounds", "groups", "objects", "animations"}, \
+    assert set(message) == {"type", "scene", "triangles", "bounds", "groups", "objects", "animations", "scene_mb",
+                            "held_mb", "rss_mb"}, \
         "what the coordinator reads, no more"
     assert message["scene"] == "builtin:spheres", "the spec loaded, echoed"
     assert [o["name"] for o in message["objects"]] == list(scene_data.objects.names)

@@ -45,6 +45,7 @@ import numpy as np
 from node.culling.bvh import build_chunk_bvh, cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.gpu import GpuBvh, GpuCuller
+from node.culling.lod import LodCut, subtract_ranges
 from node.culling.objects import MovedCuller
 from node.culling.order import ChunkGroups, front_to_back
 from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
@@ -122,20 +123,34 @@ class TileCuller:
             index = chunks.index_bounds
             self.gpu_bvh = GpuBvh(ctx, self.bvh, index[:-1], index[1:], bounds[chunks.batch + 1])
 
-    def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect) -> TileCull:
+    @property
+    def takes_levels(self) -> bool:
+        """Whether its tiles can leave out chunks a level of detail stands in for (CPU culling or
+        none: the GPU path draws every chunk its compute shader keeps)."""
+        return self.mode in (CullMode.CPU, CullMode.OFF)
+
+    def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect,
+             lod: LodCut | None = None) -> TileCull:
         """Cull tile ``slot`` (any key: the tile's id), the ``rect`` part of a ``size`` frame drawn
-        with the full-frame ``view_proj`` (4, 4) world→clip matrix."""
-        if self.mode is CullMode.OFF:
+        with the full-frame ``view_proj`` (4, 4) world→clip matrix; the chunks ``lod``'s coarse nodes
+        stand in for are left out (:attr:`takes_levels` modes only)."""
+        coarse = lod is not None and lod.coarse
+        if self.mode is CullMode.OFF and not coarse:
             return TileCull("off", 0.0, self._all_commands, self._all_runs.batch_slices(), self._all_runs)
+        if self.mode is CullMode.OFF:
+            assert lod is not None
+            first, end = subtract_ranges(np.zeros(1, np.int64), np.array([self.chunks.chunk_count]),
+                                         lod.blocked_first, lod.blocked_end)
+            return self._written("off", 0.0, self.chunks.runs(first, end))
         planes = frustum_planes_from_matrix(view_proj, size, rect)
         state = self._slots.get(slot)
         if state is None:
             state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
         if self.clip is not None:   # chunks wholly cut away are culled like those outside the tile
-            return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj)
+            return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj, lod if coarse else None)
         if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
             return self._cull_gpu(state, planes)
-        return self._cull_cpu(state, planes, view_proj)
+        return self._cull_cpu(state, planes, view_proj, lod if coarse else None)
 
     def cull_moved(self, view_proj: np.ndarray, size: tuple[int, int], rect: Rect, batches: Sequence[int],
                    models: np.ndarray) -> DrawRuns:
@@ -153,38 +168,46 @@ class TileCuller:
         self.clip = None if halfspaces is None else np.asarray(halfspaces, dtype=np.float64).reshape(-1, 4)
         self._clipped = None if self.clip is None else clipped_boxes(self.chunks.boxes, self.clip)
 
-    def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None) -> TileCull:
+    def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None, lod: LodCut | None = None) -> TileCull:
         """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer
         draws when hybrid ownership or a sort-last share decided (path "list"); nearest first under
-        the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`)."""
+        the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`); but the
+        chunks ``lod``'s coarse nodes stand in for."""
         ids = np.asarray(chunk_ids, dtype=np.int64)
         if self._clipped is not None and ids.size:
             ids = ids[~self._clipped[ids]]
         heads = np.flatnonzero(np.diff(ids, prepend=-2) != 1)
         first, end = ids[heads], np.append(ids[heads[1:] - 1], ids[-1:]) + 1
+        if lod is not None and lod.coarse:
+            first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
         runs = (self.chunks.runs(first, end) if view_proj is None
                 else front_to_back(self.chunks, self.groups, first, end, view_proj))
+        return self._written("list", 0.0, runs)
+
+    def _written(self, path: str, cull_ms: float, runs: DrawRuns) -> TileCull:
+        """``runs`` written as the CPU's indirect commands."""
         if runs.batch.size:
             self._cpu_commands.write(indirect_commands(_run_spans(runs)).tobytes())
-        return TileCull("list", 0.0, self._cpu_commands, runs.batch_slices(), runs)
+        return TileCull(path, cull_ms, self._cpu_commands, runs.batch_slices(), runs)
 
     def _gpu_culler(self) -> GpuCuller:
         assert self.gpu_bvh is not None
         return GpuCuller(self.gpu_bvh)
 
-    def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray) -> TileCull:
+    def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray, lod: LodCut | None) -> TileCull:
         started = time.perf_counter()
         result = cull(self.bvh, planes)
-        runs = front_to_back(self.chunks, self.groups, result.visible_first, result.visible_end, view_proj)
+        first, end = result.visible_first, result.visible_end
+        if lod is not None:
+            first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
+        runs = front_to_back(self.chunks, self.groups, first, end, view_proj)
         elapsed = time.perf_counter() - started
         if self.mode is CullMode.HYBRID and self.gpu_bvh is not None:
             state.switch = state.switch.step(elapsed)
             if state.switch.device is CullDevice.GPU:
                 state.gpu = state.gpu or self._gpu_culler()
                 state.gpu.seed(result.terminal_nodes)
-        if runs.batch.size:
-            self._cpu_commands.write(indirect_commands(_run_spans(runs)).tobytes())
-        return TileCull("cpu", elapsed * 1e3, self._cpu_commands, runs.batch_slices(), runs)
+        return self._written("cpu", elapsed * 1e3, runs)
 
     def _cull_gpu(self, state: _Slot, planes: np.ndarray) -> TileCull:
         state.gpu = state.gpu or self._gpu_culler()

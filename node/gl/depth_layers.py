@@ -140,14 +140,15 @@ def live_plan(chunks: PlanningScene, pose: ScenePose, camera: Camera, size: tupl
 
 
 def render_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], plan: LayerPlan,
-                state: SceneState | None,
-                subsample: Subsample | None = None) -> tuple[RenderedTile, BlendedFragments | None]:
-    """Draw ``plan`` in scene ``state`` (as ``subsample`` of a still; None: a plain frame): its layer
-    (depth read back) and, when it has blended chunks apart, the blended fragments in front of
-    that layer (moved objects' blended batches with them; None: no blend pass)."""
+                state: SceneState | None, subsample: Subsample | None = None,
+                lod_error_px: float = 0.0) -> tuple[RenderedTile, BlendedFragments | None]:
+    """Draw ``plan`` in scene ``state`` (as ``subsample`` of a still; None: a plain frame, at the
+    levels of detail within ``lod_error_px``): its layer (depth read back) and, when it has blended
+    chunks apart, the blended fragments in front of that layer (moved objects' blended batches with
+    them; None: no blend pass)."""
     apart = plan.blend_ids is not None
     layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state, blend_apart=apart,
-                                  subsample=subsample)
+                                  subsample=subsample, lod_error_px=lod_error_px)
     if plan.blend_ids is None:
         return layer, None
     assert layer.depth is not None

@@ -35,8 +35,8 @@ class ShaderPrograms:
         self.extras = None if extras is None else ctx.buffer(extras)
         if self.extras is not None:
             content = [*content, (self.extras, EXTRAS_FORMAT, *EXTRAS_ATTRIBUTES)]
+        self.ctx, self.content = ctx, content
         self.programs: dict[tuple[ShaderVariant, bool], moderngl.Program] = {}
-        self.vertex_arrays: dict[tuple[ShaderVariant, bool], moderngl.VertexArray] = {}
         for variant in sorted(set(self.variants)):
             for discards in (False, True):
                 program = ctx.program(vertex_shader=vertex_shader(variant),
@@ -45,8 +45,19 @@ class ShaderPrograms:
                     if name in program:
                         program[name].value = unit
                 self.programs[variant, discards] = program
-                self.vertex_arrays[variant, discards] = ctx.vertex_array(
-                    program, content, index_buffer=index_buffer, index_element_size=4, skip_errors=True)
+        self.vertex_arrays = self.drawing(index_buffer)
+        self._other_arrays: list[dict[tuple[ShaderVariant, bool], moderngl.VertexArray]] = []
+
+    def drawing(self, index_buffer: moderngl.Buffer) -> dict[tuple[ShaderVariant, bool], moderngl.VertexArray]:
+        """A vertex array per program over the vertex buffers, drawing ``index_buffer`` (uint32)."""
+        return {key: self.ctx.vertex_array(program, self.content, index_buffer=index_buffer, index_element_size=4,
+                                           skip_errors=True) for key, program in self.programs.items()}
+
+    def also_drawing(self, index_buffer: moderngl.Buffer) -> dict[tuple[ShaderVariant, bool], moderngl.VertexArray]:
+        """:meth:`drawing`, released with these programs (levels of detail draw from a second index buffer)."""
+        arrays = self.drawing(index_buffer)
+        self._other_arrays.append(arrays)
+        return arrays
 
     def key(self, number: int, discards: bool) -> tuple[ShaderVariant, bool]:
         """The program key of batch ``number`` drawn with or without discards."""
@@ -73,7 +84,8 @@ class ShaderPrograms:
             sets.write(np.array([t.uv_set for t in transforms[:sets.array_length]], np.int32).tobytes())
 
     def release(self) -> None:
-        for resource in (*self.vertex_arrays.values(), *self.programs.values()):
+        others = [array for arrays in self._other_arrays for array in arrays.values()]
+        for resource in (*self.vertex_arrays.values(), *others, *self.programs.values()):
             resource.release()
         if self.extras is not None:
             self.extras.release()

@@ -65,7 +65,6 @@ LOD bias; :meth:`TileRenderer.render_still` accumulates a still's samples as the
 from __future__ import annotations
 
 import dataclasses
-import heapq
 import time
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
@@ -74,15 +73,19 @@ from typing import Any
 import moderngl
 import numpy as np
 
+from node.culling.frustum import frustum_planes_from_matrix
+from node.culling.lod import LodCut, lod_cut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
+from node.gl.lod_draws import LodDraws
 from node.gl.programs import ShaderPrograms
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
 from node.gl.view_tools import ViewTools, ViewToolsGL
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
+from node.scene.lod import LodTree
 from node.scene.mesh import MeshBatch
 from node.scene.packing import PackedGeometry, gpu_indices, pack
 from node.scene.pages import release_pages
@@ -110,6 +113,9 @@ SAMPLER_UNITS = {"u_texture": UNIT_BASE, "u_floor": UNIT_FLOOR, "u_ceil": UNIT_C
                  "u_brdf_lut": UNIT_LUT}
 
 
+#: What :meth:`TileRenderer._draw` draws of a batch, in this order: its culled chunks' commands,
+#: the whole batch (a moved object's), its coarse levels of detail.
+CULLED, WHOLE, COARSE = 0, 1, 2
 #: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
 #: compositor takes all of a pixel's fragments in front of the node's own layer together).
 MAX_BLEND_LAYERS = 4
@@ -225,6 +231,7 @@ class TileRenderer:
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
         self.lighting = ImageLighting(ctx, lighting)
         packed = pack(scene.batches) if packed is None else packed
+        self.vertex_bounds = packed.vertex_bounds
         chunks = scene.chunks
         self.vertex_buffer, self.index_buffer = upload_geometry(ctx, packed,
                                                                 chunks.index_bounds[chunks.batch_bounds])
@@ -251,6 +258,28 @@ class TileRenderer:
         self._blend_func: tuple[int, ...] | None = BLEND_OVER
         self._base_pose = ScenePose.of(scene, None)
         self._pose: tuple[SceneState | None, ScenePose] = (None, self._base_pose)
+        #: The scene's levels of detail once attached (:meth:`attach_lod`), and the last frame's cut.
+        self.lod: LodDraws | None = None
+        self._cut: tuple[tuple[Any, ...], LodCut] = ((), LodCut.full())
+
+    def attach_lod(self, tree: LodTree) -> None:
+        """Upload ``tree``'s levels: from now on plain tiles and sort-last layers asked for an error
+        bound draw its coarse nodes where they are within it."""
+        if self.lod is not None:
+            self.lod.release()
+        self.lod = LodDraws(tree, self.vertex_bounds, self.shaders)
+        self._cut = ((), LodCut.full())
+
+    def level_cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
+        """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
+        within ``error_px`` pixels; full detail without levels, without a bound, or with a culling
+        mode that cannot leave chunks out. The last frame's is kept for its other tiles."""
+        if self.lod is None or error_px <= 0.0 or not self.culler.takes_levels:
+            return LodCut.full()
+        key = (camera, size[1], error_px)
+        if self._cut[0] != key:
+            self._cut = (key, lod_cut(self.lod.tree, camera, size, error_px))
+        return self._cut[1]
 
     @property
     def background(self) -> tuple[float, float, float]:
@@ -301,24 +330,27 @@ class TileRenderer:
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
                     slot: Hashable | None = None, state: SceneState | None = None,
-                    subsample: Subsample | None = None) -> RenderedTile:
+                    subsample: Subsample | None = None, lod_error_px: float = 0.0) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
         (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame, resolved
-        by the filter when :attr:`filtered`: drawn, culled and read with its guard band).
-        ``slot`` names the tile for the hybrid culling switch (default: the rect itself)."""
+        by the filter when :attr:`filtered`: drawn, culled and read with its guard band); a plain
+        frame at the levels of detail within ``lod_error_px`` pixels (0: full detail; a still's
+        samples always are). ``slot`` names the tile for the hybrid culling switch (default: the rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
         filtered = self.filtered and subsample is None
         drawn = guarded(rect, size) if filtered else rect
         lod_bias = subsample.lod_bias if subsample is not None else FILTERED_LOD_BIAS if filtered else 0.0
         pose, matrix, moved = self._posed(camera, size, drawn, state, subsample)
-        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn)
+        cut = self.level_cut(camera, size, lod_error_px if subsample is None else 0.0)
+        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn, cut)
+        coarse = self._coarse(cut, matrix, size, drawn, pose)
         paired = filtered and self.paired
         # Paired samples: the same projection drawn over a viewport twice as wide.
         target_size, target = ((2 * size[0], size[1]), Rect(2 * drawn.x, drawn.y, 2 * drawn.w, drawn.h)) if paired \
             else (size, drawn)
         tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
-                            moved=moved, lod_bias=lod_bias)
+                            moved=moved, lod_bias=lod_bias, coarse=coarse)
         if not filtered:
             return tile
         filtering = time.perf_counter()
@@ -352,6 +384,15 @@ class TileRenderer:
             self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
         return self._pose[1]
 
+    def _coarse(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
+                pose: ScenePose) -> DrawRuns | None:
+        """The runs of ``cut``'s coarse nodes that touch ``rect`` (None: full detail), but those of the
+        batches ``pose`` moves or hides (they are drawn apart, at full detail)."""
+        if not cut.coarse or self.lod is None:
+            return None
+        planes = frustum_planes_from_matrix(matrix, size, rect)
+        return self.lod.runs(cut, planes, pose.skip if pose.skip.any() else None)
+
     def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
                subsample: Subsample | None = None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
         """What every draw of ``rect`` in scene ``state`` starts from: the pose, the full-frame (4, 4)
@@ -366,30 +407,37 @@ class TileRenderer:
 
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None, state: SceneState | None = None,
-                     blend_apart: bool = False, subsample: Subsample | None = None) -> RenderedTile:
+                     blend_apart: bool = False, subsample: Subsample | None = None,
+                     lod_error_px: float = 0.0) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
         culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
         what the rect's culling keeps where they are now (``blend_apart``: their blended batches left
-        to :meth:`render_blend`), with its depth read back as well; ``subsample`` as there."""
+        to :meth:`render_blend`), with its depth read back as well; ``subsample`` and
+        ``lod_error_px`` as there (levels of detail are for layers that draw all of a scene's
+        chunks they see: a sort-last share's)."""
         validate_rect(rect, size)
         started = time.perf_counter()
         pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
+        cut = self.level_cut(camera, size, lod_error_px if subsample is None else 0.0)
         if chunk_ids is None:
-            culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect)
+            culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect, cut)
         else:
-            culled = self.culler.listed(chunk_ids, matrix)
+            culled = self.culler.listed(chunk_ids, matrix, cut)
         return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None,
-                            lod_bias=0.0 if subsample is None else subsample.lod_bias)
+                            lod_bias=0.0 if subsample is None else subsample.lod_bias,
+                            coarse=self._coarse(cut, matrix, size, rect, pose))
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
-                blended_moved: bool | None = None, lod_bias: float = 0.0) -> RenderedTile:
+                blended_moved: bool | None = None, lod_bias: float = 0.0,
+                coarse: DrawRuns | None = None) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
         began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
-        which ``blended_moved`` picks (:meth:`_draw`); textures read with ``lod_bias``."""
+        which ``blended_moved`` picks (:meth:`_draw`); textures read with ``lod_bias``; ``coarse``: the
+        runs of coarse levels of detail to draw too (:class:`node.gl.lod_draws.LodDraws`)."""
         width, height = size
         samples = 1 if with_depth else self.samples
         target = self._framebuffer_for((width, height), samples)
@@ -399,7 +447,7 @@ class TileRenderer:
         target.use()
         target.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self._use_camera(camera, lod_bias)
-        self._draw(target, culled, pose, matrix, moved, blended_moved)
+        self._draw(target, culled, pose, matrix, moved, blended_moved, coarse)
         framebuffer = self._framebuffer_for((width, height))
         if samples > 1:
             framebuffer.viewport = (0, 0, width, height)
@@ -419,8 +467,9 @@ class TileRenderer:
         moved_chunks, moved_triangles = ((pose.whole_chunks, pose.whole_triangles) if moved is None
                                          else (moved.chunks, moved.triangles))
         drawn_chunks = counts.chunks_drawn + moved_chunks
+        coarse_triangles = 0 if coarse is None else coarse.triangles
         return RenderedTile(rect, pixels, (drawn - started) * 1e3, (read - drawn) * 1e3,
-                            counts.triangles + moved_triangles, drawn_chunks,
+                            counts.triangles + moved_triangles + coarse_triangles, drawn_chunks,
                             self.scene.chunks.chunk_count - drawn_chunks, culled.cull_ms, culled.path, depth)
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
@@ -496,10 +545,11 @@ class TileRenderer:
         return np.ascontiguousarray(np.frombuffer(data, np.float32).reshape(rect.h, rect.w)[::-1])
 
     def render_frame(self, camera: Camera, size: tuple[int, int], state: SceneState | None = None,
-                     subsample: Subsample | None = None) -> RenderedTile:
+                     subsample: Subsample | None = None, lod_error_px: float = 0.0) -> RenderedTile:
         """The whole ``size`` = (w, h) frame in scene ``state`` (None: the base pose), as
-        ``subsample`` of a still (None: a plain frame)."""
-        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, subsample=subsample)
+        ``subsample`` of a still (None: a plain frame, at the levels of detail within ``lod_error_px``)."""
+        return self.render_tile(camera, size, Rect(0, 0, size[0], size[1]), state=state, subsample=subsample,
+                                lod_error_px=lod_error_px)
 
     def render_still(self, camera: Camera, size: tuple[int, int], samples: StillPlan | int,
                      state: SceneState | None = None) -> np.ndarray:
@@ -512,13 +562,14 @@ class TileRenderer:
                                 size, plan).mean()
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
-              view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None) -> None:
+              view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None,
+              coarse: DrawRuns | None = None) -> None:
         """Issue the draw calls batch by batch in batch order (opaque and masked first, blended last),
         each with its object's matrices: one multi-draw-indirect over each culled batch's commands
         (without :attr:`multi_draw` one draw per index run), one draw per run of ``moved`` for a moved
-        batch, or of the whole batch when ``moved`` is None (``first`` −1 below), of those moved batches
-        only the blended (``blended_moved`` True) or the others (False; None: all); batches ``pose``
-        hides are left out."""
+        batch, or of the whole batch when ``moved`` is None, of those moved batches only the blended
+        (``blended_moved`` True) or the others (False; None: all); then a batch's ``coarse`` runs of
+        its levels of detail (:attr:`lod`'s commands); batches ``pose`` hides are left out."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
@@ -526,31 +577,38 @@ class TileRenderer:
         self._blending = False
         if not self.multi_draw:
             assert culled.runs is not None, "GPU culling draws its commands by multi-draw-indirect"
-            firsts, counts = culled.runs.first.tolist(), culled.runs.count.tolist()
-        draws = culled.batches
         whole = pose.whole_runs(self.scene, moved)
         if blended_moved is not None:
             whole = {number: runs for number, runs in whole.items()
                      if (self.scene.batches[number].alpha_mode == "BLEND") == blended_moved}
-        if pose.skip.any():
-            culled_draws = [draw for draw in culled.batches if not pose.skip[draw[0]]]
-            draws = list(heapq.merge(culled_draws, [(number, -1, 0) for number in whole]))
+        skip = pose.skip
+        draws = [(number, CULLED, first, count) for number, first, count in culled.batches if not skip[number]]
+        draws += [(number, WHOLE, 0, 0) for number in whole]
+        if coarse is not None and self.lod is not None:
+            draws += [(number, COARSE, first, count) for number, first, count in coarse.batch_slices()]
+        draws.sort(key=lambda draw: (draw[0], draw[1]))
         model = None
-        for number, first, count in draws:
+        for number, kind, first, count in draws:
             self._use_material(framebuffer, number)
-            vertex_array = self.shaders.vertex_arrays[self._program_key(number)]
+            key = self._program_key(number)
             owner = int(pose.owner[number])
-            if (key := owner if pose.moved[owner] else -1) != model:
-                model = key
+            if (moved_owner := owner if pose.moved[owner] else -1) != model:
+                model = moved_owner
                 self._use_model(pose, model, view_proj)
-            if first < 0:
+            if kind == WHOLE:
+                vertex_array = self.shaders.vertex_arrays[key]
                 for run_first, run_count in whole[number]:
                     vertex_array.render(moderngl.TRIANGLES, vertices=run_count, first=run_first)
-            elif self.multi_draw:
-                vertex_array.render_indirect(culled.commands, moderngl.TRIANGLES, count=count, first=first)
                 continue
+            vertex_array, commands, runs = ((self.shaders.vertex_arrays[key], culled.commands, culled.runs)
+                                            if kind == CULLED else (self.lod.vertex_arrays[key], self.lod.commands,
+                                                                    coarse))  # type: ignore[union-attr]
+            if self.multi_draw:
+                vertex_array.render_indirect(commands, moderngl.TRIANGLES, count=count, first=first)
+                continue
+            assert runs is not None
             for run in range(first, first + count):
-                vertex_array.render(moderngl.TRIANGLES, vertices=counts[run], first=firsts[run])
+                vertex_array.render(moderngl.TRIANGLES, vertices=int(runs.count[run]), first=int(runs.first[run]))
         if self._blending:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)

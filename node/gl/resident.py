@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from pathlib import Path
 
 from node.gl.depth_layers import PlanningScene
 from node.gl.renderer import TileRenderer
@@ -34,15 +35,18 @@ class SceneNotLoadedError(RuntimeError):
 
 
 def estimated_bytes(renderer: TileRenderer) -> int:
-    """Bytes a loaded scene is counted for: ``renderer``'s vertex and index buffers plus its scene's arrays."""
-    return renderer.vertex_buffer.size + renderer.index_buffer.size + renderer.scene.nbytes
+    """Bytes a loaded scene is counted for: ``renderer``'s vertex and index buffers (and its levels
+    of detail's) plus its scene's arrays held in memory."""
+    levels = 0 if renderer.lod is None else renderer.lod.nbytes
+    return renderer.vertex_buffer.size + renderer.index_buffer.size + levels + renderer.scene.nbytes
 
 
 @dataclass(eq=False)
 class ResidentScene:
     """A loaded scene: ``renderer`` draws it, ``planning`` plans its depth layers; ``share_version``
     the data partition version of the share held (None: the whole scene); ``nbytes``
-    (:func:`estimated_bytes`); ``loaded`` orders the loads (a reload counts as one)."""
+    (:func:`estimated_bytes`); ``loaded`` orders the loads (a reload counts as one); ``entry``
+    its scene cache entry (None: read into memory), where its levels of detail are built from."""
 
     key: SceneKey
     renderer: TileRenderer
@@ -50,6 +54,7 @@ class ResidentScene:
     share_version: int | None
     nbytes: int
     loaded: int = 0
+    entry: Path | None = None
 
     @property
     def spec(self) -> str:
@@ -97,6 +102,10 @@ class ResidentScenes:
             victim.renderer.release()
             evicted.append(key)
         return evicted
+
+    def held(self, key: SceneKey) -> ResidentScene | None:
+        """The scene of ``key`` if held (its place in the order unchanged)."""
+        return self._scenes.get(key)
 
     def find(self, spec: str | None, share: int | None = None) -> ResidentScene:
         """The scene a tile of ``spec`` is drawn from (None: the spec loaded last), marked most

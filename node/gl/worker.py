@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Hashable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import moderngl
@@ -34,11 +35,13 @@ from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
 from node.gl.view_tools import ViewTools
+from node.scene.cache import CacheError
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
+from node.scene.lod import LodTree, read_lod
 from node.scene.mesh import SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
@@ -99,6 +102,8 @@ class LoadedScene:
     share_version: int | None
     nbytes: int = 0
     held_bytes: int = 0
+    #: Its levels of detail when it has them already (a scene held again).
+    levels: LodTree | None = None
 
 
 class GLWorker:
@@ -119,6 +124,14 @@ class GLWorker:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
         self._reader = SceneReaderProcess()
+        #: Levels of detail are built in a reader of their own, so a scene's load never waits for them.
+        self._levels_loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-levels")
+        self._levels_reader = SceneReaderProcess()
+        self._levels_tasks: set[asyncio.Task[None]] = set()
+        self._levels_building: set[SceneKey] = set()
+        #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
+        #: share version (None: whole) and levels.
+        self.levels_listener: Callable[[str, int | None, LodTree, SceneData], None] | None = None
         self.read_in_process_bytes = read_in_process_bytes
         self._ctx: moderngl.Context | None = None
         self._scenes = ResidentScenes(memory_bytes)
@@ -145,6 +158,8 @@ class GLWorker:
         while True:
             loaded = await self._call(self._reuse, key, request)
             if loaded is not None:
+                if request.levels and loaded.levels is None:
+                    self._build_levels(key)
                 return loaded
             reading = self._reading.get(key)
             if reading is None:
@@ -161,27 +176,73 @@ class GLWorker:
             task.exception()
 
     async def _read_and_upload(self, key: SceneKey, request: LoadScene, progress: ProgressCallback) -> LoadedScene:
-        read = await asyncio.get_running_loop().run_in_executor(self._loader, self._read, request, progress)
-        loaded: LoadedScene = await self._call(self._upload, key, request, read, progress)
+        scene, entry = await asyncio.get_running_loop().run_in_executor(self._loader, self._read, request, progress)
+        loaded: LoadedScene = await self._call(self._upload, key, request, scene, entry, progress)
+        if request.levels:
+            self._build_levels(key)
         return loaded
 
-    def _read(self, request: LoadScene, progress: ProgressCallback) -> SceneData:
+    def _build_levels(self, key: SceneKey) -> None:
+        """Start building the levels of detail of the scene held as ``key`` (from its cache entry;
+        nothing for a scene read into memory, or when its levels are being built already)."""
+        held = self._scenes.held(key)
+        if held is None or held.entry is None or self.cache is None or key in self._levels_building:
+            return
+        self._levels_building.add(key)
+        task = asyncio.get_running_loop().create_task(self._levels(key, held.entry))
+        self._levels_tasks.add(task)
+        task.add_done_callback(self._levels_tasks.discard)
+        task.add_done_callback(lambda _: self._levels_building.discard(key))
+
+    async def _levels(self, key: SceneKey, entry: Path) -> None:
+        """Build (or find) the levels of detail of the scene held as ``key`` (cache entry ``entry``)
+        in the levels reader, then attach them on the GL thread; a failure is logged, the scene
+        stays drawn at full detail."""
+        assert self.cache is not None
+        started = time.perf_counter()
+        try:
+            path = await asyncio.get_running_loop().run_in_executor(
+                self._levels_loader, self._levels_reader.levels, entry, self.cache, lambda fraction, message: None)
+            tree = None if path is None else read_lod(path, verify=False)
+        except (SceneError, CacheError) as exc:
+            log.warning("levels of detail of %s failed: %s", key[0], exc)
+            return
+        if tree is not None:
+            held = await self._call(self._attach_levels, key, tree)
+            if held is not None:
+                log.info("levels of detail of %s: %d nodes in %.1f s", key[0], tree.node_count,
+                         time.perf_counter() - started)
+                if self.levels_listener is not None:
+                    self.levels_listener(key[0], held.share_version, tree, held.renderer.scene)
+
+    def _attach_levels(self, key: SceneKey, tree: LodTree) -> ResidentScene | None:
+        """On the GL thread: give the scene held as ``key`` its levels (None: no longer held)."""
+        held = self._scenes.held(key)
+        if held is not None:
+            held.renderer.attach_lod(tree)
+            held.nbytes = estimated_bytes(held.renderer)
+        return held
+
+    def _read(self, request: LoadScene, progress: ProgressCallback) -> tuple[SceneData, Path | None]:
         """In the loader thread: fetch (if need be), then ingest or open its cache entry (here, or a
-        large file in the scene reader process) and map it; refuse it when it exceeds the budget."""
+        large file in the scene reader process) and map it; refuse it when it exceeds the budget.
+        The scene, and its cache entry (None: read into memory)."""
         spec, share = request.scene, request.share
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
         known = request.sha256 if source != spec else None
         read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
-        scene = open_cached(read(source, spec, self.face_limit, share, progress, self.cache, known), spec)
+        made = read(source, spec, self.face_limit, share, progress, self.cache, known)
+        scene = open_cached(made, spec)
         needed, budget = scene.gpu_bytes + scene.nbytes, self._scenes.budget_bytes
         if needed > budget:
             mode = "serve it in sort-last mode (coordinator --mode sort-last), where each node holds a share" \
                 if share is None else "add nodes, so that each share is smaller"
             raise SceneError(f"{spec}: needs {needed / (1 << 20):.0f} MB, more than this node's --scene-memory-mb "
                              f"{budget / (1 << 20):.0f}; {mode}")
-        return scene
+        return scene, made if isinstance(made, Path) else None
 
-    def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData, progress: ProgressCallback) -> LoadedScene:
+    def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData, entry: Path | None,
+                progress: ProgressCallback) -> LoadedScene:
         """On the GL thread: upload ``scene``, hold it, release the least recently used others over budget."""
         assert self._ctx is not None
         share = request.share
@@ -191,7 +252,7 @@ class GLWorker:
                                 shading=self.shading)
         version = None if share is None else share.version
         held = ResidentScene(key, renderer, PlanningScene.of(scene, renderer.culler.bvh), version,
-                             estimated_bytes(renderer))
+                             estimated_bytes(renderer), entry=entry)
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))
@@ -205,7 +266,8 @@ class GLWorker:
         if request.background is not None:
             held.renderer.background = request.background
         held.share_version = None if request.share is None else request.share.version
-        return LoadedScene(held.renderer.scene, held.share_version, held.nbytes, self._scenes.total_bytes)
+        levels = None if held.renderer.lod is None else held.renderer.lod.tree
+        return LoadedScene(held.renderer.scene, held.share_version, held.nbytes, self._scenes.total_bytes, levels)
 
     async def held(self) -> list[SceneKey]:
         """The keys of the scenes held, least recently used first."""
@@ -214,32 +276,38 @@ class GLWorker:
 
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                      state: SceneState | None = None, scene: str | None = None,
-                     subsample: Subsample | None = None, tools: ViewTools | None = None) -> RenderedTile:
+                     subsample: Subsample | None = None, tools: ViewTools | None = None,
+                     lod_error_px: float = 0.0) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
-        (None: the base pose), as ``subsample`` of a still (None: a plain frame), with the frame's
-        ``tools`` (clip, highlight; None: none); ``slot`` (the tile id) keys the tile's hybrid
-        culling switch. Raises SceneNotLoadedError for a scene not held."""
-        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools)
+        (None: the base pose), as ``subsample`` of a still (None: a plain frame, at the levels of
+        detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none);
+        ``slot`` (the tile id) keys the tile's hybrid culling switch. Raises SceneNotLoadedError
+        for a scene not held."""
+        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools, lod_error_px)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                 state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                tools: ViewTools | None) -> RenderedTile:
+                tools: ViewTools | None, lod_error_px: float) -> RenderedTile:
         renderer = self._scenes.find(scene).renderer
         renderer.use_tools(tools)
-        return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample)
+        return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample,
+                                    lod_error_px=lod_error_px)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,
-                           subsample: Subsample | None = None, tools: ViewTools | None = None) -> DepthRender:
+                           subsample: Subsample | None = None, tools: ViewTools | None = None,
+                           lod_error_px: float = 0.0) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
-        version; ``subsample`` and ``tools`` as :meth:`render`'s. Raises SceneNotLoadedError for a
-        scene or share not held."""
-        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools)
+        version; ``subsample`` and ``tools`` as :meth:`render`'s; sort-last layers at the levels of
+        detail within ``lod_error_px`` (hybrid layers at full detail: a coarse node spans chunks
+        other tiles own). Raises SceneNotLoadedError for a scene or share not held."""
+        return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools,
+                                lod_error_px)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                      tools: ViewTools | None) -> DepthRender:
+                      tools: ViewTools | None, lod_error_px: float) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
         renderer.use_tools(tools)
@@ -248,7 +316,8 @@ class GLWorker:
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
             return DepthRender(None, None, None, plan_ms, share)
-        layer, blend = render_plan(renderer, camera, size, plan, state, subsample)
+        layer, blend = render_plan(renderer, camera, size, plan, state, subsample,
+                                   lod_error_px if request.mode == "sort-last" else 0.0)
         return DepthRender(layer, plan.exclusive, blend, plan_ms, share)
 
     async def pick(self, request: Pick) -> PickHit | None:
@@ -269,10 +338,13 @@ class GLWorker:
             self._ctx = None
 
     def close(self) -> None:
-        """Kill the scene reader process (a scene it ingests is not needed any more), stop the loader
-        thread, free GL resources on the GL thread and stop it (waits for a running draw)."""
-        self._reader.close()
-        self._loader.shutdown(wait=True, cancel_futures=True)
-        self._reader.close()
+        """Kill the scene reader processes (a scene or levels they build are not needed any more),
+        stop the loader threads, free GL resources on the GL thread and stop it (waits for a running draw)."""
+        for reader in (self._reader, self._levels_reader):
+            reader.close()
+        for loader in (self._loader, self._levels_loader):
+            loader.shutdown(wait=True, cancel_futures=True)
+        for reader in (self._reader, self._levels_reader):
+            reader.close()
         self._executor.submit(self._close)
         self._executor.shutdown(wait=True)

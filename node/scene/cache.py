@@ -104,52 +104,21 @@ def _material(data: Mapping[str, Any], textures: Sequence[np.ndarray]) -> Surfac
                             for m, uv_set in data["uv_transforms"]))
 
 
-def write_entry(directory: Path, scene: SceneData, packed: PackedGeometry, source: Mapping[str, Any],
-                share: Mapping[str, Any] | None = None) -> int:
-    """Write ``scene`` (its batches packed as ``packed``) as the entry ``directory``, atomically;
-    ``source`` (sha256, bytes, name) and ``share`` (index, weights) go into its table. Returns the
-    bytes written. An entry already there is kept (whoever wrote it first wins)."""
+def write_arrays(directory: Path, arrays: Mapping[str, np.ndarray], table: Mapping[str, Any]) -> int:
+    """Write ``arrays`` (one ``.npy`` each, with their CRCs) and ``table`` (plus ``files`` and
+    ``bytes``) as the entry ``directory``, atomically: into a temporary directory renamed into place
+    whole, the table last. Returns the bytes written; an entry already there is kept (whoever wrote
+    it first wins)."""
     temporary = directory.with_name(f".{directory.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")
     temporary.mkdir(parents=True)
     try:
-        textures: list[np.ndarray] = []
-        ids: dict[int, int] = {}
-
-        def texture_id(texture: np.ndarray | None) -> int | None:
-            if texture is None:
-                return None
-            if id(texture) not in ids:
-                ids[id(texture)] = len(textures)
-                textures.append(np.ascontiguousarray(texture, np.uint8))
-            return ids[id(texture)]
-
-        batches = [{"name": b.name, "owner": b.owner, "base_color": [float(v) for v in b.base_color],
-                    "alpha_mode": b.alpha_mode, "alpha_cutoff": b.alpha_cutoff,
-                    "texture": texture_id(b.texture), "material": _material_json(b.material, texture_id),
-                    "uvs": b.uvs is not None, "colors": b.colors is not None,
-                    "tangents": b.tangents is not None, "uvs1": b.uvs1 is not None} for b in scene.batches]
-        chunks = scene.chunks
-        arrays: dict[str, np.ndarray] = {
-            "vertices": packed.vertices, "indices": packed.indices, "vertex_bounds": packed.vertex_bounds,
-            "chunk_batch": chunks.batch, "index_bounds": chunks.index_bounds, "batch_bounds": chunks.batch_bounds,
-            "chunk_boxes": chunks.boxes}
-        extras = vertex_extras(scene.batches)
-        if extras is not None:
-            arrays["extras"] = extras
-        arrays.update({f"texture-{number}": texture for number, texture in enumerate(textures)})
         files = {}
         for name, array in arrays.items():
             np.save(temporary / f"{name}.npy", array, allow_pickle=False)
             files[name] = {"dtype": array.dtype.descr if array.dtype.names else array.dtype.str,
                            "shape": list(array.shape), "crc32": _crcs(array)}
-        table = {"format": CACHE_FORMAT, "source": dict(source), "share": None if share is None else dict(share),
-                 "face_limit": chunks.face_limit, "layout": packed.layout.to_json(), "bounds": scene.bounds.tolist(),
-                 "triangles": scene.triangle_count, "batches": batches, "objects": scene.objects.to_json(),
-                 "animations": [a.keyframes_json() for a in scene.animations], "files": files,
-                 "vertex_bytes": int(packed.vertices.nbytes), "index_bytes": int(packed.indices.nbytes)}
         size = sum(path.stat().st_size for path in temporary.iterdir())
-        table["bytes"] = size
-        (temporary / TABLE).write_text(json.dumps(table))
+        (temporary / TABLE).write_text(json.dumps({**table, "files": files, "bytes": size}))
         try:
             os.rename(temporary, directory)
         except OSError:
@@ -161,25 +130,78 @@ def write_entry(directory: Path, scene: SceneData, packed: PackedGeometry, sourc
             shutil.rmtree(temporary, ignore_errors=True)
 
 
-def read_table(directory: Path) -> dict[str, Any]:
-    """The entry's table; raises CacheError when absent, unparsable or of another format."""
+def read_arrays(directory: Path, verify: bool = True, format_version: int = CACHE_FORMAT) -> tuple[
+        dict[str, Any], dict[str, np.ndarray]]:
+    """(table, arrays mapped) of the entry ``directory`` written by :func:`write_arrays`; ``verify``:
+    check every array's CRCs (reading it all). Raises CacheError."""
+    table = read_table(directory, format_version)
+    try:
+        return table, {key: _load_array(directory, key, spec, verify) for key, spec in table["files"].items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CacheError(f"{directory.name}: inconsistent table ({type(exc).__name__}: {exc})") from None
+
+
+def write_entry(directory: Path, scene: SceneData, packed: PackedGeometry, source: Mapping[str, Any],
+                share: Mapping[str, Any] | None = None) -> int:
+    """Write ``scene`` (its batches packed as ``packed``) as the entry ``directory`` (:func:`write_arrays`);
+    ``source`` (sha256, bytes, name) and ``share`` (index, weights) go into its table."""
+    textures: list[np.ndarray] = []
+    ids: dict[int, int] = {}
+
+    def texture_id(texture: np.ndarray | None) -> int | None:
+        if texture is None:
+            return None
+        if id(texture) not in ids:
+            ids[id(texture)] = len(textures)
+            textures.append(np.ascontiguousarray(texture, np.uint8))
+        return ids[id(texture)]
+
+    batches = [{"name": b.name, "owner": b.owner, "base_color": [float(v) for v in b.base_color],
+                "alpha_mode": b.alpha_mode, "alpha_cutoff": b.alpha_cutoff,
+                "texture": texture_id(b.texture), "material": _material_json(b.material, texture_id),
+                "uvs": b.uvs is not None, "colors": b.colors is not None,
+                "tangents": b.tangents is not None, "uvs1": b.uvs1 is not None} for b in scene.batches]
+    chunks = scene.chunks
+    arrays: dict[str, np.ndarray] = {
+        "vertices": packed.vertices, "indices": packed.indices, "vertex_bounds": packed.vertex_bounds,
+        "chunk_batch": chunks.batch, "index_bounds": chunks.index_bounds, "batch_bounds": chunks.batch_bounds,
+        "chunk_boxes": chunks.boxes}
+    extras = vertex_extras(scene.batches)
+    if extras is not None:
+        arrays["extras"] = extras
+    arrays.update({f"texture-{number}": texture for number, texture in enumerate(textures)})
+    table = {"format": CACHE_FORMAT, "source": dict(source), "share": None if share is None else dict(share),
+             "face_limit": chunks.face_limit, "layout": packed.layout.to_json(), "bounds": scene.bounds.tolist(),
+             "triangles": scene.triangle_count, "batches": batches, "objects": scene.objects.to_json(),
+             "animations": [a.keyframes_json() for a in scene.animations],
+             "vertex_bytes": int(packed.vertices.nbytes), "index_bytes": int(packed.indices.nbytes)}
+    return write_arrays(directory, arrays, table)
+
+
+def read_table(directory: Path, format_version: int = CACHE_FORMAT) -> dict[str, Any]:
+    """The entry's table; raises CacheError when absent, unparsable or of another format than
+    ``format_version``."""
     try:
         table = json.loads((directory / TABLE).read_text())
     except FileNotFoundError:
         raise CacheError(f"{directory.name}: no entry") from None
     except (OSError, ValueError) as exc:
         raise CacheError(f"{directory.name}: unreadable table ({exc})") from None
-    if not isinstance(table, dict) or table.get("format") != CACHE_FORMAT:
+    if not isinstance(table, dict) or table.get("format") != format_version:
         found = table.get("format") if isinstance(table, dict) else None
-        raise CacheError(f"{directory.name}: format {found!r}, this node reads format {CACHE_FORMAT}")
+        raise CacheError(f"{directory.name}: format {found!r}, this node reads format {format_version}")
     return table
 
 
 def entry_info(directory: Path) -> EntryInfo:
-    """The sizes an entry's table gives; raises CacheError."""
-    table = read_table(directory)
-    return EntryInfo(int(table["bytes"]), int(table["triangles"]), int(table["vertex_bytes"]),
-                     int(table["index_bytes"]))
+    """The sizes an entry's table gives (of any format: the folder weighs and evicts them all);
+    raises CacheError."""
+    try:
+        table = json.loads((directory / TABLE).read_text())
+        return EntryInfo(int(table["bytes"]), int(table.get("triangles", 0)), int(table.get("vertex_bytes", 0)),
+                         int(table.get("index_bytes", 0)))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise CacheError(f"{directory.name}: unreadable table ({exc})") from None
 
 
 def _load_array(directory: Path, name: str, spec: Mapping[str, Any], verify: bool) -> np.ndarray:
@@ -202,12 +224,9 @@ def open_entry(directory: Path, name: str, verify: bool = True) -> SceneData:
     """The scene of the entry ``directory``, named ``name``, its geometry mapped (:attr:`SceneData.geometry`;
     the batches' arrays are views of it); ``verify``: check every array's CRCs first (reading it
     all). Raises CacheError."""
-    table = read_table(directory)
+    table, arrays = read_arrays(directory, verify)
     try:
-        arrays = {key: _load_array(directory, key, spec, verify) for key, spec in table["files"].items()}
         return _scene(table, arrays, name)
-    except CacheError:
-        raise
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise CacheError(f"{directory.name}: inconsistent table ({type(exc).__name__}: {exc})") from None
 

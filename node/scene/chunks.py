@@ -43,12 +43,14 @@ class PrimitiveGroups:
     object), at the base pose.
 
     ``boxes`` (K, 6) float64 as x0, y0, z0, x1, y1, z1; ``counts`` (K,) int64 triangles;
-    ``owners`` (K,) int64 the object each group belongs to (issue 11: groups move with it).
+    ``owners`` (K,) int64 the object each group belongs to (issue 11: groups move with it);
+    ``chunk_starts`` (K,) int64: group i is the chunks from ``chunk_starts[i]`` to the next group's.
     """
 
     boxes: np.ndarray
     counts: np.ndarray
     owners: np.ndarray
+    chunk_starts: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,7 +139,7 @@ class SceneChunks:
         hi = np.maximum.reduceat(self.boxes[:, 1], starts, axis=0)
         counts = np.add.reduceat(self.face_counts, starts)
         return PrimitiveGroups(np.concatenate([lo, hi], axis=1).astype(np.float64), counts.astype(np.int64),
-                               owner[starts].astype(np.int64))
+                               owner[starts].astype(np.int64), starts.astype(np.int64))
 
 
 def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> tuple[

@@ -18,6 +18,7 @@ from node.scene.cache import CacheError, Progress, open_entry, remove_entry, wri
 from node.scene.cache_folder import CacheFolder, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
+from node.scene.lod import build_lod, lod_name, read_lod, write_lod
 from node.scene.mesh import SceneError
 from node.scene.packing import pack
 from node.scene.shares import keep_share
@@ -99,3 +100,26 @@ def open_cached(read: SceneData | Path, spec: str) -> SceneData:
         return open_entry(read, spec, verify=False)
     except CacheError as exc:
         raise SceneError(f"{spec}: {exc}") from None
+
+
+def cached_levels(entry: Path, folder: CacheFolder, progress: Progress) -> Path | None:
+    """The checked levels-of-detail entry of the scene cache entry ``entry`` in ``folder``, built
+    first if need be (:mod:`node.scene.lod`); None when the scene has no batch big enough for levels."""
+    def build(directory: Path) -> int:
+        try:
+            scene = open_entry(entry, entry.name, verify=False)
+        except CacheError as exc:
+            raise SceneError(f"{entry.name}: {exc}") from None
+        return write_lod(directory, build_lod(scene, progress))
+
+    for attempt in range(REBUILDS + 1):
+        levels = folder.ensure(lod_name(entry.name), build, progress)
+        try:
+            tree = read_lod(levels, verify=True)
+        except CacheError as exc:
+            remove_entry(levels)
+            if attempt == REBUILDS:
+                raise SceneError(f"{entry.name}: its levels of detail fail again after a rebuild ({exc})") from None
+            continue
+        return levels if tree.node_count else None
+    raise AssertionError("unreachable")

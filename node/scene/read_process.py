@@ -27,7 +27,7 @@ from typing import Any
 
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
-from node.scene.ingest import read_scene
+from node.scene.ingest import cached_levels, read_scene
 from node.scene.loading import ProgressCallback
 from node.scene.mesh import SceneError
 from tessera.wire.messages import ShareSpec
@@ -60,9 +60,18 @@ class SceneReaderProcess:
              folder: CacheFolder | None = None, sha256: str | None = None) -> SceneData | Path:
         """:func:`node.scene.ingest.read_scene` in the child; its progress reaches ``progress`` here.
         Raises its SceneError."""
+        result: SceneData | Path = self._ask(("scene", source, spec, face_limit, share, folder, sha256), spec, progress)
+        return result
+
+    def levels(self, entry: Path, folder: CacheFolder, progress: ProgressCallback) -> Path | None:
+        """:func:`node.scene.ingest.cached_levels` in the child. Raises its SceneError."""
+        result: Path | None = self._ask(("levels", entry, folder), entry.name, progress)
+        return result
+
+    def _ask(self, request: tuple[Any, ...], name: str, progress: ProgressCallback) -> Any:
         connection = self._started()
         try:
-            connection.send((source, spec, face_limit, share, folder, sha256))
+            connection.send(request)
             while True:
                 kind, *payload = connection.recv()
                 if kind == "progress":
@@ -70,11 +79,10 @@ class SceneReaderProcess:
                 elif kind == "error":
                     raise SceneError(payload[0])
                 else:
-                    result: SceneData | Path = payload[0]
-                    return result
+                    return payload[0]
         except (EOFError, OSError):
             code = self._stop()
-            raise SceneError(f"{spec}: the scene reader process died (exit code {code}) "
+            raise SceneError(f"{name}: the scene reader process died (exit code {code}) "
                              "while reading it; out of memory?") from None
 
     def close(self) -> None:
@@ -133,14 +141,18 @@ def _serve(connection: Connection) -> None:
 
     while True:
         try:
-            source, spec, face_limit, share, folder, sha256 = connection.recv()
+            kind, *arguments = connection.recv()
         except (EOFError, OSError):
             return
         answer: tuple[Any, ...]
         try:
-            answer = ("scene", read_scene(source, spec, face_limit, share, report, folder, sha256))
+            if kind == "levels":
+                answer = ("levels", cached_levels(*arguments, report))
+            else:
+                source, spec, face_limit, share, folder, sha256 = arguments
+                answer = ("scene", read_scene(source, spec, face_limit, share, report, folder, sha256))
         except SceneError as exc:
             answer = ("error", str(exc))
         except Exception as exc:   # whatever breaks a read goes back as its reason
-            answer = ("error", f"{spec}: {type(exc).__name__}: {exc}")
+            answer = ("error", f"{arguments[0]}: {type(exc).__name__}: {exc}")
         connection.send(answer)

@@ -67,29 +67,66 @@ def posed_groups(boxes: np.ndarray, counts: np.ndarray, owners: np.ndarray, grap
     return boxes, np.asarray(counts, dtype=np.float64).reshape(-1)[keep]
 
 
+def level_counts(errors: np.ndarray, triangles: np.ndarray, boxes: np.ndarray, camera: Camera,
+                 size: tuple[int, int], error_px: float) -> np.ndarray:
+    """(K,) float64 triangles each group draws at the levels of detail within ``error_px``: of
+    groups whose levels (0: full detail … L) have ``errors`` and ``triangles`` (K, L + 1) over
+    ``boxes`` (K, L + 1, 6), the coarsest level whose error, seen from ``camera``'s eye at its box's
+    nearest point in a ``size`` frame, is at most ``error_px`` pixels (as nodes choose:
+    :func:`node.culling.lod.lod_cut`, here per group)."""
+    boxes = np.asarray(boxes, np.float64)
+    eye = np.asarray(camera.eye, np.float64)
+    distance = np.linalg.norm(np.clip(eye, boxes[..., :3], boxes[..., 3:]) - eye, axis=-1)
+    scale = size[1] / 2.0 / np.tan(np.radians(camera.fovy_deg) / 2.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fits = (errors * scale / distance <= error_px) & (distance > 0.0)
+    fits[:, 0] = True
+    coarsest = errors.shape[1] - 1 - np.argmax(fits[:, ::-1], axis=1)
+    return triangles[np.arange(len(errors)), coarsest]
+
+
 class GroupProjector:
     """A scene's world-space primitive groups ``boxes`` (K, 6) at the base pose with primitive
     ``counts`` (K,), its ``bounds`` (2, 3) and each group's object ``owners`` (K,) (indices into
     the scene's objects; None: the groups never move), projected for a ``size`` frame: called with
     a camera, a frame's state and the scene's object graph, each group moved with its object,
     hidden objects' groups dropped, near/far from the state's bounds (:func:`posed_groups`); the
-    base pose without a state or a graph."""
+    base pose without a state or a graph. With ``levels`` ((K, L + 1) errors and triangles and
+    (K, L + 1, 6) boxes, issue 32) and a frame's levels-of-detail bound, a group counts the triangles its level draws
+    (:func:`level_counts`; groups of moved objects, drawn at full detail, count them all)."""
 
     def __init__(self, boxes: np.ndarray, counts: np.ndarray, bounds: np.ndarray, owners: np.ndarray | None,
-                 size: tuple[int, int]) -> None:
+                 size: tuple[int, int], levels: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         self.boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
         self.counts = np.asarray(counts, dtype=np.float64).reshape(-1)
         self.bounds = np.asarray(bounds, dtype=np.float64)
         self.owners = None if owners is None else np.asarray(owners, dtype=np.int64).reshape(-1)
         self.size = size
+        self.levels = levels
 
     def for_size(self, size: tuple[int, int]) -> GroupProjector:
         """The same groups projected for a ``size`` frame."""
-        return GroupProjector(self.boxes, self.counts, self.bounds, self.owners, size)
+        return GroupProjector(self.boxes, self.counts, self.bounds, self.owners, size, self.levels)
 
-    def __call__(self, camera: Camera, state: SceneState | None, graph: ObjectGraph | None) -> ProjectedGroups:
-        if state is None or self.owners is None or graph is None:
-            return project_groups(self.boxes, self.counts, camera, self.size, self.bounds)
+    def with_levels(self, errors: np.ndarray, triangles: np.ndarray, boxes: np.ndarray) -> GroupProjector:
+        """The same groups with their levels of detail (:func:`level_counts`'s arrays)."""
+        return GroupProjector(self.boxes, self.counts, self.bounds, self.owners, self.size,
+                              (np.asarray(errors, np.float64), np.asarray(triangles, np.float64),
+                               np.asarray(boxes, np.float64).reshape(len(errors), -1, 6)))
+
+    def __call__(self, camera: Camera, state: SceneState | None, graph: ObjectGraph | None,
+                 lod_error_px: float | None = None) -> ProjectedGroups:
+        counts = self.counts
+        moves = state is not None and self.owners is not None and graph is not None
+        if self.levels is not None and lod_error_px:
+            counts = level_counts(*self.levels, camera, self.size, lod_error_px)
+            if moves:
+                assert state is not None and graph is not None and self.owners is not None
+                moved = graph.moved(state)[self.owners]
+                counts = np.where(moved, self.counts, counts)
+        if not moves:
+            return project_groups(self.boxes, counts, camera, self.size, self.bounds)
+        assert state is not None and graph is not None and self.owners is not None
         seen = graph.bounds(state)
-        posed, weights = posed_groups(self.boxes, self.counts, self.owners, graph, state)
+        posed, weights = posed_groups(self.boxes, counts, self.owners, graph, state)
         return project_groups(posed, weights, camera, self.size, self.bounds if seen is None else seen)

@@ -106,6 +106,8 @@ class FrameJob:
     plan: StillPlan = ONE_FRAME
     clip: ClipState | None = None
     highlight: str | None = None
+    #: Its levels-of-detail bound, px (None: full detail; stills always are).
+    lod_error_px: float | None = None
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
@@ -155,7 +157,8 @@ class FrameJob:
                       tiles=tuple(RenderTile(tile=i, rect=self.tiles[i].rect, part_of=self.tiles[i].part_of)
                                   for i in tile_ids), state=state,
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
-                      lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight)
+                      lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight,
+                      lod_error_px=self.lod_error_px)
 
     def pull_next(self) -> list[int]:
         """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the

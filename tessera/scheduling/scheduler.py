@@ -96,6 +96,12 @@ from tessera.scheduling.actions import (
 )
 from tessera.scheduling.fair_share import FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
+from tessera.scheduling.lod_control import (
+    DEFAULT_LOD_ERROR_PX,
+    DEFAULT_LOD_MAX_ERROR_PX,
+    DEFAULT_TARGET_FPS,
+    LodControl,
+)
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.refinement import DEFAULT_MAX_STILL_SAMPLES, DEFAULT_STILL_TARGET_DB, StillPlan
 from tessera.scheduling.render_demand import STILL
@@ -129,7 +135,8 @@ class SchedulerConfig:
     adaptive, until its estimate reaches ``still_target_db``, at most ``still_samples_max``);
     ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border strip (px);
     ``background``: the clear colour, linear RGB in [0, 1] (None: the default), which the depth
-    modes' merge paints where no node drew."""
+    modes' merge paints where no node drew; ``lod_error_px``, ``lod_max_error_px`` and
+    ``target_fps``: a moving frame's levels-of-detail bound (:mod:`tessera.scheduling.lod_control`)."""
 
     size: tuple[int, int] = (1280, 720)
     codec: Codec = Codec.JPEG
@@ -150,12 +157,16 @@ class SchedulerConfig:
     mode: str = "sort-first"
     depth_strip: int = DEFAULT_DEPTH_STRIP
     background: tuple[float, float, float] | None = None
+    lod_error_px: float = DEFAULT_LOD_ERROR_PX
+    lod_max_error_px: float = DEFAULT_LOD_MAX_ERROR_PX
+    target_fps: float = DEFAULT_TARGET_FPS
 
     def __post_init__(self) -> None:
         if self.mode not in MODES or self.depth_strip < 0:
             raise ValueError(f"mode must be one of {MODES} and depth_strip >= 0, got {self.mode}, {self.depth_strip}")
         if self.max_in_flight < 1:
             raise ValueError("max_in_flight must be >= 1")
+        LodControl(self.lod_error_px, self.lod_max_error_px, self.target_fps)   # raises for a bad bound
         if not self.max_fps > 0.0:
             raise ValueError("max_fps must be > 0")
         assert self.still_plan   # its checks raise ValueError
@@ -342,6 +353,16 @@ class FrameScheduler:
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
             self._advance(now)
 
+    def levels_ready(self, node_id: int, session_id: str = DEFAULT_SESSION,
+                     group_levels: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+        """The node holds the levels of detail of the session's scene: its moving frames may use
+        them; ``group_levels``: its groups' levels (errors, triangles, boxes), for the predictions."""
+        session = self.sessions.get(session_id)
+        if session is not None:
+            session.levels.add(node_id)
+            if group_levels is not None:
+                session.set_group_levels(*group_levels)
+
     def set_speed(self, node_id: int, speed: float) -> None:
         """Calibrated relative speed (seed 003 §1; slowest = 1), the balancers' node weight."""
         self.nodes[node_id].speed = float(speed)
@@ -355,6 +376,7 @@ class FrameScheduler:
         for session in list(self.sessions.values()):
             held = node_id in session.ready
             session.ready.discard(node_id)
+            session.levels.discard(node_id)
             if node_id in session.loads_waiting:
                 session.loads_waiting.remove(node_id)
             elif not held:   # it was loading the scene (or had failed to): the next node loads it
@@ -748,5 +770,8 @@ class FrameScheduler:
             node = self.nodes.get(node_id)
             if node is not None:
                 node.last_phases, node.last_tiles, node.last_readback, node.counters = phases, rects, readback, counters
+        busy_ms = {n: sum(r[0].values()) for n, r in rollup.items()}
+        if not job.still:
+            session.lod.frame_done(max(busy_ms.values(), default=0.0) / 1e3)
         if not (job.still or job.one_by_one) and session.mode.take_timings(job.frame_id, timings):
-            session.stats.record_balance({n: sum(r[0].values()) for n, r in rollup.items()})
+            session.stats.record_balance(busy_ms)

@@ -22,6 +22,7 @@ from tessera.scene.state import SceneState, StateDelta
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.frame_stats import FrameStats
+from tessera.scheduling.lod_control import LodControl
 from tessera.scheduling.node_table import NodeSchedule
 from tessera.scheduling.refinement import ONE_FRAME
 from tessera.scheduling.render_demand import STILL, RenderDemand
@@ -57,6 +58,9 @@ class SessionFrames:
         self.awaiting_send: dict[int, FrameJob] = {}
         self.next_start_at = 0.0
         self.ready: set[int] = set()
+        #: Nodes that hold the levels of detail of its scene, and its moving frames' bound.
+        self.levels: set[int] = set()
+        self.lod = LodControl(config.lod_error_px, config.lod_max_error_px, config.target_fps)
         #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
         self.loads_waiting: list[int] = []
         self.frames_cancelled = 0
@@ -140,9 +144,19 @@ class SessionFrames:
                               plan=self.demand.still_plan if still else ONE_FRAME, parts=parts,
                               clip=self.clip, highlight=self.highlight)
         job.one_by_one = pieces > 1
+        job.lod_error_px = None if still else self.lod_bound
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error
+
+    @property
+    def lod_bound(self) -> float | None:
+        """The levels-of-detail bound its moving frames are drawn with now (px; None: full detail):
+        none until every node that holds its scene holds its levels (tiles at different levels of
+        detail would not join), none in the hybrid mode (a coarse node spans chunks other tiles own)."""
+        if self.config.mode == "hybrid" or not self.ready or not self.ready <= self.levels:
+            return None
+        return self.lod.bound
 
     @property
     def settled(self) -> bool:
@@ -177,10 +191,18 @@ class SessionFrames:
         for balancers that use them (seed 003 DPBP; :class:`GroupProjector`)."""
         self._project(GroupProjector(boxes, counts, bounds, owners, self.size))
 
+    def set_group_levels(self, errors: np.ndarray, triangles: np.ndarray, boxes: np.ndarray) -> None:
+        """Its primitive groups' levels of detail: (K, L + 1) errors (world units) and triangles,
+        (K, L + 1, 6) boxes (:func:`node.scene.lod.group_levels`): from now on the predictions count
+        what a frame's bound draws (issue 32)."""
+        if self._projector is not None and len(errors) == len(self._projector.counts):
+            self._project(self._projector.with_levels(errors, triangles, boxes))
+
     def _project(self, projector: GroupProjector) -> None:
         self._projector = projector
         self.groups_for = lambda camera, state: projector(camera, state,
-                                                          None if self.scene is None else self.scene.graph)
+                                                          None if self.scene is None else self.scene.graph,
+                                                          self.lod_bound)
 
     def resize(self, size: tuple[int, int]) -> None:
         """Frames from now on are ``size`` (w, h) px: the mode and the groups follow; the

@@ -18,6 +18,8 @@ node → coordinator
   loaded, triangles, bounds, world-space primitive groups, the named objects and the animations'
   keyframes; in sort-last, the data partition version of the share loaded), ``scene_error``
   :class:`SceneError`
+* ``levels_ready`` :class:`LevelsReady` — the scene's levels of detail are built and held: frames
+  may ask for a levels-of-detail bound
 * ``tile_sent`` :class:`TileSent` — after each binary tile: its send time and the node's per-tile
   counters (triangles, chunks_drawn, chunks_culled, cull_ms, cull_path)
 * ``render_error`` :class:`RenderError` — a tile the node could not render (frame 0, tile 0: a
@@ -167,6 +169,9 @@ ClipJson = Annotated[ClipState, PlainValidator(_clip), PlainSerializer(ClipState
 #: A SHA-256 digest: 64 lowercase hex digits.
 Sha256 = Annotated[StrictStr, Field(pattern=r"^[0-9a-f]{64}$")]
 Url = Annotated[StrictStr, Field(min_length=1, max_length=MAX_URL)]
+
+#: The largest levels-of-detail bound a frame may ask for, in pixels.
+MAX_LOD_ERROR_PX = 64.0
 
 _FIELDS = ConfigDict(frozen=True, extra="ignore", allow_inf_nan=False)
 
@@ -365,6 +370,28 @@ class TilesDropped(Message):
     tiles: tuple[Int, ...]
 
 
+class LevelsReady(Message):
+    """Scene ``scene`` (sort-last: the share of partition ``share``) now has its levels of detail
+    (issue 32): ``nodes`` coarse nodes holding ``triangles`` triangles in all. Frames may ask this
+    node for a levels-of-detail bound (:attr:`Render.lod_error_px`)."""
+
+    kind = "levels_ready"
+    scene: Text
+    share: Annotated[StrictInt, Field(ge=1)] | None = None
+    nodes: Annotated[StrictInt, Field(ge=0)]
+    triangles: Annotated[StrictInt, Field(ge=0)]
+    #: For each of ``scene_ready``'s primitive groups and each level (0: full detail … the coarsest):
+    #: the level's error over the group (world units), its triangles there and the box [x0, y0, z0,
+    #: x1, y1, z1] around them, for the balancers' predictions
+    #: (:func:`tessera.balancers.projection.level_counts`); None: not sent.
+    group_errors: list[list[NonNegative]] | None = None
+    group_triangles: list[list[NonNegative]] | None = None
+    group_boxes: list[list[list[Number]]] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return self._without_none(super().to_json(), "share", "group_errors", "group_triangles", "group_boxes")
+
+
 class Calibration(Message):
     """The answer to ``calibrate``: the best of its renders of the region, ms (slowdown included)."""
 
@@ -405,7 +432,9 @@ class LoadScene(Message):
     sort-last, the part of the scene to keep (None: all of it). ``sha256`` (64 lowercase hex
     digits) and ``url``: where a node that cannot open the ``scene`` file itself fetches it, an
     absolute http(s) URL or a path on the coordinator ("/api/scenes/NAME/file"); a ``url`` needs
-    its ``sha256``, which the fetched bytes must have."""
+    its ``sha256``, which the fetched bytes must have. ``levels``: build the scene's levels of
+    detail once it is loaded, and say ``levels_ready`` (issue 32; None: the coordinator's frames
+    never ask for them)."""
 
     kind = "load_scene"
     scene: Text
@@ -413,6 +442,7 @@ class LoadScene(Message):
     share: ShareSpec | None = None
     sha256: Sha256 | None = None
     url: Url | None = None
+    levels: Literal[True] | None = None
 
     @model_validator(mode="after")
     def _url_with_digest(self) -> Self:
@@ -425,8 +455,8 @@ class LoadScene(Message):
 
     def to_json(self) -> dict[str, Any]:
         """Without ``share`` when there is none (the sort-first and hybrid modes), without
-        ``sha256`` and ``url`` when None."""
-        return self._without_none(super().to_json(), "share", "sha256", "url")
+        ``sha256``, ``url`` and ``levels`` when None."""
+        return self._without_none(super().to_json(), "share", "sha256", "url", "levels")
 
 
 class RenderTile(BaseModel):
@@ -491,13 +521,16 @@ class Render(Message):
     clip: ClipJson | None = None
     #: The selected object, tinted with its descendants (issue 35); None: none.
     highlight: Text | None = None
+    #: The levels of detail's bound for this frame (issue 32): a node draws the coarsest level whose
+    #: error is at most this many pixels on screen; None: full detail.
+    lod_error_px: Annotated[StrictFloat, Field(gt=0.0, le=MAX_LOD_ERROR_PX)] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
-        ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip`` and
-        ``highlight`` when None, without a tile's ``part_of`` when None."""
+        ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip``,
+        ``highlight`` and ``lod_error_px`` when None, without a tile's ``part_of`` when None."""
         data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias", "clip",
-                                  "highlight")
+                                  "highlight", "lod_error_px")
         for tile in data["tiles"]:
             if tile["part_of"] is None:
                 del tile["part_of"]
@@ -645,7 +678,8 @@ class ViewerSize(Message):
 
 
 #: What the coordinator accepts from a node after its hello.
-FROM_NODE = (SceneProgress, SceneReady, SceneError, TileSent, TilesDropped, RenderError, Calibration, PickResult)
+FROM_NODE = (SceneProgress, SceneReady, SceneError, LevelsReady, TileSent, TilesDropped, RenderError, Calibration,
+             PickResult)
 #: What a node accepts from the coordinator.
 TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel, Pick)
 #: What the coordinator accepts from a viewer.

@@ -1,0 +1,242 @@
+"""A big model as a user opens and moves it (issues 31 and 32): time from ``POST /api/sessions`` to
+its first frame with no scene cache (ingest included) and after a restart (cache kept), each node's
+peak memory, then the picture moving with levels of detail on and off.
+
+``python -m bench.bigscene --scene PATH [--nodes 3] [--size 640x360] [--modes sort-first,sort-last]
+[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--peer] [--json OUT]``
+
+For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
+
+- ``cold``: a coordinator with ``--local-nodes N`` (its library the scene's folder) is started, a
+  session of the scene opened, and the seconds until its first frame taken; each node's peak
+  resident memory (VmHWM of the node process, and of its scene reader children apart) and the MB
+  it holds for the scene (``/api/stats``);
+- ``warm``: the same after stopping and starting coordinator and nodes again, the cache kept;
+- for each ``--lod`` setting (the coordinator's ``--lod-error-px``: its default, or 0), once the
+  nodes hold the levels: a scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s``
+  at ``--moving-size``: frames per second, input → frame latency (p50, ms and frame intervals),
+  the triangles the nodes drew per frame, the nodes' busy time per frame, the bound in use; then
+  the moving frame of the last camera against ``--render-once --interactive`` at full detail (PSNR).
+
+``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
+seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
+its peak resident memory (offscreen, on the same Mesa EGL).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import websockets.sync.client as ws_client
+from PIL import Image
+
+from bench.images import psnr
+from bench.live import ScriptedViewer, render_once
+from bench.processes import PYTHON, REPO, orbit, process_tree, show_result, start_coordinator
+from bench.sessions import move, open_session, session_figures, wait_session_ready
+from tessera.cli_values import size_parser
+
+SIZE_TEXT = "{}x{}"
+
+
+def peak_mb(pid: int) -> float:
+    """VmHWM of process ``pid`` in MiB (0 when it is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def node_peaks(coordinator_pid: int) -> list[dict[str, float]]:
+    """Each local node's peak memory and its scene reader children's (MiB)."""
+    nodes = [pid for pid in process_tree(coordinator_pid)[1:] if b"node" in Path(f"/proc/{pid}/cmdline").read_bytes()
+             and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1] == str(coordinator_pid)]
+    return [{"node_mb": round(peak_mb(pid), 1),
+             "readers_mb": round(max((peak_mb(child) for child in process_tree(pid)[1:]), default=0.0), 1)}
+            for pid in nodes]
+
+
+def start(args: argparse.Namespace, mode: str, cache: Path, *extra: str) -> tuple[Any, str]:
+    scene = Path(args.scene).resolve()
+    flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(scene.parent), "--mode", mode,
+             "--frame-wait-s", "600", "--size", SIZE_TEXT.format(*args.size), *extra]
+    return start_coordinator(flags, log_level="warning", timeout=120,
+                             env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
+
+
+def first_frame(args: argparse.Namespace, mode: str, cache: Path) -> dict[str, Any]:
+    """Start, open the session, time its first frame, take the nodes' peaks; stop."""
+    coordinator, url = start(args, mode, cache)
+    try:
+        with httpx.Client(base_url=url, timeout=600) as client:
+            started = time.perf_counter()
+            session = open_session(client, f"library/{Path(args.scene).name}", args.size)
+            wait_session_ready(client, session, timeout=1800)
+            seconds = time.perf_counter() - started
+            stats = client.get(f"/api/sessions/{session}").json()
+            nodes = client.get("/api/stats").json()["nodes"]
+            return {"first_frame_s": round(seconds, 2), "peaks": node_peaks(coordinator.process.pid),
+                    "scene_mb": stats.get("scene_mb"), "rss_mb": [n.get("rss_mb") for n in nodes]}
+    finally:
+        coordinator.stop(timeout=60.0)
+
+
+def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[str, Any]:
+    """The moving phase with levels of detail ``lod`` ("on": the coordinator's default, "off": 0)."""
+    extra = [] if lod == "on" else ["--lod-error-px", "0"]
+    coordinator, url = start(args, mode, cache, *extra)
+    try:
+        with httpx.Client(base_url=url, timeout=600) as client:
+            session = open_session(client, f"library/{Path(args.scene).name}", args.moving_size)
+            wait_session_ready(client, session, timeout=1800)
+            if lod == "on":
+                deadline = time.monotonic() + 900
+                while client.get(f"/api/sessions/{session}").json()["lod_error_px"] is None:
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("the nodes did not hold the levels of detail within 900 s")
+                    time.sleep(0.5)
+            ws_url = url.replace("http://", "ws://") + f"/ws/view?session={session}"
+            with ws_client.connect(ws_url, max_size=256 << 20) as ws:
+                viewer = ScriptedViewer(ws)
+                triangles: list[float] = []
+                busy: list[float] = []
+                bounds: list[float] = []
+                stop = threading.Event()
+
+                def sample() -> None:
+                    while not stop.wait(0.5):
+                        stats = client.get(f"/api/sessions/{session}/stats").json()
+                        triangles.append(sum(n.get("triangles", 0) for n in stats["nodes"]))
+                        busy.append(max((n["busy_ms"] for n in stats["nodes"]), default=0.0))
+                        summary = client.get(f"/api/sessions/{session}").json()
+                        bounds.append(summary["lod_error_px"] or 0.0)
+
+                sampler = threading.Thread(target=sample, daemon=True)
+                started = time.perf_counter()
+                sampler.start()
+                move([viewer], started + args.moving_s, args.input_hz, 8.0, threading.Event())
+                ended = time.perf_counter()
+                stop.set()
+                sampler.join()
+                figures = session_figures(viewer, started + 1.0, ended)
+                camera = orbit(viewer.camera, 0.05)
+                first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
+                frame = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
+                viewer.stop()
+    finally:
+        coordinator.stop(timeout=60.0)
+    image = np.asarray(Image.open(io.BytesIO(frame)).convert("RGB"))
+    full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive",
+                       "--scene-cache-dir", str(cache))
+    return {**{k: round(v, 2) for k, v in figures.items()},
+            "triangles_per_frame": round(float(np.median(triangles)), 0) if triangles else None,
+            "busy_ms": round(float(np.median(busy)), 1) if busy else None,
+            "bound_px": round(float(np.median(bounds)), 2) if bounds else None,
+            "psnr_vs_full": round(psnr(image, full), 2)}
+
+
+PEER = r"""
+import json, resource, sys, time
+started = time.perf_counter()
+import pyvista as pv
+mesh = pv.read(sys.argv[1])
+plotter = pv.Plotter(off_screen=True, window_size=[int(sys.argv[2]), int(sys.argv[3])])
+plotter.add_mesh(mesh, color="lightgray")
+plotter.show(auto_close=False)
+plotter.screenshot(None)
+first = time.perf_counter() - started
+turned = time.perf_counter()
+plotter.camera.azimuth = 5.0
+plotter.render()
+plotter.screenshot(None)
+print(json.dumps({"first_picture_s": round(first, 2), "next_frame_s": round(time.perf_counter() - turned, 2),
+                  "peak_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+                  "triangles": int(mesh.n_cells)}))
+"""
+
+
+def peer(args: argparse.Namespace) -> dict[str, Any] | None:
+    """PyVista's first picture of the scene (None when it is not installed or fails)."""
+    done = subprocess.run([PYTHON, "-c", PEER, str(Path(args.scene).resolve()), *map(str, args.size)], cwd=REPO,
+                          capture_output=True, text=True, timeout=1800)
+    if done.returncode != 0:
+        print(f"PyVista failed: {done.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
+        return None
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    result: dict[str, Any] = {"scene": str(args.scene), "nodes": args.nodes, "size": list(args.size), "modes": {}}
+    if args.peer:
+        result["pyvista"] = peer(args)
+    for mode in args.modes.split(","):
+        cache = Path(tempfile.mkdtemp(prefix="tessera-bigscene-"))
+        try:
+            figures: dict[str, Any] = {"cold": first_frame(args, mode, cache)}
+            figures["warm"] = first_frame(args, mode, cache)
+            for lod in args.lod.split(",") if args.moving_s > 0 else ():
+                figures[f"moving_lod_{lod}"] = moving(args, mode, cache, lod)
+            result["modes"][mode] = figures
+        finally:
+            shutil.rmtree(cache, ignore_errors=True)
+        print(json.dumps({mode: figures}), flush=True)
+    return result
+
+
+def report(result: dict[str, Any]) -> str:
+    lines = [f"{result['scene']}: {result['nodes']} nodes, first frames at {SIZE_TEXT.format(*result['size'])}"]
+    if result.get("pyvista"):
+        p = result["pyvista"]
+        lines.append(f"  PyVista: first picture {p['first_picture_s']} s, next frame {p['next_frame_s']} s, "
+                     f"peak {p['peak_mb']:.0f} MB")
+    for mode, figures in result["modes"].items():
+        for phase in ("cold", "warm"):
+            f = figures[phase]
+            peaks = ", ".join(f"{p['node_mb']:.0f}/{p['readers_mb']:.0f}" for p in f["peaks"])
+            lines.append(f"  {mode:10s} {phase}: first frame {f['first_frame_s']:6.2f} s; node/readers peak MB {peaks}")
+        for key, f in figures.items():
+            if key.startswith("moving"):
+                lines.append(f"  {mode:10s} {key}: {f['fps']:.1f} fps, latency p50 {f['latency_p50_ms']:.0f} ms "
+                             f"({f['latency_p50_frames']:.1f} frames), {f['triangles_per_frame']} triangles/frame, "
+                             f"busy {f['busy_ms']} ms, bound {f['bound_px']} px, PSNR {f['psnr_vs_full']} dB")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.bigscene", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", type=Path, required=True, help="the model file (its folder is the library)")
+    parser.add_argument("--nodes", type=int, default=3)
+    parser.add_argument("--size", type=size_parser(16, 16384), default=(640, 360), help="first frames' size")
+    parser.add_argument("--modes", default="sort-first,sort-last")
+    parser.add_argument("--lod", default="on,off", help="levels of detail in the moving phase: on, off or both")
+    parser.add_argument("--moving-s", type=float, default=8.0, help="0: no moving phase")
+    parser.add_argument("--moving-size", type=size_parser(16, 16384), default=(1280, 720))
+    parser.add_argument("--input-hz", type=float, default=60.0)
+    parser.add_argument("--peer", action="store_true", help="PyVista's first picture of the same file")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    result = measure(args)
+    show_result(report(result), result, args.json, argv)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

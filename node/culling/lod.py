@@ -1,0 +1,109 @@
+"""Choosing levels of detail for a frame (issue 32), without GL: which nodes of a scene's
+:class:`node.scene.lod.LodTree` stand in for its full detail, for one camera and frame size.
+
+A node's error (world units) shows on screen as ``error · s / d`` pixels, where ``d`` is the distance
+from the eye to the nearest point of the node's box (0 inside it: never coarse there) and ``s`` the
+frame's pixels per unit at distance 1 (half its height over the tangent of half the vertical field
+of view). The coarsest node within ``error_px`` is drawn (:func:`lod_cut`): a node whose own error
+fits and whose parent's does not. Errors grow towards the root while boxes only grow, so a parent
+shows at least its children's error from any eye, and the chosen nodes and the leaves left at full
+detail tile the model exactly once.
+
+The choice depends on the camera, the frame's height and the bound only — not on the tile — so
+every tile of a frame, on every node, draws every part of the model at the same level, and tiles
+join as the whole frame (their borders are the nodes' locked borders, :mod:`node.scene.lod`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.scene.lod import LodTree
+from tessera.geometry import Camera
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class LodCut:
+    """A frame's levels: ``nodes`` (K,) int64 the coarse nodes drawn (sorted), ``blocked_first`` /
+    ``blocked_end`` (K,) int64 the chunk ranges they stand in for (not drawn at full detail), sorted."""
+
+    nodes: np.ndarray
+    blocked_first: np.ndarray
+    blocked_end: np.ndarray
+
+    @classmethod
+    def full(cls) -> LodCut:
+        """Full detail: no coarse node."""
+        empty = np.zeros(0, np.int64)
+        return cls(empty, empty, empty)
+
+    @property
+    def coarse(self) -> bool:
+        return bool(self.nodes.size)
+
+
+def pixels_per_unit(camera: Camera, size: tuple[int, int]) -> float:
+    """Pixels a length of one world unit spans at distance 1 from the eye, across a ``size`` = (w, h) frame."""
+    return size[1] / 2.0 / math.tan(math.radians(camera.fovy_deg) / 2.0)
+
+
+def box_distances(eye: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(N,) float64 distance from ``eye`` (3,) to the nearest point of each box (N, 2, 3) (0 inside)."""
+    nearest = np.clip(np.asarray(eye, np.float64), boxes[:, 0], boxes[:, 1])
+    return np.linalg.norm(nearest - eye, axis=1)
+
+
+def projected_errors(tree: LodTree, camera: Camera, size: tuple[int, int]) -> np.ndarray:
+    """(N,) float64 each node's error on screen in pixels, seen from ``camera`` in a ``size`` frame
+    (infinite where the eye is inside its box)."""
+    eye = np.asarray(camera.eye, np.float64)
+    distance = box_distances(eye, tree.boxes.astype(np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = tree.error.astype(np.float64) * pixels_per_unit(camera, size) / distance
+    return np.where(distance > 0.0, pixels, np.inf)
+
+
+def lod_cut(tree: LodTree | None, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
+    """The coarsest nodes whose error on screen is at most ``error_px`` (0 or no tree: full detail)."""
+    if tree is None or error_px <= 0.0 or tree.node_count == 0:
+        return LodCut.full()
+    fits = projected_errors(tree, camera, size) <= error_px
+    parent = tree.parent
+    chosen = fits & ((parent < 0) | ~fits[np.maximum(parent, 0)])
+    nodes = np.flatnonzero(chosen)
+    order = np.argsort(tree.chunk_first[nodes], kind="stable")
+    return LodCut(nodes, tree.chunk_first[nodes][order], tree.chunk_end[nodes][order])
+
+
+def subtract_ranges(first: np.ndarray, end: np.ndarray, cut_first: np.ndarray,
+                    cut_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of the sorted disjoint ranges [first, end) outside the sorted disjoint ranges
+    [cut_first, cut_end), as sorted disjoint (first, end) arrays (int64)."""
+    first, end = np.asarray(first, np.int64), np.asarray(end, np.int64)
+    if first.size == 0 or cut_first.size == 0:
+        return first, end
+    # Coverage count along the line: +1 entering a kept range, −1 leaving; −1 entering a cut, +1 leaving.
+    points = np.concatenate([first, end, cut_first, cut_end])
+    steps = np.concatenate([np.ones_like(first), -np.ones_like(end), -np.ones_like(cut_first),
+                            np.ones_like(cut_end)])
+    order = np.lexsort((steps, points))
+    points, level = points[order], np.cumsum(steps[order])
+    inside = level == 1
+    starts = np.flatnonzero(inside & np.concatenate(([True], ~inside[:-1])))
+    stops = np.flatnonzero(~inside & np.concatenate(([False], inside[:-1])))
+    lo, hi = points[starts], points[stops]
+    keep = hi > lo
+    return lo[keep], hi[keep]
+
+
+def boxes_in_frustum(boxes: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """(N,) bool: the boxes (N, 2, 3) not wholly outside any of ``planes`` (6, 4) (inside where
+    a·x + b·y + c·z + d ≥ 0)."""
+    center = (boxes[:, 0] + boxes[:, 1]).astype(np.float64) / 2.0
+    extent = (boxes[:, 1] - boxes[:, 0]).astype(np.float64) / 2.0
+    distance = center @ planes[:, :3].T + planes[:, 3]
+    radius = extent @ np.abs(planes[:, :3]).T
+    return np.all(distance + radius >= 0.0, axis=1)

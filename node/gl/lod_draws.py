@@ -1,0 +1,67 @@
+"""The GL side of a scene's levels of detail (issue 32): their index buffer and vertex arrays, and
+per tile the indirect draw commands of the coarse nodes a frame's cut (:mod:`node.culling.lod`)
+chose that touch the tile. Use it on the GL thread only."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from node.culling.lod import LodCut, boxes_in_frustum
+from node.culling.tiles import indirect_commands
+from node.gl.programs import ShaderPrograms
+from node.scene.chunks import DrawRuns
+from node.scene.lod import LodTree
+from node.scene.packing import gpu_indices
+from node.scene.pages import release_pages
+
+#: Indices made global and copied to the GL at a time.
+BLOCK_INDICES = 1 << 21
+
+
+class LodDraws:
+    """``tree``'s coarse nodes on ``shaders``' context: their indices (batch-local in the tree) with
+    each batch's first vertex (``vertex_bounds`` (B + 1,)) added, in a buffer of their own, drawn
+    through vertex arrays of every program over it."""
+
+    def __init__(self, tree: LodTree, vertex_bounds: np.ndarray, shaders: ShaderPrograms) -> None:
+        ctx: moderngl.Context = shaders.ctx
+        self.tree = tree
+        indices = tree.indices
+        # The tree's nodes come batch by batch: each batch's indices are one range of the buffer.
+        batch_count = len(vertex_bounds) - 1
+        first_node = np.searchsorted(tree.batch, np.arange(batch_count + 1), side="left")
+        batch_index_bounds = tree.index_bounds[first_node]
+        self.index_buffer = ctx.buffer(reserve=max(4, indices.nbytes))
+        scratch = np.empty(BLOCK_INDICES, np.uint32)
+        for first in range(0, len(indices), BLOCK_INDICES):
+            end = min(first + BLOCK_INDICES, len(indices))
+            self.index_buffer.write(gpu_indices(indices, batch_index_bounds, vertex_bounds, first, end, scratch),
+                                    offset=4 * first)
+            release_pages(indices, first, end)
+        self.vertex_arrays = shaders.also_drawing(self.index_buffer)
+        self.commands = ctx.buffer(reserve=20 * max(1, tree.node_count))
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.index_buffer.size + self.commands.size)
+
+    def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None) -> DrawRuns:
+        """The cut's nodes touching the tile of ``planes`` (None: all of them), but those of the
+        batches ``skip`` (B,) marks, as index runs of this buffer (one per node, batch by batch),
+        written to :attr:`commands`."""
+        nodes = cut.nodes
+        if skip is not None and nodes.size:
+            nodes = nodes[~skip[self.tree.batch[nodes]]]
+        if planes is not None and nodes.size:
+            nodes = nodes[boxes_in_frustum(self.tree.boxes[nodes], planes)]
+        bounds = self.tree.index_bounds
+        runs = DrawRuns(self.tree.batch[nodes], bounds[nodes], bounds[nodes + 1] - bounds[nodes], 0)
+        if nodes.size:
+            self.commands.write(indirect_commands(np.stack([runs.first, runs.count], axis=1)).tobytes())
+        return runs
+
+    def release(self) -> None:
+        """Free the buffers (the vertex arrays go with the programs that made them)."""
+        self.index_buffer.release()
+        self.commands.release()

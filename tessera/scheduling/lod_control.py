@@ -1,0 +1,79 @@
+"""A session's levels-of-detail bound while its picture moves (issue 32): from ``floor_px`` (the
+coordinator's ``--lod-error-px``) up to ``ceiling_px`` (``--lod-max-error-px``), raised when its
+frames take longer than the target frame rate allows and lowered again when they are quick, so the
+moving picture keeps to ``--target-fps`` where detail can be given up for it. Pure: frame times
+come in, the bound goes out.
+
+A frame's time is its slowest node's busy time (render, read back, encode, send of its tiles): the
+frame's critical path, what the nodes need whatever the viewer's input rate (frames render on
+demand, so the interval between frames says how fast the user moves, not how costly a frame is).
+The bound moves by a factor of :data:`STEP` at most every :data:`HOLD` frames, and only outside a
+band around the target (frames over :data:`SLOW` of the target interval raise it, under
+:data:`QUICK` lower it): a picture that does not pump between two levels. Stills are always full
+detail; the bound is kept for the next motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: The bound a moving frame starts from, px (``--lod-error-px``); 0 turns levels of detail off.
+#: Measured on the dragon, the Pan scan and the bunny, four cameras each, at 480x270 and 1280x720:
+#: the moving frame's worst PSNR against full detail 39.6 dB at 0.5 px (7-27 % of the triangles
+#: drawn), 37.0 dB at 0.75 px, 36.9 dB at 1 px.
+DEFAULT_LOD_ERROR_PX = 0.5
+#: The most it is raised to, px (``--lod-max-error-px``): frame rate bought with at most a dB or two.
+DEFAULT_LOD_MAX_ERROR_PX = 1.0
+#: The moving frame rate it aims at (``--target-fps``).
+DEFAULT_TARGET_FPS = 15.0
+#: Factor the bound moves by in one step.
+STEP = 1.5
+#: Frames between two steps.
+HOLD = 3
+#: Above this fraction of the target interval a frame is slow; below :data:`QUICK`, quick.
+SLOW, QUICK = 1.1, 0.6
+#: Weight of a new frame in the smoothed frame time.
+SMOOTHING = 0.35
+
+
+@dataclass
+class LodControl:
+    """The bound of one session: ``floor_px`` … ``ceiling_px`` pixels (``floor_px`` 0: levels of
+    detail off), aiming at ``target_fps`` frames a second."""
+
+    floor_px: float
+    ceiling_px: float
+    target_fps: float
+    bound_px: float = 0.0
+    smoothed_s: float | None = None
+    frames_since_step: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.floor_px >= 0.0 or not self.ceiling_px >= 0.0 or not self.target_fps > 0.0:
+            raise ValueError(f"need bounds >= 0 and a target > 0, got {self.floor_px}, {self.ceiling_px}, "
+                             f"{self.target_fps}")
+        self.ceiling_px = max(self.ceiling_px, self.floor_px)   # a floor above the ceiling lifts it
+        self.bound_px = self.bound_px or self.floor_px
+
+    @property
+    def bound(self) -> float | None:
+        """The bound a moving frame is drawn with now (None: full detail, levels off)."""
+        return self.bound_px if self.floor_px > 0.0 else None
+
+    def frame_done(self, busy_s: float) -> None:
+        """An interactive frame took ``busy_s`` seconds of its slowest node."""
+        if self.floor_px <= 0.0 or busy_s < 0.0:
+            return
+        self.smoothed_s = busy_s if self.smoothed_s is None else \
+            (1.0 - SMOOTHING) * self.smoothed_s + SMOOTHING * busy_s
+        self.frames_since_step += 1
+        if self.frames_since_step < HOLD:
+            return
+        interval = 1.0 / self.target_fps
+        if self.smoothed_s > SLOW * interval and self.bound_px < self.ceiling_px:
+            self.bound_px = min(self.ceiling_px, self.bound_px * STEP)
+        elif self.smoothed_s < QUICK * interval and self.bound_px > self.floor_px:
+            self.bound_px = max(self.floor_px, self.bound_px / STEP)
+        else:
+            return
+        self.frames_since_step = 0
