@@ -150,8 +150,9 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
         raise SceneError("face indices out of range")
-    # Normals the file provides are in trimesh's cache; otherwise compute smooth ones.
-    given_normals = "vertex_normals" in mesh._cache
+    # Normals the file provides are in trimesh's cache (looked up without its check, which hashes
+    # every array); otherwise they are computed once the mesh is split.
+    given_normals = "vertex_normals" in mesh._cache.cache
     normals = np.asarray(mesh.vertex_normals, dtype=np.float64) if given_normals else None
     uvs = colors = texture = tangents = uvs1 = None
     base_color = np.asarray(DEFAULT_BASE_COLOR, dtype=np.float32)
@@ -189,9 +190,11 @@ def _batch_from_mesh(name: str, mesh: Any, transform: np.ndarray, textures: dict
         vertices, normals = vertices[faces].reshape(-1, 3), normals[faces].reshape(-1, 3)
         colors = np.repeat(face_colors, 3, axis=0)
         faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
-    world = vertices @ transform[:3, :3].T + transform[:3, 3]
+    identity = np.array_equal(transform, np.identity(4))
+    world = vertices if identity else vertices @ transform[:3, :3].T + transform[:3, 3]
     faces = _drop_nonfinite_faces(world, faces)
-    world_normals = None if normals is None else normalized(normals @ np.linalg.inv(transform[:3, :3]))
+    world_normals = None if normals is None else normalized(normals if identity else
+                                                            normals @ np.linalg.inv(transform[:3, :3]))
     return MeshBatch(
         name=name,
         positions=world.astype(np.float32),

@@ -198,14 +198,18 @@ def _cells(codes: np.ndarray, face_limit: int, max_depth: int) -> tuple[np.ndarr
     highest = np.frexp(differing.astype(np.float64))[1] - 1          # highest set bit; -1 where equal
     boundary_level = np.where(differing > 0, max_depth - highest // 3, max_depth + 1).astype(np.int8)
     del differing, highest
+    # Each level's boundaries (the first face of a cell), in face order: one stable radix sort by level.
+    by_level = np.argsort(boundary_level, kind="stable")
+    level_bounds = np.searchsorted(boundary_level[by_level], np.arange(max_depth + 2))
+    del boundary_level
     found_starts, found_ends, found_depths = [], [], []
     open_starts, open_ends = np.zeros(1, np.int64), np.full(1, face_total, np.int64)
     for depth in range(max_depth + 1):
         if depth > 0:
-            cuts = np.flatnonzero(boundary_level == depth) + 1           # a cell of this level starts there
+            cuts = by_level[level_bounds[depth]:level_bounds[depth + 1]].astype(np.int64) + 1
             inside = np.searchsorted(open_starts, cuts, side="right") - 1
             cuts = cuts[(inside >= 0) & (cuts < open_ends[np.maximum(inside, 0)])]
-            bounds = np.union1d(open_starts, cuts)
+            bounds = np.sort(np.concatenate([open_starts, cuts]))   # disjoint: a cut is no cell's start yet
             ends = np.append(bounds[1:], 0)
             last = np.searchsorted(bounds, open_ends, side="left") - 1     # the last piece of each open cell
             ends[last] = open_ends
