@@ -77,6 +77,7 @@ from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.lod import LodCut, lod_cut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
+from node.gl.buffers import upload_geometry
 from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
 from node.gl.lod_draws import LodDraws
@@ -87,8 +88,7 @@ from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.lod import LodTree
 from node.scene.mesh import MeshBatch
-from node.scene.packing import PackedGeometry, gpu_indices, pack
-from node.scene.pages import release_pages
+from node.scene.packing import PackedGeometry, pack
 from node.scene.pose import ScenePose
 from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, resolve_pair_filter
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
@@ -97,8 +97,6 @@ from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still
 from tessera.tools.picking import PickHit
 
 GL_SRGB8_ALPHA8 = 0x8C43
-#: Bytes of geometry copied to the GL at a time.
-UPLOAD_BLOCK_BYTES = 8 << 20
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
@@ -179,29 +177,6 @@ def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
         raise ValueError(f"frame size must be positive, got {width}x{height}")
     if rect.w <= 0 or rect.h <= 0 or rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
         raise ValueError(f"tile {rect.as_list()} is empty or outside the {width}x{height} frame")
-
-
-def upload_geometry(ctx: moderngl.Context, packed: PackedGeometry,
-                    batch_index_bounds: np.ndarray) -> tuple[moderngl.Buffer, moderngl.Buffer]:
-    """The vertex and index buffers of ``packed`` (batch b's indices are [batch_index_bounds[b],
-    batch_index_bounds[b + 1])), written a block at a time: from a scene cache's mapped arrays no
-    more than a block is copied in host memory besides what the GL keeps (:mod:`node.scene.cache`
-    drops the mapped pages once uploaded)."""
-    vertices, indices = packed.vertices, packed.indices
-    vertex_buffer = ctx.buffer(reserve=max(vertices.nbytes, 1))
-    index_buffer = ctx.buffer(reserve=max(indices.nbytes, 4))
-    rows = max(1, UPLOAD_BLOCK_BYTES // max(1, vertices.dtype.itemsize))
-    for first in range(0, len(vertices), rows):
-        block = vertices[first:first + rows]
-        vertex_buffer.write(np.ascontiguousarray(block), offset=first * vertices.dtype.itemsize)
-        release_pages(vertices, first, first + len(block))
-    scratch = np.empty(UPLOAD_BLOCK_BYTES // 4, np.uint32)
-    for first in range(0, len(indices), scratch.size):
-        end = min(first + scratch.size, len(indices))
-        index_buffer.write(gpu_indices(indices, batch_index_bounds, packed.vertex_bounds, first, end, scratch),
-                           offset=first * 4)
-        release_pages(indices, first, end)
-    return vertex_buffer, index_buffer
 
 
 class TileRenderer:
