@@ -58,7 +58,7 @@ from bench.processes import show_result
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.image_lighting import prefiltered_environment
 from node.gl.renderer import TileRenderer
-from node.gl.shading import AUTO_MSAA, FILTER_MSAA, ShadingOptions
+from node.gl.shading import AUTO_MSAA, FILTER_MSAA, Antialiasing, AntialiasingChoice, ShadingOptions
 from node.scene.builtin import place, sphere
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
@@ -121,12 +121,11 @@ def supersampled(renderer: TileRenderer, camera: Camera, size: tuple[int, int],
     renderer's own count and resolve filter are put aside), each factor×factor block averaged
     (summed in integers, then rounded to the nearest level: a 1080p reference's 7680x4320 frame
     never becomes floats)."""
-    samples, filtered = renderer.samples, renderer.filtered
-    renderer.samples, renderer.filtered = 1, False
+    antialiasing, renderer.antialiasing = renderer.antialiasing, AntialiasingChoice(Antialiasing())
     try:
         large = renderer.render_frame(camera, (size[0] * factor, size[1] * factor)).pixels
     finally:
-        renderer.samples, renderer.filtered = samples, filtered
+        renderer.antialiasing = antialiasing
     sums = large.reshape(size[1], factor, size[0], factor, 3).sum(axis=(1, 3), dtype=np.uint32)
     return np.rint(sums / float(factor * factor)).astype(np.uint8)
 
@@ -161,7 +160,9 @@ def measure_antialiasing(ctx: moderngl.Context, scene_spec: str, size: tuple[int
             found[msaa]["psnr"].append(psnr(pixels := renderer.render_frame(camera, size).pixels, reference))
             error = np.abs(pixels.astype(np.int16) - reference.astype(np.int16)).max(axis=2)
             found[msaa]["off"].append(float(np.mean(error > OFF_LEVELS)))
-    rows = [{"msaa": msaa, "samples": renderer.samples, "paired": renderer.paired, "filtered": renderer.filtered,
+    drawn = {msaa: renderer.antialiasing.for_size(size) for msaa, renderer in renderers.items()}
+    rows = [{"msaa": msaa, "samples": drawn[msaa].samples, "grid": list(drawn[msaa].grid),
+             "paired": drawn[msaa].paired, "filtered": drawn[msaa].filtered,
              "psnr_mean_db": reported_psnr(float(np.mean(found[msaa]["psnr"]))),
              "psnr_min_db": reported_psnr(float(np.min(found[msaa]["psnr"]))),
              "off16_fraction": float(np.mean(found[msaa]["off"])), "frame_ms": float(np.median(found[msaa]["wall"])),
@@ -227,8 +228,8 @@ def measure_still(ctx: moderngl.Context, scene_spec: str, size: tuple[int, int],
              "still_ms": float(np.mean(found[count]["ms"])), "still_ms_max": float(max(found[count]["ms"]))}
             for count in sample_counts]
     renderer.release()
-    return {"scene": scene_spec, "size": list(size), "frames": len(cameras), "msaa": renderer.samples,
-            "paired": renderer.paired, "filtered": renderer.filtered, "rows": rows,
+    return {"scene": scene_spec, "size": list(size), "frames": len(cameras),
+            "msaa": renderer.antialiasing.for_size(size).samples, "rows": rows,
             "coordinator": {key: float(np.mean(values)) for key, values in coordinator.items()}}
 
 
@@ -280,8 +281,10 @@ def parse_counts(text: str) -> list[int]:
 
 def drawn_name(row: dict[str, Any]) -> str:
     """What a row's frames were drawn with, as the table shows it: '1', '4', '1+f' (one sample,
-    filtered), '2w+f' (two samples drawn twice as wide, filtered)."""
-    return f"{'2w' if row.get('paired') else row['samples']}{'+f' if row.get('filtered') else ''}"
+    filtered), '2w+f' (two samples drawn twice as wide, filtered), '3x3' (a grid of samples)."""
+    grid = row.get("grid") or [1, 1]
+    drawn = "2w" if row.get("paired") else f"{grid[0]}x{grid[1]}" if grid != [1, 1] else str(row["samples"])
+    return drawn + ("+f" if row.get("filtered") else "")
 
 
 def setting_name(row: dict[str, Any]) -> str:
@@ -327,7 +330,7 @@ def still_table(stills: Sequence[dict[str, Any]]) -> str:
              f"{'frame ms':>9} {'still ms':>9} {'max':>6}"]
     for scene in stills:
         for row in scene["rows"]:
-            drawn = drawn_name({"samples": scene["msaa"], **scene})
+            drawn = drawn_name({"samples": scene["msaa"]})
             taken = f"{row.get('samples_mean', row['samples']):.1f}/{row.get('samples_max', row['samples'])}"
             estimate = row.get("estimate_min_db")
             lines.append(f"{scene_label(scene) + ' (msaa ' + drawn + ')':<44} "

@@ -141,8 +141,8 @@ def render_once(settings: NodeSettings) -> int:
         return 1
     width, height = settings.size
     kind = "interactive frame" if settings.interactive else "still"
-    antialiasing = Antialiasing(renderer.samples, renderer.paired and settings.interactive,
-                                renderer.filtered and settings.interactive).label
+    drawn_with = renderer.antialiasing.for_size(settings.size)
+    antialiasing = (drawn_with if settings.interactive else Antialiasing(drawn_with.samples)).label
     print(f"wrote {settings.render_once} ({kind}, {width}x{height}, {scene.triangle_count} triangles in "
           f"{scene.chunks.chunk_count} chunks, {drawn}, {antialiasing}, render {render_ms:.1f} ms)")
     return 0

@@ -148,7 +148,7 @@ def test_msaa_tiles_join_seamlessly(ctx, msaa):
         assert np.array_equal(tiled, whole)
         one_sample = renderer.render_layer(SPHERE_CAMERA, size, Rect(0, 0, *size)).pixels
         changed = np.abs(whole.astype(int) - one_sample).max(axis=2) > 0
-        if renderer.samples > 1:
+        if renderer.antialiasing.for_size(size).samples > 1:
             assert 0 < changed.mean() < 0.2, "depth layers are drawn at one sample; MSAA changes edge pixels only"
         else:
             assert not changed.any()
@@ -200,13 +200,17 @@ def test_node_flags_and_render_once_with_a_bad_environment(tmp_path):
     assert parse_settings([], {}).msaa == AUTO_MSAA == parse_settings(["--msaa", "auto"], {}).msaa
     assert parse_settings(["--msaa", "Filter"], {}).msaa == FILTER_MSAA
     llvmpipe, gpu = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
-    paired = Antialiasing(samples=1, paired=True, filtered=True)
-    assert resolve_antialiasing(AUTO_MSAA, llvmpipe, 4) == paired == resolve_antialiasing(2, llvmpipe, 4)
-    assert resolve_antialiasing(AUTO_MSAA, gpu, 32) == Antialiasing(samples=4)
-    assert resolve_antialiasing(2, gpu, 32) == Antialiasing(samples=2)
-    assert resolve_antialiasing(8, llvmpipe, 4) == Antialiasing(samples=4)
-    assert resolve_antialiasing(FILTER_MSAA, gpu, 32) == Antialiasing(filtered=True)
-    assert resolve_antialiasing(1, llvmpipe, 4) == Antialiasing()
+    paired = Antialiasing(samples=1, grid=(2, 1), filtered=True)
+    by_size = resolve_antialiasing(AUTO_MSAA, llvmpipe, 4)
+    assert by_size.for_size((1280, 720)) == paired == resolve_antialiasing(2, llvmpipe, 4).for_size((640, 360))
+    assert [by_size.for_size(size).grid for size in ((320, 180), (640, 360), (960, 540), (1280, 720), (1920, 1080))] \
+        == [(4, 4), (3, 3), (2, 2), (2, 1), (2, 1)], "more samples where a frame is small, the pair from 720p"
+    assert by_size.for_size((960, 540)).filtered and not by_size.for_size((640, 360)).filtered
+    assert resolve_antialiasing(AUTO_MSAA, gpu, 32).for_size((320, 180)) == Antialiasing(samples=4)
+    assert resolve_antialiasing(2, gpu, 32).fixed == Antialiasing(samples=2)
+    assert resolve_antialiasing(8, llvmpipe, 4).fixed == Antialiasing(samples=4)
+    assert resolve_antialiasing(FILTER_MSAA, gpu, 32).fixed == Antialiasing(filtered=True)
+    assert resolve_antialiasing(1, llvmpipe, 4).fixed == Antialiasing()
     with pytest.raises(SystemExit):
         parse_settings(["--msaa", "3"], {})
     bad = tmp_path / "bad.hdr"

@@ -16,14 +16,17 @@ from PIL import Image
 from bench.images import psnr
 from bench.picture import supersampled
 from node.gl.renderer import TileRenderer
+from node.gl.shading import ShadingOptions
 from node.scene.loading import load_scene
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.refinement import (
     ADAPTIVE,
     DEFAULT_STILL_SAMPLES,
     StillPlan,
+    Subsample,
     accumulate,
     accumulate_still,
+    grid_subsample,
     subsample,
 )
 from tests.conftest import scene_path
@@ -61,8 +64,23 @@ def test_the_still_is_the_mean_of_its_jittered_samples_and_nears_the_supersample
     assert np.array_equal(still, accumulate(frames))
     assert np.array_equal(bunny.render_still(camera, SIZE, 1), bunny.render_frame(camera, SIZE).pixels)
     reference = supersampled(bunny, camera, SIZE)
-    one = psnr(bunny.render_frame(camera, SIZE).pixels, reference)
+    plain = TileRenderer(bunny.ctx, bunny.scene, shading=ShadingOptions(msaa=1))
+    try:
+        one = psnr(plain.render_frame(camera, SIZE).pixels, reference)
+        singles = [plain.render_frame(camera, SIZE, subsample=subsample(k, samples)).pixels for k in range(samples)]
+    finally:
+        plain.release()
     assert psnr(still, reference) > one + 3.0, "accumulated samples come closer to the supersampled frame"
+    assert psnr(still, reference) > psnr(accumulate(singles), reference) + 3.0, \
+        "each sample of a small frame is its 4x4 grid, shifted within the cells: worth more than one sample"
+
+
+def test_a_grid_sample_is_the_grid_shifted_within_its_cells() -> None:
+    sample = Subsample((0.25, -0.125), -1.5)
+    assert grid_subsample(sample, (1, 1)) is sample
+    assert grid_subsample(sample, (2, 1)) == Subsample((0.125, -0.125), -1.5)
+    assert grid_subsample(sample, (3, 3)) == Subsample((0.25 / 3, -0.125 / 3), -1.5 + np.log2(3))
+    assert grid_subsample(Subsample(None, -2.0), (2, 2)) == Subsample(None, -1.0)
 
 
 def test_the_adaptive_still_stops_where_its_estimate_reaches_the_target_and_does_not_overstate_it(bunny) -> None:

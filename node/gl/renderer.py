@@ -48,12 +48,13 @@ limits to the tile) into the single-sample one they are read from. A pixel's sam
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. On a software
-rasterizer (llvmpipe, where 4 samples cost 2.6-3.5x the frame) ``--msaa auto`` draws two samples a
-pixel instead: the same projection over a viewport twice as wide, so columns 2i and 2i + 1 are
-pixel i's samples ¼ pixel left and right of its centre, one draw at 1.2-2.0x the one-sample frame; these
-frames (and ``--msaa filter``'s one sample) are resolved by the 3×3 filter of
-:mod:`tessera.antialiasing`, drawn with a guard band of one pixel (clipped to the frame) so that
-the filtered tile is still that region of the filtered whole frame, and with its texture LOD bias.
+rasterizer (llvmpipe, where 4 samples cost 2.6-3.5x the frame) ``--msaa auto`` draws a grid of
+samples a pixel instead, chosen by frame size (:class:`node.gl.shading.AntialiasingChoice`): the
+same projection over a viewport kx × ky times as large, so block (i, j) is pixel (i, j)'s samples
+(the pair, 2 × 1, ¼ pixel left and right of its centre, one draw at 1.2-2.0x the one-sample frame);
+these frames (and ``--msaa filter``'s one sample) are resolved by :func:`tessera.antialiasing.resolve_grid`,
+the filtered ones drawn with a guard band of one pixel (clipped to the frame) so that the filtered
+tile is still that region of the filtered whole frame, and with their texture LOD bias.
 
 The progressive still: a render may be a still's ``subsample``
 (:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a
@@ -65,6 +66,7 @@ LOD bias; :meth:`TileRenderer.render_still` accumulates a still's samples as the
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
@@ -90,10 +92,10 @@ from node.scene.lod import LodTree
 from node.scene.mesh import MeshBatch
 from node.scene.packing import PackedGeometry, pack
 from node.scene.pose import ScenePose
-from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_filter, resolve_pair_filter
+from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_grid
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
-from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, jitter_matrix
+from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, grid_subsample, jitter_matrix
 from tessera.tools.picking import PickHit
 
 GL_SRGB8_ALPHA8 = 0x8C43
@@ -183,10 +185,8 @@ class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: the scene's batches as
     :func:`node.scene.packing.pack` packs them, when already done or mapped from a scene cache
-    (None: packed here). ``samples``: the multisample count
-    drawn with; ``paired``: plain tiles and whole frames drawn twice as wide, two samples a pixel;
-    ``filtered``: those frames resolved by :mod:`tessera.antialiasing`'s filter (all three as
-    :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). Raises
+    (None: packed here). :attr:`antialiasing`: how plain tiles and whole frames of each size are
+    drawn (as :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). Raises
     CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
     environment file."""
 
@@ -199,8 +199,8 @@ class TileRenderer:
         self.scene = scene
         self.background = background
         self.shading = shading
-        antialiasing = resolve_antialiasing(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
-        self.samples, self.paired, self.filtered = antialiasing.samples, antialiasing.paired, antialiasing.filtered
+        #: What frames of each size are drawn with (``--msaa``: :func:`resolve_antialiasing`).
+        self.antialiasing = resolve_antialiasing(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
         # First: they raise before any GL object of the scene exists to leak.
         lighting = prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
@@ -288,7 +288,7 @@ class TileRenderer:
         return textures
 
     def _framebuffer_for(self, size: tuple[int, int], samples: int = 1) -> moderngl.Framebuffer:
-        """The frame-sized framebuffer with ``samples`` per pixel (1 or :attr:`samples`)."""
+        """The frame-sized framebuffer with ``samples`` per pixel (1 or the multisample count)."""
         framebuffer = self._framebuffer if samples == 1 else self._multisampled
         if framebuffer is None or framebuffer.size != size:
             if framebuffer is not None:
@@ -307,31 +307,37 @@ class TileRenderer:
                     slot: Hashable | None = None, state: SceneState | None = None,
                     subsample: Subsample | None = None, lod_error_px: float = 0.0) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
-        (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame, resolved
-        by the filter when :attr:`filtered`: drawn, culled and read with its guard band); a plain
-        frame at the levels of detail within ``lod_error_px`` pixels (0: full detail; a still's
-        samples always are). ``slot`` names the tile for the hybrid culling switch (default: the rect itself)."""
+        (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame, drawn
+        and resolved as :attr:`antialiasing` says for the size: a filtered one drawn, culled and read
+        with its guard band); a plain frame at the levels of detail within ``lod_error_px`` pixels
+        (0: full detail; a still's samples always are). ``slot`` names the tile for the hybrid
+        culling switch (default: the rect itself)."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        filtered = self.filtered and subsample is None
+        antialiasing = self.antialiasing.for_size(size)
+        kx, ky = antialiasing.grid
+        if subsample is None:   # a filtered frame reads textures one level finer than its samples' spacing would
+            filtered, resolved = antialiasing.filtered, antialiasing.resolved
+            lod_bias = FILTERED_LOD_BIAS + math.log2(min(kx, ky)) if filtered else 0.0
+        else:   # a still's sample is the frame's grid, shifted within its cells, averaged, never filtered
+            filtered, resolved = False, (kx, ky) != (1, 1)
+            subsample = grid_subsample(subsample, (kx, ky))
+            lod_bias = subsample.lod_bias
         drawn = guarded(rect, size) if filtered else rect
-        lod_bias = subsample.lod_bias if subsample is not None else FILTERED_LOD_BIAS if filtered else 0.0
         pose, matrix, moved = self._posed(camera, size, drawn, state, subsample)
         cut = self.level_cut(camera, size, lod_error_px if subsample is None else 0.0)
         culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn, cut)
         coarse = self._coarse(cut, matrix, size, drawn, pose)
-        paired = filtered and self.paired
-        # Paired samples: the same projection drawn over a viewport twice as wide.
-        target_size, target = ((2 * size[0], size[1]), Rect(2 * drawn.x, drawn.y, 2 * drawn.w, drawn.h)) if paired \
-            else (size, drawn)
+        # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
+        target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
         tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
-                            moved=moved, lod_bias=lod_bias, coarse=coarse)
-        if not filtered:
+                            moved=moved, lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples)
+        if not resolved:
             return tile
-        filtering = time.perf_counter()
-        pixels = (resolve_pair_filter if paired else resolve_filter)(tile.pixels, rect, drawn)
+        resolving = time.perf_counter()
+        pixels = resolve_grid(tile.pixels, rect, drawn, (kx, ky))
         return dataclasses.replace(tile, rect=rect, pixels=pixels,
-                                   render_ms=tile.render_ms + (time.perf_counter() - filtering) * 1e3)
+                                   render_ms=tile.render_ms + (time.perf_counter() - resolving) * 1e3)
 
     def use_tools(self, tools: ViewTools | None) -> None:
         """Draw with the frame's ``tools`` (clip planes, section box, highlight; None: none) from
@@ -407,14 +413,15 @@ class TileRenderer:
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
                 blended_moved: bool | None = None, lod_bias: float = 0.0,
-                coarse: DrawRuns | None = None) -> RenderedTile:
+                coarse: DrawRuns | None = None, samples: int = 1) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
         began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
         which ``blended_moved`` picks (:meth:`_draw`); textures read with ``lod_bias``; ``coarse``: the
-        runs of coarse levels of detail to draw too (:class:`node.gl.lod_draws.LodDraws`)."""
+        runs of coarse levels of detail to draw too (:class:`node.gl.lod_draws.LodDraws`); ``samples``
+        multisamples (depth layers: always 1)."""
         width, height = size
-        samples = 1 if with_depth else self.samples
+        samples = 1 if with_depth else samples
         target = self._framebuffer_for((width, height), samples)
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
         target.viewport = (0, 0, width, height)

@@ -44,39 +44,86 @@ from pathlib import Path
 from node.culling.switch import SOFTWARE_RENDERERS
 from node.gl.view_tools import CLIP_FRAGMENT, CLIP_VERTEX
 from node.scene.mesh import MeshBatch
+from tessera.antialiasing import GRID_FILTERS
 
 #: Radiance of the key light (white), a directional light attached to the camera.
 KEY_LIGHT = 1.5
 #: ``--msaa auto``: :data:`HARDWARE_MSAA` samples on a GPU; on a software rasterizer, where 4
-#: samples cost 2.6-3.5x the frame time, two samples per pixel drawn as a frame twice as wide and
-#: resolved by a 3x3 filter (1.2-2.0x the one-sample filter's frame: :mod:`tessera.antialiasing`;
-#: docs/benchmarks/picture.md: measured on llvmpipe).
+#: multisamples cost 2.6-3.5x the frame time, an ordered grid of samples drawn as a frame that many
+#: times as large and resolved (:mod:`tessera.antialiasing`), chosen by frame size
+#: (:class:`AntialiasingChoice`).
 AUTO_MSAA = 0
 #: ``--msaa filter``: one sample per pixel resolved by the 3x3 filter (1.1-1.2x on llvmpipe).
 FILTER_MSAA = -1
 HARDWARE_MSAA = 4
 #: Sample counts ``--msaa`` accepts besides auto and filter (1: off).
 MSAA_CHOICES = (1, 2, 4, 8)
+#: ``--msaa auto`` on a software rasterizer: the grids a frame may get, most samples first; the
+#: first whose samples a frame stay within :data:`SAMPLE_BUDGET`, else the pair (2 × 1, two samples
+#: a pixel, the default of every size before issue 37). The pair misses 40 dB against the 4×4
+#: supersampled frame on small frames, where geometry thinner than a pixel is most of the error:
+#: the diorama from random cameras at 640x360 35.7-41.1 dB (3x3: 42.5-47.7), at 960x540
+#: 37.4-42.5 (2x2: 40.3-45.4), at 1280x720 38.6-43.5, at 1920x1080 40.3-45.2 (``/tmp`` study, seven
+#: scenes, three random cameras each: the worst of each size was the diorama's).
+SOFTWARE_GRIDS = ((4, 4), (3, 3), (2, 2))
+#: Samples a frame draws at most with ``--msaa auto`` on a software rasterizer (unless it is the
+#: pair's): as many as a 1920x1080 frame has pixels — 3x3 at 640x360, 2x2 at 960x540, the pair
+#: from 1280x720 on (as many as before at 720p and up, at most 1.13x the 720p pair's below).
+SAMPLE_BUDGET = 1920 * 1080
 
 
 @dataclass(frozen=True, slots=True)
 class Antialiasing:
     """How plain tiles and whole frames are drawn and resolved: ``samples`` multisamples per pixel
-    (a blit resolves them), or at one sample ``paired`` (two samples per pixel, ¼ pixel left and
-    right of its centre: the frame drawn twice as wide) and ``filtered`` (resolved by
-    :mod:`tessera.antialiasing`'s filter)."""
+    (a blit resolves them), or at one sample a ``grid`` (kx, ky) of samples per pixel (the frame
+    drawn kx × ky times as large: (2, 1) is the pair, ¼ pixel left and right of the centre),
+    ``filtered`` by :mod:`tessera.antialiasing`'s filter or averaged."""
 
     samples: int = 1
-    paired: bool = False
+    grid: tuple[int, int] = (1, 1)
     filtered: bool = False
+
+    @property
+    def paired(self) -> bool:
+        """Two samples a pixel, drawn twice as wide."""
+        return self.grid == (2, 1)
+
+    @property
+    def resolved(self) -> bool:
+        """Its frames go through :func:`tessera.antialiasing.resolve_grid`."""
+        return self.filtered or self.grid != (1, 1)
 
     @property
     def label(self) -> str:
         """What is drawn, as logs and benchmarks say it: '4x MSAA', '2 samples (twice as wide) + 3x3
-        filter', '1 sample + 3x3 filter'."""
-        drawn = "2 samples (twice as wide)" if self.paired else f"{self.samples}x MSAA" if self.samples > 1 else \
-            "1 sample"
+        filter', '3x3 samples (3x3 as large)', '1 sample + 3x3 filter'."""
+        if self.paired:
+            drawn = "2 samples (twice as wide)"
+        elif self.grid != (1, 1):
+            drawn = f"{self.grid[0]}x{self.grid[1]} samples ({self.grid[0]}x{self.grid[1]} as large)"
+        else:
+            drawn = f"{self.samples}x MSAA" if self.samples > 1 else "1 sample"
         return drawn + (" + 3x3 filter" if self.filtered else "")
+
+
+@dataclass(frozen=True, slots=True)
+class AntialiasingChoice:
+    """What a node draws at each frame size: ``fixed`` at every size, or (None, ``--msaa auto`` on a
+    software rasterizer) the grid :data:`SOFTWARE_GRIDS` and :data:`SAMPLE_BUDGET` give the size."""
+
+    fixed: Antialiasing | None = None
+
+    def for_size(self, size: tuple[int, int]) -> Antialiasing:
+        """How a frame of ``size`` = (w, h) px is drawn."""
+        if self.fixed is not None:
+            return self.fixed
+        pixels = size[0] * size[1]
+        grid = next((g for g in SOFTWARE_GRIDS if g[0] * g[1] * pixels <= SAMPLE_BUDGET), (2, 1))
+        return Antialiasing(grid=grid, filtered=grid in GRID_FILTERS)
+
+    @property
+    def label(self) -> str:
+        return self.fixed.label if self.fixed is not None else "by frame size (4x4, 3x3, 2x2 samples or the pair)"
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,20 +139,22 @@ class ShadingOptions:
     key_light: float = KEY_LIGHT
 
 
-def resolve_antialiasing(msaa: int, gl_renderer: str, max_samples: int) -> Antialiasing:
+def resolve_antialiasing(msaa: int, gl_renderer: str, max_samples: int) -> AntialiasingChoice:
     """What ``--msaa`` = ``msaa`` draws on the GL renderer named ``gl_renderer`` offering at most
-    ``max_samples``: :data:`AUTO_MSAA` is :data:`HARDWARE_MSAA` samples on a GPU and 2 on a software
-    rasterizer; 2 on a software rasterizer is a paired, filtered frame (its GL would draw 4
-    multisamples, at 2.6-3.5x the cost); :data:`FILTER_MSAA` one filtered sample; a multisample
-    count is capped at ``max_samples``."""
+    ``max_samples``: :data:`AUTO_MSAA` is :data:`HARDWARE_MSAA` samples on a GPU and a grid by
+    frame size on a software rasterizer (:class:`AntialiasingChoice`); 2 on a software rasterizer
+    is the pair, filtered (its GL would draw 4 multisamples, at 2.6-3.5x the cost);
+    :data:`FILTER_MSAA` one filtered sample; a multisample count is capped at ``max_samples``."""
     software = any(name in gl_renderer.lower() for name in SOFTWARE_RENDERERS)
     if msaa == FILTER_MSAA:
-        return Antialiasing(filtered=True)
+        return AntialiasingChoice(Antialiasing(filtered=True))
     if msaa == AUTO_MSAA:
-        msaa = 2 if software else HARDWARE_MSAA
+        if software:
+            return AntialiasingChoice()
+        msaa = HARDWARE_MSAA
     if msaa == 2 and software:
-        return Antialiasing(paired=True, filtered=True)
-    return Antialiasing(samples=max(1, min(msaa, max_samples)))
+        return AntialiasingChoice(Antialiasing(grid=(2, 1), filtered=True))
+    return AntialiasingChoice(Antialiasing(samples=max(1, min(msaa, max_samples))))
 
 
 #: The irradiance polynomial E(n)/π = Σ k_i·m_i(n) of :func:`node.gl.image_lighting.irradiance_polynomial`,

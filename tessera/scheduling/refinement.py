@@ -17,6 +17,10 @@ engineer would expect of it:
   reference's: what its mean converges to is then that reference's texture detail (on the milk
   truck at 640x360, 64 samples at −1, −1.5, −2, −2.5 came 44.9-46.2, 47.4-51.1, 48.0-54.0,
   47.7-52.4 dB from the 4×4 supersampled frame over three cameras).
+* **Grids.** Where the interactive frame draws a grid of samples per pixel (small frames on a
+  software rasterizer, :mod:`tessera.antialiasing`), each sample of the still is that grid shifted
+  within its cells (:func:`grid_subsample`) and averaged: the still refines the frame the viewer
+  saw, every sample worth the grid's count.
 * **Accumulation.** The samples' 8-bit pixels are summed as integers (:class:`Accumulator`) and the
   picture shown after ``n`` samples is their mean rounded half up: exact, the same wherever it is
   computed (the coordinator, ``--render-once``), whatever the order the tiles arrive in. The mean
@@ -170,6 +174,19 @@ class StillPlan:
 
 #: A still of one frame, not shifted (an interactive frame's plan).
 ONE_FRAME = StillPlan(1)
+
+
+def grid_subsample(sample: Subsample, grid: tuple[int, int]) -> Subsample:
+    """``sample`` of a still drawn with a ``grid`` = (kx, ky) of samples per pixel (the interactive
+    frame's anti-aliasing at that size): its offset scaled to one of the grid's cells, so every
+    cell is refined by the same low-discrepancy sequence, and its LOD bias less what the grid's
+    finer spacing already brings (log₂ of its smaller side), so textures are read as finely as
+    ``sample`` says."""
+    kx, ky = grid
+    if grid == (1, 1):
+        return sample
+    offset = None if sample.offset is None else (sample.offset[0] / kx, sample.offset[1] / ky)
+    return Subsample(offset, sample.lod_bias + math.log2(min(kx, ky)))
 
 
 def jitter_matrix(offset: tuple[float, float] | None, size: tuple[int, int]) -> np.ndarray:
