@@ -619,6 +619,8 @@ class RenderService:
             "still": bool(latest and latest.still),
             "still_samples": still_figures(latest, frames.demand.still_plan),
             "settled": session.settled,
+            "lod_error_px": frames.lod_bound,
+            "loading": self.scene_on_nodes(session.scene)["loading"],
             "scene": session.name,
             "scene_state": session.scene_state(),
             "session": session.label if public else session.id,

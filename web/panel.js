@@ -47,6 +47,19 @@ export function fpsText(stats) {
   return atRest(stats) ? "at rest" : fixed(Number(stats.fps), 1);
 }
 
+/** The levels-of-detail figure from the stats' `lod_error_px`: "≤ 0.5 px", or "full" (every triangle drawn). */
+export function detailText(stats) {
+  const bound = Number(stats.lod_error_px);
+  return stats.lod_error_px != null && Number.isFinite(bound) ? `≤ ${fixed(bound, 2)} px` : "full";
+}
+
+/** The loading line from the stats' `loading` ({fraction, message, nodes_ready, nodes}), "" when none loads. */
+export function loadingText(loading) {
+  if (!loading) return "";
+  const percent = Math.round(100 * (Number(loading.fraction) || 0));
+  return `loading ${percent} %: ${loading.message ?? ""} (${loading.nodes_ready ?? 0} of ${loading.nodes ?? 0} nodes ready)`;
+}
+
 /** The still figure from the stats' `still_samples` ({done, estimated_psnr_db, …}): "16 samples · ≈49.3 dB"
  * when the picture shown holds samples, "–" for an interactive frame. */
 export function stillText(stats) {
@@ -131,6 +144,7 @@ export class Panel {
     this.nodes = doc.getElementById("nodes");
     this.scale = doc.getElementById("bar-scale");
     this.renderState = doc.getElementById("render-state");
+    this.loadingState = doc.getElementById("loading-state");
     for (const phase of PHASES) {
       doc.querySelector(`.legend .seg.${phase}`).parentElement.title = `${phase}: ${PHASE_MEANING[phase]}`;
     }
@@ -206,6 +220,9 @@ export class Panel {
       this.figure("size").textContent = Array.isArray(stats.size) ? stats.size.join("×") : "–";
     }
     this.figure("still").textContent = stillText(stats);
+    this.figure("detail").textContent = detailText(stats);
+    this.loadingState.textContent = loadingText(stats.loading);
+    this.loadingState.hidden = !stats.loading;
     this.showNodes(stats.nodes || []);
     this.onNodes(stats.nodes || []);
     this.onStats(stats);

@@ -4,8 +4,8 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 
 import {
-  PHASES, PHASE_MEANING, atRest, fpsText, inputLatencyText, niceScale, nodeDetail, nodeDetailTitle, stillText,
-  segmentWidths, transportText,
+  PHASES, PHASE_MEANING, atRest, detailText, fpsText, inputLatencyText, loadingText, niceScale, nodeDetail,
+  nodeDetailTitle, stillText, segmentWidths, transportText,
 } from "../../web/panel.js";
 
 // PHASES against tessera.protocol.NODE_PHASES: tests/test_web_mirror.py reads both and compares them.
@@ -89,4 +89,16 @@ test("the still figure says the samples the picture holds and their estimated PS
   assert.equal(stillText({ still: true, still_samples: { done: 16, estimated_psnr_db: 49.34 } }), "16 samples · ≈49.3 dB");
   assert.equal(stillText({ still: false, still_samples: { done: 5, estimated_psnr_db: null } }), "5 samples (refining)");
   assert.equal(stillText({ still: true, still_samples: { done: 1 } }), "1 sample");
+});
+
+test("the detail figure says the levels-of-detail bound, or full detail", () => {
+  assert.equal(detailText({ lod_error_px: 0.5 }), "≤ 0.50 px");
+  assert.equal(detailText({ lod_error_px: null }), "full");
+  assert.equal(detailText({}), "full");
+});
+
+test("the loading line says the stage and how many nodes hold the scene", () => {
+  assert.equal(loadingText(null), "");
+  assert.equal(loadingText({ fraction: 0.42, message: "reading big.ply", nodes_ready: 1, nodes: 3 }),
+               "loading 42 %: reading big.ply (1 of 3 nodes ready)");
 });
