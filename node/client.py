@@ -46,6 +46,7 @@ from node.settings import NodeSettings
 from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
 from tessera.scheduling.refinement import Subsample
 from tessera.wire import messages
+from tessera.wire.pick_messages import Pick, PickResult
 
 log = logging.getLogger("tessera.node")
 
@@ -224,7 +225,7 @@ class NodeClient:
         try:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
                                                 Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                job.lod_error_px or 0.0)
+                                                job.lod_error_px or 0.0, job.window)
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             for tile in action.sent:
                 outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
@@ -262,16 +263,16 @@ class NodeClient:
             drawn.blend_layer(), (render_ms, readback_ms), job.codec, job.jpeg_quality, state, drawn.share, stats)
         outbox.put_nowait(PendingTile(job.frame, request.tile, packed, stats))
 
-    async def _pick(self, request: messages.Pick, outbox: Outbox) -> None:
+    async def _pick(self, request: Pick, outbox: Outbox) -> None:
         """Answer a ``pick`` (issue 35): the id pass of its pixel on the GL thread, then its result,
         or the reason it could not be told."""
         try:
             hit = await self.worker.pick(request)
         except Exception as exc:  # a scene or share not held, a GL failure: answer with the reason
-            outbox.put_nowait(messages.PickResult(id=request.id, hit=False, error=" ".join(str(exc).split())[:300]))
+            outbox.put_nowait(PickResult(id=request.id, hit=False, error=" ".join(str(exc).split())[:300]))
             return
         answer = {"hit": False} if hit is None else hit.to_json()
-        outbox.put_nowait(messages.PickResult(id=request.id, **answer))
+        outbox.put_nowait(PickResult(id=request.id, **answer))
 
     async def _calibrate(self, action: Measure, outbox: Outbox) -> None:
         """Seed 003 §1: render the coordinator's central region ``repeats`` times without output and

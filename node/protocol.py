@@ -41,6 +41,7 @@ from node.scene.data import SceneData
 from tessera.geometry import Rect
 from tessera.scene.state import SceneState, SceneStateError, StateReplica
 from tessera.wire import messages
+from tessera.wire.pick_messages import TO_NODE_PICKS, Pick, PickResult
 from tessera.wire.protocol import PROTOCOL_VERSION, ProtocolError
 
 log = logging.getLogger("tessera.node")
@@ -93,7 +94,7 @@ class Measure:
 class PickPixel:
     """Answer ``request``: draw the id pass of its pixel and send a ``pick_result``."""
 
-    request: messages.Pick
+    request: Pick
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,7 +169,7 @@ class NodeProtocol:
         self._cancelled: deque[int] = deque(maxlen=CANCELLED_MEMORY)
         self._replica = StateReplica()
         self._jobs: deque[Job] = deque()
-        self._picks: deque[messages.Pick] = deque()
+        self._picks: deque[Pick] = deque()
         self._ready: deque[NodeAction] = deque()
         self._frame: _FrameTiles | None = None
         self._load_count = 0
@@ -198,7 +199,7 @@ class NodeProtocol:
         out, other kinds wait as jobs (a malformed one too, refused in its turn); anything else is
         logged and ignored."""
         try:
-            message = messages.parse(text, messages.TO_NODE)
+            message = messages.parse(text, (*messages.TO_NODE, *TO_NODE_PICKS))
         except messages.InvalidMessage as exc:
             self._jobs.append(exc)
             return
@@ -216,7 +217,7 @@ class NodeProtocol:
                 self._receive_load(message)
             case messages.Render() | messages.Calibrate():
                 self._jobs.append(self._scene_job(message))
-            case messages.Pick():
+            case Pick():
                 self._picks.append(message)
 
     def _receive_load(self, request: messages.LoadScene) -> None:
@@ -314,8 +315,8 @@ class NodeProtocol:
             self._ready.append(Send(messages.RenderError(frame=0, tile=0, message=f"calibration failed: {reason}")))
         elif error.kind == messages.LoadScene.kind:
             self._ready.append(Send(messages.SceneError(scene=str(data.get("scene")), message=reason)))
-        elif error.kind == messages.Pick.kind and _is_int(data.get("id")) and data["id"] >= 0:
-            self._ready.append(Send(messages.PickResult(id=data["id"], hit=False, error=reason)))
+        elif error.kind == Pick.kind and _is_int(data.get("id")) and data["id"] >= 0:
+            self._ready.append(Send(PickResult(id=data["id"], hit=False, error=reason)))
 
     def _fail_tiles(self, frame: int, tiles: list[int], reason: str) -> None:
         self._ready.extend(Send(messages.RenderError(frame=frame, tile=tile, message=reason)) for tile in tiles)

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import moderngl
+import numpy as np
 
 from node.culling.tiles import CullingUnavailableError
 from node.gl.context import GLUnavailableError, create_gl_context
@@ -41,7 +42,8 @@ from node.scene.mesh import SceneError
 from node.settings import NodeSettings
 from tessera.geometry import Camera, CameraError, default_camera
 from tessera.scene.state import ObjectPatch, SceneState, SceneStateError, UnknownObjectError
-from tessera.scheduling.refinement import accumulate_still
+from tessera.scheduling.refinement import Subsample, accumulate_still
+from tessera.scheduling.render_jobs import windows
 from tessera.tools.clipping import ClipError, ClipState
 from tessera.wire.codec import encode_png
 
@@ -117,11 +119,14 @@ def render_once(settings: NodeSettings) -> int:
                 renderer.attach_lod(read_lod(levels))
         started = time.perf_counter()
         if settings.interactive:
-            frame = renderer.render_frame(camera, settings.size, state, lod_error_px=settings.lod_error_px)
-            pixels, drawn, samples = frame.pixels, f"{frame.triangles} drawn, {frame.cull_path} culling", 1
+            if len(windows(settings.size)) == 1:
+                frame = renderer.render_frame(camera, settings.size, state, lod_error_px=settings.lod_error_px)
+                pixels, drawn = frame.pixels, f"{frame.triangles} drawn, {frame.cull_path} culling"
+            else:
+                pixels, drawn = draw_picture(renderer, camera, settings.size, state, None), "by windows"
+            samples = 1
         else:
-            still = accumulate_still(lambda subsample: renderer.render_frame(camera, settings.size, state,
-                                                                             subsample).pixels,
+            still = accumulate_still(lambda subsample: draw_picture(renderer, camera, settings.size, state, subsample),
                                      settings.size, settings.still_plan)
             pixels, samples = still.mean(), still.count
             estimate = "" if still.estimate_db is None else f", estimated {min(still.estimate_db, 100.0):.1f} dB " \
@@ -146,6 +151,21 @@ def render_once(settings: NodeSettings) -> int:
     print(f"wrote {settings.render_once} ({kind}, {width}x{height}, {scene.triangle_count} triangles in "
           f"{scene.chunks.chunk_count} chunks, {drawn}, {antialiasing}, render {render_ms:.1f} ms)")
     return 0
+
+
+def draw_picture(renderer: TileRenderer, camera: Camera, size: tuple[int, int], state: SceneState | None,
+                 subsample: Subsample | None) -> np.ndarray:
+    """(h, w, 3) uint8: the ``size`` picture drawn as a render job draws it: whole up to
+    :data:`tessera.scheduling.render_jobs.WHOLE_SIDE` a side, larger window by window
+    (:func:`tessera.scheduling.render_jobs.windows`), each cell of its window's framebuffer."""
+    parts = windows(size)
+    if len(parts) == 1:
+        return renderer.render_frame(camera, size, state, subsample).pixels
+    pixels = np.empty((size[1], size[0], 3), np.uint8)
+    for cell, window in parts:
+        drawn = renderer.render_tile(camera, size, cell, state=state, subsample=subsample, window=window).pixels
+        pixels[cell.y:cell.y1, cell.x:cell.x1] = drawn
+    return pixels
 
 
 def _state(scene: SceneData, time: float, overrides: dict[str, ObjectPatch] | None, path: Path | None) -> SceneState:

@@ -251,18 +251,18 @@ def other_routes_markdown(app: Any) -> str:
 def message_directions() -> list[tuple[str, tuple[type, ...]]]:
     """(direction, message classes) in catalogue order; a class in none of the ``FROM_*``/``TO_*``
     tuples is one the coordinator sends to viewers."""
-    from tessera.wire import messages, stream_messages, wall_messages
+    from tessera.wire import messages, pick_messages, stream_messages, wall_messages
 
     return [
-        ("node → coordinator", (messages.NodeHello, *messages.FROM_NODE)),
-        ("coordinator → node", messages.TO_NODE),
+        ("node → coordinator", (messages.NodeHello, *messages.FROM_NODE, *pick_messages.FROM_NODE_PICKS)),
+        ("coordinator → node", (*messages.TO_NODE, *pick_messages.TO_NODE_PICKS)),
         ("viewer → coordinator", (*messages.FROM_VIEWER, *stream_messages.FROM_STREAM_VIEWER,
                                   *wall_messages.FROM_WALL_VIEWER)),
     ]
 
 
 def all_messages() -> list[type]:
-    from tessera.wire import messages, stream_messages, wall_messages  # noqa: F401 (registers them)
+    from tessera.wire import messages, pick_messages, stream_messages, wall_messages  # noqa: F401 (registers them)
 
     found: list[type] = []
     pending = list(messages.Message.__subclasses__())

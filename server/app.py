@@ -23,6 +23,8 @@ from server.routes import (
     nodes,
     objects,
     picking,
+    posters,
+    recordings,
     scenes,
     selection,
     sessions,
@@ -65,7 +67,8 @@ def create_app(settings: Settings) -> FastAPI:
         app.include_router(module.router)
     app.include_router(stats.metrics_router)
     for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other
-        for module in (stats, camera, objects, animation, frames, balancer, clipping, selection, picking):
+        for module in (stats, camera, objects, animation, frames, balancer, clipping, selection, picking,
+                       posters, recordings):
             app.include_router(module.router, prefix=prefix)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

@@ -20,7 +20,8 @@ from server.sessions import Session
 from tessera.decomposition.sort_last import SortLast
 from tessera.scheduling.scheduler import FrameScheduler
 from tessera.tools.picking import PickHit, nearest
-from tessera.wire.messages import Message, Pick, PickResult
+from tessera.wire.messages import Message
+from tessera.wire.pick_messages import Pick, PickResult
 
 #: How long a pick waits for the nodes' answers (s).
 PICK_TIMEOUT_S = 10.0

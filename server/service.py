@@ -31,6 +31,7 @@ from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
 from server.picking import PickDesk
+from server.render_jobs import RenderJobs
 from server.scene_library import SceneLibrary
 from server.session_store import SessionStore
 from server.sessions import Session, new_key
@@ -47,7 +48,7 @@ from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling import actions
 from tessera.scheduling.fair_share import SHARE_WINDOW_S
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
-from tessera.scheduling.scheduler import FrameScheduler
+from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.wire import messages
 from tessera.wire.messages import (
     Calibration,
@@ -55,7 +56,6 @@ from tessera.wire.messages import (
     LevelsReady,
     Message,
     NodeHello,
-    PickResult,
     RenderError,
     SceneError,
     SceneProgress,
@@ -66,6 +66,7 @@ from tessera.wire.messages import (
     ViewerScene,
     Welcome,
 )
+from tessera.wire.pick_messages import PickResult
 from tessera.wire.protocol import ProtocolError, unpack_tile
 
 log = logging.getLogger("tessera.server")
@@ -101,7 +102,7 @@ class RenderService:
         self.size = settings.size
         self.metrics = metrics or CoordinatorMetrics()
         self.library = library
-        self.scheduler = FrameScheduler(settings.scheduler_config(), create_balancer(settings.balancer),
+        self.scheduler = JobScheduler(settings.scheduler_config(), create_balancer(settings.balancer),
                                         settings.scene)
         self.scheduler.default.stats = ObservedFrameStats(self.metrics)
         self.nodes: dict[int, NodeLink] = {}
@@ -120,8 +121,9 @@ class RenderService:
         self._tasks: list[asyncio.Task] = []
         self.cpu_ms = {"receive": 0.0, "publish": 0.0, "merge": 0.0}
         self.calibration = NodeCalibration(self)
-        #: Picks waiting for their nodes' answers (issue 35).
+        #: Picks waiting for their nodes' answers, posters and films (issue 35).
         self.picks = PickDesk(self)
+        self.jobs = RenderJobs(self, settings.max_jobs)
         if self.session_store is not None:
             self._restore_sessions()
 
@@ -195,6 +197,7 @@ class RenderService:
             self._fetch[spec] = fetch
         balancer, size = session.balancer, session.size
         camera = camera or session.camera
+        self.jobs.session_closed(session.id)
         self.scheduler.remove_session(session.id, now)
         for node in self.scheduler.nodes.values():   # the new scene's state versions start afresh: send them whole
             if node.state_sent is not None and node.state_sent[0] == session.id:
@@ -217,7 +220,8 @@ class RenderService:
         event loop (the file is fsynced); writes happen in the order asked."""
         if self.session_store is None:
             return None
-        records = [s.record() for s in self.sessions.values()]
+        records = [{**s.record(), "jobs": [j.record() for j in self.jobs.of_session(s.id)]}
+                   for s in self.sessions.values()]
         self.changed_sessions = False
         path = self.session_store.path
 
@@ -259,6 +263,7 @@ class RenderService:
                                         session.id)
         session.pending_state = record.get("scene_state")
         session.restore_clip(record.get("clip"))
+        self.jobs.restore(session.id, record.get("jobs"))
         log.info("session %s… restored: %s", session.id[:6], session.name)
 
     def close_session(self, session: Session, reason: str = "session closed") -> None:
@@ -267,6 +272,7 @@ class RenderService:
             return
         self._watch_keys.pop(session.watch_key, None)
         self.changed_sessions = True
+        self.jobs.session_closed(session.id)
         self.scheduler.remove_session(session.id, time.monotonic())
         for slot in list(session.viewers.slots):
             slot.close(4404, reason)
@@ -290,6 +296,7 @@ class RenderService:
         self.save_sessions()
         await asyncio.to_thread(self._session_writer.shutdown, wait=True)   # every write asked is done
         self.still_executor.shutdown(wait=False, cancel_futures=True)
+        await asyncio.to_thread(self.jobs.close)
 
     async def _timer(self) -> None:
         """Tick the scheduler at its next deadline (frame-rate cap, still frame, tile timeouts) and
@@ -541,6 +548,9 @@ class RenderService:
         session = self.sessions.get(job.session)
         if session is None:
             return
+        if job.job is not None:   # a render job's tile (issue 35)
+            self.jobs.tile(job)
+            return
         if job.samples > 1:
             self._refine(session, job)
             return
@@ -641,6 +651,7 @@ class RenderService:
                 "process_ms": round(time.process_time() * 1000.0, 3),
                 "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
             },
+            "jobs": self.jobs.describe_session(session.id),
             "sessions": [s.summary(now, public) for s in self.sessions.values()],
             "share_window_s": SHARE_WINDOW_S,
             "nodes": [link.describe(scheduler.nodes[link.node_id])

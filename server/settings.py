@@ -24,6 +24,7 @@ from tessera.cli_values import (
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
+from tessera.scheduling.render_jobs import MAX_POSTER_SIDE
 from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.video.link_rate import MIN_BITRATE
 from tessera.video.transport import STREAM_MODES
@@ -36,6 +37,7 @@ DEFAULT_SCENE = "builtin:cluster"
 #: within 2–3 % of the best on the others, the lowest or second-lowest imbalance on all four.
 DEFAULT_BALANCER = "adaptive-predict"
 parse_size = size_parser(16, 8192)
+parse_poster_size = size_parser(16, MAX_POSTER_SIDE)
 #: Most viewer sockets at once: every viewer gets every frame, about 23 KB at 720p × 60 frames/s
 #: = 1.4 MB/s, so 64 of them fill a gigabit link; a slow viewer only skips frames.
 DEFAULT_MAX_VIEWERS = 64
@@ -232,6 +234,10 @@ class Settings(SchedulerConfig):
     session_idle_timeout_s: float = 300.0
     #: The largest frame a session may have (a bigger request is scaled down to fit, aspect kept).
     max_size: tuple[int, int] = (3840, 2160)
+    #: Render jobs (issue 35): unfinished at once, a poster's largest size, a film's most frames.
+    max_jobs: int = 4
+    max_poster_size: tuple[int, int] = (MAX_POSTER_SIDE, MAX_POSTER_SIDE)
+    max_film_frames: int = 18000
     #: What viewers get while the picture changes (issue 21): ``auto`` (video in the first codec
     #: the viewer decodes, else tiles), ``h264``, ``vp9`` or ``tiles`` (:data:`STREAM_MODES`).
     stream: str = "auto"
@@ -377,6 +383,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                              f"{DEFAULT_MAX_BITRATE // 1_000_000}M); the stream follows each viewer's link below it")
     parser.add_argument("--max-size", type=parse_size,
                         help=f"largest frame of a session, WxH (default {defaults.max_size[0]}x{defaults.max_size[1]})")
+    parser.add_argument("--max-jobs", type=_count,
+                        help="render jobs (posters, films) under way at once across the sessions; more are refused "
+                             f"with 503 (default {defaults.max_jobs})")
+    parser.add_argument("--max-poster-size", type=parse_poster_size, metavar="WxH",
+                        help="largest poster, WxH (default "
+                             f"{defaults.max_poster_size[0]}x{defaults.max_poster_size[1]}, the most a poster may be)")
+    parser.add_argument("--max-film-frames", type=_count,
+                        help=f"most frames of a film (default {defaults.max_film_frames}: 10 minutes at 30 fps)")
     parser.add_argument("--root-path", type=_root_path,
                         help="path prefix a reverse proxy serves the coordinator under, e.g. /tessera (the proxy "
                              "strips it); the links the coordinator returns carry it. A proxy's X-Forwarded-Prefix "

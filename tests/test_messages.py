@@ -28,8 +28,6 @@ from tessera.wire.messages import (
     LoadScene,
     Message,
     NodeHello,
-    Pick,
-    PickResult,
     Render,
     RenderError,
     RenderTile,
@@ -76,10 +74,6 @@ EXAMPLES: list[Message] = [
     ViewerError(message="bad camera"),
     LatencyReport(p50_ms=40.0, p90_ms=60.0, samples=30.0, interval_ms=33.3),
     ViewerSize(size=(1600, 900)),
-    # picking (issue 35)
-    Pick(id=3, camera=CAMERA, size=(640, 480), x=10, y=479, scene="x.ply", share=2),
-    PickResult(id=3, hit=True, object="wheel", primitive=12, point=(1.0, 2.0, 3.0), normal=(0.0, 1.0, 0.0), depth=4.5),
-    PickResult(id=4, hit=False, error="scene x.ply is not loaded on this node"),
     # the depth modes (issue 10)
     Render(frame=6, camera=CAMERA, size=(640, 480), codec=Codec.JPEG,
            tiles=(RenderTile(tile=1, rect=Rect(320, 0, 320, 480)),),

@@ -16,7 +16,8 @@ from server.picking import PickDesk
 from tessera.geometry import Camera, Rect, view_projection
 from tessera.scene.state import ObjectState, SceneState, StateDelta
 from tessera.tools.picking import PickHit, cap_entry, nearest, pixel_ray, triangle_hit, window_matrix
-from tessera.wire.messages import InvalidMessage, Pick, PickResult
+from tessera.wire.messages import InvalidMessage, parse
+from tessera.wire.pick_messages import FROM_NODE_PICKS, TO_NODE_PICKS, Pick, PickResult
 from tests.test_node_protocol import CAMERA, connected, render
 
 SIZE = (640, 360)
@@ -66,6 +67,8 @@ def test_pick_messages() -> None:
     assert PickResult(id=9, hit=False).to_json() == {"type": "pick_result", "id": 9, "hit": False}
     with pytest.raises(InvalidMessage, match="names its object"):
         PickResult.from_json({"id": 1, "hit": True})
+    for message, kinds in ((pick, TO_NODE_PICKS), (result, FROM_NODE_PICKS)):
+        assert parse(message.to_text(), kinds).to_json() == message.to_json()
 
 
 def test_a_pick_goes_ahead_of_the_tiles_queued_and_leaves_the_state_alone() -> None:

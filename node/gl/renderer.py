@@ -96,7 +96,7 @@ from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_grid
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, grid_subsample, jitter_matrix
-from tessera.tools.picking import PickHit
+from tessera.tools.picking import PickHit, window_matrix
 
 GL_SRGB8_ALPHA8 = 0x8C43
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
@@ -116,6 +116,8 @@ SAMPLER_UNITS = {"u_texture": UNIT_BASE, "u_floor": UNIT_FLOOR, "u_ceil": UNIT_C
 #: What :meth:`TileRenderer._draw` draws of a batch, in this order: its culled chunks' commands,
 #: the whole batch (a moved object's), its coarse levels of detail.
 CULLED, WHOLE, COARSE = 0, 1, 2
+#: Framebuffers a renderer keeps (sizes and sample counts; see :meth:`TileRenderer._framebuffer_for`).
+FRAMEBUFFERS_KEPT = 4
 #: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
 #: compositor takes all of a pixel's fragments in front of the node's own layer together).
 MAX_BLEND_LAYERS = 4
@@ -224,8 +226,9 @@ class TileRenderer:
         self._id_pass: IdPass | None = None
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
-        self._framebuffer: moderngl.Framebuffer | None = None
-        self._multisampled: moderngl.Framebuffer | None = None
+        #: Frame-sized framebuffers by (size, samples), the most recently used last: a session's
+        #: frames and a render job's pictures of another size keep theirs (:data:`FRAMEBUFFERS_KEPT`).
+        self._framebuffers: dict[tuple[tuple[int, int], int], moderngl.Framebuffer] = {}
         self._blending = False
         #: Whether blended fragments are being peeled (:meth:`render_blend`: drawn with discards).
         self._peeling = False
@@ -289,32 +292,38 @@ class TileRenderer:
 
     def _framebuffer_for(self, size: tuple[int, int], samples: int = 1) -> moderngl.Framebuffer:
         """The frame-sized framebuffer with ``samples`` per pixel (1 or the multisample count)."""
-        framebuffer = self._framebuffer if samples == 1 else self._multisampled
-        if framebuffer is None or framebuffer.size != size:
-            if framebuffer is not None:
-                _release_framebuffer(framebuffer)
+        framebuffer = self._framebuffers.pop((size, samples), None)
+        if framebuffer is None:
             framebuffer = self.ctx.framebuffer(
                 color_attachments=[self.ctx.renderbuffer(size, 4, samples=samples if samples > 1 else 0)],
                 depth_attachment=self.ctx.depth_renderbuffer(size, samples=samples if samples > 1 else 0),
             )
-            if samples == 1:
-                self._framebuffer = framebuffer
-            else:
-                self._multisampled = framebuffer
+        self._framebuffers[size, samples] = framebuffer
+        while len(self._framebuffers) > FRAMEBUFFERS_KEPT:
+            _release_framebuffer(self._framebuffers.pop(next(iter(self._framebuffers))))
         return framebuffer
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
                     slot: Hashable | None = None, state: SceneState | None = None,
-                    subsample: Subsample | None = None, lod_error_px: float = 0.0) -> RenderedTile:
+                    subsample: Subsample | None = None, lod_error_px: float = 0.0,
+                    window: Rect | None = None) -> RenderedTile:
         """Draw the ``rect`` part of the ``size`` = (w, h) frame seen by ``camera`` in scene ``state``
         (None: the base pose), as ``subsample`` of a progressive still (None: a plain frame, drawn
         and resolved as :attr:`antialiasing` says for the size: a filtered one drawn, culled and read
         with its guard band); a plain frame at the levels of detail within ``lod_error_px`` pixels
         (0: full detail; a still's samples always are). ``slot`` names the tile for the hybrid
-        culling switch (default: the rect itself)."""
+        culling switch (default: the rect itself). ``window``: the part of the frame (a poster's,
+        :mod:`tessera.scheduling.render_jobs`) drawn into a framebuffer of its own size, the
+        projection narrowed to it (None: the whole frame's); the frame's size decides the samples."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        antialiasing = self.antialiasing.for_size(size)
+        slot = tuple(rect.as_list()) if slot is None else slot
+        frame, whole = size, rect
+        if window is not None:
+            validate_rect(window, size)
+            size, rect = (window.w, window.h), Rect(rect.x - window.x, rect.y - window.y, rect.w, rect.h)
+            validate_rect(rect, size)
+        antialiasing = self.antialiasing.for_size(frame)
         kx, ky = antialiasing.grid
         if subsample is None:   # a filtered frame reads textures one level finer than its samples' spacing would
             filtered, resolved = antialiasing.filtered, antialiasing.resolved
@@ -324,19 +333,19 @@ class TileRenderer:
             subsample = grid_subsample(subsample, (kx, ky))
             lod_bias = subsample.lod_bias
         drawn = guarded(rect, size) if filtered else rect
-        pose, matrix, moved = self._posed(camera, size, drawn, state, subsample)
-        cut = self.level_cut(camera, size, lod_error_px if subsample is None else 0.0)
-        culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, drawn, cut)
+        pose, matrix, moved = self._posed(camera, frame, drawn, state, subsample, window)
+        cut = self.level_cut(camera, frame, lod_error_px if subsample is None else 0.0)
+        culled = self.culler.cull(slot, matrix, size, drawn, cut)
         coarse = self._coarse(cut, matrix, size, drawn, pose)
         # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
         target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
         tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
                             moved=moved, lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples)
         if not resolved:
-            return tile
+            return dataclasses.replace(tile, rect=whole)
         resolving = time.perf_counter()
         pixels = resolve_grid(tile.pixels, rect, drawn, (kx, ky))
-        return dataclasses.replace(tile, rect=rect, pixels=pixels,
+        return dataclasses.replace(tile, rect=whole, pixels=pixels,
                                    render_ms=tile.render_ms + (time.perf_counter() - resolving) * 1e3)
 
     def use_tools(self, tools: ViewTools | None) -> None:
@@ -372,17 +381,23 @@ class TileRenderer:
         if not cut.coarse or self.lod is None:
             return None
         planes = frustum_planes_from_matrix(matrix, size, rect)
+        if self.culler.clip is not None:   # coarse nodes wholly cut away are culled too
+            planes = np.vstack((planes, self.culler.clip))
         return self.lod.runs(cut, planes, pose.skip if pose.skip.any() else None)
 
     def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
-               subsample: Subsample | None = None) -> tuple[ScenePose, np.ndarray, DrawRuns]:
+               subsample: Subsample | None = None, window: Rect | None = None) -> tuple[ScenePose, np.ndarray,
+                                                                                    DrawRuns]:
         """What every draw of ``rect`` in scene ``state`` starts from: the pose, the full-frame (4, 4)
         view-projection of its bounds (shifted by the ``subsample``'s offset: :func:`jitter_matrix`,
-        so culling and drawing see the same frustum), and the runs of its moved objects that
+        so culling and drawing see the same frustum; narrowed to ``window``, of whose framebuffer
+        ``rect`` then is a part: :func:`window_matrix`), and the runs of its moved objects that
         ``rect`` keeps."""
         pose = self.pose_of(state)
         offset = None if subsample is None else subsample.offset
         matrix = jitter_matrix(offset, size) @ view_projection(camera, size, pose.bounds)
+        if window is not None:
+            matrix, size = window_matrix(window, size) @ matrix, (window.w, window.h)
         moved = self.culler.cull_moved(matrix, size, rect, pose.whole, pose.models[pose.owner[list(pose.whole)]])
         return pose, matrix, moved
 
@@ -662,10 +677,9 @@ class TileRenderer:
 
     def release(self) -> None:
         """Free the GL objects (the context stays the caller's)."""
-        for framebuffer in (self._framebuffer, self._multisampled):
-            if framebuffer is not None:
-                _release_framebuffer(framebuffer)
-        self._framebuffer = self._multisampled = None
+        for framebuffer in self._framebuffers.values():
+            _release_framebuffer(framebuffer)
+        self._framebuffers.clear()
         if self._id_pass is not None:
             self._id_pass.release()
         self.culler.release()

@@ -51,7 +51,8 @@ from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
 from tessera.tools.picking import PickHit
-from tessera.wire.messages import DepthRequest, LoadScene, Pick
+from tessera.wire.messages import DepthRequest, LoadScene
+from tessera.wire.pick_messages import Pick
 
 log = logging.getLogger("tessera.node")
 
@@ -277,21 +278,22 @@ class GLWorker:
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                      state: SceneState | None = None, scene: str | None = None,
                      subsample: Subsample | None = None, tools: ViewTools | None = None,
-                     lod_error_px: float = 0.0) -> RenderedTile:
+                     lod_error_px: float = 0.0, window: Rect | None = None) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
         (None: the base pose), as ``subsample`` of a still (None: a plain frame, at the levels of
-        detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none);
-        ``slot`` (the tile id) keys the tile's hybrid culling switch. Raises SceneNotLoadedError
-        for a scene not held."""
-        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools, lod_error_px)
+        detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none), in
+        ``window`` (a poster's; None: the whole frame); ``slot`` (the tile id) keys the tile's hybrid
+        culling switch. Raises SceneNotLoadedError for a scene not held."""
+        return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools, lod_error_px,
+                                window)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                 state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                tools: ViewTools | None, lod_error_px: float) -> RenderedTile:
+                tools: ViewTools | None, lod_error_px: float, window: Rect | None) -> RenderedTile:
         renderer = self._scenes.find(scene).renderer
         renderer.use_tools(tools)
         return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample,
-                                    lod_error_px=lod_error_px)
+                                    lod_error_px=lod_error_px, window=window)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,

@@ -15,6 +15,7 @@ from server.routes import guards
 from server.routes.deps import token_ok
 from server.service import RenderService
 from tessera.wire.messages import FROM_NODE, NodeHello, parse
+from tessera.wire.pick_messages import FROM_NODE_PICKS
 from tessera.wire.protocol import ProtocolError
 
 router = APIRouter()
@@ -78,7 +79,7 @@ async def node_socket(ws: WebSocket) -> None:
             if message.get("bytes") is not None:
                 service.on_tile_message(link, message["bytes"])
             else:
-                service.on_node_message(link, parse(message.get("text") or "", FROM_NODE))
+                service.on_node_message(link, parse(message.get("text") or "", (*FROM_NODE, *FROM_NODE_PICKS)))
     except ProtocolError as exc:
         log.warning("node %d (%s) broke the protocol: %s; closing it", link.node_id, link.name, exc)
         await guards.close(ws, 1008, str(exc))

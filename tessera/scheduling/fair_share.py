@@ -17,7 +17,9 @@ starve the others. Weights scale the charge (a session of weight 2 gets twice th
 A frame drawn while only some nodes hold its session's scene is charged its node time times the
 frame's *scarcity* (the nodes over those that hold the scene): the few holders are the nodes every
 other session's frames wait at too (docs/explanation/sessions.md). The node shares reported stay
-the node time taken. Pure: the clock comes in as ``now`` (s).
+the node time taken. A session's render jobs (posters, films) take node time outside its frames:
+it counts as served and in its node share (:meth:`FairShare.spent`), as any other work of it.
+Pure: the clock comes in as ``now`` (s).
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ class FairShare:
         self._cost: dict[str, float] = {}
         self._busy: dict[str, deque[tuple[float, float]]] = {}
         self._active_at: dict[str, float] = {}
+        #: Node time taken outside frames (render jobs), (when, ms), the last :data:`SHARE_WINDOW_S`.
+        self._outside: dict[str, deque[tuple[float, float]]] = {}
 
     def add(self, session: str, weight: float = 1.0) -> None:
         """A new session, starting at the least served of the others (owed nothing)."""
@@ -56,7 +60,7 @@ class FairShare:
         self._busy[session] = deque(maxlen=SHARE_WINDOW_FRAMES)
 
     def remove(self, session: str) -> None:
-        for book in (self.served, self.weights, self._cost, self._busy, self._active_at):
+        for book in (self.served, self.weights, self._cost, self._busy, self._active_at, self._outside):
             book.pop(session, None)
 
     def order(self, wanting: Iterable[str], busy: Iterable[str], now: float) -> list[str]:
@@ -110,12 +114,25 @@ class FairShare:
             self._cost[session] = max(busy_ms, 0.1)
             self._busy[session].append((now, busy_ms))
 
+    def spent(self, session: str, busy_ms: float, now: float) -> None:
+        """``session`` took ``busy_ms`` of node time outside its frames (a render job's tile),
+        ending at ``now``: served, and in its node share; its frame cost stays its frames'."""
+        if session not in self.served:
+            return
+        self.served[session] += busy_ms / self.weights[session]
+        outside = self._outside.setdefault(session, deque())
+        outside.append((now, busy_ms))
+        while outside and outside[0][0] < now - SHARE_WINDOW_S:
+            outside.popleft()
+
     def busy_ms(self, session: str, now: float, window_s: float = SHARE_WINDOW_S) -> float:
-        """Node time (ms) the session's frames that ended in the last ``window_s`` seconds took."""
-        return sum(ms for at, ms in self._busy.get(session, ()) if at >= now - window_s)
+        """Node time (ms) the session's frames (and render jobs' tiles) that ended in the last
+        ``window_s`` seconds took."""
+        since = now - window_s
+        return sum(ms for book in (self._busy, self._outside) for at, ms in book.get(session, ()) if at >= since)
 
     def node_share(self, session: str, now: float, window_s: float = SHARE_WINDOW_S) -> float:
         """The session's fraction of the node time all sessions' frames took over the last
         ``window_s`` seconds (0 when none took any)."""
-        total = sum(self.busy_ms(s, now, window_s) for s in self._busy)
+        total = sum(self.busy_ms(s, now, window_s) for s in self.served)
         return self.busy_ms(session, now, window_s) / total if total > 0.0 else 0.0

@@ -19,6 +19,7 @@ from tessera.balancers.base import Partition, TileTiming
 from tessera.geometry import Camera, Rect
 from tessera.scene.state import SceneState, StateDelta
 from tessera.scheduling.refinement import ONE_FRAME, StillPlan, Subsample
+from tessera.scheduling.render_jobs import JobItem
 from tessera.tools.clipping import ClipState
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
@@ -77,7 +78,9 @@ class FrameJob:
     idle, for one ending its last tile (dispatch ahead); ``one_by_one``: its tiles are pieces of
     the frame that go to a node one at a time, the next when the one before came back (a pull
     frame: an idle node holding the scene takes one too); ``clip`` and ``highlight``: the
-    session's clip planes and section box and its selected object when it started (issue 35).
+    session's clip planes and section box and its selected object when it started (issue 35);
+    ``job``: the render job (a poster, a film: :mod:`tessera.scheduling.render_jobs`) whose
+    ``item`` it draws, in ``window`` (None: the whole frame's framebuffer).
     """
 
     frame_id: int
@@ -108,6 +111,9 @@ class FrameJob:
     highlight: str | None = None
     #: Its levels-of-detail bound, px (None: full detail; stills always are).
     lod_error_px: float | None = None
+    job: str | None = None
+    item: JobItem | None = None
+    window: Rect | None = None
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,
@@ -158,7 +164,7 @@ class FrameJob:
                                   for i in tile_ids), state=state,
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
                       lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight,
-                      lod_error_px=self.lod_error_px)
+                      lod_error_px=self.lod_error_px, window=self.window)
 
     def pull_next(self) -> list[int]:
         """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the

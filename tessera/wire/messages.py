@@ -27,8 +27,6 @@ node → coordinator
 * ``tiles_dropped`` :class:`TilesDropped` — tiles of a cancelled frame skipped unrendered
 * ``calibration`` :class:`Calibration` — answer to ``calibrate``: the best of ``repeats`` renders
   of ``rect``, no output sent, slowdown included
-* ``pick_result`` :class:`PickResult` — answer to ``pick``: what the pixel's centre sees, or why
-  it could not be told
 
 coordinator → node
 
@@ -44,9 +42,6 @@ coordinator → node
   planes and section box, its selected object tinted (``highlight``, issue 35)
 * ``calibrate`` :class:`Calibrate` (seed 003 §1), of a ``scene`` likewise, in order with renders
 * ``cancel`` :class:`Cancel` — the frames were superseded: skip their tiles not begun yet
-* ``pick`` :class:`Pick` (issue 35) — which surface one pixel's centre sees, drawn as an id pass
-  of that pixel alone, ahead of the tiles queued (its state is whole: it leaves the node's scene
-  state as it was)
 
 coordinator → viewer: ``hello`` :class:`ViewerHello`, ``camera`` :class:`CameraUpdate` (another
 viewer or the API moved it), ``scene`` :class:`ViewerScene` (the first node loaded it), ``error``
@@ -524,13 +519,16 @@ class Render(Message):
     #: The levels of detail's bound for this frame (issue 32): a node draws the coarsest level whose
     #: error is at most this many pixels on screen; None: full detail.
     lod_error_px: Annotated[StrictFloat, Field(gt=0.0, le=MAX_LOD_ERROR_PX)] | None = None
+    #: The part of a picture larger than a frame (a poster's, issue 35) whose framebuffer the tiles
+    #: are drawn in, the projection narrowed to it; None: the whole frame's.
+    window: RectJson | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
         ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip``,
-        ``highlight`` and ``lod_error_px`` when None, without a tile's ``part_of`` when None."""
+        ``highlight``, ``lod_error_px`` and ``window`` when None, without a tile's ``part_of`` when None."""
         data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias", "clip",
-                                  "highlight", "lod_error_px")
+                                  "highlight", "lod_error_px", "window")
         for tile in data["tiles"]:
             if tile["part_of"] is None:
                 del tile["part_of"]
@@ -557,59 +555,6 @@ class Cancel(Message):
 
     kind = "cancel"
     frames: tuple[Int, ...]
-
-
-class Pick(Message):
-    """Request ``id``: which surface the centre of pixel (``x``, ``y``) of a ``size`` frame of
-    ``camera`` sees, of scene spec ``scene`` (None: the scene loaded last) in the whole scene
-    ``state`` (None: the base pose), cut by ``clip``; in sort-last, of the node's share of
-    partition ``share``."""
-
-    kind = "pick"
-    id: Annotated[StrictInt, Field(ge=0)]
-    camera: CameraJson
-    size: Size
-    x: Annotated[StrictInt, Field(ge=0, lt=MAX_SIDE)]
-    y: Annotated[StrictInt, Field(ge=0, lt=MAX_SIDE)]
-    scene: Text | None = None
-    state: StateJson | None = None
-    clip: ClipJson | None = None
-    share: Annotated[StrictInt, Field(ge=1)] | None = None
-
-    @model_validator(mode="after")
-    def _pixel_in_frame_state_whole(self) -> Self:
-        if self.x >= self.size[0] or self.y >= self.size[1] or isinstance(self.state, StateDelta):
-            raise ValueError(f"pixel ({self.x}, {self.y}) outside the {self.size[0]}x{self.size[1]} frame, or a delta")
-        return self
-
-    def to_json(self) -> dict[str, Any]:
-        return self._without_none(super().to_json(), "scene", "state", "clip", "share")
-
-
-class PickResult(Message):
-    """The answer to pick ``id``: ``hit`` and, when it is, the ``object`` (its name), the
-    ``primitive`` (the triangle's number among the object's), the world ``point``, the unit
-    ``normal`` facing the eye and the ``depth`` (the point's distance from the eye); ``error``: why
-    the node could not tell (then ``hit`` is false)."""
-
-    kind = "pick_result"
-    id: Annotated[StrictInt, Field(ge=0)]
-    hit: StrictBool
-    object: Text | None = None
-    primitive: Annotated[StrictInt, Field(ge=0)] | None = None
-    point: Vec3 | None = None
-    normal: Vec3 | None = None
-    depth: NonNegative | None = None
-    error: Text | None = None
-
-    @model_validator(mode="after")
-    def _whole_hit(self) -> Self:
-        if self.hit and None in (self.object, self.primitive, self.point, self.normal, self.depth):
-            raise ValueError("a hit names its object, primitive, point, normal and depth")
-        return self
-
-    def to_json(self) -> dict[str, Any]:
-        return self._without_none(super().to_json(), "object", "primitive", "point", "normal", "depth", "error")
 
 
 # ------------------------------------------------------------------------------------------ viewers
@@ -678,10 +623,9 @@ class ViewerSize(Message):
 
 
 #: What the coordinator accepts from a node after its hello.
-FROM_NODE = (SceneProgress, SceneReady, SceneError, LevelsReady, TileSent, TilesDropped, RenderError, Calibration,
-             PickResult)
+FROM_NODE = (SceneProgress, SceneReady, SceneError, LevelsReady, TileSent, TilesDropped, RenderError, Calibration)
 #: What a node accepts from the coordinator.
-TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel, Pick)
+TO_NODE = (Welcome, LoadScene, Render, Calibrate, Cancel)
 #: What the coordinator accepts from a viewer.
 FROM_VIEWER = (CameraUpdate, LatencyReport, ViewerSize)
 
