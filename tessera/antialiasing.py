@@ -72,19 +72,20 @@ def resolve_pair_filter(pixels: np.ndarray, rect: Rect, drawn: Rect) -> np.ndarr
 GRID_FILTERS: dict[tuple[int, int], tuple[int, int]] = {(1, 1): (6, 6), (2, 1): (14, 6), (2, 2): (14, 14)}
 
 
-def resolve_grid(pixels: np.ndarray, rect: Rect, drawn: Rect, grid: tuple[int, int]) -> np.ndarray:
+def resolve_grid(pixels: np.ndarray, rect: Rect, drawn: Rect, grid: tuple[int, int],
+                 filtered: bool = True) -> np.ndarray:
     """(rect.h, rect.w, 3) uint8: ``rect`` of the frame drawn with the ``grid`` = (kx, ky) of samples
     per pixel, from ``pixels`` (ky·drawn.h, kx·drawn.w, 3) uint8, the ``drawn`` region of a frame
     drawn kx × ky times as large (``drawn`` = :func:`guarded` (``rect``) for a filtered grid,
-    ``rect`` otherwise): each pixel's samples summed, then filtered (:data:`GRID_FILTERS`) or not,
-    divided and rounded half up; where a guard band was clipped by the frame's edge, the edge
-    pixels stand in."""
+    ``rect`` otherwise): each pixel's samples summed, then filtered (:data:`GRID_FILTERS`; not
+    with ``filtered`` False: a still's sample, averaged only) or not, divided and rounded half up;
+    where a guard band was clipped by the frame's edge, the edge pixels stand in."""
     kx, ky = grid
     if pixels.shape[:2] != (ky * drawn.h, kx * drawn.w):
         raise ValueError(f"pixels are {pixels.shape[1]}x{pixels.shape[0]}, the drawn region {kx}x{ky} as large "
                          f"{kx * drawn.w}x{ky * drawn.h} (twice as wide for the pair)")
     count = kx * ky
-    if grid not in GRID_FILTERS:
+    if grid not in GRID_FILTERS or not filtered:
         if drawn != rect:
             raise ValueError(f"an unfiltered grid's drawn region {drawn.as_list()} must be its rect {rect.as_list()}")
         return _rounded_mean(count)[_block_sums(pixels, grid, np.uint16)]

@@ -4,6 +4,8 @@ size, whatever the pieces' size, and that picture has no seam where two windows 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from bench.images import psnr
 from node.gl.renderer import TileRenderer
 from node.render_once import draw_picture
 from node.scene.builtin import build_builtin_scene
-from tessera.geometry import Camera
+from tessera.geometry import Camera, Rect
 from tessera.scheduling.refinement import StillPlan
 from tessera.scheduling.render_jobs import pieces, windows
 
@@ -50,3 +52,17 @@ def test_pieces_of_any_size_join_into_render_once_without_a_seam(renderer, plan:
     seam = np.abs(reference[:, 4090:4102].astype(int) - whole[:, 4090:4102]).max()
     assert seam <= 2, f"the windows' join differs from the whole frame by {seam} levels"
     assert reference[:, 4080:4112].std() > 5.0, "the join crosses the scene"
+
+
+@pytest.mark.parametrize("size", [(640, 360), (960, 540), (1280, 720)])
+def test_a_stills_sample_in_tiles_equals_the_whole_sample_at_every_grid(renderer, size) -> None:
+    """Every size's grid (3x3, 2x2, the pair): a still's samples are averaged, not filtered, so
+    tiles cut at odd columns join into the whole sample (a poster's pieces rely on it)."""
+    camera = Camera(eye=(0.1, 0.5, 4.5), target=(0.1, 0.45, 0.0), fovy_deg=30.0)
+    subsample = StillPlan(4).subsample(3)
+    whole = renderer.render_frame(camera, size, subsample=subsample).pixels
+    cuts = [0, 89, 178, 301, 433, size[0]]
+    tiles = [renderer.render_tile(camera, size, Rect(x0, 0, x1 - x0, size[1]), subsample=subsample).pixels
+             for x0, x1 in itertools.pairwise(cuts)]
+    joined = np.concatenate(tiles, axis=1)
+    assert np.array_equal(joined, whole), renderer.antialiasing.for_size(size).grid

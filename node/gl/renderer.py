@@ -344,7 +344,7 @@ class TileRenderer:
         if not resolved:
             return dataclasses.replace(tile, rect=whole)
         resolving = time.perf_counter()
-        pixels = resolve_grid(tile.pixels, rect, drawn, (kx, ky))
+        pixels = resolve_grid(tile.pixels, rect, drawn, (kx, ky), filtered)
         return dataclasses.replace(tile, rect=whole, pixels=pixels,
                                    render_ms=tile.render_ms + (time.perf_counter() - resolving) * 1e3)
 
