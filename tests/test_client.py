@@ -249,3 +249,30 @@ def test_a_scene_that_fails_to_load_is_an_error_with_the_nodes_reason(coordinato
         with pytest.raises(TesseraError, match="did not load") as failed:
             session.snapshot()
         assert "broken.ply" in failed.value.reason and failed.value.reason.split("did not load: ", 1)[1]
+
+
+def test_record_writes_a_film_of_every_frame_and_poster_equals_render_once(tessera, tmp_path):
+    """Session.record (issue 35): the MP4 of a camera path plays back one frame per camera at the
+    size asked (PyAV); an orbit too; Session.poster equals render-once; failures carry the reason."""
+    import av
+
+    with tessera.open_session(BUNNY, size=(320, 240), camera=CAMERA) as session:
+        session.wait_ready()
+        cameras = [orbited(Camera.from_json(CAMERA), 10.0 * k) for k in range(5)]
+        seen: list[tuple[int, int]] = []
+        film = session.record(cameras, tmp_path / "path.mp4", fps=10, size=(160, 120),
+                              progress=lambda done, total: seen.append((done, total)))
+        with av.open(str(film)) as container:
+            frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+        assert len(frames) == 5 and frames[0].shape == (120, 160, 3) and seen[-1] == (5, 5)
+        orbit = session.record(orbit=(0.5, 1.0), out=tmp_path / "orbit.mp4", fps=8, size=(96, 64))
+        with av.open(str(orbit)) as container:
+            assert sum(1 for _ in container.decode(video=0)) == 8
+        poster = session.poster((300, 200), tmp_path / "poster.png", samples=2)
+        reference = render_once(str(scene_path(SCENE_FILES["bunny"])), CAMERA, (300, 200), tmp_path, still_samples=2)
+        assert np.array_equal(np.asarray(Image.open(poster).convert("RGB")), reference)
+        with pytest.raises(TesseraError, match="--max-poster-size|16x16") as refused:
+            session.poster((8, 8), tmp_path / "tiny.png")
+        assert refused.value.status == 422
+        with pytest.raises(TesseraError, match="one of path and orbit"):
+            session.record(out=tmp_path / "none.mp4")

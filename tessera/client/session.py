@@ -19,6 +19,7 @@ from PIL import Image
 from tessera.client.connection import Connection
 from tessera.client.errors import TesseraError
 from tessera.client.frames import ViewSocket, composite, decode_frame, frames_async
+from tessera.client.render_jobs import Progress, path_body, run_job
 from tessera.client.scene_state import Animation, Objects
 from tessera.client.values import SessionInfo, camera_json
 from tessera.geometry import Camera
@@ -220,6 +221,40 @@ class Session:
         path = Path(path)
         Image.fromarray(self.snapshot(still)).save(path)
         return path
+
+    def poster(self, size: tuple[int, int], out: str | Path = "poster.png", *, samples: int | None = None,
+               timeout: float | None = None, progress: Progress | None = None) -> Path:
+        """Render a poster of the session's picture as it is now, ``size`` = (w, h) px up to
+        16384x16384, on the cluster (``samples`` per pixel; default the still's), wait for it and
+        write the PNG to ``out``; ``progress(done, total)`` is told as it goes. TesseraError with
+        the reason when it fails, or after ``timeout`` s (it is then cancelled)."""
+        body: dict[str, Any] = {"size": [int(size[0]), int(size[1])]}
+        if samples is not None:
+            body["samples"] = samples
+        return run_job(self, "posters", body, Path(out), "png", timeout, progress)
+
+    def record(self, path: str | Path | dict[str, Any] | Sequence[Camera | dict[str, Any]] | None = None,
+               out: str | Path = "film.mp4", *, orbit: tuple[float, float] | None = None, fps: float | None = None,
+               size: tuple[int, int] | None = None, samples: int = 1, timeout: float | None = None,
+               progress: Progress | None = None) -> Path:
+        """Render a film of the session's scene on the cluster along camera ``path`` (a JSON file of
+        the benchmarks' format ``{"dt_ms", "frames"}``, its dict, or a list of cameras) or an
+        ``orbit`` = (turns, seconds) around the camera's target, every frame at full detail, at
+        ``fps`` (default the path's, or 30), ``size`` (default the session's), ``samples`` per
+        pixel; wait for it and write the H.264 MP4 to ``out``. TesseraError as :meth:`poster`."""
+        if (path is None) == (orbit is None):
+            raise TesseraError("give one of path and orbit")
+        body: dict[str, Any] = {"samples": samples}
+        if path is not None:
+            body["path"] = path_body(path)
+        else:
+            assert orbit is not None
+            body["orbit"] = {"turns": float(orbit[0]), "seconds": float(orbit[1])}
+        if fps is not None:
+            body["fps"] = float(fps)
+        if size is not None:
+            body["size"] = [int(size[0]), int(size[1])]
+        return run_job(self, "recordings", body, Path(out), "mp4", timeout, progress)
 
     def frames(self, still_only: bool = False, timeout: float | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """The session's frames as they are published: (frame id, (h, w, 3) uint8 image), each one
