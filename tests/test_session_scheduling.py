@@ -16,9 +16,10 @@ from tessera.scene.graph import ObjectGraph, SceneObject
 from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import CancelFrames, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.dispatch import FIRST_FRAME_PIECES
 from tessera.scheduling.fair_share import FIRST_FRAME_MS, FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
-from tessera.scheduling.scheduler import FIRST_FRAME_PIECES, FrameScheduler, SchedulerConfig
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import TileHeader, state_tag
 

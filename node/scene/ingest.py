@@ -4,8 +4,9 @@ packed and written as a scene cache entry (:mod:`node.scene.cache`) in the cache
 own, read from the whole scene's entry. Built-in scenes, and files when no cache folder is given, are
 read into memory as before. No GL here.
 
-The entry is checked before it is handed on (every array's CRC-32; a share's check covers the
-share): one that fails is removed and built again, so a torn or corrupt cache is never drawn.
+An entry found in the folder is checked before it is handed on (every array's CRC-32; a share's
+check covers the share): one that fails is removed and built again, so a torn or corrupt cache is
+never drawn. One this process has just written is not read back.
 """
 
 from __future__ import annotations
@@ -44,11 +45,14 @@ def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder:
     need be; ``sha256``: the file's digest when known. Raises SceneError."""
     digest = sha256 or folder.content_hash(source, progress)
     for attempt in range(REBUILDS + 1):
-        whole = folder.ensure(entry_name(digest, face_limit), build_entry(source, face_limit, digest, progress),
-                              progress)
+        built: list[Path] = []
+        whole = folder.ensure(entry_name(digest, face_limit),
+                              _noted(build_entry(source, face_limit, digest, progress), built), progress)
         entry = whole if share is None else folder.ensure(
             share_name(whole.name, share.weights, share.index),
-            _share_builder(whole, share, {"sha256": digest, "name": source.name}), progress)
+            _noted(_share_builder(whole, share, {"sha256": digest, "name": source.name}), built), progress)
+        if entry in built:   # written from the arrays it checksummed just now: nothing to check
+            return entry
         try:
             progress(0.9, "checking the scene cache")
             open_entry(entry, source.name, verify=True)
@@ -61,6 +65,14 @@ def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder:
                 raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
             progress(0.1, f"the scene cache failed its check ({exc}); building it again")
     raise AssertionError("unreachable")
+
+
+def _noted(builder: Callable[[Path], int], built: list[Path]) -> Callable[[Path], int]:
+    """``builder``, noting in ``built`` each directory it builds."""
+    def build(directory: Path) -> int:
+        built.append(directory)
+        return builder(directory)
+    return build
 
 
 def _share_builder(whole: Path, share: ShareSpec, source: dict[str, str]) -> Callable[[Path], int]:
