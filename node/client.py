@@ -42,6 +42,7 @@ from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.lod import LodTree, group_levels
 from node.scene.pages import resident_mb
+from node.scene.points import PointCloud
 from node.settings import NodeSettings
 from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
 from tessera.scheduling.refinement import Subsample
@@ -205,8 +206,9 @@ class NodeClient:
             outbox.put_nowait(self.protocol.scene_failed(message, exc))
         else:
             scene = loaded.scene
-            log.info("scene %s ready: %d triangles, %d meshes, %d chunks, %.0f ms", spec, scene.triangle_count,
-                     len(scene.batches), scene.chunks.chunk_count, (time.perf_counter() - started) * 1e3)
+            what = f"{scene.point_count} points in {scene.nodes.count} octree nodes" if isinstance(scene, PointCloud) \
+                else f"{scene.triangle_count} triangles, {len(scene.batches)} meshes, {scene.chunks.chunk_count} chunks"
+            log.info("scene %s ready: %s, %.0f ms", spec, what, (time.perf_counter() - started) * 1e3)
             ready = self.protocol.scene_loaded(message, scene, loaded.share_version)
             outbox.put_nowait(ready.model_copy(update={"scene_mb": round(loaded.nbytes / (1 << 20), 2),
                                                        "held_mb": round(loaded.held_bytes / (1 << 20), 2),
@@ -225,7 +227,7 @@ class NodeClient:
         try:
             rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
                                                 Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                job.lod_error_px or 0.0, job.window)
+                                                job.lod_error_px or 0.0, job.window, (job.point_budget, job.point_size))
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             for tile in action.sent:
                 outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
@@ -251,7 +253,7 @@ class NodeClient:
         try:
             drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
                                                    Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                   job.lod_error_px or 0.0)
+                                                   job.lod_error_px or 0.0, (job.point_budget, job.point_size))
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

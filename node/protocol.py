@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from node.scene.data import SceneData
+from node.scene.points import PointCloud
 from tessera.geometry import Rect
 from tessera.scene.state import SceneState, SceneStateError, StateReplica
 from tessera.wire import messages
@@ -329,7 +330,8 @@ class NodeProtocol:
             return None
         return self._running.pop(key)
 
-    def scene_loaded(self, request: messages.LoadScene, scene: SceneData, share: int | None) -> messages.SceneReady:
+    def scene_loaded(self, request: messages.LoadScene, scene: SceneData | PointCloud,
+                     share: int | None) -> messages.SceneReady:
         """The load of ``request`` ended with ``scene`` held (sort-last: the share of partition
         ``share``): the jobs waiting for it may go; returns its ``scene_ready``."""
         self._finished(request)
@@ -337,7 +339,8 @@ class NodeProtocol:
                                       objects=scene.groups.owners.tolist())
         return messages.SceneReady(scene=request.scene, triangles=scene.triangle_count, bounds=scene.bounds.tolist(),
                                    groups=groups, objects=scene.objects.to_json(),
-                                   animations=[a.keyframes_json() for a in scene.animations], share=share)
+                                   animations=[a.keyframes_json() for a in scene.animations], share=share,
+                                   points=scene.point_count if isinstance(scene, PointCloud) else None)
 
     def scene_failed(self, request: messages.LoadScene, error: Exception) -> messages.SceneError:
         """The load of ``request`` raised ``error``: the jobs waiting for it fail with the reason

@@ -21,19 +21,21 @@ from tessera.cli_values import (
     command_name,
     number_parser,
     parse_background,
+    parse_point_budget,
     parse_samples_max,
     parse_still_samples,
     parse_target_db,
     size_parser,
 )
 from tessera.geometry import DEFAULT_BACKGROUND
+from tessera.points.budget import DEFAULT_POINT_BUDGET, DEFAULT_POINT_SIZE
 from tessera.scheduling.refinement import (
     DEFAULT_MAX_STILL_SAMPLES,
     DEFAULT_STILL_SAMPLES,
     DEFAULT_STILL_TARGET_DB,
     StillPlan,
 )
-from tessera.wire.messages import MAX_LOD_ERROR_PX, MAX_SIDE
+from tessera.wire.messages import MAX_LOD_ERROR_PX, MAX_POINT_SIZE, MAX_SIDE
 
 DEFAULT_COORDINATOR = "ws://127.0.0.1:8000/ws/node"
 DEFAULT_SCENE = "builtin:cluster"
@@ -86,6 +88,9 @@ class NodeSettings:
     interactive: bool = False
     #: ``--render-once --interactive``: the levels-of-detail bound in pixels (0: full detail).
     lod_error_px: float = 0.0
+    #: ``--render-once`` of a point cloud: the interactive frame's point budget, the smallest splat side (px).
+    point_budget: int = DEFAULT_POINT_BUDGET
+    point_size: float = DEFAULT_POINT_SIZE
 
     @property
     def cache(self) -> CacheFolder:
@@ -105,6 +110,8 @@ class NodeSettings:
 
 #: A scene time in seconds.
 parse_time = number_parser(note=" of seconds")
+#: A smallest splat side in (0, MAX_POINT_SIZE] px (issue 36).
+parse_point_size = number_parser(0.0, above=True, maximum=MAX_POINT_SIZE, note=" px")
 #: A slowdown factor ≥ 1.
 parse_slowdown = number_parser(1.0)
 
@@ -229,6 +236,11 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--lod-error-px", 0.0, "--render-once --interactive draws the levels of detail whose error on screen is at "
         "most this many pixels, as a serving node draws a moving frame with the coordinator's bound (0: full "
         "detail)", type=parse_lod_error, metavar="PX")
+    add("--point-budget", DEFAULT_POINT_BUDGET, "--render-once --interactive of a point cloud draws at most this "
+        "many points, as a serving node draws a moving frame with the coordinator's --point-budget (the still "
+        "draws every point)", type=parse_point_budget, metavar="N")
+    add("--point-size", DEFAULT_POINT_SIZE, "--render-once of a point cloud draws each point as a square at least "
+        "this many pixels wide (the coordinator's --point-size)", type=parse_point_size, metavar="PX")
     parser.add_argument("--interactive", action="store_true",
                         help="--render-once renders the interactive frame (one sample, not shifted), not the still")
     return parser

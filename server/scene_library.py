@@ -27,6 +27,7 @@ from node.scene.builtin import BUILTIN_SCENES
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
 from node.scene.mesh import SceneError
 from node.scene.objects import GLTF_SUFFIXES
+from node.scene.point_files import is_point_file, read_points
 from tessera.scene.gltf import GltfError, read_document
 from tessera.scene.gltf_pack import self_contained_gltf
 
@@ -365,6 +366,9 @@ def check_scene_file(path: Path, name: str) -> int:
     try:
         if path.suffix.lower() in GLTF_SUFFIXES:
             _refuse_external_uris(path.read_bytes())
+        if is_point_file(path):     # a point cloud: its points parse (issue 36); it has no triangles
+            read_points(path)
+            return 0
         return load_scene(str(path)).triangle_count
     except (SceneError, GltfError) as exc:
         raise NotAScene(str(exc).replace(str(path), name)) from None

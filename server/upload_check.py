@@ -88,7 +88,8 @@ def _caused_by_memory(exc: BaseException | None) -> bool:
 def check_under_cap(path: Path, name: str, memory_bytes: int) -> dict[str, object]:
     """In the child: load ``path`` with the address space capped at ``memory_bytes``; the answer
     to print. The cap is lifted again (it is the soft limit) before answering."""
-    importlib.import_module("trimesh")  # the loader imports it on first use: not under the cap
+    for module in ("trimesh", "laspy", "lazrs"):   # the loaders import them on first use: not under the cap
+        importlib.import_module(module)
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     capped = memory_bytes if hard == resource.RLIM_INFINITY else min(memory_bytes, hard)
     resource.setrlimit(resource.RLIMIT_AS, (capped, hard))

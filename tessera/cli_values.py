@@ -93,3 +93,14 @@ parse_still_samples = integer_parser(1, MAX_STILL_SAMPLES, "samples", {"auto": A
 parse_samples_max = integer_parser(2, MAX_STILL_SAMPLES, "most samples")
 #: An adaptive still's target, dB PSNR against its converged image.
 parse_target_db = number_parser(0.0, above=True, note=" dB")
+
+
+def parse_point_budget(text: str) -> int:
+    """A point budget (issue 36): a whole number of points ≥ 1 (``1e6`` and ``1_000_000`` are taken)."""
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value < 1 or value != int(value):
+        raise argparse.ArgumentTypeError(f"must be a whole number of points >= 1, got {text!r}")
+    return int(value)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from node.gl.depth_layers import PlanningScene
+from node.gl.point_renderer import PointRenderer
 from node.gl.renderer import TileRenderer
 from tessera.wire.messages import ShareSpec
 
@@ -34,23 +35,26 @@ class SceneNotLoadedError(RuntimeError):
     """A tile of a scene (or share) this node does not hold; the message says which."""
 
 
-def estimated_bytes(renderer: TileRenderer) -> int:
+def estimated_bytes(renderer: TileRenderer | PointRenderer) -> int:
     """Bytes a loaded scene is counted for: ``renderer``'s vertex and index buffers (and its levels
-    of detail's) plus its scene's arrays held in memory."""
+    of detail's) plus its scene's arrays held in memory (a point cloud's: :attr:`PointRenderer.nbytes`)."""
+    if isinstance(renderer, PointRenderer):
+        return renderer.nbytes
     levels = 0 if renderer.lod is None else renderer.lod.nbytes
     return renderer.vertex_buffer.size + renderer.index_buffer.size + levels + renderer.scene.nbytes
 
 
 @dataclass(eq=False)
 class ResidentScene:
-    """A loaded scene: ``renderer`` draws it, ``planning`` plans its depth layers; ``share_version``
+    """A loaded scene: ``renderer`` draws it, ``planning`` plans its depth layers (None: a point
+    cloud's, :mod:`node.gl.point_renderer`); ``share_version``
     the data partition version of the share held (None: the whole scene); ``nbytes``
     (:func:`estimated_bytes`); ``loaded`` orders the loads (a reload counts as one); ``entry``
     its scene cache entry (None: read into memory), where its levels of detail are built from."""
 
     key: SceneKey
-    renderer: TileRenderer
-    planning: PlanningScene
+    renderer: TileRenderer | PointRenderer
+    planning: PlanningScene | None
     share_version: int | None
     nbytes: int
     loaded: int = 0

@@ -31,6 +31,7 @@ import moderngl
 from node.culling.switch import CullMode
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
+from node.gl.point_renderer import PointRenderer
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
@@ -44,10 +45,12 @@ from node.scene.loading import ProgressCallback
 from node.scene.lod import LodTree, read_lod
 from node.scene.mesh import SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from node.scene.points import PointCloud
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
+from tessera.points.budget import DEFAULT_POINT_SIZE
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
 from tessera.tools.picking import PickHit
@@ -55,6 +58,10 @@ from tessera.wire.messages import DepthRequest, LoadScene
 from tessera.wire.pick_messages import Pick
 
 log = logging.getLogger("tessera.node")
+
+#: A frame's point cloud settings (issue 36): its point budget (None: every point) and smallest
+#: splat side in px (None: the default).
+PointStyle = tuple[int | None, float | None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +106,7 @@ class LoadedScene:
     """A scene held, as a load answers: its data, the partition version of its share (None: whole),
     the bytes it is counted for and those of every scene held (:mod:`node.gl.resident`)."""
 
-    scene: SceneData
+    scene: SceneData | PointCloud
     share_version: int | None
     nbytes: int = 0
     held_bytes: int = 0
@@ -187,7 +194,8 @@ class GLWorker:
         """Start building the levels of detail of the scene held as ``key`` (from its cache entry;
         nothing for a scene read into memory, or when its levels are being built already)."""
         held = self._scenes.held(key)
-        if held is None or held.entry is None or self.cache is None or key in self._levels_building:
+        if held is None or held.entry is None or self.cache is None or key in self._levels_building \
+                or isinstance(held.renderer, PointRenderer):   # a point cloud's octree is its levels
             return
         self._levels_building.add(key)
         task = asyncio.get_running_loop().create_task(self._levels(key, held.entry))
@@ -219,12 +227,12 @@ class GLWorker:
     def _attach_levels(self, key: SceneKey, tree: LodTree) -> ResidentScene | None:
         """On the GL thread: give the scene held as ``key`` its levels (None: no longer held)."""
         held = self._scenes.held(key)
-        if held is not None:
+        if held is not None and isinstance(held.renderer, TileRenderer):
             held.renderer.attach_lod(tree)
             held.nbytes = estimated_bytes(held.renderer)
         return held
 
-    def _read(self, request: LoadScene, progress: ProgressCallback) -> tuple[SceneData, Path | None]:
+    def _read(self, request: LoadScene, progress: ProgressCallback) -> tuple[SceneData | PointCloud, Path | None]:
         """In the loader thread: fetch (if need be), then ingest or open its cache entry (here, or a
         large file in the scene reader process) and map it; refuse it when it exceeds the budget.
         The scene, and its cache entry (None: read into memory)."""
@@ -242,18 +250,23 @@ class GLWorker:
                              f"{budget / (1 << 20):.0f}; {mode}")
         return scene, made if isinstance(made, Path) else None
 
-    def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData, entry: Path | None,
+    def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData | PointCloud, entry: Path | None,
                 progress: ProgressCallback) -> LoadedScene:
         """On the GL thread: upload ``scene``, hold it, release the least recently used others over budget."""
         assert self._ctx is not None
         share = request.share
-        progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         background = DEFAULT_BACKGROUND if request.background is None else request.background
-        renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=scene.geometry,
-                                shading=self.shading)
+        renderer: TileRenderer | PointRenderer
+        if isinstance(scene, PointCloud):
+            progress(0.9, f"uploading {scene.point_count} points in {scene.nodes.count} octree nodes")
+            renderer, planning = PointRenderer(self._ctx, scene, background), None
+        else:
+            progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
+            renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=scene.geometry,
+                                    shading=self.shading)
+            planning = PlanningScene.of(scene, renderer.culler.bvh)
         version = None if share is None else share.version
-        held = ResidentScene(key, renderer, PlanningScene.of(scene, renderer.culler.bvh), version,
-                             estimated_bytes(renderer), entry=entry)
+        held = ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))
@@ -278,42 +291,58 @@ class GLWorker:
     async def render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                      state: SceneState | None = None, scene: str | None = None,
                      subsample: Subsample | None = None, tools: ViewTools | None = None,
-                     lod_error_px: float = 0.0, window: Rect | None = None) -> RenderedTile:
+                     lod_error_px: float = 0.0, window: Rect | None = None,
+                     points: PointStyle = (None, None)) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
         (None: the base pose), as ``subsample`` of a still (None: a plain frame, at the levels of
         detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none), in
         ``window`` (a poster's; None: the whole frame); ``slot`` (the tile id) keys the tile's hybrid
-        culling switch. Raises SceneNotLoadedError for a scene not held."""
+        culling switch; a point cloud within the ``points`` budget, its splats at least the size
+        given (:data:`PointStyle`). Raises SceneNotLoadedError for a scene not held."""
         return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools, lod_error_px,
-                                window)
+                                window, points)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                 state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                tools: ViewTools | None, lod_error_px: float, window: Rect | None) -> RenderedTile:
+                tools: ViewTools | None, lod_error_px: float, window: Rect | None,
+                points: PointStyle = (None, None)) -> RenderedTile:
         renderer = self._scenes.find(scene).renderer
         renderer.use_tools(tools)
+        if isinstance(renderer, PointRenderer):
+            if window is not None:
+                raise ValueError("pictures over a window's side are not drawn of point clouds")
+            renderer.point_size = points[1] or DEFAULT_POINT_SIZE
+            return renderer.render_tile(camera, size, rect, subsample=subsample, point_budget=points[0])
         return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample,
                                     lod_error_px=lod_error_px, window=window)
 
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,
                            subsample: Subsample | None = None, tools: ViewTools | None = None,
-                           lod_error_px: float = 0.0) -> DepthRender:
+                           lod_error_px: float = 0.0, points: PointStyle = (None, None)) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
         version; ``subsample`` and ``tools`` as :meth:`render`'s; sort-last layers at the levels of
         detail within ``lod_error_px`` (hybrid layers at full detail: a coarse node spans chunks
-        other tiles own). Raises SceneNotLoadedError for a scene or share not held."""
+        other tiles own); a point cloud's sort-last layer within the ``points`` budget, unshaded (the
+        coordinator shades the merged frame). Raises SceneNotLoadedError for a scene or share not held."""
         return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools,
-                                lod_error_px)
+                                lod_error_px, points)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                      tools: ViewTools | None, lod_error_px: float) -> DepthRender:
+                      tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None)) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
         renderer.use_tools(tools)
         started = time.perf_counter()
+        if isinstance(renderer, PointRenderer):
+            if request.mode != "sort-last":
+                raise ValueError("point clouds are drawn in the sort-first and sort-last modes, not hybrid")
+            renderer.point_size = points[1] or DEFAULT_POINT_SIZE
+            layer = renderer.render_layer(camera, size, points[0], subsample)
+            return DepthRender(layer, None, None, 0.0, share)
+        assert held.planning is not None
         plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id)
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
@@ -329,6 +358,8 @@ class GLWorker:
 
     def _pick(self, request: Pick) -> PickHit | None:
         renderer = self._scenes.find(request.scene, request.share).renderer
+        if isinstance(renderer, PointRenderer):
+            raise ValueError("picking is not done on point clouds yet")
         renderer.use_tools(ViewTools(request.clip))
         state = request.state if isinstance(request.state, SceneState) else None
         return renderer.pick(request.camera, request.size, request.x, request.y, state)

@@ -22,6 +22,9 @@ from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
 from node.scene.lod import build_lod, lod_name, read_lod, write_lod
 from node.scene.mesh import SceneError
 from node.scene.packing import pack
+from node.scene.point_cache import cached_points, is_points_entry, keep_point_share, load_points, open_points_entry
+from node.scene.point_files import is_point_file
+from node.scene.points import PointCloud
 from node.scene.shares import keep_share
 from tessera.wire.messages import ShareSpec
 
@@ -86,10 +89,16 @@ def _share_builder(whole: Path, share: ShareSpec, source: dict[str, str]) -> Cal
 
 
 def read_scene(source: str, spec: str, face_limit: int, share: ShareSpec | None, progress: Progress,
-               folder: CacheFolder | None = None, sha256: str | None = None) -> SceneData | Path:
+               folder: CacheFolder | None = None, sha256: str | None = None) -> SceneData | PointCloud | Path:
     """``source`` (a path or ``builtin:NAME``; the scene is named ``spec``) made ready: the entry to
     open (:func:`open_cached`) for a file when ``folder`` is given, else the scene read into memory
-    (only ``share`` kept). Raises SceneError."""
+    (only ``share`` kept). Point clouds (issue 36: LAS, LAZ, a PLY without faces) go their own way
+    (:mod:`node.scene.point_cache`). Raises SceneError."""
+    if not source.startswith(BUILTIN_PREFIX) and is_point_file(Path(source)):
+        if folder is not None:
+            return cached_points(Path(source), share, folder, progress, sha256)
+        cloud = load_points(Path(source), spec, progress)
+        return cloud if share is None else keep_point_share(cloud, share.weights, share.index)
     if folder is not None and not source.startswith(BUILTIN_PREFIX):
         path = Path(source)
         if not path.is_file() or path.suffix.lower() not in SUPPORTED_SUFFIXES:
@@ -104,12 +113,13 @@ def read_scene(source: str, spec: str, face_limit: int, share: ShareSpec | None,
     return scene
 
 
-def open_cached(read: SceneData | Path, spec: str) -> SceneData:
+def open_cached(read: SceneData | PointCloud | Path, spec: str) -> SceneData | PointCloud:
     """The scene :func:`read_scene` made ready: an entry opened (checked already) and named ``spec``."""
-    if isinstance(read, SceneData):
+    if not isinstance(read, Path):
         return read
     try:
-        return open_entry(read, spec, verify=False)
+        return open_points_entry(read, spec, verify=False) if is_points_entry(read) else \
+            open_entry(read, spec, verify=False)
     except CacheError as exc:
         raise SceneError(f"{spec}: {exc}") from None
 

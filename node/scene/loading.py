@@ -35,11 +35,14 @@ from node.scene.normals import normalized, smooth_vertex_normals
 from node.scene.objects import GLTF_SUFFIXES, file_animations, geometry_owners, gltf_objects, read_gltf
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.ply import read_ply
+from node.scene.point_files import is_point_file
 from tessera.scene.animation import Animation
 from tessera.scene.graph import SceneObject
 
 BUILTIN_PREFIX = "builtin:"
-SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+#: Every scene file suffix: meshes, and point clouds (issue 36: LAS, LAZ, and PLY files without faces,
+#: read by :mod:`node.scene.point_cache`).
+SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".las", ".laz")
 
 #: ``progress(fraction 0…1, message)``: called while a scene loads.
 ProgressCallback = Callable[[float, str], None]
@@ -62,6 +65,8 @@ def load_scene(spec: str, progress: ProgressCallback | None = None,
                          f"supported: {', '.join(SUPPORTED_SUFFIXES)}")
     if not path.is_file():
         raise SceneError(f"{spec}: no such file")
+    if is_point_file(path):
+        raise SceneError(f"{spec}: a point cloud, not a mesh (node.scene.point_cache reads it)")
     report(0.0, f"reading {path.name}")
     started = time.perf_counter()
     if suffix == ".ply":

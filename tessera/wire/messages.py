@@ -91,6 +91,8 @@ MAX_COUNTER_TEXT = 40
 MAX_REASON = 300
 #: Most tiles a hybrid ``render`` may list, and most shares a sort-last partition may have.
 MAX_DEPTH_TILES = 4096
+#: Largest smallest splat side (px) a ``render`` may ask for (issue 36).
+MAX_POINT_SIZE = 24.0
 #: Longest ``load_scene.url``.
 MAX_URL = 2048
 
@@ -319,10 +321,12 @@ class SceneReady(Message):
     scene_mb: NonNegative | None = None
     held_mb: NonNegative | None = None
     rss_mb: NonNegative | None = None
+    #: Issue 36: the scene is a point cloud of this many points (its groups count points; None: a mesh).
+    points: Annotated[StrictInt, Field(ge=0)] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``share`` when the node holds the whole scene, without the other optional fields when None."""
-        return self._without_none(super().to_json(), "scene", "share", "scene_mb", "held_mb", "rss_mb")
+        return self._without_none(super().to_json(), "scene", "share", "scene_mb", "held_mb", "rss_mb", "points")
 
 
 class SceneError(Message):
@@ -522,13 +526,17 @@ class Render(Message):
     #: The part of a picture larger than a frame (a poster's, issue 35) whose framebuffer the tiles
     #: are drawn in, the projection narrowed to it; None: the whole frame's.
     window: RectJson | None = None
+    #: A point cloud's (issue 36): most points the frame draws (None: all), smallest splat side (px).
+    point_budget: Annotated[StrictInt, Field(ge=1)] | None = None
+    point_size: Annotated[StrictFloat, Field(gt=0.0, le=MAX_POINT_SIZE)] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
         ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip``,
-        ``highlight``, ``lod_error_px`` and ``window`` when None, without a tile's ``part_of`` when None."""
+        ``highlight``, ``lod_error_px``, ``window``, ``point_budget`` and ``point_size`` when None,
+        without a tile's ``part_of`` when None."""
         data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias", "clip",
-                                  "highlight", "lod_error_px", "window")
+                                  "highlight", "lod_error_px", "window", "point_budget", "point_size")
         for tile in data["tiles"]:
             if tile["part_of"] is None:
                 del tile["part_of"]

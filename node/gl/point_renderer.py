@@ -1,0 +1,294 @@
+"""Point clouds drawn (issue 36): :class:`PointRenderer`, with the calls the GL worker makes of
+:class:`node.gl.renderer.TileRenderer` — :meth:`~PointRenderer.render_tile`,
+:meth:`~PointRenderer.render_frame`, :meth:`~PointRenderer.render_still` and, for sort-last,
+:meth:`~PointRenderer.render_layer`.
+
+- **What is drawn**: the frame's octree nodes within the point budget
+  (:func:`tessera.points.budget.select_nodes`, once per frame, shared by every tile), those whose
+  points' splats can reach the tile (their own boxes against the tile's sub-frustum pushed out by
+  half the largest splat, :data:`MAX_SPLAT_PX`), by one ``glMultiDrawArraysIndirect`` whose
+  commands carry each node's number as their base instance: the node's cube centre, depth and
+  refinement word reach the vertex shader as instanced attributes.
+- **Splats**: screen-aligned squares (``GL_POINTS``, no discard: the depth test runs early),
+  sized from the spacing of the finest level drawn where the point lies (its node's depth plus the
+  refinement of its octant, :func:`tessera.points.budget.refinement`), projected, at least
+  ``point_size`` pixels.
+- **Survey coordinates**: positions are float32 relative to the cloud's centre; the frame's
+  matrix is composed in float64 with the translation to that centre and only then made float32,
+  so the GL never adds two large numbers (a cloud at UTM (500000, 4000000) keeps its millimetres).
+- **Eye-dome lighting** (:mod:`tessera.compositing.eye_dome`): a tile is drawn with a guard band of
+  one pixel, read back with its depth, shaded and cropped: tiles equal the whole frame, bit for bit.
+  Sort-last layers are read back unshaded; the coordinator shades the merged frame.
+- The still draws every node (no budget); its samples are jittered and accumulated as the mesh
+  renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`).
+
+Needs GL 4.3 (multi-draw-indirect with base instances): Mesa llvmpipe and NVIDIA have it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import moderngl
+import numpy as np
+
+from node.culling.frustum import frustum_planes_from_matrix
+from node.gl.renderer import RenderedTile, validate_rect
+from node.scene.mesh import SceneError
+from node.scene.pages import release_pages
+from node.scene.points import PointCloud
+from tessera.balancers.projection import project_boxes
+from tessera.compositing.eye_dome import guarded_rect, shade_region
+from tessera.decomposition.data_partition import covering_rect
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, near_far_from_bounds, view_projection
+from tessera.points.budget import DEFAULT_POINT_SIZE, pixel_scale, refinement, select_nodes
+from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, jitter_matrix
+from tessera.wire.messages import MAX_POINT_SIZE
+
+#: The largest splat side in pixels (culling pushes tiles out by half of it).
+MAX_SPLAT_PX = MAX_POINT_SIZE
+#: Points copied to the GL at a time.
+UPLOAD_POINTS = 1 << 19
+
+VERTEX_SHADER = """
+#version 330
+uniform mat4 u_view_projection;
+uniform float u_spacing;
+uniform float u_scale;
+uniform float u_min_size;
+uniform float u_max_size;
+in vec3 in_position;
+in vec4 in_color;
+in vec3 in_cell;
+in float in_depth;
+in uint in_refine;
+out vec3 v_color;
+void main() {
+    gl_Position = u_view_projection * vec4(in_position, 1.0);
+    vec3 above = step(in_cell, in_position);
+    uint octant = uint(above.x) + 2u * uint(above.y) + 4u * uint(above.z);
+    float extra = float((in_refine >> (4u * octant)) & 15u);
+    float side = u_spacing * exp2(-(in_depth + extra)) * u_scale / max(gl_Position.w, 1e-30);
+    gl_PointSize = clamp(side, u_min_size, u_max_size);
+    v_color = in_color.rgb;
+}
+"""
+FRAGMENT_SHADER = """
+#version 330
+in vec3 v_color;
+out vec4 f_color;
+void main() {
+    f_color = vec4(v_color, 1.0);
+}
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class PointTile(RenderedTile):
+    """A tile of a point cloud: also the ``points`` it drew (``triangles`` is 0; chunks are octree nodes)."""
+
+    points: int = 0
+
+    def stats(self) -> dict[str, Any]:
+        return {**RenderedTile.stats(self), "points": self.points}
+
+
+class PointRenderer:
+    """Draws tiles of ``cloud`` on ``ctx`` (the thread that owns it only) over ``background``,
+    splats at least ``point_size`` pixels. Raises SceneError below GL 4.3."""
+
+    lod = None
+
+    def __init__(self, ctx: moderngl.Context, cloud: PointCloud, background: Sequence[float] = DEFAULT_BACKGROUND,
+                 point_size: float = DEFAULT_POINT_SIZE) -> None:
+        if ctx.version_code < 430:
+            raise SceneError(f"{cloud.name}: point clouds need GL 4.3 (multi-draw-indirect), this GL is "
+                             f"{ctx.version_code}")
+        self.ctx, self.scene = ctx, cloud
+        self.background = background
+        self.point_size = point_size
+        count, nodes = cloud.point_count, cloud.nodes
+        self.positions = ctx.buffer(reserve=max(count * 12, 12))
+        self.colors = ctx.buffer(reserve=max(count * 4, 4))
+        for first in range(0, count, UPLOAD_POINTS):
+            end = min(first + UPLOAD_POINTS, count)
+            self.positions.write(np.ascontiguousarray(cloud.positions[first:end], np.float32), offset=first * 12)
+            self.colors.write(np.ascontiguousarray(cloud.colors[first:end], np.uint8), offset=first * 4)
+            release_pages(cloud.positions, first, end)
+            release_pages(cloud.colors, first, end)
+        self.node_info = ctx.buffer(reserve=max(nodes.count * 20, 20))
+        self._node_rows = np.zeros(nodes.count, [("cell", np.float32, 3), ("depth", np.float32), ("refine", np.uint32)])
+        self._node_rows["cell"] = nodes.centres
+        self._node_rows["depth"] = nodes.tree.depths
+        self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
+        self.vertex_array = ctx.vertex_array(self.program, [
+            (self.positions, "3f", "in_position"), (self.colors, "4f1", "in_color"),
+            (self.node_info, "3f 1f 1u /i", "in_cell", "in_depth", "in_refine")])
+        self.commands = ctx.buffer(reserve=max(nodes.count * 20, 20), dynamic=True)
+        self._world_tree = cloud.world_tree
+        self._drawn_counts = np.diff(nodes.first)
+        self._own_boxes = nodes.own_boxes.astype(np.float64)
+        self._framebuffer: moderngl.Framebuffer | None = None
+        self._frame_key: tuple[Any, ...] | None = None
+        self._chosen = np.zeros(nodes.count, bool)
+
+    @property
+    def background(self) -> tuple[float, float, float]:
+        return self._background
+
+    @background.setter
+    def background(self, value: Sequence[float]) -> None:
+        rgb = tuple(float(v) for v in value)
+        if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+            raise ValueError(f"background must be three numbers in 0..1, got {list(value)}")
+        self._background = rgb
+
+    @property
+    def nbytes(self) -> int:
+        """What the cloud is counted for: its GL buffers and its arrays held in memory."""
+        return self.positions.size + self.colors.size + self.node_info.size + self.commands.size + self.scene.nbytes
+
+    def use_tools(self, tools: Any) -> None:
+        """Clip planes and highlights are not drawn on point clouds: a frame asking to cut one is refused."""
+        if tools is not None and getattr(tools, "clip", None) is not None:
+            raise ValueError("clip planes and section boxes are not drawn on point clouds")
+
+    def pose_of(self, state: Any) -> None:
+        return None
+
+    def choose(self, camera: Camera, size: tuple[int, int], budget: int | None) -> np.ndarray:
+        """(M,) bool the frame's nodes within ``budget`` (None: all in view), their refinement
+        written to the node buffer; the last frame's kept for its other tiles."""
+        key = (camera, size, budget)
+        if key != self._frame_key:
+            self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget)
+            self._node_rows["refine"] = refinement(self._world_tree, self._chosen)
+            self.node_info.write(self._node_rows.tobytes())
+            self._frame_key = key
+        return self._chosen
+
+    def _matrix(self, camera: Camera, size: tuple[int, int], subsample: Subsample | None) -> np.ndarray:
+        """(4, 4) float64 the frame's matrix from positions relative to the cloud's centre."""
+        translate = np.identity(4)
+        translate[:3, 3] = self.scene.centre
+        offset = None if subsample is None else subsample.offset
+        return jitter_matrix(offset, size) @ view_projection(camera, size, self.scene.bounds) @ translate
+
+    def _draw(self, camera: Camera, size: tuple[int, int], drawn: Rect, chosen: np.ndarray,
+              subsample: Subsample | None) -> tuple[np.ndarray, np.ndarray, int]:
+        """Draw the ``chosen`` nodes that touch ``drawn`` into the frame-sized framebuffer scissored
+        to it; (colour (h, w, 3) uint8, window depth (h, w) float32, points drawn)."""
+        matrix = self._matrix(camera, size, subsample)
+        planes = frustum_planes_from_matrix(matrix, size, drawn, MAX_SPLAT_PX / 2.0 + 1.0)
+        ids = np.flatnonzero(chosen & (self._drawn_counts > 0))
+        boxes = self._own_boxes[ids]
+        corner = np.where(planes[None, :, :3] >= 0.0, boxes[:, None, 1, :], boxes[:, None, 0, :])
+        touching = ((corner * planes[None, :, :3]).sum(axis=-1) + planes[None, :, 3] >= 0.0).all(axis=1)
+        ids = ids[touching]
+        width, height = size
+        framebuffer = self._framebuffer_for(size)
+        gl_box = (drawn.x, height - drawn.y1, drawn.w, drawn.h)
+        framebuffer.viewport = (0, 0, width, height)
+        framebuffer.scissor = gl_box
+        framebuffer.use()
+        framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
+        points = int(self._drawn_counts[ids].sum())
+        if ids.size:
+            first = self.scene.nodes.first
+            # moderngl draws arrays indirect with the elements' command stride (5 words): one spare.
+            commands = np.stack([self._drawn_counts[ids], np.ones(ids.size, np.int64), first[ids], ids,
+                                 np.zeros(ids.size, np.int64)], axis=1).astype(np.uint32)
+            self.commands.write(commands.tobytes())
+            self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
+            self.program["u_spacing"].value = self.scene.nodes.spacing
+            self.program["u_scale"].value = pixel_scale(camera, size)
+            self.program["u_min_size"].value = self.point_size
+            self.program["u_max_size"].value = MAX_SPLAT_PX
+            ctx = self.ctx
+            ctx.enable(moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
+            ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
+            self.vertex_array.render_indirect(self.commands, moderngl.POINTS, count=int(ids.size))
+        self.ctx.finish()
+        color = framebuffer.read(viewport=gl_box, components=3, alignment=1)
+        depth = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")
+        return (np.frombuffer(color, np.uint8).reshape(drawn.h, drawn.w, 3)[::-1],
+                np.frombuffer(depth, np.float32).reshape(drawn.h, drawn.w)[::-1], points)
+
+    def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable | None = None,
+                    state: Any = None, subsample: Subsample | None = None, lod_error_px: float = 0.0,
+                    point_budget: int | None = None) -> PointTile:
+        """The ``rect`` part of the ``size`` frame seen by ``camera``: the nodes within
+        ``point_budget`` points (None: every point in view), shaded by EDL; as ``subsample`` of a
+        still (None: a plain frame). ``slot``, ``state`` and ``lod_error_px`` are the mesh
+        renderer's and change nothing here."""
+        validate_rect(rect, size)
+        started = time.perf_counter()
+        chosen = self.choose(camera, size, point_budget)
+        drawn = guarded_rect(rect, size)
+        color, depth, points = self._draw(camera, size, drawn, chosen, subsample)
+        rendered = time.perf_counter()
+        near, far = near_far_from_bounds(camera, self.scene.bounds)
+        pixels = shade_region(color, depth, drawn, rect, near, far)
+        done = time.perf_counter()
+        return PointTile(rect, pixels, (rendered - started) * 1e3 + (done - rendered) * 1e3, 0.0, 0,
+                            int(chosen.sum()), int((~chosen).sum()), 0.0, "points", points=points)
+
+    def render_layer(self, camera: Camera, size: tuple[int, int], point_budget: int | None = None,
+                     subsample: Subsample | None = None) -> PointTile | None:
+        """A sort-last layer: the frame's nodes within ``point_budget`` (chosen from the whole tree)
+        that this share holds, unshaded, with depth, over the rect they can cover; None when none
+        is on screen."""
+        started = time.perf_counter()
+        chosen = self.choose(camera, size, point_budget)
+        ids = np.flatnonzero(chosen & (self._drawn_counts > 0))
+        boxes = self._own_boxes[ids] + self.scene.centre
+        bounds = project_boxes(boxes.reshape(-1, 6), camera, size, self.scene.bounds)
+        grow = MAX_SPLAT_PX / 2.0 + 1.0
+        bounds[:, :2] -= grow
+        bounds[:, 2:] += grow
+        rect = covering_rect(bounds, size)
+        if rect is None:
+            return None
+        color, depth, points = self._draw(camera, size, rect, chosen, subsample)
+        return PointTile(rect, np.ascontiguousarray(color), (time.perf_counter() - started) * 1e3, 0.0, 0,
+                            int(ids.size), int(chosen.size - ids.size), 0.0, "points",
+                            np.ascontiguousarray(depth), points=points)
+
+    def render_frame(self, camera: Camera, size: tuple[int, int], state: Any = None,
+                     subsample: Subsample | None = None, lod_error_px: float = 0.0,
+                     point_budget: int | None = None) -> PointTile:
+        """The whole ``size`` frame (:meth:`render_tile`)."""
+        return self.render_tile(camera, size, Rect(0, 0, *size), subsample=subsample, point_budget=point_budget)
+
+    def render_still(self, camera: Camera, size: tuple[int, int], samples: StillPlan | int,
+                     state: Any = None) -> np.ndarray:
+        """The progressive still: every point, samples accumulated as the coordinator does."""
+        plan = samples if isinstance(samples, StillPlan) else StillPlan(samples)
+        return accumulate_still(lambda subsample: self.render_frame(camera, size, subsample=subsample).pixels,
+                                size, plan).mean()
+
+    def _framebuffer_for(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        framebuffer = self._framebuffer
+        if framebuffer is None or framebuffer.size != size:
+            self._release_framebuffer()
+            framebuffer = self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer(size, 4)],
+                                               depth_attachment=self.ctx.depth_renderbuffer(size))
+            self._framebuffer = framebuffer
+        return framebuffer
+
+    def _release_framebuffer(self) -> None:
+        if self._framebuffer is not None:
+            for attachment in (*self._framebuffer.color_attachments, self._framebuffer.depth_attachment):
+                attachment.release()
+            self._framebuffer.release()
+            self._framebuffer = None
+
+    def release(self) -> None:
+        """Free the GL objects (the context stays the caller's)."""
+        self._release_framebuffer()
+        for resource in (self.vertex_array, self.program, self.commands, self.node_info, self.colors, self.positions):
+            resource.release()
+

@@ -1,0 +1,155 @@
+"""Point clouds in the scene cache (issue 36): a cloud ingested once per content hash (read,
+octree built: :mod:`node.scene.points`) into an entry of its own layout, written and checked as
+mesh entries are (:func:`node.scene.cache.write_arrays`: atomic, CRC per block, mapped back), and
+sort-last shares of it read from that entry by the byte ranges of their nodes only. No GL here.
+
+An entry holds ``positions`` (N, 3) float32 relative to the centre, ``colors`` (N, 4) uint8, and the
+node table: ``node_first`` (M + 1,), ``node_counts``, ``node_parents``, ``node_depths``,
+``node_octants`` (M,) int64, ``node_boxes`` (M, 2, 3) float64 subtree boxes, ``node_own_boxes`` and
+``node_centres`` float32; its table the centre, bounds, spacing and cube, the source and the share.
+A share keeps the whole node table (every node chooses the frame's points from the whole tree, so
+that all shares choose alike) with ``node_first`` over its own points: the nodes of other shares
+hold none there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from node.scene.cache import CACHE_FORMAT, CacheError, Progress, read_arrays, read_table, remove_entry, write_arrays
+from node.scene.cache_folder import CacheFolder, share_name
+from node.scene.mesh import SceneError
+from node.scene.point_files import read_points
+from node.scene.points import POINTS_FORMAT, PointCloud, PointNodes, build_octree
+from tessera.decomposition.data_partition import split_chunks
+from tessera.points.budget import PointTree
+from tessera.scene.graph import ObjectGraph
+from tessera.wire.messages import ShareSpec
+
+#: How many times an entry that fails its check is built again before the load fails.
+REBUILDS = 1
+
+
+def points_entry_name(sha256: str) -> str:
+    """The name of the entry of the point cloud file whose SHA-256 is ``sha256``."""
+    return f"{sha256}-points{POINTS_FORMAT}-v{CACHE_FORMAT}"
+
+
+def is_points_entry(directory: Path) -> bool:
+    """Whether the entry ``directory`` holds a point cloud."""
+    try:
+        return read_table(directory).get("kind") == "points"
+    except CacheError:
+        return False
+
+
+def write_points_entry(directory: Path, cloud: PointCloud, source: Mapping[str, Any]) -> int:
+    """Write ``cloud`` (whole or a share) as the entry ``directory``; returns its bytes."""
+    nodes, tree = cloud.nodes, cloud.nodes.tree
+    arrays = {"positions": np.ascontiguousarray(cloud.positions), "colors": np.ascontiguousarray(cloud.colors),
+              "node_first": nodes.first, "node_counts": tree.counts, "node_parents": tree.parents,
+              "node_depths": tree.depths, "node_octants": tree.octants, "node_boxes": tree.boxes,
+              "node_own_boxes": nodes.own_boxes, "node_centres": nodes.centres}
+    table = {"format": CACHE_FORMAT, "kind": "points", "points_format": POINTS_FORMAT, "source": dict(source),
+             "share": None if cloud.share is None else {"index": cloud.share[0], "weights": list(cloud.share[1])},
+             "centre": cloud.centre.tolist(), "bounds": cloud.bounds.tolist(), "spacing": nodes.spacing,
+             "cube": nodes.cube, "points": cloud.point_count, "objects": cloud.objects.to_json(),
+             "vertex_bytes": int(cloud.positions.nbytes + cloud.colors.nbytes), "index_bytes": 0}
+    return write_arrays(directory, arrays, table)
+
+
+def open_points_entry(directory: Path, name: str, verify: bool = True) -> PointCloud:
+    """The point cloud of the entry ``directory``, named ``name``, mapped; ``verify``: check the CRCs
+    first. Raises CacheError."""
+    table, arrays = read_arrays(directory, verify)
+    try:
+        if table.get("kind") != "points" or table.get("points_format") != POINTS_FORMAT:
+            raise CacheError(f"{directory.name}: not a point cloud entry of format {POINTS_FORMAT}")
+        tree = PointTree(np.asarray(arrays["node_boxes"], np.float64), np.array(arrays["node_counts"], np.int64),
+                         np.array(arrays["node_parents"], np.int64), np.array(arrays["node_depths"], np.int64),
+                         np.array(arrays["node_octants"], np.int64))
+        nodes = PointNodes(np.array(arrays["node_first"], np.int64), tree, np.array(arrays["node_own_boxes"]),
+                           np.array(arrays["node_centres"]), float(table["spacing"]), float(table["cube"]))
+        share = table["share"]
+        return PointCloud(name, arrays["positions"], arrays["colors"], np.asarray(table["centre"], np.float64), nodes,
+                          np.asarray(table["bounds"], np.float64), ObjectGraph.from_json(table["objects"]),
+                          share=None if share is None else (int(share["index"]),
+                                                            tuple(float(w) for w in share["weights"])))
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise CacheError(f"{directory.name}: inconsistent table ({type(exc).__name__}: {exc})") from None
+
+
+def share_nodes(cloud: PointCloud, weights: Sequence[float], index: int) -> np.ndarray:
+    """(M,) bool: the nodes of share ``index`` of ``cloud`` over ``weights``: the octree's nodes split
+    into spatially coherent shares by their own boxes and points
+    (:func:`tessera.decomposition.data_partition.split_chunks`)."""
+    nodes = cloud.nodes
+    return split_chunks(nodes.own_boxes.astype(np.float64), nodes.tree.counts, weights) == index
+
+
+def keep_point_share(cloud: PointCloud, weights: Sequence[float], index: int) -> PointCloud:
+    """Share ``index`` of ``cloud`` over ``weights``: its nodes' points (read by their ranges), the
+    whole node table. Raises SceneError when it holds no point."""
+    keep = share_nodes(cloud, weights, index)
+    first = cloud.nodes.first
+    own = np.where(keep, np.diff(first), 0)
+    if not own.any():
+        raise SceneError(f"{cloud.name}: share {index} of {len(weights)} holds no point")
+    ranges = [(int(first[i]), int(first[i + 1])) for i in np.flatnonzero(own)]
+    positions = np.concatenate([cloud.positions[a:b] for a, b in ranges])
+    colors = np.concatenate([cloud.colors[a:b] for a, b in ranges])
+    nodes = dataclasses.replace(cloud.nodes, first=np.concatenate(([0], np.cumsum(own))).astype(np.int64))
+    return dataclasses.replace(cloud, positions=positions, colors=colors, nodes=nodes,
+                               share=(index, tuple(float(w) for w in weights)))
+
+
+def load_points(path: Path, name: str, progress: Progress) -> PointCloud:
+    """Read the point cloud file at ``path`` and build its octree (in memory), named ``name``."""
+    progress(0.05, f"reading {path.name}")
+    points = read_points(path)
+    progress(0.3, f"read {points.count} points; building the octree")
+    return build_octree(points, name, progress)
+
+
+def cached_points(source: Path, share: ShareSpec | None, folder: CacheFolder, progress: Progress,
+                  sha256: str | None = None) -> Path:
+    """The checked entry of the point cloud ``source`` (its ``share`` only, when given) in ``folder``,
+    built first if need be. Raises SceneError."""
+    digest = sha256 or folder.content_hash(source, progress)
+    origin = {"sha256": digest, "bytes": source.stat().st_size, "name": source.name}
+    whole_name = points_entry_name(digest)
+
+    def build_whole(directory: Path) -> int:
+        cloud = load_points(source, source.name, progress)
+        progress(0.8, f"writing the scene cache: {cloud.point_count} points in {cloud.nodes.count} nodes")
+        return write_points_entry(directory, cloud, origin)
+
+    for attempt in range(REBUILDS + 1):
+        whole = folder.ensure(whole_name, build_whole, progress)
+        entry = whole
+        if share is not None:
+            def build_share(directory: Path, whole: Path = whole) -> int:
+                try:
+                    cloud = open_points_entry(whole, source.name, verify=False)
+                except CacheError as exc:
+                    raise SceneError(f"{source.name}: {exc}") from None
+                return write_points_entry(directory, keep_point_share(cloud, share.weights, share.index), origin)
+            entry = folder.ensure(share_name(whole_name, share.weights, share.index), build_share, progress)
+        try:
+            progress(0.9, "checking the scene cache")
+            open_points_entry(entry, source.name, verify=True)
+            return entry
+        except CacheError as exc:
+            remove_entry(entry)
+            if entry != whole:
+                remove_entry(whole)
+            if attempt == REBUILDS:
+                raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
+            progress(0.1, f"the scene cache failed its check ({exc}); building it again")
+    raise AssertionError("unreachable")
+

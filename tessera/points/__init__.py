@@ -1,0 +1,1 @@
+"""Point clouds (issue 36): what render nodes and the coordinator both compute of them."""

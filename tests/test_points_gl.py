@@ -1,0 +1,93 @@
+"""Point clouds drawn (issue 36): tiles equal the whole frame bit for bit (the budget's choice shared
+by every tile, EDL with its guard band), two points 1 mm apart in UTM coordinates are two, the
+budget bounds the points drawn and the still draws them all."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+import pytest
+
+from node.gl.point_renderer import PointRenderer
+from node.scene.point_files import PointArrays
+from node.scene.points import build_octree
+from tessera.geometry import Camera, Rect, default_camera
+
+pytestmark = pytest.mark.gl
+
+UTM = np.array([500000.0, 4000000.0, 100.0])
+
+
+def terrain(count: int, seed: int = 3) -> PointArrays:
+    """A rolling terrain of ``count`` points in survey coordinates, 200 m a side, coloured by height."""
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0.0, 200.0, count), rng.uniform(0.0, 200.0, count)
+    z = 8.0 * np.sin(x / 23.0) * np.cos(y / 31.0) + rng.normal(0.0, 0.02, count)
+    return PointArrays(np.stack([x, y, z], axis=1) + UTM)
+
+
+@pytest.fixture(scope="module")
+def cloud_renderer(ctx: moderngl.Context) -> PointRenderer:
+    cloud = build_octree(terrain(300_000), "terrain.laz", lambda fraction, message: None)
+    renderer = PointRenderer(ctx, cloud)
+    yield renderer
+    renderer.release()
+
+
+def oblique(bounds: np.ndarray) -> Camera:
+    lo, hi = bounds
+    centre = (lo + hi) / 2.0
+    eye = centre + np.array([-60.0, -140.0, 90.0])
+    return Camera(tuple(eye), tuple(centre), (0.0, 0.0, 1.0), 50.0)
+
+
+@pytest.mark.parametrize("budget", [None, 40_000])
+def test_tiles_equal_the_whole_frame(cloud_renderer: PointRenderer, budget: int | None) -> None:
+    size = (160, 96)
+    camera = oblique(cloud_renderer.scene.bounds)
+    whole = cloud_renderer.render_frame(camera, size, point_budget=budget)
+    assert (whole.pixels != whole.pixels[0, 0]).any()
+    tiles = [Rect(0, 0, 53, 40), Rect(53, 0, 107, 40), Rect(0, 40, 90, 56), Rect(90, 40, 70, 56)]
+    for rect in tiles:
+        tile = cloud_renderer.render_tile(camera, size, rect, point_budget=budget)
+        np.testing.assert_array_equal(tile.pixels, whole.pixels[rect.y:rect.y1, rect.x:rect.x1])
+        assert tile.points <= whole.points
+
+
+def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer) -> None:
+    size = (160, 96)
+    camera = oblique(cloud_renderer.scene.bounds)
+    everything = cloud_renderer.render_frame(camera, size)
+    budgeted = cloud_renderer.render_frame(camera, size, point_budget=50_000)
+    assert budgeted.points <= 50_000 < everything.points
+    assert everything.points == cloud_renderer.scene.point_count     # the whole terrain is in view
+
+
+def test_points_a_millimetre_apart_in_utm_coordinates_stay_apart(ctx: moderngl.Context) -> None:
+    """A 9 x 9 grid of points 1 mm apart at UTM (500000, 4000000, 100), every other column white,
+    seen from 1 cm: each white column is a run of its own, 2 mm (tens of pixels) from the next. In
+    float32 world coordinates (31 mm apart there) they would fall onto one point."""
+    x, y = np.meshgrid(np.arange(9) * 0.001, np.arange(9) * 0.001)
+    positions = np.stack([x.ravel(), y.ravel(), np.zeros(81)], axis=1) + UTM
+    colors = np.where((np.arange(81) % 9 % 2 == 0)[:, None], 255, 0).astype(np.uint8).repeat(3, axis=1)
+    renderer = PointRenderer(ctx, build_octree(PointArrays(positions, colors), "grid.las", lambda f, m: None),
+                             point_size=1.0)
+    try:
+        target = UTM + np.array([0.004, 0.004, 0.0])
+        camera = Camera(tuple(target + np.array([0.0, 0.0, 0.01])), tuple(target), (0.0, 1.0, 0.0), 30.0)
+        pixels = renderer.render_frame(camera, (200, 120)).pixels
+        row = pixels[60, :, 0] > 128
+        starts = np.flatnonzero(row[1:] & ~row[:-1]) + 1
+        assert len(starts) >= 3, f"white columns expected apart, bright pixels at {np.flatnonzero(row)}"
+        pitch = np.diff(starts)
+        assert (np.abs(pitch - pitch.mean()) <= 2).all() and 30 < pitch.mean() < 60   # 2 mm at 1 cm: ~45 px
+    finally:
+        renderer.release()
+
+
+def test_the_still_draws_every_point_and_is_steady(cloud_renderer: PointRenderer) -> None:
+    size = (96, 64)
+    camera = default_camera(cloud_renderer.scene.bounds, aspect=1.5)
+    first = cloud_renderer.render_still(camera, size, 3)
+    again = cloud_renderer.render_still(camera, size, 3)
+    np.testing.assert_array_equal(first, again)
