@@ -91,7 +91,7 @@ def test_the_root_is_an_even_subsample_and_nodes_hold_their_points(cloud: PointC
 def test_the_budget_takes_the_nearest_first_and_keeps_parents(cloud: PointCloud) -> None:
     tree = cloud.world_tree
     centre = cloud.bounds.mean(axis=0)
-    camera = Camera(tuple(centre + [-150.0, -150.0, 40.0]), tuple(centre), (0.0, 0.0, 1.0), 50.0)
+    camera = Camera(tuple(centre + np.array([-150.0, -150.0, 40.0])), tuple(centre), (0.0, 0.0, 1.0), 50.0)
     everything = select_nodes(tree, camera, (640, 360), cloud.bounds, None)
     for budget in (1, 20_000, 60_000, 10**9):
         chosen = select_nodes(tree, camera, (640, 360), cloud.bounds, budget)
@@ -141,7 +141,8 @@ def test_ply_points_are_a_cloud_and_ply_faces_a_mesh(tmp_path: Path) -> None:
     assert ascii_points.count == 20 and ascii_points.intensity is not None
     mesh = tmp_path / "mesh.ply"
     mesh.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     assert not is_point_file(mesh)
     assert load_scene(str(mesh)).triangle_count == 1
 
@@ -150,11 +151,11 @@ def test_broken_point_files_get_one_line_reasons(tmp_path: Path) -> None:
     laz = tmp_path / "broken.laz"
     write_las(laz, survey(20_000))
     laz.write_bytes(laz.read_bytes()[:4000])
-    with pytest.raises(SceneError, match="broken.laz: corrupt or unreadable LAZ"):
+    with pytest.raises(SceneError, match=r"broken\.laz: corrupt or unreadable LAZ"):
         read_points(laz)
     junk = tmp_path / "junk.las"
     junk.write_bytes(b"not a las file at all")
-    with pytest.raises(SceneError, match="junk.las: corrupt or unreadable LAS"):
+    with pytest.raises(SceneError, match=r"junk\.las: corrupt or unreadable LAS"):
         read_points(junk)
     short = tmp_path / "short.ply"
     short.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\n"
