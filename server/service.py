@@ -22,7 +22,6 @@ import logging
 import math
 import time
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
-from typing import Any
 
 import numpy as np
 
@@ -33,10 +32,12 @@ from server.nodes import NodeLink
 from server.picking import PickDesk
 from server.render_jobs import RenderJobs
 from server.scene_library import SceneLibrary
+from server.service_report import ServiceReport
+from server.session_persistence import SessionPersistence
 from server.session_store import SessionStore
 from server.sessions import Session, new_key
 from server.settings import Settings
-from server.still_refinement import Refined, still_figures
+from server.still_refinement import Refined
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.decomposition.wall_cells import WallLayout
@@ -46,7 +47,6 @@ from tessera.scene.graph import ObjectGraph
 from tessera.scene.state import SceneStateError
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling import actions
-from tessera.scheduling.fair_share import SHARE_WINDOW_S
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.wire import messages
@@ -91,10 +91,11 @@ def timeline_of(message: SceneReady, now: float) -> SceneTimeline:
         raise ProtocolError(f"scene_ready: {exc}") from None
 
 
-class RenderService:
+class RenderService(SessionPersistence, ServiceReport):
     """The coordinator's I/O: the nodes' links, calibration, the sessions (:class:`Session`: each
     with its frame store and viewers) and the scheduler they share. ``library`` resolves the scene
-    names sessions are made from."""
+    names sessions are made from. Saving and restoring sessions: :class:`SessionPersistence`;
+    ``/api/stats``: :class:`ServiceReport`."""
 
     def __init__(self, settings: Settings, metrics: CoordinatorMetrics | None = None,
                  library: SceneLibrary | None = None) -> None:
@@ -214,77 +215,6 @@ class RenderService:
         log.info("session %s… now shows %s", session.id[:6], name)
         return first
 
-    # ----------------------------------------------------------------- sessions across restarts
-    def save_sessions(self) -> Future[None] | None:
-        """Write every session to ``--data-dir`` (nothing without one) on the writer thread, off the
-        event loop (the file is fsynced); writes happen in the order asked."""
-        if self.session_store is None:
-            return None
-        records = [{**s.record(), "jobs": [j.record() for j in self.jobs.of_session(s.id)]}
-                   for s in self.sessions.values()]
-        self.changed_sessions = False
-        path = self.session_store.path
-
-        def report(done: Future[None]) -> None:
-            if done.exception() is not None:
-                log.error("cannot save the sessions to %s: %s", path, done.exception())
-
-        written = self._session_writer.submit(self.session_store.save, records)
-        written.add_done_callback(report)
-        return written
-
-    def _restore_sessions(self) -> None:
-        """The sessions ``--data-dir`` held when the coordinator stopped, under their ids and keys."""
-        assert self.session_store is not None
-        for record in self.session_store.load():
-            try:
-                self._restore(record)
-            except (KeyError, TypeError, ValueError) as exc:   # CameraError is a ValueError
-                log.error("session %s… not restored: %s", str(record.get("id"))[:6], exc)
-
-    def _restore(self, record: dict[str, Any]) -> None:
-        camera = None if record.get("camera") is None else Camera.from_json(record["camera"])
-        if record["id"] == DEFAULT_SESSION:
-            session = self.default
-            if camera is not None:
-                self.scheduler.set_camera(camera, time.monotonic())
-        else:
-            wall = None if record.get("wall") is None else WallLayout.from_json(record["wall"])
-            session = Session(self, str(record["id"]), str(record["scene"]), str(record["name"]),
-                              label=str(record["label"]), wall=wall)
-            session.watch_key = str(record["watch_key"])
-            fetch = record.get("fetch")
-            self._open(session, (int(record["size"][0]), int(record["size"][1])), camera,
-                       None if fetch is None else (str(fetch[0]), str(fetch[1])))
-            self._sessions_opened = max(self._sessions_opened, int(record["label"]))
-        balancer = record.get("balancer")
-        if balancer is not None:
-            self.scheduler.set_balancer(create_balancer(balancer["name"], balancer["params"]), time.monotonic(),
-                                        session.id)
-        session.pending_state = record.get("scene_state")
-        session.restore_clip(record.get("clip"))
-        self.jobs.restore(session.id, record.get("jobs"))
-        log.info("session %s… restored: %s", session.id[:6], session.name)
-
-    def close_session(self, session: Session, reason: str = "session closed") -> None:
-        """Close ``session`` (not the default one): its frames are dropped, its viewers told."""
-        if session is self.default or self.sessions.pop(session.id, None) is None:
-            return
-        self._watch_keys.pop(session.watch_key, None)
-        self.changed_sessions = True
-        self.jobs.session_closed(session.id)
-        self.scheduler.remove_session(session.id, time.monotonic())
-        for slot in list(session.viewers.slots):
-            slot.close(4404, reason)
-        self.apply()
-        log.info("session %s… closed: %s", session.id[:6], reason)
-
-    def _collect_idle_sessions(self, now: float) -> None:
-        """Close sessions no viewer and no API call used for ``--session-idle-timeout-s``."""
-        limit = self.settings.session_idle_timeout_s
-        for session in [s for s in self.sessions.values() if s is not self.default and s.idle_for(now) > limit]:
-            self.close_session(session, f"idle for over {limit:g} s")
-
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
         self._tasks = [asyncio.create_task(self._timer(), name="scheduler-timer")]
@@ -371,16 +301,6 @@ class RenderService:
         levels = True if self.settings.lod_error_px > 0.0 and self.settings.mode != "hybrid" else None
         return messages.LoadScene(scene=spec, background=self.settings.background or DEFAULT_BACKGROUND, share=share,
                                   url=url, sha256=sha256, levels=levels)
-
-    def scene_on_nodes(self, scene: str) -> dict[str, Any]:
-        """How the nodes hold scene ``scene`` (:meth:`server.sessions.SessionHost.scene_on_nodes`)."""
-        loading = [link.loading[scene] for link in self.nodes.values() if scene in link.loading]
-        holding = sum(scene in link.scene_mb and scene not in link.loading for link in self.nodes.values())
-        least = min(loading, default=None)
-        return {"loading": None if least is None else {
-                    "fraction": round(least[0], 3), "message": least[1], "nodes_ready": holding,
-                    "nodes": holding + len(loading)},
-                "scene_mb": {link.name: link.scene_mb[scene] for link in self.nodes.values() if scene in link.scene_mb}}
 
     def remove_node(self, link: NodeLink) -> None:
         """The node's connection ended: what it owed goes to the others."""
@@ -605,55 +525,3 @@ class RenderService:
         self._show(session, job, refined.tiles, refined)
         if refined.converged:
             self.apply()
-
-    # ----------------------------------------------------------------- reporting
-    def describe(self, session: Session | None = None, public: bool = False) -> dict[str, Any]:
-        """``/api/stats``: ``session``'s figures (default: the default session's) with the nodes', the
-        coordinator's and every session's summary; ``public``: sessions named by their labels, not
-        by the ids that drive them (for a watcher)."""
-        session = session or self.default
-        scheduler, frames = self.scheduler, session.frames
-        stats, latest, now = frames.stats, session.store.latest, time.monotonic()
-        return {
-            "frame": max(session.store.last_id, 0),
-            "fps": round(stats.fps(now), 2),
-            "size": list(session.size),
-            "balancer": session.balancer.name,
-            **frames.mode.describe(),
-            "balancer_params": session.balancer.params,
-            "imbalance": round(stats.imbalance, 4),
-            "imbalance_avg": round(stats.imbalance_avg, 4),
-            "latency_ms": round(stats.latency_ms, 2),
-            "frames_in_flight": len(frames.frames),
-            "frames_cancelled": frames.frames_cancelled,
-            "still": bool(latest and latest.still),
-            "still_samples": still_figures(latest, frames.demand.still_plan),
-            "settled": session.settled,
-            "lod_error_px": frames.lod_bound,
-            "loading": self.scene_on_nodes(session.scene)["loading"],
-            "scene": session.name,
-            "scene_state": session.scene_state(),
-            "session": session.label if public else session.id,
-            "codec": self.settings.codec.name.lower(),
-            "interactive_quality": self.settings.interactive_quality,
-            "still_codec": self.settings.still_codec.name.lower() if self.settings.still_codec is not None else "none",
-            "viewers": len(session.viewers.slots),
-            "viewer_stats": session.viewers.describe(),
-            "stream": self.settings.stream,
-            "video": session.viewers.describe_video(),
-            "frame_lock": session.viewers.lock.describe() if session.wall is not None else None,
-            "coordinator_cpu": {
-                "frames": stats.frames_published,
-                "receive_ms": round(self.cpu_ms["receive"], 3),
-                "publish_ms": round(self.cpu_ms["publish"], 3),
-                "merge_ms": round(self.cpu_ms["merge"], 3),
-                "still_ms": round(sum(s.refiner.cpu_ms for s in self.sessions.values()), 3),
-                "process_ms": round(time.process_time() * 1000.0, 3),
-                "viewer_bytes": sum(s.viewers.bytes_published for s in self.sessions.values()),
-            },
-            "jobs": self.jobs.describe_session(session.id),
-            "sessions": [s.summary(now, public) for s in self.sessions.values()],
-            "share_window_s": SHARE_WINDOW_S,
-            "nodes": [link.describe(scheduler.nodes[link.node_id])
-                      for link in sorted(self.nodes.values(), key=lambda n: n.node_id)],
-        }

@@ -7,13 +7,15 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from node.culling.lod import LodCut, boxes_in_frustum
+from node.culling.frustum import frustum_planes_from_matrix
+from node.culling.lod import LodCut, boxes_in_frustum, lod_cut
 from node.culling.tiles import indirect_commands
 from node.gl.programs import ShaderPrograms
 from node.scene.chunks import DrawRuns
 from node.scene.lod import LodTree
 from node.scene.packing import gpu_indices
 from node.scene.pages import release_pages
+from tessera.geometry import Camera, Rect
 
 #: Indices made global and copied to the GL at a time.
 BLOCK_INDICES = 1 << 21
@@ -41,6 +43,25 @@ class LodDraws:
             release_pages(indices, first, end)
         self.vertex_arrays = shaders.also_drawing(self.index_buffer)
         self.commands = ctx.buffer(reserve=20 * max(1, tree.node_count))
+        #: The last frame's cut, for its other tiles, and what it was made for.
+        self._cut: tuple[tuple[Camera, int, float] | None, LodCut] = (None, LodCut.full())
+
+    def cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
+        """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
+        within ``error_px`` pixels; the last frame's is kept for its other tiles."""
+        key = (camera, size[1], error_px)
+        if self._cut[0] != key:
+            self._cut = (key, lod_cut(self.tree, camera, size, error_px))
+        return self._cut[1]
+
+    def tile_runs(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
+                  clip: np.ndarray | None, skip: np.ndarray) -> DrawRuns:
+        """:meth:`runs` of the tile ``rect`` of the (4, 4) full-frame ``matrix`` of a ``size`` frame, less
+        the nodes wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks."""
+        planes = frustum_planes_from_matrix(matrix, size, rect)
+        if clip is not None:
+            planes = np.vstack((planes, clip))
+        return self.runs(cut, planes, skip if skip.any() else None)
 
     @property
     def nbytes(self) -> int:

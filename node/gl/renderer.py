@@ -75,21 +75,21 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from node.culling.frustum import frustum_planes_from_matrix
-from node.culling.lod import LodCut, lod_cut
+from node.culling.lod import LodCut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.buffers import upload_geometry
+from node.gl.framebuffers import FramebufferCache
 from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
 from node.gl.lod_draws import LodDraws
+from node.gl.materials import SAMPLER_UNITS, UNIT_CEIL, UNIT_FLOOR, UNIT_LUT, UNIT_SPECULAR, SceneMaterials
 from node.gl.programs import ShaderPrograms
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
 from node.gl.view_tools import ViewTools, ViewToolsGL
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
 from node.scene.lod import LodTree
-from node.scene.mesh import MeshBatch
 from node.scene.packing import PackedGeometry, pack
 from node.scene.pose import ScenePose
 from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_grid
@@ -98,26 +98,14 @@ from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, grid_subsample, jitter_matrix
 from tessera.tools.picking import PickHit, window_matrix
 
-GL_SRGB8_ALPHA8 = 0x8C43
 #: Key light direction in view space (towards the light): from the eye, a little above and right,
 #: so that surfaces facing the viewer still show their relief.
 HEADLIGHT_VIEW = (0.25, 0.4, 1.0)
-#: Texture units: base colour, the peeling bounds (floor, ceiling), the material's other maps,
-#: the prefiltered environment and the BRDF table.
-UNIT_BASE, UNIT_FLOOR, UNIT_CEIL = 0, 1, 2
-UNIT_METALLIC_ROUGHNESS, UNIT_NORMAL, UNIT_OCCLUSION, UNIT_EMISSIVE = 3, 4, 5, 6
-UNIT_SPECULAR, UNIT_LUT = 7, 8
-SAMPLER_UNITS = {"u_texture": UNIT_BASE, "u_floor": UNIT_FLOOR, "u_ceil": UNIT_CEIL,
-                 "u_metallic_roughness": UNIT_METALLIC_ROUGHNESS, "u_normal_texture": UNIT_NORMAL,
-                 "u_occlusion": UNIT_OCCLUSION, "u_emissive_texture": UNIT_EMISSIVE, "u_specular_map": UNIT_SPECULAR,
-                 "u_brdf_lut": UNIT_LUT}
 
 
 #: What :meth:`TileRenderer._draw` draws of a batch, in this order: its culled chunks' commands,
 #: the whole batch (a moved object's), its coarse levels of detail.
 CULLED, WHOLE, COARSE = 0, 1, 2
-#: Framebuffers a renderer keeps (sizes and sample counts; see :meth:`TileRenderer._framebuffer_for`).
-FRAMEBUFFERS_KEPT = 4
 #: Most blended fragments per pixel :meth:`TileRenderer.render_blend` peels apart (beyond them the
 #: compositor takes all of a pixel's fragments in front of the node's own layer together).
 MAX_BLEND_LAYERS = 4
@@ -218,17 +206,14 @@ class TileRenderer:
             self.index_buffer, SAMPLER_UNITS)
         #: The vertex buffer's format and attribute names (the id pass draws from it too).
         self.vertex_format = (packed.layout.gl_format, *packed.layout.attributes)
-        self.white = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
-        self.textures = self._upload_textures(scene.batches)
+        self.materials = SceneMaterials(ctx, scene.batches)
         #: The frame's clip planes, section box and highlight (:meth:`use_tools`).
         self.view = ViewToolsGL(ctx, scene)
         self._set_uniforms(self.view.uniforms())
         self._id_pass: IdPass | None = None
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
-        #: Frame-sized framebuffers by (size, samples), the most recently used last: a session's
-        #: frames and a render job's pictures of another size keep theirs (:data:`FRAMEBUFFERS_KEPT`).
-        self._framebuffers: dict[tuple[tuple[int, int], int], moderngl.Framebuffer] = {}
+        self.framebuffers = FramebufferCache(ctx)
         self._blending = False
         #: Whether blended fragments are being peeled (:meth:`render_blend`: drawn with discards).
         self._peeling = False
@@ -236,9 +221,8 @@ class TileRenderer:
         self._blend_func: tuple[int, ...] | None = BLEND_OVER
         self._base_pose = ScenePose.of(scene, None)
         self._pose: tuple[SceneState | None, ScenePose] = (None, self._base_pose)
-        #: The scene's levels of detail once attached (:meth:`attach_lod`), and the last frame's cut.
+        #: The scene's levels of detail once attached (:meth:`attach_lod`).
         self.lod: LodDraws | None = None
-        self._cut: tuple[tuple[Any, ...], LodCut] = ((), LodCut.full())
 
     def attach_lod(self, tree: LodTree) -> None:
         """Upload ``tree``'s levels: from now on plain tiles and sort-last layers asked for an error
@@ -246,18 +230,14 @@ class TileRenderer:
         if self.lod is not None:
             self.lod.release()
         self.lod = LodDraws(tree, self.vertex_bounds, self.shaders)
-        self._cut = ((), LodCut.full())
 
     def level_cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
-        """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
-        within ``error_px`` pixels; full detail without levels, without a bound, or with a culling
-        mode that cannot leave chunks out. The last frame's is kept for its other tiles."""
+        """The frame's levels (:meth:`LodDraws.cut`) for ``camera`` in a ``size`` frame within
+        ``error_px`` pixels; full detail without levels, without a bound, or with a culling mode
+        that cannot leave chunks out."""
         if self.lod is None or error_px <= 0.0 or not self.culler.takes_levels:
             return LodCut.full()
-        key = (camera, size[1], error_px)
-        if self._cut[0] != key:
-            self._cut = (key, lod_cut(self.lod.tree, camera, size, error_px))
-        return self._cut[1]
+        return self.lod.cut(camera, size, error_px)
 
     @property
     def background(self) -> tuple[float, float, float]:
@@ -269,39 +249,6 @@ class TileRenderer:
         if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
             raise ValueError(f"background must be three numbers in 0..1, got {list(value)}")
         self._background = rgb
-
-    def _upload_textures(self, batches: Sequence[MeshBatch]) -> dict[tuple[int, bool], moderngl.Texture]:
-        """One mipmapped GL texture per distinct image and encoding, keyed by (the image array's
-        id, sRGB): base colour and emissive maps are sRGB, the others linear data."""
-        textures: dict[tuple[int, bool], moderngl.Texture] = {}
-        for batch in batches:
-            material = batch.material
-            for image, srgb in ((batch.texture, True), (material.metallic_roughness_texture, False),
-                                (material.normal_texture, False), (material.occlusion_texture, False),
-                                (material.emissive_texture, True)):
-                if image is None or (id(image), srgb) in textures:
-                    continue
-                height, width = image.shape[:2]
-                # Image row 0 is the top; GL's t = 0 is the bottom row (uvs have origin bottom-left).
-                texture = self.ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]).tobytes(),
-                                           internal_format=GL_SRGB8_ALPHA8 if srgb else None)
-                texture.build_mipmaps()
-                texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-                textures[id(image), srgb] = texture
-        return textures
-
-    def _framebuffer_for(self, size: tuple[int, int], samples: int = 1) -> moderngl.Framebuffer:
-        """The frame-sized framebuffer with ``samples`` per pixel (1 or the multisample count)."""
-        framebuffer = self._framebuffers.pop((size, samples), None)
-        if framebuffer is None:
-            framebuffer = self.ctx.framebuffer(
-                color_attachments=[self.ctx.renderbuffer(size, 4, samples=samples if samples > 1 else 0)],
-                depth_attachment=self.ctx.depth_renderbuffer(size, samples=samples if samples > 1 else 0),
-            )
-        self._framebuffers[size, samples] = framebuffer
-        while len(self._framebuffers) > FRAMEBUFFERS_KEPT:
-            _release_framebuffer(self._framebuffers.pop(next(iter(self._framebuffers))))
-        return framebuffer
 
     def render_tile(self, camera: Camera, size: tuple[int, int], rect: Rect,
                     slot: Hashable | None = None, state: SceneState | None = None,
@@ -380,10 +327,7 @@ class TileRenderer:
         batches ``pose`` moves or hides (they are drawn apart, at full detail)."""
         if not cut.coarse or self.lod is None:
             return None
-        planes = frustum_planes_from_matrix(matrix, size, rect)
-        if self.culler.clip is not None:   # coarse nodes wholly cut away are culled too
-            planes = np.vstack((planes, self.culler.clip))
-        return self.lod.runs(cut, planes, pose.skip if pose.skip.any() else None)
+        return self.lod.tile_runs(cut, matrix, size, rect, self.culler.clip, pose.skip)
 
     def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
                subsample: Subsample | None = None, window: Rect | None = None) -> tuple[ScenePose, np.ndarray,
@@ -437,7 +381,7 @@ class TileRenderer:
         multisamples (depth layers: always 1)."""
         width, height = size
         samples = 1 if with_depth else samples
-        target = self._framebuffer_for((width, height), samples)
+        target = self.framebuffers.get((width, height), samples)
         gl_box = (rect.x, height - rect.y1, rect.w, rect.h)
         target.viewport = (0, 0, width, height)
         target.scissor = gl_box
@@ -445,7 +389,7 @@ class TileRenderer:
         target.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self._use_camera(camera, lod_bias)
         self._draw(target, culled, pose, matrix, moved, blended_moved, coarse)
-        framebuffer = self._framebuffer_for((width, height))
+        framebuffer = self.framebuffers.get((width, height))
         if samples > 1:
             framebuffer.viewport = (0, 0, width, height)
             framebuffer.scissor = gl_box
@@ -484,7 +428,7 @@ class TileRenderer:
         started = time.perf_counter()
         pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
         culled = self.culler.listed(chunk_ids)
-        framebuffer = self._framebuffer_for(size)
+        framebuffer = self.framebuffers.get(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)
         framebuffer.scissor = gl_box
         framebuffer.use()
@@ -649,49 +593,22 @@ class TileRenderer:
             self.ctx.enable(moderngl.BLEND)
             self.ctx.blend_func = self._blend_func
             framebuffer.depth_mask = False
-        material = batch.material
         key = self._program_key(number)
-        variant, program = key[0], self.shaders.programs[key]
-        program["u_base_color"].value = tuple(float(v) for v in batch.base_color)
-        if "u_alpha_cutoff" in program:
-            program["u_alpha_cutoff"].value = batch.alpha_cutoff if batch.alpha_mode == "MASK" else -1.0
-        program["u_metallic"].value = material.metallic
-        program["u_roughness"].value = material.roughness
-        program["u_emissive"].value = material.emissive
+        program = self.shaders.programs[key]
+        self.materials.use(program, key[0], batch)
         program["u_tint"].value = self.view.tint(number)
-        if not variant.textured:
-            return
-        if variant.normal_map:
-            program["u_normal_scale"].value = material.normal_scale
-        if variant.uv_transform:
+        if key[0].textured and key[0].uv_transform:
             self.shaders.use_uv_transforms(program, batch)
-        if variant.occlusion_map:
-            program["u_occlusion_strength"].value = material.occlusion_strength
-        for image, srgb, unit in ((batch.texture, True, UNIT_BASE),
-                                  (material.metallic_roughness_texture, False, UNIT_METALLIC_ROUGHNESS),
-                                  (material.normal_texture, False, UNIT_NORMAL),
-                                  (material.occlusion_texture, False, UNIT_OCCLUSION),
-                                  (material.emissive_texture, True, UNIT_EMISSIVE)):
-            texture = self.white if image is None else self.textures.get((id(image), srgb), self.white)
-            texture.use(unit)
 
     def release(self) -> None:
         """Free the GL objects (the context stays the caller's)."""
-        for framebuffer in self._framebuffers.values():
-            _release_framebuffer(framebuffer)
-        self._framebuffers.clear()
+        self.framebuffers.release()
         if self._id_pass is not None:
             self._id_pass.release()
         self.culler.release()
         self.lighting.release()
-        for texture in self.textures.values():
-            texture.release()
+        self.materials.release()
         self.shaders.release()
-        for resource in (self.white, self.index_buffer, self.vertex_buffer):
+        for resource in (self.index_buffer, self.vertex_buffer):
             resource.release()
 
-
-def _release_framebuffer(framebuffer: moderngl.Framebuffer) -> None:
-    for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
-        attachment.release()
-    framebuffer.release()
