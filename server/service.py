@@ -419,6 +419,8 @@ class RenderService(SessionPersistence, ServiceReport):
         if message.objects is not None:
             self.scheduler.set_scene(timeline_of(message, now), now, session.id)
         session.bounds, session.state, session.error = bounds, "ready", None
+        if message.points is not None:      # a point cloud (issue 36): budget, EDL after a sort-last merge
+            self.scheduler.sessions[session.id].set_points(bounds)
         if message.groups is not None:
             self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
                                       np.asarray(message.groups.counts, dtype=np.float64), bounds,

@@ -16,6 +16,7 @@ from tessera.cli_values import (
     command_name,
     number_parser,
     parse_background,
+    parse_point_budget,
     parse_samples_max,
     parse_still_samples,
     parse_target_db,
@@ -29,7 +30,7 @@ from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.video.link_rate import MIN_BITRATE
 from tessera.video.transport import STREAM_MODES
 from tessera.wire.codec import Codec
-from tessera.wire.messages import MAX_LOD_ERROR_PX
+from tessera.wire.messages import MAX_LOD_ERROR_PX, MAX_POINT_SIZE
 
 DEFAULT_SCENE = "builtin:cluster"
 #: The best measured balancer (docs/benchmarks/balance.md: bench.balance on Lucy's orbit, fly-through and orbit
@@ -329,6 +330,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--target-fps", type=POSITIVE,
                         help="the moving frame rate levels of detail aim at: the bound rises while frames take "
                              f"longer and falls back when they are quick (default {defaults.target_fps:g})")
+    parser.add_argument("--point-budget", type=parse_point_budget, metavar="N",
+                        help="point clouds: a moving frame draws at most this many points, the octree's nodes "
+                             "nearest and largest on screen first; the still after it draws every point "
+                             f"(default {defaults.point_budget})")
+    parser.add_argument("--point-size", type=number_parser(0.0, above=True, maximum=MAX_POINT_SIZE, note=" px"),
+                        metavar="PX", help="point clouds: each point is a square at least this many pixels wide, "
+                                           f"wider where its level's spacing is (default {defaults.point_size:g})")
     parser.add_argument("--tile-timeout-s", type=POSITIVE,
                         help="seconds before a node that owes a tile is dropped "
                              f"(default {defaults.tile_timeout_s:g})")

@@ -32,11 +32,13 @@ SCENE_FILES = {
 def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
                 scene_time: float | None = None, objects: dict[str, Any] | None = None,
                 msaa: int | None = None, still_samples: int | None = None, clip: dict[str, Any] | None = None,
-                highlight: str | None = None, lod_error_px: float | None = None) -> np.ndarray:
+                highlight: str | None = None, lod_error_px: float | None = None,
+                point_budget: int | None = None) -> np.ndarray:
     """The single-node reference: ``python -m node --render-once`` (at ``scene_time``, with the
     ``objects`` poses, ``msaa`` samples, the ``clip`` state and ``highlight``: ``--time``,
     ``--objects``, ``--msaa``, ``--clip``, ``--highlight``) of the interactive frame
-    (``--interactive``, at the levels of detail within ``lod_error_px``), or with ``still_samples``
+    (``--interactive``, at the levels of detail within ``lod_error_px``, a point cloud within
+    ``point_budget`` points), or with ``still_samples``
     the progressive still of that many samples (``--samples N``; 0, ``ADAPTIVE``: ``--samples auto``);
     (h, w, 3) uint8."""
     index = len(list(workdir.glob("camera-*.json")))
@@ -47,6 +49,7 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workd
     extra += [] if msaa is None else ["--msaa", str(msaa)]
     extra += ["--interactive"] if still_samples is None else ["--samples", str(still_samples or "auto")]
     extra += [] if lod_error_px is None else ["--lod-error-px", repr(float(lod_error_px))]
+    extra += [] if point_budget is None else ["--point-budget", str(point_budget)]
     if objects is not None:
         objects_file = workdir / f"objects-{index}.json"
         objects_file.write_text(json.dumps(objects))

@@ -5,6 +5,7 @@ publishes. Conventions: :mod:`tessera.compositing.layers`."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -14,7 +15,8 @@ from tessera.wire.depth_tiles import DecodedDepthTile
 
 
 def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
-                   exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = ()) -> np.ndarray:
+                   exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = (),
+                   depth_out: np.ndarray | None = None) -> np.ndarray:
     """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
     (3,) uint8 where none drew, the ``blends`` laid over it in slot order (at each pixel the
     accumulation of the m fragments in front of the merged depth: its colour + (255 − alpha) / 255
@@ -37,7 +39,8 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
         if any(layer.rect.intersection_area(other) for other in same):
             raise ValueError(f"layers of slot {layer.slot} overlap: each node's layer needs its own slot")
         same.append(layer.rect)
-    depth = np.full((height, width), FAR, np.float32)
+    depth = np.full((height, width), FAR, np.float32) if depth_out is None else depth_out   # (h, w): merged depth
+    depth.fill(FAR)
     color = np.empty((height, width, 3), np.uint8)
     color[0] = np.asarray(background, np.uint8)
     color[1:] = color[0]   # whole rows: broadcasting the pixel over (h, w) is ~100x slower
@@ -70,10 +73,13 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
     return color
 
 
-def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray) -> np.ndarray:
+def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray,
+                      with_depth: bool = False) -> Any:
     """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
     (3,) uint8 where none drew, their blend layers laid over it
-    (:func:`merge_by_depth`). Cores are not pasted: they are published as
-    they came (:func:`tessera.decomposition.hybrid.hybrid_frame_tiles`)."""
-    return merge_by_depth([layer for tile in tiles for layer in tile.layers], size, background,
-                     blends=[blend for tile in tiles for blend in tile.blends])
+    (:func:`merge_by_depth`); ``with_depth``: (that, the merged window depth (h, w) float32). Cores
+    are not pasted: they are published as they came (:func:`tessera.decomposition.hybrid.hybrid_frame_tiles`)."""
+    depth = np.empty((size[1], size[0]), np.float32) if with_depth else None
+    color = merge_by_depth([layer for tile in tiles for layer in tile.layers], size, background,
+                           blends=[blend for tile in tiles for blend in tile.blends], depth_out=depth)
+    return (color, depth) if with_depth else color

@@ -11,6 +11,7 @@ from typing import Any
 
 from tessera.balancers.base import Partition, ProjectedGroups, Tile
 from tessera.compositing.depth_merge import merge_depth_tiles
+from tessera.compositing.eye_dome import eye_dome
 from tessera.decomposition.mode import DecompositionMode, SlotOf, ViewerTile
 from tessera.decomposition.share_plan import ShareBook
 from tessera.geometry import Rect
@@ -73,8 +74,12 @@ class SortLast(DecompositionMode):
 
     def viewer_tiles(self, job: FrameJob, slot_of: SlotOf) -> list[ViewerTile]:
         """The merge, one image."""
-        merged = merge_depth_tiles([t.depth_tile for t in job.tiles if t.depth_tile is not None], job.size,
-                                   self.background)
+        tiles = [t.depth_tile for t in job.tiles if t.depth_tile is not None]
+        if job.eye_dome is not None:     # a point cloud: shaded by EDL once merged (issue 36)
+            color, depth = merge_depth_tiles(tiles, job.size, self.background, with_depth=True)
+            merged = eye_dome(color, depth, *job.eye_dome)
+        else:
+            merged = merge_depth_tiles(tiles, job.size, self.background)
         return [(Rect(0, 0, *job.size), job.codec, NO_NODE_SLOT, encode(merged, job.codec, job.jpeg_quality))]
 
     def describe(self) -> dict[str, Any]:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from tessera.decomposition.chunk_ownership import DEFAULT_DEPTH_STRIP
 from tessera.decomposition.modes import MODES
+from tessera.points.budget import DEFAULT_POINT_BUDGET, DEFAULT_POINT_SIZE
 from tessera.scheduling.lod_control import (
     DEFAULT_LOD_ERROR_PX,
     DEFAULT_LOD_MAX_ERROR_PX,
@@ -54,6 +55,9 @@ class SchedulerConfig:
     lod_error_px: float = DEFAULT_LOD_ERROR_PX
     lod_max_error_px: float = DEFAULT_LOD_MAX_ERROR_PX
     target_fps: float = DEFAULT_TARGET_FPS
+    #: A point cloud's moving frames draw at most this many points; every splat at least this wide (px).
+    point_budget: int = DEFAULT_POINT_BUDGET
+    point_size: float = DEFAULT_POINT_SIZE
 
     def __post_init__(self) -> None:
         if self.mode not in MODES or self.depth_strip < 0:
@@ -61,6 +65,9 @@ class SchedulerConfig:
         if self.max_in_flight < 1:
             raise ValueError("max_in_flight must be >= 1")
         LodControl(self.lod_error_px, self.lod_max_error_px, self.target_fps)   # raises for a bad bound
+        if self.point_budget < 1 or not self.point_size > 0.0:
+            raise ValueError(f"point_budget must be >= 1 and point_size > 0, got {self.point_budget}, "
+                             f"{self.point_size}")
         if not self.max_fps > 0.0:
             raise ValueError("max_fps must be > 0")
         assert self.still_plan   # its checks raise ValueError

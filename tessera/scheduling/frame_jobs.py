@@ -111,6 +111,11 @@ class FrameJob:
     highlight: str | None = None
     #: Its levels-of-detail bound, px (None: full detail; stills always are).
     lod_error_px: float | None = None
+    #: A point cloud's frame (issue 36): its point budget (None: every point, a still's), the smallest
+    #: splat side (px) and, where the coordinator shades the merged frame (sort-last), near and far.
+    point_budget: int | None = None
+    point_size: float | None = None
+    eye_dome: tuple[float, float] | None = None
     job: str | None = None
     item: JobItem | None = None
     window: Rect | None = None
@@ -164,7 +169,8 @@ class FrameJob:
                                   for i in tile_ids), state=state,
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
                       lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight,
-                      lod_error_px=self.lod_error_px, window=self.window)
+                      lod_error_px=self.lod_error_px, window=self.window, point_budget=self.point_budget,
+                      point_size=self.point_size)
 
     def pull_next(self) -> list[int]:
         """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the

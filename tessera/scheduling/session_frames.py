@@ -17,7 +17,7 @@ from tessera.compositing.layers import background_pixel
 from tessera.decomposition.mode import DecompositionMode
 from tessera.decomposition.modes import create_mode
 from tessera.decomposition.wall_cells import WallLayout
-from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, near_far_from_bounds
 from tessera.scene.state import SceneState, StateDelta
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.frame_jobs import FrameJob
@@ -77,6 +77,8 @@ class SessionFrames:
         #: (issue 35): frame-synchronous, bound when a frame starts (None: none).
         self.clip: ClipState | None = None
         self.highlight: str | None = None
+        #: A point cloud's bounds (issue 36: :meth:`set_points`); None: a mesh.
+        self.point_bounds: np.ndarray | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -145,9 +147,23 @@ class SessionFrames:
                               clip=self.clip, highlight=self.highlight)
         job.one_by_one = pieces > 1
         job.lod_error_px = None if still else self.lod_bound
+        if self.point_bounds is not None:
+            self._points_job(job, camera, still)
         self.next_start_at = now + 1.0 / self.config.max_fps
         self.frames[frame_id] = job
         return job, error
+
+    def set_points(self, bounds: np.ndarray) -> None:
+        """The scene is a point cloud of ``bounds`` (2, 3) (issue 36): moving frames draw within the
+        point budget, stills every point; sort-last frames are shaded after the merge."""
+        self.point_bounds = np.asarray(bounds, np.float64)
+
+    def _points_job(self, job: FrameJob, camera: Camera, still: bool) -> None:
+        assert self.point_bounds is not None
+        job.point_budget = None if still else self.config.point_budget
+        job.point_size = self.config.point_size
+        if self.config.mode == "sort-last":
+            job.eye_dome = near_far_from_bounds(camera, self.point_bounds)
 
     @property
     def lod_bound(self) -> float | None:
