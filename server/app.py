@@ -14,6 +14,7 @@ from server.metrics import CoordinatorMetrics
 from server.origins import OriginPolicy
 from server.routes import (
     animation,
+    annotations,
     balancer,
     camera,
     clipping,
@@ -68,7 +69,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(stats.metrics_router)
     for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other
         for module in (stats, camera, objects, animation, frames, balancer, clipping, selection, picking,
-                       posters, recordings):
+                       posters, recordings, annotations):
             app.include_router(module.router, prefix=prefix)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app

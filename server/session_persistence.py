@@ -92,7 +92,7 @@ class SessionPersistence:
             self.scheduler.set_balancer(create_balancer(balancer["name"], balancer["params"]), time.monotonic(),
                                         session.id)
         session.pending_state = record.get("scene_state")
-        session.restore_clip(record.get("clip"))
+        session.restore_clip(record.get("clip"), record.get("annotations"))
         self.jobs.restore(session.id, record.get("jobs"))
         log.info("session %s… restored: %s", session.id[:6], session.name)
 

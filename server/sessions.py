@@ -56,6 +56,8 @@ class SessionHost(Protocol):
 
 #: Random bytes of a session id and of its watch key (128 bits each).
 KEY_BYTES = 16
+#: Most annotations a session keeps (issue 35).
+MAX_ANNOTATIONS = 100
 
 
 def new_key() -> str:
@@ -88,6 +90,8 @@ class Session:
         self.created_at = self.last_used = time.monotonic()
         #: A restored session's object poses and animation clock, applied once its scene is known.
         self.pending_state: dict[str, Any] | None = None
+        #: Labels pinned to points of the scene (issue 35): ``{"point": [x, y, z], "text"}`` each.
+        self.annotations: list[dict[str, Any]] = []
 
     @property
     def frames(self) -> SessionFrames:
@@ -204,7 +208,8 @@ class Session:
                 "balancer": {"name": self.balancer.name, "params": self.balancer.params},
                 "wall": self.wall.to_json() if self.wall else None,
                 "scene_state": state if state is not None else self.pending_state,
-                "clip": None if self.frames.clip is None else self.frames.clip.to_json()}
+                "clip": None if self.frames.clip is None else self.frames.clip.to_json(),
+                "annotations": self.annotations}
 
     def restore_state(self, state: dict[str, Any], now: float) -> None:
         """Object poses and the animation clock of :meth:`record`, once the scene is known; a pose
@@ -222,10 +227,12 @@ class Session:
             self.frames.highlight = selection
             scheduler.invalidate(now, self.id)
 
-    def restore_clip(self, data: Any) -> None:
-        """The clip state of :meth:`record` (one that no longer reads is dropped)."""
+    def restore_clip(self, data: Any, annotations: Any = None) -> None:
+        """The clip state and annotations of :meth:`record` (a clip that no longer reads is dropped)."""
         with contextlib.suppress(ClipError):
             self.frames.clip = None if data is None else ClipState.from_json(data)
+        if isinstance(annotations, list):
+            self.annotations = [item for item in annotations[:MAX_ANNOTATIONS] if isinstance(item, dict)]
 
     # ----------------------------------------------------------------- what users read
     def next_frame_id(self) -> int:

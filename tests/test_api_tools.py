@@ -160,3 +160,19 @@ def test_sort_last_picks_the_nearest_share(coordinator_factory) -> None:
         wait_ready_nodes(client, 2)
         wait_until(lambda: not stats(client)["partition"]["pending"], seconds(120), "every share loaded")
         check_picks(client)
+
+
+def test_annotations_are_kept_with_the_session_and_checked(coordinator) -> None:
+    _, client = coordinator
+    pins = [{"point": [0.1, 0.2, 0.3], "text": "inlet"}, {"point": [1.0, 0.0, -1.0], "text": "crack, 2 mm"}]
+    assert client.put("/api/annotations", json=pins).raise_for_status().json() == pins
+    assert client.get("/api/annotations").json() == pins
+    for body, words in (([{"point": [0, math.nan, 0], "text": "x"}], "finite"),
+                        ([{"point": [0, 0, 0], "text": ""}], "at least 1 character"),
+                        ([{"point": [0, 0], "text": "x"}], "at least 3"),
+                        ([{"point": [0, 0, 0], "text": "x"}] * 101, "at most 100")):
+        response = client.put("/api/annotations", content=json.dumps(body),
+                              headers={"content-type": "application/json"})
+        assert response.status_code == 422 and words in response.text, response.text
+    assert client.get("/api/annotations").json() == pins, "a refused change changes nothing"
+    assert client.put("/api/annotations", json=[]).json() == []

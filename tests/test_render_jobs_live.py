@@ -164,6 +164,8 @@ def test_a_restart_fails_unfinished_jobs_with_a_reason(tmp_path) -> None:
             prefix = f"/api/sessions/{session['id']}"
             wait_until(lambda: client.get(f"{prefix}/objects").status_code == 200, seconds(120), "the session")
             poster = client.post(f"{prefix}/posters", json={"size": [2048, 2048], "samples": 64}).json()["id"]
+            pins = [{"point": [0.0, 0.5, 0.0], "text": "kept"}]
+            client.put(f"{prefix}/annotations", json=pins).raise_for_status()
     finally:
         first.proc.stop()
     second = start_coordinator(*args)
@@ -172,5 +174,6 @@ def test_a_restart_fails_unfinished_jobs_with_a_reason(tmp_path) -> None:
             state = client.get(f"{prefix}/posters/{poster}").raise_for_status().json()
             assert state["state"] == "error" and "restarted" in state["reason"]
             assert client.get(f"{prefix}/posters/{poster}.png").status_code == 409
+            assert client.get(f"{prefix}/annotations").json() == pins, "annotations are kept with the session"
     finally:
         second.proc.stop()

@@ -14,6 +14,7 @@ import { Panel } from "./panel.js";
 import { parseFrame } from "./protocol.js";
 import { apiInit, frameSizeFor, sessionApiPath, sessionFromQuery, steers, viewSocketPath } from "./session.js";
 import { SessionControls } from "./session_controls.js";
+import { Tools } from "./tools.js";
 import { VideoStream, decodableCodecs } from "./video.js";
 import { isVideo, parseVideo } from "./video_protocol.js";
 import { ClockOffset, Presenter, drawCellOutlines } from "./wall.js";
@@ -177,6 +178,7 @@ function painted(frame) {
   $("frame-badge").textContent = `frame ${frame.frameId}`;
   panel.showPicture(frame.frameId, frame.width, frame.height);
   sessionControls.showPicture(frame.width, frame.height);
+  tools.redraw();
   state.samples = frame.samples ?? 0;
   showQuality(frame);
 }
@@ -322,7 +324,10 @@ const panel = new Panel(document, api, (nodes) => {
   for (const node of nodes) nodeNames.set(node.slot, node.name ?? `node ${node.id}`);
   nodeReadback = readbackTiles(nodes);
   if (state.overlay) redrawOverlay();
-}, { messages, steering, onStats: (stats) => sessionControls.showStats(stats), onMissing: sessionGone });
+}, { messages, steering, onStats: (stats) => {
+  sessionControls.showStats(stats);
+  tools.showStats(stats);
+}, onMissing: sessionGone });
 const animation = new AnimationControls(document, api, (message) => {
   if (message) messages.say(message);
   else messages.clear();
@@ -380,7 +385,13 @@ document.addEventListener("keydown", (event) => {
   if (event.target instanceof HTMLInputElement || event.target instanceof HTMLSelectElement) return;
   if (event.key === "o" || event.key === "O") setOverlay(!state.overlay);
   if (event.key === "r" || event.key === "R") resetView();
+  if (event.key === "Escape") tools.clear();
 });
+
+// The tools (issue 35): a click picks; select, measure, note, cut, the section box, posters and films.
+const tools = new Tools(document, { frame: frameCanvas, api, steering, messages,
+  view: () => ({ camera: state.camera, size: state.size, bounds: state.bounds }),
+  link: (path) => address(sessionApiPath(path, session)) });
 
 const sessionControls = new SessionControls(document, (path, init) => fetch(address(path), init), session,
   messages, (url) => location.assign(url));
@@ -388,5 +399,6 @@ const sessionControls = new SessionControls(document, (path, init) => fetch(addr
 connection.start();
 if (!session.cell) panel.start();   // a wall cell shows no panel: it polls no stats
 sessionControls.start().catch((error) => console.warn("tessera: session controls:", error));
+if (!session.cell) tools.start().catch((error) => console.warn("tessera: tools:", error));
 setInterval(reportLatency, LATENCY_REPORT_MS);
 setInterval(reportStream, STREAM_REPORT_MS);
