@@ -127,10 +127,12 @@ class PointRenderer:
         self.vertex_array = ctx.vertex_array(self.program, [
             (self.positions, "3f", "in_position"), (self.colors, "4f1", "in_color"),
             (self.node_info, "3f 1f 1u /i", "in_cell", "in_depth", "in_refine")])
-        self.commands = ctx.buffer(reserve=max(nodes.count * 20, 20), dynamic=True)
+        self.commands = ctx.buffer(reserve=max(len(nodes.chunks.node) * 20, 20), dynamic=True)
         self._world_tree = cloud.world_tree
-        self._drawn_counts = np.diff(nodes.first)
-        self._own_boxes = nodes.own_boxes.astype(np.float64)
+        chunks = nodes.chunks
+        self._chunk_first, self._chunk_node = chunks.first, chunks.node
+        self._chunk_counts = np.diff(chunks.first)
+        self._chunk_boxes = chunks.boxes.astype(np.float64)
         self._framebuffer: moderngl.Framebuffer | None = None
         self._frame_key: tuple[Any, ...] | None = None
         self._chosen = np.zeros(nodes.count, bool)
@@ -179,12 +181,13 @@ class PointRenderer:
 
     def _draw(self, camera: Camera, size: tuple[int, int], drawn: Rect, chosen: np.ndarray,
               subsample: Subsample | None) -> tuple[np.ndarray, np.ndarray, int]:
-        """Draw the ``chosen`` nodes that touch ``drawn`` into the frame-sized framebuffer scissored
-        to it; (colour (h, w, 3) uint8, window depth (h, w) float32, points drawn)."""
+        """Draw the runs of the ``chosen`` nodes that touch ``drawn`` (:class:`node.scene.points.PointChunks`,
+        in their order) into the frame-sized framebuffer scissored to it; (colour (h, w, 3) uint8,
+        window depth (h, w) float32, points drawn)."""
         matrix = self._matrix(camera, size, subsample)
         planes = frustum_planes_from_matrix(matrix, size, drawn, MAX_SPLAT_PX / 2.0 + 1.0)
-        ids = np.flatnonzero(chosen & (self._drawn_counts > 0))
-        boxes = self._own_boxes[ids]
+        ids = np.flatnonzero(chosen[self._chunk_node])
+        boxes = self._chunk_boxes[ids]
         corner = np.where(planes[None, :, :3] >= 0.0, boxes[:, None, 1, :], boxes[:, None, 0, :])
         touching = ((corner * planes[None, :, :3]).sum(axis=-1) + planes[None, :, 3] >= 0.0).all(axis=1)
         ids = ids[touching]
@@ -195,12 +198,11 @@ class PointRenderer:
         framebuffer.scissor = gl_box
         framebuffer.use()
         framebuffer.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
-        points = int(self._drawn_counts[ids].sum())
+        points = int(self._chunk_counts[ids].sum())
         if ids.size:
-            first = self.scene.nodes.first
             # moderngl draws arrays indirect with the elements' command stride (5 words): one spare.
-            commands = np.stack([self._drawn_counts[ids], np.ones(ids.size, np.int64), first[ids], ids,
-                                 np.zeros(ids.size, np.int64)], axis=1).astype(np.uint32)
+            commands = np.stack([self._chunk_counts[ids], np.ones(ids.size, np.int64), self._chunk_first[ids],
+                                 self._chunk_node[ids], np.zeros(ids.size, np.int64)], axis=1).astype(np.uint32)
             self.commands.write(commands.tobytes())
             self.program["u_view_projection"].write(matrix.T.astype(np.float32).tobytes())
             self.program["u_spacing"].value = self.scene.nodes.spacing
@@ -243,8 +245,8 @@ class PointRenderer:
         is on screen."""
         started = time.perf_counter()
         chosen = self.choose(camera, size, point_budget)
-        ids = np.flatnonzero(chosen & (self._drawn_counts > 0))
-        boxes = self._own_boxes[ids] + self.scene.centre
+        ids = np.flatnonzero(chosen[self._chunk_node])
+        boxes = self._chunk_boxes[ids] + self.scene.centre
         bounds = project_boxes(boxes.reshape(-1, 6), camera, size, self.scene.bounds)
         grow = MAX_SPLAT_PX / 2.0 + 1.0
         bounds[:, :2] -= grow
@@ -254,7 +256,7 @@ class PointRenderer:
             return None
         color, depth, points = self._draw(camera, size, rect, chosen, subsample)
         return PointTile(rect, np.ascontiguousarray(color), (time.perf_counter() - started) * 1e3, 0.0, 0,
-                            int(ids.size), int(chosen.size - ids.size), 0.0, "points",
+                            int(chosen.sum()), int((~chosen).sum()), 0.0, "points",
                             np.ascontiguousarray(depth), points=points)
 
     def render_frame(self, camera: Camera, size: tuple[int, int], state: Any = None,

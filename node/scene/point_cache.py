@@ -25,7 +25,7 @@ from node.scene.cache import CACHE_FORMAT, CacheError, Progress, read_arrays, re
 from node.scene.cache_folder import CacheFolder, share_name
 from node.scene.mesh import SceneError
 from node.scene.point_files import read_points
-from node.scene.points import POINTS_FORMAT, PointCloud, PointNodes, build_octree
+from node.scene.points import POINTS_FORMAT, PointChunks, PointCloud, PointNodes, build_octree
 from tessera.decomposition.data_partition import split_chunks
 from tessera.points.budget import PointTree
 from tessera.scene.graph import ObjectGraph
@@ -54,7 +54,8 @@ def write_points_entry(directory: Path, cloud: PointCloud, source: Mapping[str, 
     arrays = {"positions": np.ascontiguousarray(cloud.positions), "colors": np.ascontiguousarray(cloud.colors),
               "node_first": nodes.first, "node_counts": tree.counts, "node_parents": tree.parents,
               "node_depths": tree.depths, "node_octants": tree.octants, "node_boxes": tree.boxes,
-              "node_own_boxes": nodes.own_boxes, "node_centres": nodes.centres}
+              "node_own_boxes": nodes.own_boxes, "node_centres": nodes.centres, "chunk_first": nodes.chunks.first,
+              "chunk_node": nodes.chunks.node, "chunk_boxes": nodes.chunks.boxes}
     table = {"format": CACHE_FORMAT, "kind": "points", "points_format": POINTS_FORMAT, "source": dict(source),
              "share": None if cloud.share is None else {"index": cloud.share[0], "weights": list(cloud.share[1])},
              "centre": cloud.centre.tolist(), "bounds": cloud.bounds.tolist(), "spacing": nodes.spacing,
@@ -73,8 +74,10 @@ def open_points_entry(directory: Path, name: str, verify: bool = True) -> PointC
         tree = PointTree(np.asarray(arrays["node_boxes"], np.float64), np.array(arrays["node_counts"], np.int64),
                          np.array(arrays["node_parents"], np.int64), np.array(arrays["node_depths"], np.int64),
                          np.array(arrays["node_octants"], np.int64))
+        chunks = PointChunks(np.array(arrays["chunk_first"], np.int64), np.array(arrays["chunk_node"], np.int64),
+                             np.array(arrays["chunk_boxes"], np.float32))
         nodes = PointNodes(np.array(arrays["node_first"], np.int64), tree, np.array(arrays["node_own_boxes"]),
-                           np.array(arrays["node_centres"]), float(table["spacing"]), float(table["cube"]))
+                           np.array(arrays["node_centres"]), float(table["spacing"]), float(table["cube"]), chunks)
         share = table["share"]
         return PointCloud(name, arrays["positions"], arrays["colors"], np.asarray(table["centre"], np.float64), nodes,
                           np.asarray(table["bounds"], np.float64), ObjectGraph.from_json(table["objects"]),
@@ -103,7 +106,8 @@ def keep_point_share(cloud: PointCloud, weights: Sequence[float], index: int) ->
     ranges = [(int(first[i]), int(first[i + 1])) for i in np.flatnonzero(own)]
     positions = np.concatenate([cloud.positions[a:b] for a, b in ranges])
     colors = np.concatenate([cloud.colors[a:b] for a, b in ranges])
-    nodes = dataclasses.replace(cloud.nodes, first=np.concatenate(([0], np.cumsum(own))).astype(np.int64))
+    first_kept = np.concatenate(([0], np.cumsum(own))).astype(np.int64)
+    nodes = dataclasses.replace(cloud.nodes, first=first_kept, chunks=PointChunks.of(first_kept, positions))
     return dataclasses.replace(cloud, positions=positions, colors=colors, nodes=nodes,
                                share=(index, tuple(float(w) for w in weights)))
 

@@ -19,6 +19,8 @@ import numpy as np
 from node.scene.mesh import SceneError
 from node.scene.ply import PLY_TYPES, _colors, _header
 
+#: Points a LAS/LAZ file is read by at a time.
+LAS_CHUNK = 4_000_000
 #: Point cloud file suffixes (PLY files are point clouds when they have no faces: :func:`is_point_ply`).
 LAS_SUFFIXES = (".las", ".laz")
 
@@ -69,30 +71,44 @@ def read_points(path: Path) -> PointArrays:
 
 
 def read_las(path: Path) -> PointArrays:
-    """A LAS/LAZ file's points, colours (16-bit RGB scaled to 8 bits) and intensities."""
+    """A LAS/LAZ file's points, colours (16-bit RGB scaled to 8 bits) and intensities, read
+    :data:`LAS_CHUNK` points at a time into arrays of the file's count (its point records, 20–67
+    bytes each, are never all in memory)."""
     import laspy
 
     try:
         with laspy.open(str(path), laz_backend=laspy.LazBackend.LazrsParallel) as reader:
             header = reader.header
-            points = reader.read_points(header.point_count)
+            count = int(header.point_count)
+            if count == 0:
+                raise SceneError(f"{path}: no points")
+            names = set(header.point_format.dimension_names)
+            scales, offsets = np.asarray(header.scales, np.float64), np.asarray(header.offsets, np.float64)
+            positions = np.empty((count, 3), np.float64)
+            colors = np.empty((count, 3), np.uint16) if {"red", "green", "blue"} <= names else None
+            intensity = np.empty(count, np.float32) if "intensity" in names else None
+            done = 0
+            for chunk in reader.chunk_iterator(LAS_CHUNK):
+                end = done + len(chunk)
+                if end > count:
+                    raise SceneError(f"{path}: more points than its header's {count}")
+                for axis, name in enumerate(("X", "Y", "Z")):
+                    np.multiply(np.asarray(chunk[name], np.float64), scales[axis], out=positions[done:end, axis])
+                    positions[done:end, axis] += offsets[axis]
+                if colors is not None:
+                    for column, name in enumerate(("red", "green", "blue")):
+                        colors[done:end, column] = chunk[name]
+                if intensity is not None:
+                    intensity[done:end] = chunk["intensity"]
+                done = end
     except (laspy.LaspyException, OSError, ValueError, RuntimeError) as exc:
         raise SceneError(f"{path}: corrupt or unreadable {path.suffix[1:].upper()} "
                          f"({' '.join(str(exc).split())[:200]})") from None
-    if len(points) == 0:
-        raise SceneError(f"{path}: no points")
-    scales, offsets = np.asarray(header.scales, np.float64), np.asarray(header.offsets, np.float64)
-    positions = np.empty((len(points), 3), np.float64)
-    for axis, name in enumerate(("X", "Y", "Z")):
-        np.multiply(np.asarray(points[name], np.float64), scales[axis], out=positions[:, axis])
-        positions[:, axis] += offsets[axis]
-    names = set(points.point_format.dimension_names)
-    colors = None
-    if {"red", "green", "blue"} <= names:
-        rgb = np.stack([np.asarray(points[name]) for name in ("red", "green", "blue")], axis=1)
-        colors = (rgb >> 8 if rgb.max(initial=0) > 255 else rgb).astype(np.uint8)
-    intensity = np.asarray(points["intensity"], np.float32) if "intensity" in names else None
-    return PointArrays(positions, colors, intensity)
+    if done < count:
+        raise SceneError(f"{path}: corrupt or unreadable {path.suffix[1:].upper()} (truncated: {done} of its "
+                         f"header's {count} points)")
+    rgb = None if colors is None else (colors >> 8 if colors.max(initial=0) > 255 else colors).astype(np.uint8)
+    return PointArrays(positions, rgb, intensity)
 
 
 def read_point_ply(path: Path) -> PointArrays:

@@ -45,7 +45,7 @@ from tessera.points.budget import PointTree
 from tessera.scene.graph import ObjectGraph, SceneObject
 
 #: The layout of a point cloud's cache entry: an entry of another is built again, never read.
-POINTS_FORMAT = 1
+POINTS_FORMAT = 2
 #: A node's sampling grid: 2^NODE_GRID_BITS cells a side.
 NODE_GRID_BITS = 7
 #: Finest sampling level the codes resolve at most (3 bits a level; the points' numbers take the rest of 64).
@@ -57,6 +57,8 @@ CODE_MASK = 0x5A3C_96E1_B2D4_8F17
 COLOR_MAP_STOPS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], np.float64)
 #: A node whose subtree holds at most this many points is a leaf holding them all.
 LEAF_POINTS = 16384
+#: Most points of a run a tile culls as one (:class:`PointChunks`).
+CHUNK_POINTS = 4096
 #: Most groups a cloud reports to the coordinator (its shallowest nodes, deeper ones merged into them).
 MAX_POINT_GROUPS = 2048
 
@@ -72,11 +74,37 @@ def color_map(values: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class PointChunks:
+    """C runs of a node's points (points within a node lie in Morton order, so a run is a small
+    region of it): ``first`` (C + 1,) int64 point offsets, ``node`` (C,) int64 and ``boxes`` (C, 2, 3)
+    float32 around its points (relative to the cloud's centre)."""
+
+    first: np.ndarray
+    node: np.ndarray
+    boxes: np.ndarray
+
+    @classmethod
+    def of(cls, first: np.ndarray, positions: np.ndarray) -> PointChunks:
+        """The runs of nodes whose points start at ``first`` (M + 1,) over ``positions`` (N, 3)."""
+        counts = np.diff(first)
+        per_node = -(-counts // CHUNK_POINTS)
+        node = np.repeat(np.arange(len(counts)), per_node)
+        within = np.arange(len(node)) - np.repeat(np.cumsum(per_node) - per_node, per_node)
+        starts = first[node] + within * CHUNK_POINTS
+        boxes = np.empty((len(starts), 2, 3), np.float32)
+        if len(starts):
+            boxes[:, 0] = np.minimum.reduceat(positions, starts, axis=0)
+            boxes[:, 1] = np.maximum.reduceat(positions, starts, axis=0)
+        return cls(np.append(starts, first[-1]).astype(np.int64), node.astype(np.int64), boxes)
+
+
+@dataclass(frozen=True, eq=False)
 class PointNodes:
     """The octree's M nodes (module docstring): ``first`` (M + 1,) int64 point offsets, ``tree`` (the
     hierarchy and subtree boxes, relative to the cloud's centre), ``own_boxes`` (M, 2, 3) float32
     boxes around each node's own points and ``centres`` (M, 3) float32 its cube's centre (relative),
-    ``spacing`` the root's point spacing (its grid's cell side) and ``cube`` its cube's side."""
+    ``spacing`` the root's point spacing (its grid's cell side) and ``cube`` its cube's side; its
+    ``chunks``: the points in runs of at most :data:`CHUNK_POINTS` within a node, which tiles cull."""
 
     first: np.ndarray
     tree: PointTree
@@ -84,6 +112,7 @@ class PointNodes:
     centres: np.ndarray
     spacing: float
     cube: float
+    chunks: PointChunks
 
     @property
     def count(self) -> int:
@@ -309,7 +338,7 @@ def _node_geometry(keys: np.ndarray, counts: np.ndarray, first: np.ndarray, rela
         np.maximum.at(subtree[:, 1], parents[ids], subtree[ids, 1])
     own[~nonempty] = subtree[~nonempty]
     return PointNodes(first, tree, own.astype(np.float32), centres.astype(np.float32),
-                      cube / (1 << NODE_GRID_BITS), cube)
+                      cube / (1 << NODE_GRID_BITS), cube, PointChunks.of(first, relative))
 
 
 def _compact_bits(values: np.ndarray) -> np.ndarray:

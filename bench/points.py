@@ -1,0 +1,275 @@
+"""Point clouds as a user opens and moves them (issue 36): ingest, first frame, the picture moving
+within a point budget, and the moving frame against the still.
+
+``python -m bench.points (--terrain N | --scan-copies K | --cloud PATH) [--nodes 3] [--size 1280x720]
+[--budgets 500000,1000000] [--moving-s 8] [--input-hz 30] [--work DIR] [--json OUT]``
+
+The cloud: ``--terrain N``, a synthetic terrain of N points in survey coordinates (UTM eastings of
+5·10⁵ m, northings of 4·10⁶ m; a 0.25 m grid jittered by 2 cm, scan-line order, height and RGB),
+written as LAZ (point format 3, millimetre scale) into ``--work``; ``--scan-copies K``, the Pan
+scan's vertices (no faces: a point cloud), K×K copies on a grid as one binary PLY; ``--cloud``, a
+file of your own. Then, in a fresh scene cache folder:
+
+- ``ingest``: the cache built in a child process (read, octree, written, checked): points/s by the
+  wall clock, the CPU seconds it used (both cores count), the seconds the read alone took, its peak
+  resident memory;
+- ``first_frame_s``: a coordinator with ``--local-nodes N`` (the cache kept) and a session opened on
+  the cloud: seconds from ``POST /api/sessions`` to its first frame;
+- for each budget of ``--budgets`` (the coordinator's ``--point-budget``): a scripted viewer orbits
+  an oblique camera at ``--input-hz`` for ``--moving-s`` at ``--size``: frames per second, input →
+  frame latency, the points the busiest node drew per frame, the nodes' busy time; then one camera's
+  moving frame against the still of the same camera (PSNR) and the still's seconds.
+
+Figures depend on what else runs: the table prints the load average beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import websockets.sync.client as ws_client
+from PIL import Image
+
+from bench.big_models import grid_offsets
+from bench.images import psnr
+from bench.live import ScriptedViewer
+from bench.processes import PYTHON, REPO, show_result, start_coordinator
+from bench.sessions import open_session, session_figures, wait_session_ready
+from tessera.cli_values import parse_point_budget, size_parser
+
+#: Points written to a LAZ file at a time.
+WRITE_CHUNK = 5_000_000
+DEFAULT_SCAN = REPO.parent / "shared" / "scenes" / "large_scan" / "threedscans_pan_990k.ply"
+
+
+def terrain_chunk(first: int, count: int, side: int, seed: int) -> np.ndarray:
+    """(count, 3) float64 terrain points ``first`` … ``first + count`` of a ``side``-wide grid."""
+    rng = np.random.default_rng(seed + first)
+    index = np.arange(first, first + count)
+    x = (index % side) * 0.25 + rng.normal(0.0, 0.02, count)
+    y = (index // side) * 0.25 + rng.normal(0.0, 0.02, count)
+    z = 100.0 + 25.0 * np.sin(x / 90.0) * np.cos(y / 130.0) + 3.0 * np.sin(x / 7.0 + y / 11.0)
+    return np.stack([x + 500000.0, y + 4000000.0, z], axis=1)
+
+
+def write_terrain(path: Path, count: int, seed: int = 7) -> Path:
+    """A LAZ terrain of ``count`` points (module docstring), written a chunk at a time."""
+    import laspy
+
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = [500000.0, 4000000.0, 0.0], [0.001, 0.001, 0.001]
+    side = int(math.sqrt(count)) + 1
+    partial = path.with_suffix(".partial.laz")
+    with laspy.open(str(partial), mode="w", header=header, laz_backend=laspy.LazBackend.LazrsParallel) as writer:
+        for first in range(0, count, WRITE_CHUNK):
+            xyz = terrain_chunk(first, min(WRITE_CHUNK, count - first), side, seed)
+            points = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
+            points.x, points.y, points.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+            shade = (xyz[:, 2] - 70.0) / 60.0
+            points.red = np.clip(shade * 60000, 0, 65535).astype(np.uint16)
+            points.green = np.clip((1.0 - np.abs(shade - 0.5)) * 60000, 0, 65535).astype(np.uint16)
+            points.blue = np.clip((1.0 - shade) * 50000, 0, 65535).astype(np.uint16)
+            points.intensity = np.clip(shade * 4000, 0, 65535).astype(np.uint16)
+            writer.write_points(points)
+    partial.rename(path)
+    return path
+
+
+def write_scan_points(path: Path, scan: Path, copies: int) -> Path:
+    """The vertices of the PLY ``scan``, ``copies`` × ``copies`` copies on a grid, as a binary PLY of
+    vertices without faces (a point cloud)."""
+    from node.scene.ply import read_ply_arrays
+
+    vertices, _ = read_ply_arrays(scan)
+    offsets = grid_offsets(vertices.min(axis=0), vertices.max(axis=0), copies)
+    count = len(vertices) * len(offsets)
+    partial = path.with_suffix(".partial.ply")
+    with partial.open("wb") as file:
+        file.write(f"ply\nformat binary_little_endian 1.0\nelement vertex {count}\nproperty float x\n"
+                   "property float y\nproperty float z\nend_header\n".encode())
+        for offset in offsets:
+            file.write((vertices + offset).astype("<f4").tobytes())
+    partial.rename(path)
+    return path
+
+
+INGEST = r"""
+import json, resource, sys, time
+from pathlib import Path
+started, cpu = time.perf_counter(), time.process_time()
+from node.scene.cache_folder import CacheFolder
+from node.scene.point_cache import cached_points, open_points_entry
+stages = {}
+def progress(fraction, message):
+    stages.setdefault(round(fraction, 2), time.perf_counter() - started)
+entry = cached_points(Path(sys.argv[1]), None, CacheFolder(Path(sys.argv[2]), 1 << 50), progress)
+cloud = open_points_entry(entry, "cloud", verify=False)
+print(json.dumps({"points": cloud.point_count, "nodes": cloud.nodes.count, "wall_s": time.perf_counter() - started,
+                  "cpu_s": time.process_time() - cpu, "read_s": stages.get(0.3), "peak_mb":
+                  resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def ingest(cloud: Path, cache: Path) -> dict[str, Any]:
+    """The cache of ``cloud`` built in a child process (niced as a node's reader is)."""
+    out = subprocess.run(["nice", "-n", "10", PYTHON, "-c", INGEST, str(cloud), str(cache)], cwd=REPO,
+                         capture_output=True, text=True, check=True)
+    figures = json.loads(out.stdout.strip().splitlines()[-1])
+    figures["points_per_s"] = figures["points"] / figures["wall_s"]
+    figures["points_per_cpu_s"] = figures["points"] / figures["cpu_s"]
+    return {key: round(value, 2) if isinstance(value, float) else value for key, value in figures.items()}
+
+
+def oblique(bounds: list[list[float]], angle: float) -> dict[str, Any]:
+    """A camera 30° above the cloud's middle, turned ``angle`` radians about the vertical (z, or y
+    for a cloud taller than deep), a third of its size away."""
+    lo, hi = np.asarray(bounds, float)
+    centre, extent = (lo + hi) / 2.0, hi - lo
+    up = 2 if extent[2] < extent[1] else 1
+    across = [axis for axis in range(3) if axis != up]
+    distance = float(np.linalg.norm(extent)) * 0.45
+    eye = centre.copy()
+    eye[across[0]] += distance * math.cos(angle) * math.cos(math.radians(30))
+    eye[across[1]] += distance * math.sin(angle) * math.cos(math.radians(30))
+    eye[up] += distance * math.sin(math.radians(30))
+    direction = [0.0, 0.0, 0.0]
+    direction[up] = 1.0
+    return {"eye": eye.tolist(), "target": centre.tolist(), "up": direction, "fovy_deg": 50.0}
+
+
+def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tuple[Any, str]:
+    flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(cloud.parent), "--frame-wait-s", "600",
+             "--size", f"{args.size[0]}x{args.size[1]}", "--point-budget", str(budget)]
+    return start_coordinator(flags, log_level="warning", timeout=120,
+                             env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
+
+
+def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> dict[str, Any]:
+    """One coordinator at ``budget``: its first frame, the picture moving, the moving frame against the still."""
+    coordinator, url = start(args, cloud, cache, budget)
+    try:
+        with httpx.Client(base_url=url, timeout=600) as client:
+            started = time.perf_counter()
+            session = open_session(client, f"library/{cloud.name}", args.size)
+            wait_session_ready(client, session, timeout=1800)
+            first_s = time.perf_counter() - started
+            bounds = client.get(f"/api/sessions/{session}/camera").json()["bounds"]
+            with ws_client.connect(url.replace("http://", "ws://") + f"/ws/view?session={session}",
+                                   max_size=256 << 20) as ws:
+                viewer = ScriptedViewer(ws)
+                points: list[float] = []
+                busy: list[float] = []
+                stop = threading.Event()
+
+                def sample() -> None:
+                    while not stop.wait(0.5):
+                        nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
+                        points.append(max((n.get("points", 0) for n in nodes), default=0))
+                        busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
+
+                sampler = threading.Thread(target=sample, daemon=True)
+                moving_started = next_send = time.perf_counter()
+                sampler.start()
+                while (now := time.perf_counter()) < moving_started + args.moving_s:
+                    viewer.send_camera(oblique(bounds, 2.0 * math.pi * (now - moving_started) / 16.0))
+                    next_send += 1.0 / args.input_hz
+                    time.sleep(max(0.0, next_send - time.perf_counter()))
+                ended = time.perf_counter()
+                stop.set()
+                sampler.join()
+                figures = session_figures(viewer, moving_started + 1.0, ended)
+                viewer.stop()
+            camera = oblique(bounds, 1.0)
+            first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
+            moving = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
+            asked = time.perf_counter()
+            still = client.get(f"/api/sessions/{session}/frame.png", params={"after": first, "still": "true"},
+                               timeout=1200).content
+            still_s = time.perf_counter() - asked
+    finally:
+        coordinator.stop(timeout=60.0)
+    moving_image, still_image = (np.asarray(Image.open(io.BytesIO(data)).convert("RGB")) for data in (moving, still))
+    return {"budget": budget, "first_frame_s": round(first_s, 2), **{k: round(v, 2) for k, v in figures.items()},
+            "points_per_frame": round(float(np.median(points)), 0) if points else None,
+            "busy_ms": round(float(np.median(busy)), 1) if busy else None,
+            "psnr_moving_vs_still": round(psnr(moving_image, still_image), 2), "still_s": round(still_s, 2),
+            "load": round(os.getloadavg()[0], 1)}
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    if args.cloud:
+        cloud = Path(args.cloud).resolve()
+    elif args.terrain:
+        cloud = work / f"terrain_{args.terrain}.laz"
+        if not cloud.exists():
+            write_terrain(cloud, args.terrain)
+    else:
+        cloud = work / f"pan_points_{args.scan_copies}x{args.scan_copies}.ply"
+        if not cloud.exists():
+            write_scan_points(cloud, DEFAULT_SCAN, args.scan_copies)
+    with tempfile.TemporaryDirectory(prefix="tessera-bench-points-", dir=args.work) as cache_dir:
+        cache = Path(cache_dir)
+        result: dict[str, Any] = {"cloud": cloud.name, "bytes": cloud.stat().st_size, "nodes": args.nodes,
+                                  "size": list(args.size), "load_before": round(os.getloadavg()[0], 1)}
+        result["ingest"] = ingest(cloud, cache)
+        result["ingest"]["load"] = round(os.getloadavg()[0], 1)
+        result["runs"] = [session_run(args, cloud, cache, budget) for budget in args.budgets]
+    return result
+
+
+def report(result: dict[str, Any]) -> str:
+    ingest_figures = result["ingest"]
+    lines = [f"{result['cloud']}: {ingest_figures['points']} points, {result['bytes'] / 1e6:.0f} MB, "
+             f"{result['nodes']} nodes, {result['size'][0]}x{result['size'][1]}",
+             f"ingest: {ingest_figures['points_per_s'] / 1e6:.2f} M points/s ({ingest_figures['wall_s']:.1f} s; read "
+             f"{ingest_figures['read_s']} s; {ingest_figures['cpu_s']:.1f} CPU s, "
+             f"{ingest_figures['points_per_cpu_s'] / 1e6:.2f} M/CPU s; peak {ingest_figures['peak_mb']:.0f} MB; "
+             f"{ingest_figures['nodes']} octree nodes; load {ingest_figures['load']})",
+             f"{'budget':>10} {'first s':>8} {'fps':>6} {'lat ms':>7} {'points':>9} {'busy ms':>8} "
+             f"{'PSNR':>6} {'still s':>8} {'load':>5}"]
+    for run in result["runs"]:
+        lines.append(f"{run['budget']:>10} {run['first_frame_s']:>8} {run['fps']:>6} {run['latency_p50_ms']:>7} "
+                     f"{run['points_per_frame']!s:>9} {run['busy_ms']!s:>8} {run['psnr_moving_vs_still']:>6} "
+                     f"{run['still_s']:>8} {run['load']:>5}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.points", description=__doc__.split("\n\n")[0])
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--terrain", type=parse_point_budget, metavar="N", help="a synthetic LAZ terrain of N points")
+    source.add_argument("--scan-copies", type=int, metavar="K", help="K x K copies of the Pan scan's vertices")
+    source.add_argument("--cloud", help="a point cloud file (LAS, LAZ, PLY without faces)")
+    parser.add_argument("--nodes", type=int, default=3)
+    parser.add_argument("--size", type=size_parser(16, 8192), default=(1280, 720))
+    parser.add_argument("--budgets", type=lambda text: [parse_point_budget(v) for v in text.split(",")],
+                        default=[500_000])
+    parser.add_argument("--moving-s", type=float, default=8.0)
+    parser.add_argument("--input-hz", type=float, default=30.0)
+    parser.add_argument("--work", default=str(Path(tempfile.gettempdir()) / "tessera-bench-points"))
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    result = measure(args)
+    show_result(report(result), result, args.json, argv if argv is not None else sys.argv[1:])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
