@@ -228,3 +228,15 @@ def test_eye_dome_darkens_what_lies_behind_a_nearer_neighbour() -> None:
     assert (shaded[1:-1, 6:-1] == 200).all()          # a flat region is unshaded
     assert (shaded[1:-1, 4] < 100).all()              # the far side of the step is darkened
     assert (shaded[1:-1, 3] == 200).all()             # the near side is not
+
+
+def test_the_upload_check_takes_point_clouds_and_refuses_broken_ones(tmp_path: Path) -> None:
+    from server.scene_library import NotAScene, check_scene_file
+
+    good, broken = tmp_path / "good.laz", tmp_path / "broken.las"
+    write_las(good, survey(3000))
+    write_las(broken, survey(3000), rgb=False, point_format=0)
+    broken.write_bytes(broken.read_bytes()[:1500])
+    assert check_scene_file(good, "upload/good.laz") == 0
+    with pytest.raises(NotAScene, match=r"^upload/broken\.las: corrupt or unreadable LAS"):
+        check_scene_file(broken, "upload/broken.las")

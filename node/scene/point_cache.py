@@ -133,8 +133,14 @@ def cached_points(source: Path, share: ShareSpec | None, folder: CacheFolder, pr
         progress(0.8, f"writing the scene cache: {cloud.point_count} points in {cloud.nodes.count} nodes")
         return write_points_entry(directory, cloud, origin)
 
+    built: set[str] = set()     # entries this process wrote: not read back to check them
+
+    def build_whole_here(directory: Path) -> int:
+        built.add(directory.name)
+        return build_whole(directory)
+
     for attempt in range(REBUILDS + 1):
-        whole = folder.ensure(whole_name, build_whole, progress)
+        whole = folder.ensure(whole_name, build_whole_here, progress)
         entry = whole
         if share is not None:
             def build_share(directory: Path, whole: Path = whole) -> int:
@@ -142,11 +148,12 @@ def cached_points(source: Path, share: ShareSpec | None, folder: CacheFolder, pr
                     cloud = open_points_entry(whole, source.name, verify=False)
                 except CacheError as exc:
                     raise SceneError(f"{source.name}: {exc}") from None
+                built.add(directory.name)
                 return write_points_entry(directory, keep_point_share(cloud, share.weights, share.index), origin)
             entry = folder.ensure(share_name(whole_name, share.weights, share.index), build_share, progress)
         try:
             progress(0.9, "checking the scene cache")
-            open_points_entry(entry, source.name, verify=True)
+            open_points_entry(entry, source.name, verify=entry.name not in built)
             return entry
         except CacheError as exc:
             remove_entry(entry)

@@ -93,8 +93,9 @@ def read_las(path: Path) -> PointArrays:
                 if end > count:
                     raise SceneError(f"{path}: more points than its header's {count}")
                 for axis, name in enumerate(("X", "Y", "Z")):
-                    np.multiply(np.asarray(chunk[name], np.float64), scales[axis], out=positions[done:end, axis])
-                    positions[done:end, axis] += offsets[axis]
+                    column = positions[done:end, axis]
+                    np.multiply(chunk.array[name], scales[axis], out=column, casting="unsafe")
+                    column += offsets[axis]
                 if colors is not None:
                     for column, name in enumerate(("red", "green", "blue")):
                         colors[done:end, column] = chunk[name]
