@@ -155,8 +155,13 @@ class SessionFrames:
 
     def set_points(self, bounds: np.ndarray) -> None:
         """The scene is a point cloud of ``bounds`` (2, 3) (issue 36): moving frames draw within the
-        point budget, stills every point; sort-last frames are shaded after the merge."""
+        point budget, stills every point; sort-last frames are shaded after the merge. A hybrid
+        session turns sort-first (a hybrid tile's strip has no depth beyond it to shade from)."""
         self.point_bounds = np.asarray(bounds, np.float64)
+        if self.config.mode == "hybrid":
+            self.config = dataclasses.replace(self.config, mode="sort-first")
+            self.mode = create_mode("sort-first", self.size, self.mode.tiles.balancer, self.mode.background,
+                                    self.config.depth_strip)
 
     def _points_job(self, job: FrameJob, camera: Camera, still: bool) -> None:
         assert self.point_bounds is not None
