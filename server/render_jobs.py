@@ -109,7 +109,7 @@ class RenderJob:
         """``{"id", "kind", "state", "done", "total", "reason"?}`` (``total``: a film's frames, a
         poster's piece samples)."""
         if self.work is None:
-            return {"id": self.job_id, "kind": self.kind, "state": ERROR, "done": 0, "total": 0,
+            return {"id": self.job_id, "kind": self.kind, "state": ERROR, "done": 0, "total": 0, "node_ms": 0.0,
                     "reason": self.failed or RESTART_REASON}
         return {"id": self.job_id, "kind": self.kind, **self.work.describe()}
 

@@ -137,13 +137,14 @@ class JobScheduler(FrameScheduler):
             super()._complete(job, now)
             return
         del self.in_flight[job.frame_id]
-        self.fair.spent(job.session, sum(timing.busy_ms for timing in job.timings()), now)
+        busy_ms = sum(timing.busy_ms for timing in job.timings())
+        self.fair.spent(job.session, busy_ms, now)
         for node_id, rate in job.ms_per_px_by_node().items():
             if node_id in self.nodes:
                 self.nodes[node_id].ms_per_px = rate
         work = self.jobs.get(job.job)
         if work is not None and job.item is not None:
-            work.drawn(job.item)
+            work.drawn(job.item, busy_ms)
             self._actions.append(PublishFrame(job))
 
     # ----------------------------------------------------------------- internals

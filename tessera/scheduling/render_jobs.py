@@ -162,8 +162,9 @@ class RenderWork:
     #: Pieces of each picture whose every sample is in, and the pictures whose every piece is.
     pieces_done: dict[int, set[int]] = field(default_factory=dict)
     pictures_done: int = 0
-    #: Items drawn so far.
+    #: Items drawn so far, and the node time (busy ms: render, read-back, encode) they took.
     items_drawn: int = 0
+    node_ms: float = 0.0
     #: The next picture to start and, in it, the next piece and sample.
     _cursor: tuple[int, int, int] = (0, 0, 0)
     _samples_done: dict[tuple[int, int], int] = field(default_factory=dict)
@@ -230,10 +231,12 @@ class RenderWork:
             if not self.finished:
                 self.again.append(item)
 
-    def drawn(self, item: JobItem) -> tuple[bool, bool]:
-        """``item`` came back: (its piece has every sample now, its picture every piece)."""
+    def drawn(self, item: JobItem, busy_ms: float = 0.0) -> tuple[bool, bool]:
+        """``item`` came back, having taken ``busy_ms`` of node time: (its piece has every sample
+        now, its picture every piece)."""
         self.out.discard(item)
         self.items_drawn += 1
+        self.node_ms += busy_ms
         key = (item.picture, item.piece)
         self._samples_done[key] = self._samples_done.get(key, 0) + 1
         if self._samples_done[key] < self.samples:
@@ -257,8 +260,8 @@ class RenderWork:
         return out
 
     def describe(self) -> dict[str, object]:
-        """``{"state", "done", "total", "reason"?}``."""
-        return {"state": self.state, "done": self.done, "total": self.total,
+        """``{"state", "done", "total", "node_ms", "reason"?}`` (``node_ms``: the node time its tiles took)."""
+        return {"state": self.state, "done": self.done, "total": self.total, "node_ms": round(self.node_ms, 1),
                 **({"reason": self.reason} if self.reason is not None else {})}
 
 
