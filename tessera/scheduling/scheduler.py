@@ -1,73 +1,38 @@
 """The coordinator's frame scheduler without I/O (seed 004's APP stage; the sans-I/O pattern of
-websockets' ``Protocol``): events in, actions out, clock readings passed in.
+websockets' ``Protocol``): events in, actions out, clock readings passed in. The asyncio service and
+the virtual-clock benchmarks drive this same object. docs/explanation/scheduler.md tells what it does
+and why; in short:
 
 Events: the camera or the scene state changed, a balancer was chosen, a node joined / became
 ready / left, a tile arrived, a tile's send time arrived, a tick. Actions (:meth:`drain`): send a
-render message, cancel frames on a node, publish a frame, close a node. The asyncio service and
-the virtual-clock benchmarks drive this same object.
+render message, cancel frames on a node, publish a frame, close a node.
 
-What it decides:
-
-* **Render on demand.** A frame starts only when something changed since the newest frame
-  (camera, scene state, balancer, node set; a playing animation changes the state all the time),
-  while the balancer settles (at most
-  ``settle_frames`` more frames after a change, and only while the partition still moves), or
-  when the still frame is owed: once nothing changed for ``still_delay_ms``, frames in the
-  lossless ``still_codec`` (TurboVNC's lossless refresh; trame's still quality): the progressive
-  still's jittered samples (``still_samples``, or until it converges), one frame after the other, the next sent ahead to
-  nodes ending their tile of the one before (:mod:`tessera.scheduling.refinement`; their adapter
-  accumulates them and shows the mean, so when every node is on the coordinator's machine the
-  samples' tiles travel raw: no PNG to encode on the nodes nor to check and decode on the
-  coordinator; a frame no larger than the coordinator's ``size``, whose node messages allow four raw
-  frames). Otherwise nothing renders. So do the interactive tiles of a session every viewer takes
-  as video (issue 21): the encoder's source, without JPEG's loss.
-* **Late camera binding** (seed 000 §4.5, seed 004: latency under two frames). A frame takes the
-  newest camera when it starts, and it starts only when a node wants work — it has nothing left
-  to do, or its last tile ends within its round trip (dispatch ahead,
-  :mod:`tessera.scheduling.node_table`) — so its camera is fresh when the first node begins it
-  and no node idles for the round trip; at most ``max_in_flight`` frames are in flight.
-  When the state changes, frames that are superseded are dropped: a still frame, and any frame
-  no node has begun (no tile arrived, none at the head of a node's queue). Nodes are told to
-  drop their queued tiles of dropped frames; the scheduler stops waiting for them.
-* **Late scene state binding** (issue 11; seed 004: a frame's dynamic data). A frame also takes
-  the scene's state when it starts (:class:`tessera.scene.timeline.SceneTimeline`: the animation
-  at the frame's scene time, the user's poses) as one version of the state log. Each render
-  message carries that state: a delta on the version last sent to that node (messages reach a
-  node in order), the full state when the node has none (it just joined) or that version is no
-  longer kept. A node renders a tile with exactly that state, and its tile says which.
-* **Never torn, never backwards.** A frame is published only when every tile arrived, all made
-  for its one camera and its one scene state; publishing frame F drops every older frame still
-  in flight.
+* **Render on demand.** A frame starts only when something changed since the newest frame, while
+  the balancer settles (at most ``settle_frames`` more, while the partition still moves), or for the
+  still once nothing changed for ``still_delay_ms``: its jittered samples in ``still_codec``
+  (:mod:`tessera.scheduling.refinement`), each sent ahead to nodes ending their tile of the one before.
+* **Late camera and scene state binding** (seed 000 §4.5, seed 004). A frame takes the newest camera
+  and scene state (:class:`tessera.scene.timeline.SceneTimeline`, one version of the state log,
+  sent to each node as a delta on the version it has) when it starts, and it starts only when a node
+  wants work: idle, or its last tile ends within its round trip (:mod:`tessera.scheduling.node_table`).
+  At most ``max_in_flight`` frames are in flight; a change drops the still and frames no node began.
+* **Never torn, never backwards.** A frame is published only when every tile of its one camera and
+  one scene state arrived; publishing it drops every older frame in flight.
 * **Push and pull dispatch.** Push partitions go to their nodes at once; pull partitions (tile
   rotation, seed 000 §4.3) hand one tile at a time to an idle node, heaviest first, oldest frame
-  first, the fastest idle node first. A node that leaves has its owed tiles re-dispatched.
-* **Stragglers and failed tiles.** A node whose current tile is ``backup_factor`` times later than
-  its expected time for it (its last frame's busy ms per pixel × the tile's pixels, or, for a node
-  that has not finished a frame yet, the slowest rate any node has shown; at least
-  ``backup_floor_s``) is suspect: the tiles it owes are copied to other nodes (MapReduce's backup
-  tasks; the first copy back wins, the other is dropped) and it gets no new work until it answers
-  again. A tile the node reports it could not render goes to another node; ``max_tile_failures``
-  failures in a row close the node. A node silent past ``tile_timeout_s`` is closed.
-* **Decomposition modes** (issue 10): the scheduler holds one
-  :class:`tessera.decomposition.mode.DecompositionMode` (``--mode``) and asks it what a frame is
-  cut into, what its render messages ask of the nodes, what a tile must be and what viewers get
-  of a complete frame; whether tiles may move between nodes (backups, failed tiles); and, when
-  the node set changes, what each node must load (sort-last: a new data partition, frames in
-  flight dropped, no frame until every share is loaded).
-* **Sessions** (issue 19). Every frame belongs to a session (:class:`SessionFrames`: its own
-  size, mode and balancer, camera, scene state and frames); the nodes are shared. Frame ids are
-  unique across sessions, so a node's queue may hold tiles of several. A frame of a session
-  starts only when a node that holds its scene has nothing left to do (or, while only some
-  nodes hold it and none of them is free, when another node is: :meth:`FrameScheduler._free_for`);
-  when several sessions owe a frame, the one that has had least node time goes first
-  (:class:`FairShare`; while only some nodes hold a session's scene, its time on them counts
-  as many times as they are fewer than the ready nodes, :meth:`FrameScheduler._scarcity`, and
-  its frames go to them in pieces one at a time, :meth:`FrameScheduler._pieces`). The methods
-  that act on one session take its id and default to :data:`DEFAULT_SESSION`.
-* **Timing roll-up.** Per-node phases of each complete frame feed the stats; interactive frames'
-  timings feed the balancer (a still frame's lossless encoding would skew it) from the moment the
-  frame completes, so the next frame is partitioned with them; send times, which each node
-  reports just after its tile, are added when they are in.
+  first, fastest node first. A node that leaves has its owed tiles re-dispatched.
+* **Stragglers and failed tiles.** A node ``backup_factor`` times later than its expected time for
+  its tile (at least ``backup_floor_s``) has its tiles copied to other nodes, the first copy back
+  winning; a failed tile goes to another node; ``max_tile_failures`` in a row, or silence past
+  ``tile_timeout_s``, close the node.
+* **Decomposition modes.** One :class:`tessera.decomposition.mode.DecompositionMode` (``--mode``)
+  says what a frame is cut into, what the nodes are asked and must load, and whether tiles may move.
+* **Sessions.** Every frame belongs to a :class:`SessionFrames`; sessions share the nodes, the least
+  served first (:class:`FairShare`; a scene held by only some nodes: :meth:`FrameScheduler._free_for`,
+  :meth:`FrameScheduler._scarcity`, :meth:`FrameScheduler._pieces`). Methods that act on one session
+  take its id and default to :data:`DEFAULT_SESSION`.
+* **Timing roll-up.** Each complete frame's per-node phases feed the stats, and an interactive
+  frame's the balancer as soon as it completes; send times are added when they arrive.
 """
 
 from __future__ import annotations
