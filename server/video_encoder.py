@@ -27,46 +27,32 @@ from tessera.video.yuv_frame import coded_size
 from tessera.wire.video import VideoCodec
 
 _ENCODERS = {VideoCodec.H264: "libx264", VideoCodec.VP9: "libvpx-vp9"}
-#: What x264 does beyond ``ultrafast`` (and so the Main profile: CABAC). Measured offline at 720p on
-#: 24 renders of the default scene 10.6° of orbit apart (bench.stream's frames are 9-10° apart:
-#: nearly every block coded afresh), raw tiles as the source, one thread, PSNR against the render
-#: (JPEG q60 tiles 43.46 dB), CRF 28: the options before (4×4 intra partitions and the deblocking
-#: filter on ``ultrafast``, Constrained Baseline) 4.89 KB 43.67 dB 2.4 ms; + CABAC 4.43 KB, the same
-#: dB, +0.2 ms; + 8×8 inter partitions, sub-pixel refinement 2 and a hexagon search 3.24 KB
-#: 43.22 dB (+1.2 ms); + trellis 3.44 KB 43.45 dB (+0.3 ms); + chroma QP offset −2 and deblocking
-#: 1:1 (chroma costs PSNR more than bits) 3.50 KB 43.67 dB. Tried and left: ``superfast`` and
-#: ``veryfast`` (their psycho-visual tuning costs PSNR: 3.75 KB 41.67 dB at CRF 26), with ``tune
-#: psnr`` (3.87 KB 42.52 dB, 3.9 ms); sub-pixel refinement 3-4 and two references (nothing more);
-#: the uneven multi-hexagon search (−3 % bytes, +0.6 ms); 8×8 transforms (High profile: −0.3 dB);
-#: SVT-AV1 at presets 10-13 (5.9 KB 40.6 dB at CRF 35).
+#: What x264 does beyond ``ultrafast`` (and so the Main profile: CABAC): 4×4 intra and 8×8 inter
+#: partitions, deblocking at 1:1, CABAC, sub-pixel refinement 2, a hexagon search, trellis and a
+#: chroma QP offset of −2 (chroma costs PSNR more than bits). Each option chosen by its PSNR per
+#: byte and per millisecond at 720p: see the design notes.
 X264_PARAMS = "partitions=i4x4,p8x8:deblock=1,1:cabac=1:subme=2:me=hex:trellis=1:chroma-qp-offset=-2"
 #: x264's constant rate factor, the target a cap over it (capped CRF): a picture gets the bits its
-#: quality needs up to its share of the target, where the target alone (constant bitrate) spent every
-#: frame's share. Live (``bench.stream``, 720p, default scene, 3 nodes, raw tiles as the source; JPEG
-#: q60 tiles 9.5-9.6 KB a frame on the wire, 43.35-43.41 dB against render-once), two runs each: CRF
-#: 28.5 3.4 KB 43.57-43.68 dB; CRF 29 3.2 KB 43.30-43.39 dB (the tiles' PSNR give or take 0.1 dB).
-#: 28.5: the fewest bits that stay above the tiles' PSNR. (Before, from JPEG q88 tiles with the
-#: options before: CRF 26 5.8 KB 43.76 dB.)
+#: quality needs up to its share of the target, where the target alone (constant bitrate) would spend
+#: every frame's share. 28.5: the fewest bits that stay above the JPEG q60 tiles' PSNR (measured with
+#: ``bench.stream``: see the design notes).
 X264_CRF = 28.5
 #: Frames larger than :data:`tessera.video.budget.FULL_ANALYSIS_PIXELS`, encoded from JPEG q88 tiles:
-#: ``ultrafast`` with 4×4 intra partitions, the deblocking filter and CABAC (the options before the
-#: fuller analysis, −9 % bytes at the same PSNR with CABAC, +0.2 ms), at the CRF they had (26).
+#: ``ultrafast`` with 4×4 intra partitions, the deblocking filter and CABAC, at CRF 26.
 X264_LIGHT_PARAMS = "partitions=i4x4:deblock=0,0:cabac=1"
 X264_LIGHT_CRF = 26
 _OPTIONS = {
     VideoCodec.H264: {"preset": "ultrafast", "tune": "zerolatency", "profile": "main", "forced-idr": "1",
                       "x264-params": X264_PARAMS, "crf": f"{X264_CRF:g}"},
-    # tune-content screen: measured as above at 0.10 bit per pixel, 6.45 KB → 6.19 KB, 40.32 → 40.98 dB, same CPU
+    # tune-content screen: fewer bytes and more dB on rendered frames at the same CPU (see the design notes)
     VideoCodec.VP9: {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "row-mt": "1",
                      "error-resilient": "0", "tune-content": "screen"},
 }
 #: The VBV buffer: this many pictures at the cap (short: a frame's size stays near its share).
 BUFFER_FRAMES = 2.0
-#: Encoder threads: one, the caller's (so the thread's CPU time is the encoding's, exactly: checked
-#: against the process's). Measured at 720p, 20 orbit frames 18° apart, two runs at load 5: x264 (the
-#: options before CABAC, 0.09 bit per pixel) 3.31–3.35 ms CPU a frame on one thread, 3.47–3.89 ms on
-#: two (slices); libvpx-vp9 7.1–7.6 ms either way; x264 with :data:`X264_PARAMS` 4.0–4.2 ms live on one
-#: thread. A coordinator's cores are the nodes' too: CPU counts.
+#: Encoder threads: one, the caller's (so the thread's CPU time is the encoding's, exactly). A second
+#: thread (slices) cost as much CPU a frame or more (see the design notes), and a coordinator's cores
+#: are the nodes' too: CPU counts.
 THREADS = 1
 
 

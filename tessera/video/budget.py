@@ -1,10 +1,8 @@
 """What the coordinator's stream thread can afford per frame (issue 21), in pixels: a frame of at
 most :data:`FULL_ANALYSIS_PIXELS` is encoded from raw tiles (local nodes, every viewer on video) with
 x264's fuller analysis (:data:`server.video_encoder.X264_PARAMS`); a larger one from JPEG tiles with
-CABAC alone. Measured on the 2-core machine (``python -m bench.stream``): at 1280×720 the fuller
-path takes 4.2 ms to encode and 4.5–6 ms to compose (raw tiles converted in float32) and saves 40 %
-of the bytes at the tiles' PSNR; at 1920×1080 (``--synthetic``) it took 10.9 + 13.5 ms, so the stream
-fell from 54 to 28 frames a second, where JPEG tiles and the lighter options take 5.7 + 4.7 ms.
+CABAC alone. The limit is where the fuller path's encode and compose time still fits a live frame
+rate on a 2-core machine (``python -m bench.stream``; see the design notes).
 """
 
 #: The largest frame (pixels) encoded from raw tiles with the fuller analysis: 1280×720.
