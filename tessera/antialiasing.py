@@ -7,21 +7,17 @@ pixel) holds the mean over the pixel's square. :func:`resolve_filter` estimates 
 centre samples of the pixel and its neighbours: the separable kernel [1, 6, 1] / 8 along x and along
 y (weights 36/64 on the pixel, 6/64 on each side neighbour, 1/64 on each corner), integers, rounded
 half up. It is close to the least-squares 3×3 kernel from the one-sample frames of the benchmark's
-scenes to their 4×4 supersampled references (centre 0.56, sides 0.106, corners 0.004), and as good:
-+3.4 to +3.8 dB on the scenes whose error is at edges, +1.7 dB on the milk truck, whose error is in
-its textures (:data:`FILTERED_LOD_BIAS`) (``python -m bench.picture``). A linear filter only spreads
-what the samples saw: geometry thinner than a pixel stays as aliased as it was drawn, which more
-samples cure.
+scenes to their 4×4 supersampled references, and as good (``python -m bench.picture``; figures in the
+design notes). A linear filter only spreads what the samples saw: geometry thinner than a pixel stays
+as aliased as it was drawn, which more samples cure.
 
 **Sample grids.** A frame drawn over a viewport ``kx`` × ``ky`` times as large with the same
 projection holds, in each pixel, a ``kx`` × ``ky`` ordered grid of samples (block (i, j) of the
 large frame is pixel (i, j)'s): one draw, any count. :func:`resolve_grid` averages each pixel's
-block and, for the small grids, filters the sums: the pair (2 × 1, ``--msaa auto`` on llvmpipe
-since issue 20: samples ¼ pixel left and right of the centre) by [1, 14, 1] / 16 along x (the pair
-already spans the pixel's width; [1, 6, 1] gave the diorama 0.4 dB less) and [1, 6, 1] / 8 along y,
-+1.5 to +2.2 dB over the one-sample filter on the seven scenes; 2 × 2 by [1, 14, 1] / 16 along both;
-3 × 3 and 4 × 4 not at all (a filter took 1.3-4.5 dB from 3 × 3 on the seven scenes at 640x360:
-nine samples already span the pixel). Which grid a frame of a given size gets is the node's choice
+block and, for the small grids, filters the sums: the pair (2 × 1, ``--msaa auto`` on llvmpipe:
+samples ¼ pixel left and right of the centre) by [1, 14, 1] / 16 along x (the pair already spans the
+pixel's width) and [1, 6, 1] / 8 along y; 2 × 2 by [1, 14, 1] / 16 along both; 3 × 3 and 4 × 4 not at
+all (nine samples already span the pixel). Which grid a frame of a given size gets is the node's choice
 (:func:`node.gl.shading.resolve_antialiasing`).
 
 Tiles stay seamless: a pixel's result depends on its 3×3 neighbourhood only (its own block when not
@@ -41,9 +37,8 @@ from tessera.geometry import Rect
 #: Pixels each side of a tile that the filter reads.
 GUARD = 1
 #: Texture LOD bias of filtered frames: textures read one level finer, as a still of 4 samples reads
-#: them (the filter blurs a little; finer texels make up for it: the milk truck +3.0 dB against the
-#: 4×4 supersampled frame, the duck +1.3 dB). Finer still gains little more (-1.5: +0.5 and +0.2 dB)
-#: and one sample per pixel would shimmer in motion.
+#: them (the filter blurs a little; finer texels make up for it). Finer still gains little more and one
+#: sample per pixel would shimmer in motion (see the design notes).
 FILTERED_LOD_BIAS = -1.0
 
 

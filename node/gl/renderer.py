@@ -48,13 +48,14 @@ limits to the tile) into the single-sample one they are read from. A pixel's sam
 it, so a tile is still that region of the whole frame, bit for bit. Depth layers stay at one
 sample: merging layers picks one surface per pixel by its depth, which a resolved edge pixel
 (a mix of surfaces) does not have; so hybrid and sort-last frames are 1x frames. On a software
-rasterizer (llvmpipe, where 4 samples cost 2.6-3.5x the frame) ``--msaa auto`` draws a grid of
-samples a pixel instead, chosen by frame size (:class:`node.gl.shading.AntialiasingChoice`): the
-same projection over a viewport kx × ky times as large, so block (i, j) is pixel (i, j)'s samples
-(the pair, 2 × 1, ¼ pixel left and right of its centre, one draw at 1.2-2.0x the one-sample frame);
-these frames (and ``--msaa filter``'s one sample) are resolved by :func:`tessera.antialiasing.resolve_grid`,
-the filtered ones drawn with a guard band of one pixel (clipped to the frame) so that the filtered
-tile is still that region of the filtered whole frame, and with their texture LOD bias.
+rasterizer (llvmpipe, where multisampling costs several one-sample frames: see the design notes)
+``--msaa auto`` draws a grid of samples a pixel instead, chosen by frame size
+(:class:`node.gl.shading.AntialiasingChoice`): the same projection over a viewport kx × ky times as
+large, so block (i, j) is pixel (i, j)'s samples (the pair, 2 × 1, ¼ pixel left and right of its
+centre, one draw); these frames (and ``--msaa filter``'s one sample) are resolved by
+:func:`tessera.antialiasing.resolve_grid`, the filtered ones drawn with a guard band of one pixel
+(clipped to the frame) so that the filtered tile is still that region of the filtered whole frame,
+and with their texture LOD bias.
 
 The progressive still: a render may be a still's ``subsample``
 (:class:`tessera.scheduling.refinement.Subsample`): the whole frame shifted by a sub-pixel offset, a

@@ -14,9 +14,8 @@ engineer would expect of it:
   are read √N times finer: a still of a fixed N samples reads its textures with the LOD bias
   −½·log₂ N (:func:`lod_bias`; −2 at 16 samples, as a 4×4 supersampled frame). An adaptive still,
   whose count is not known ahead, reads them at :data:`ADAPTIVE_LOD_BIAS`, the 4×4 supersampled
-  reference's: what its mean converges to is then that reference's texture detail (on the milk
-  truck at 640x360, 64 samples at −1, −1.5, −2, −2.5 came 44.9-46.2, 47.4-51.1, 48.0-54.0,
-  47.7-52.4 dB from the 4×4 supersampled frame over three cameras).
+  reference's: what its mean converges to is then that reference's texture detail (measured: see
+  the design notes).
 * **Grids.** Where the interactive frame draws a grid of samples per pixel (small frames on a
   software rasterizer, :mod:`tessera.antialiasing`), each sample of the still is that grid shifted
   within its cells (:func:`grid_subsample`) and averaged: the still refines the frame the viewer
@@ -33,11 +32,8 @@ engineer would expect of it:
   alike), and the still is done once that estimate, in dB PSNR, reaches ``target_db``, or at
   ``max_samples``. The two halves of a Halton prefix each cover the pixel evenly and fill each
   other's gaps, so their difference overstates what the mean still lacks — at the counts of
-  :data:`CHECKS`, not at others (the 10-sample mean against the 5-sample one understated it by up
-  to 2 dB): measured on the seven scenes of ``bench.picture``, three random cameras each at
-  640x360 and 1280x720 against a 64-sample still, the estimate fell short of the true PSNR by 2.8-6.4
-  dB at 8 samples, 0.9-3.5 at 16 and 3.3-5.5 at 24. A fixed count is estimated too, at the
-  checks it reaches and at its last sample, for the figures.
+  :data:`CHECKS`, not at others (measured on ``bench.picture``'s scenes: see the design notes). A
+  fixed count is estimated too, at the checks it reaches and at its last sample, for the figures.
 * **State.** :class:`RefinementPlan` says which samples a still wants; the scheduler asks for them
   one frame at a time, the coordinator says when an adaptive still converged, and any change of
   the state cancels the refinement.
