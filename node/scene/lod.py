@@ -16,11 +16,9 @@ largest error, in world units: it only grows towards the root, as a node's box o
 error a node shows on screen from any eye is at least any of its descendants' (the cut is then
 found level-free, :func:`node.culling.lod.lod_cut`).
 
-Why meshoptimizer: of the simplifiers on PyPI it is the one that locks a submesh's border (a
-group's simplification must keep the edges it shares with its neighbours), and it simplified the
-990k scan's leaves at 1.6M triangles/s a core, where fast-simplification (no border lock) did
-0.8M/s (both measured on this machine, 2 cores loaded). Its calls release the GIL: the nodes of
-a level are simplified on every core.
+The simplifier is meshoptimizer because it locks a submesh's border (a group's simplification must
+keep the edges it shares with its neighbours; why not another: see the design notes). Its calls
+release the GIL: the nodes of a level are simplified on :data:`WORKERS` threads.
 """
 
 from __future__ import annotations

@@ -13,14 +13,11 @@ overhead d costs each node alike in effort, so with unequal speed weights node k
 spatial load is wₖ·(L + N·d)/Σw − d rather than ∝ wₖ (push tiles only). With ``follow``, the part of
 an edge's move that the camera alone causes — target on this frame's groups minus target on last
 frame's groups, same fit and corrections — is not damped (:func:`follow_camera`); damping
-(``tau_ms``, 50 ms: prediction does not overshoot) acts on what the measurements changed. On a
-synthetic moving figure whose cost is the model (tests/test_balancer_predict.py) that takes
-max/mean from 1.11 to 1.02; on Lucy, whose chunk boxes are a coarse model (a box reaching behind
-the eye covers the screen), ``follow`` on and off were within the measurement noise of each other
-(two runs each, orbit and fly-through).
+(``tau_ms``, 50 ms: prediction does not overshoot) acts on what the measurements changed (what
+``follow`` gains is in the design notes).
 
-Without groups, or before a fit, it is ``adaptive`` (measured field and edges). Run time: with
-Lucy's 2 070 groups about 8 ms per partition on the 2-core development machine.
+Without groups, or before a fit, it is ``adaptive`` (measured field and edges). Its run time grows
+with the scene's primitive groups.
 """
 
 from __future__ import annotations

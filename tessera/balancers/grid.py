@@ -5,8 +5,8 @@ minimum tile, so tiny screens still hold N tiles); each cell weight starts at 1.
 every node's measured time is spread over the cells of its region into the load-weight table
 (:class:`tessera.balancers.support.table.LoadTable`). ``memory`` = 0 is the plain spread; the
 default 0.8 keeps the detail earlier frames revealed, our reading of §3.2's "combining the nodes'
-history of render times" (on synthetic maps it lowers max/mean by 0.01–0.05; 8 px cells instead of
-16 by 0.05–0.2 on a sharp-edged load, cells being the resolution of every cut).
+history of render times". Cells are the resolution of every cut; the default memory and the 8 px
+cell were chosen on synthetic load maps (see the design notes).
 
 The partition is a median cut along cell boundaries: a binary tree over the nodes
 (:mod:`tessera.balancers.support.tree`) cuts each region along its longer side in the ratio
