@@ -97,7 +97,7 @@ def run_tree(root: Path, scenes: Sequence[str], size: tuple[int, int], frames: i
     out.mkdir(parents=True, exist_ok=True)
     request = {"scenes": list(scenes), "size": list(size), "frames": frames, "msaa": msaa}
     (out / "request.json").write_text(json.dumps(request))
-    environment = {**os.environ, "PYTHONPATH": str(root)}
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(REPO)])}  # bench/ from this checkout
     subprocess.run([sys.executable, "-m", "bench.shading", "--worker", str(out)], cwd=root, env=environment,
                    check=True)
     return json.loads((out / "times.json").read_text())

@@ -64,7 +64,8 @@ def test_quality_benchmark_rejects_unpaired_paths() -> None:
 def test_quality_benchmark_measures_antialiasing_and_the_still(tmp_path, capsys) -> None:
     """Issue 20's figures from ``bench.quality``: at a camera of the scene's path, the interactive
     frame of each ``--msaa`` setting and the still of each sample count against the 4×4
-    supersampled frame, with their times; anti-aliasing and more samples come closer to it."""
+    supersampled frame, with their times; anti-aliasing comes closer to it, and the still (at this
+    size the reference's own grid, jittered) stays near it."""
     path = orbit_path(tmp_path, "builtin:spheres")
     out = tmp_path / "quality.json"
     argv = ["--scene", "builtin:spheres", "--path", str(path), "--size", "96x72", "--frames", "1",
@@ -76,7 +77,7 @@ def test_quality_benchmark_measures_antialiasing_and_the_still(tmp_path, capsys)
     assert (auto["msaa"], one["msaa"], scene["antialiasing"]["frames"]) == (0, 1, 1)
     assert auto["psnr_mean_db"] > one["psnr_mean_db"] + 1.0 and auto["frame_ms"] > 0.0 < one["frame_ms"]
     single, eight = scene["still"]["rows"]
-    assert (single["samples"], eight["samples"]) == (1, 8) and eight["psnr_mean_db"] > single["psnr_mean_db"]
+    assert (single["samples"], eight["samples"]) == (1, 8) and min(single["psnr_mean_db"], eight["psnr_mean_db"]) > 45.0
     assert eight["samples_mean"] == eight["samples_max"] == 8 and eight["still_ms"] > single["still_ms"] > 0.0
     printed = capsys.readouterr().out
     assert "auto " in printed and "progressive still" in printed
@@ -97,7 +98,7 @@ def test_quality_benchmark_over_random_cameras_and_sizes_reports_the_worst_case(
     assert adaptive["adaptive"] and 1 <= adaptive["samples_mean"] <= adaptive["samples_max"] <= 64
     assert adaptive["estimate_min_db"] is not None
     summary = {(entry["setting"], entry["size"]): entry for entry in report["summary"]}
-    assert set(summary) == {("interactive auto 2w+f", "96x54"), ("interactive auto 2w+f", "128x72"),
+    assert set(summary) == {("interactive auto 4x4", "96x54"), ("interactive auto 4x4", "128x72"),
                             ("still auto", "96x54"), ("still auto", "128x72")}
     for (setting, size), entry in summary.items():
         scene = small if size == "96x54" else large

@@ -36,7 +36,7 @@ GRID_TILES = [Rect(x * 320, y * 180, 320, 180) for y in range(4) for x in range(
 def bunny(ctx):
     """:func:`split_bunny` and its BVH on the GPU."""
     positions, faces, split, bvh, bounds = split_bunny()
-    gpu_bvh = GpuBvh(ctx, bvh, split.index_starts, split.index_ends)
+    gpu_bvh = GpuBvh(ctx, bvh, split.starts * 3, split.ends * 3)
     yield positions, faces, split, bvh, bounds, gpu_bvh
     gpu_bvh.release()
 
@@ -155,7 +155,7 @@ def test_indirect_commands_draw_exactly_the_tile_pixels(ctx, bunny, bunny_vao):
     for rect in [Rect(x * 32, y * 24, 32, 24) for y in range(4) for x in range(4)]:
         planes = tile_frustum_planes(camera, size, rect, bounds)
         result = cull(bvh, planes)
-        ranges = merge_ranges(result.visible_chunks, split.index_starts, split.index_ends)
+        ranges = merge_ranges(result.visible_chunks, split.starts * 3, split.ends * 3)
         cpu_commands = ctx.buffer(indirect_commands(ranges).tobytes() or b"\0" * 20)
         culler.cull(planes)
 

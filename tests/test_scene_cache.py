@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import threading
 import time
 from pathlib import Path
 
@@ -147,7 +148,7 @@ def build_and_hang(path: str, root: str) -> None:
     import node.scene.cache as cache
 
     def hang(*args: object) -> None:
-        time.sleep(3600)
+        threading.Event().wait()
 
     cache.os.rename = hang  # type: ignore[assignment]
     read_scene(path, path, 192, None, no_progress, CacheFolder(Path(root)))
