@@ -46,6 +46,7 @@ FIGURES_JS = """() => ({figure: document.getElementById("fig-frame").textContent
   canvas: `${document.getElementById("frame").width}×${document.getElementById("frame").height}`})"""
 #: The viewer's first reconnect delay (web/connection.js), ms.
 FIRST_RETRY_MS = int(re.search(r"FIRST_RETRY_MS = (\d+)", (REPO / "web" / "connection.js").read_text()).group(1))
+NOTES_MS = int(re.search(r"NOTES_MS = (\d+)", (REPO / "web" / "tools.js").read_text()).group(1))
 
 
 def call(base_url: str, path: str, body: dict | None = None, method: str | None = None) -> Any:
@@ -82,6 +83,8 @@ def drop_file(page, name: str, content: bytes) -> None:
 
 #: The stats polls the page made so far (resource timing, its buffer made large enough by BUFFER_JS).
 POLLS_JS = """() => performance.getEntriesByType("resource").filter((e) => /\\/stats$/.test(e.name)).length"""
+#: Every request to the coordinator's API the page made so far.
+API_CALLS_JS = """() => performance.getEntriesByType("resource").filter((e) => e.name.includes("/api/")).length"""
 BUFFER_JS = "performance.setResourceTimingBufferSize(100000)"
 
 
@@ -267,9 +270,10 @@ def test_the_panel_agrees_with_the_picture_and_a_bad_link_says_so(coordinator_fa
         page.wait_for_function("() => !document.getElementById('gone').hidden", timeout=wait_ms)
         assert "does not exist" in page.text_content("#gone")
         assert page.get_attribute("#gone a", "href") == "./"
-        tried, polled = len(sockets), page.evaluate(POLLS_JS)
-        page.wait_for_timeout(4 * FIRST_RETRY_MS)   # an absence: past the first reconnects a live page makes
-        assert (len(sockets), page.evaluate(POLLS_JS)) == (tried, polled), "no more tries"
+        tried, asked = len(sockets), page.evaluate(API_CALLS_JS)
+        # An absence: past the first reconnects a live page makes and past a period of its notes' poll.
+        page.wait_for_timeout(max(4 * FIRST_RETRY_MS, NOTES_MS + 1000))
+        assert (len(sockets), page.evaluate(API_CALLS_JS)) == (tried, asked), "no more tries, no more requests"
 
         # A link to a session that never was: 404, the same words, one try.
         sockets.clear()

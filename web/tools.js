@@ -18,7 +18,7 @@ const HINTS = {
   cut: "click a surface to cut away what is in front of it",
 };
 /** How often the notes are read again (another viewer may have changed them), ms. */
-const NOTES_MS = 3000;
+export const NOTES_MS = 3000;
 /** The section box's sliders: their steps over the scene's bounds. */
 const BOX_STEPS = 1000;
 const MARK_COLOR = "#ffd166";
@@ -85,7 +85,13 @@ export class Tools {
     } catch (error) {
       console.warn("tessera: selection:", error);
     }
-    setInterval(() => this.loadNotes(), NOTES_MS);
+    if (!this.stopped) this.notesTimer = setInterval(() => this.loadNotes(), NOTES_MS);
+  }
+
+  /** Stop asking for the notes (the session is gone). */
+  stop() {
+    this.stopped = true;
+    clearInterval(this.notesTimer);
   }
 
   /** Use tool `tool` (select, distance, angle, note, cut): the points picked so far are dropped. */

@@ -312,6 +312,7 @@ function sessionGone() {
   $("status-text").textContent = "no such session";
   $("gone").hidden = false;
   panel.stop();
+  tools.stop();
   animation.hide();
 }
 
