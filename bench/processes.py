@@ -3,6 +3,7 @@ coordinator started on port 0, process CPU from ``/proc``, and the camera turned
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -72,17 +73,18 @@ class LoggedProcess:
     def _read(self) -> None:
         """Keep and log each output line, waking waiters on each line and when the output ends."""
         assert self.process.stdout is not None
-        for raw in self.process.stdout:
-            line = raw.rstrip("\n")
-            if self._log is not None:
-                self._log.write(raw)
-                self._log.flush()
-            with self._changed:
-                self.lines.append(line)
-                self.tracebacks += "Traceback" in line
-                if self.tracebacks == 1 and len(self.first_traceback) < TRACEBACK_LINES:
-                    self.first_traceback.append(line)
-                self._changed.notify_all()
+        with contextlib.suppress(ValueError):  # stop() closed the pipe that the process's children still hold
+            for raw in self.process.stdout:
+                line = raw.rstrip("\n")
+                if self._log is not None:
+                    self._log.write(raw)
+                    self._log.flush()
+                with self._changed:
+                    self.lines.append(line)
+                    self.tracebacks += "Traceback" in line
+                    if self.tracebacks == 1 and len(self.first_traceback) < TRACEBACK_LINES:
+                        self.first_traceback.append(line)
+                    self._changed.notify_all()
         if self._log is not None:
             self._log.close()
         with self._changed:
