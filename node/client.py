@@ -47,6 +47,7 @@ from node.settings import NodeSettings
 from node.tile_messages import cut_pieces, encode_depth_message, encode_tile
 from tessera.scheduling.refinement import Subsample
 from tessera.wire import messages
+from tessera.wire.mesh_update import MeshError
 from tessera.wire.pick_messages import Pick, PickResult
 
 log = logging.getLogger("tessera.node")
@@ -162,8 +163,11 @@ class NodeClient:
         """Each text message goes to the protocol on receipt (a cancel or the welcome takes effect
         there and then); ``work`` wakes the job loop for what it queued."""
         async for raw in ws:
-            if isinstance(raw, bytes):
-                log.warning("ignoring a binary message from the coordinator")
+            if isinstance(raw, bytes):   # a mesh sent as arrays (issue 33), before the load_scene of it
+                try:
+                    self.worker.meshes.receive(raw)
+                except MeshError as exc:
+                    log.warning("ignoring a binary message from the coordinator: %s", exc)
                 continue
             self.protocol.receive_text(raw)
             work.set()

@@ -20,6 +20,7 @@ from server.routes import (
     clipping,
     frames,
     health,
+    meshes,
     node_ws,
     nodes,
     objects,
@@ -64,7 +65,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.upload_checks = UploadChecks(settings.upload_check_memory_mb)
     app.middleware("http")(refuse_watch_writes)
     app.middleware("http")(refuse_cross_site_writes)   # added last: runs first
-    for module in (health, scenes, nodes, node_ws, viewer_ws, web, sessions):
+    for module in (health, scenes, nodes, node_ws, viewer_ws, web, sessions, meshes):
         app.include_router(module.router)
     app.include_router(stats.metrics_router)
     for prefix in ("/api", "/api/sessions/{session_id}"):   # the default session, and any other

@@ -49,7 +49,8 @@ class NodeLink:
     #: Scenes whose levels of detail it holds: spec → their triangles (issue 32).
     levels: dict[str, int] = field(default_factory=dict)
     loading: dict[str, tuple[float, str]] = field(default_factory=dict)
-    outbox: asyncio.Queue[str] = field(default_factory=asyncio.Queue)
+    #: Control messages (text) and meshes (binary, issue 33), sent in order.
+    outbox: asyncio.Queue[str | bytes] = field(default_factory=asyncio.Queue)
 
     @property
     def ready(self) -> bool:
@@ -58,6 +59,10 @@ class NodeLink:
     def send(self, message: Message) -> None:
         """Queue a control message; the connection's writer task sends it in order."""
         self.outbox.put_nowait(message.to_text())
+
+    def send_bytes(self, data: bytes) -> None:
+        """Queue a binary message (a mesh, :mod:`tessera.wire.mesh_update`) in order with the others."""
+        self.outbox.put_nowait(data)
 
     def describe(self, schedule: NodeSchedule) -> dict[str, Any]:
         phases = schedule.last_phases

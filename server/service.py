@@ -26,6 +26,7 @@ from concurrent.futures import Executor, Future, ThreadPoolExecutor
 import numpy as np
 
 from server.frame_store import FrameStore, PublishedFrame
+from server.mesh_updates import MeshUpdates
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
@@ -50,6 +51,7 @@ from tessera.scheduling import actions
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.wire import messages
+from tessera.wire.mesh_update import MeshArrays
 from tessera.wire.messages import (
     Calibration,
     Cancel,
@@ -125,6 +127,8 @@ class RenderService(SessionPersistence, ServiceReport):
         #: Picks waiting for their nodes' answers, posters and films (issue 35).
         self.picks = PickDesk(self)
         self.jobs = RenderJobs(self, settings.max_jobs)
+        #: Meshes sent as arrays (issue 33).
+        self.meshes = MeshUpdates(self)
         if self.session_store is not None:
             self._restore_sessions()
 
@@ -215,6 +219,11 @@ class RenderService(SessionPersistence, ServiceReport):
         log.info("session %s… now shows %s", session.id[:6], name)
         return first
 
+    def update_mesh(self, session: Session, mesh: MeshArrays) -> int:
+        """``session`` shows ``mesh`` (:class:`server.mesh_updates.MeshUpdates`) from the frame whose id
+        this returns on, every tile of it; a newer mesh supersedes one not shown yet."""
+        return self.meshes.update(session, mesh)
+
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
         self._tasks = [asyncio.create_task(self._timer(), name="scheduler-timer")]
@@ -259,6 +268,7 @@ class RenderService(SessionPersistence, ServiceReport):
             elif isinstance(action, actions.CancelFrames):
                 self.nodes[action.node_id].send(Cancel(frames=action.frames))
             elif isinstance(action, actions.LoadScene):
+                self.meshes.before_load(action.node_id, action.scene)
                 self.nodes[action.node_id].send(self._load_scene(action.scene, action.share))
             elif isinstance(action, actions.BalancerFailed):
                 log.error("balancer failed, the static split was used: %s", action.reason)

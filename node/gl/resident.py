@@ -13,6 +13,7 @@ the per-tile culling buffers and the frame-sized framebuffer are left out.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,6 +130,11 @@ class ResidentScenes:
         scene = max(fitting, key=lambda scene: scene.loaded)
         self._scenes.move_to_end(scene.key)
         return scene
+
+    def release(self, which: Callable[[SceneKey], bool]) -> None:
+        """Release the scenes whose keys ``which`` picks."""
+        for key in [key for key in self._scenes if which(key)]:
+            self._scenes.pop(key).renderer.release()
 
     def release_all(self) -> None:
         for scene in self._scenes.values():

@@ -44,9 +44,11 @@ from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
 from node.scene.lod import LodTree, read_lod
 from node.scene.mesh import SceneError
+from node.scene.mesh_store import MeshStore, group_of, is_mesh
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.points import PointCloud
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
+from node.scene.shares import keep_share
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
@@ -146,6 +148,8 @@ class GLWorker:
         self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
         self.culling, self.face_limit, self.fetcher = culling, face_limit, fetcher
         self.shading, self.cache = shading, cache
+        #: Meshes the coordinator sent as arrays (issue 33), read by loads of their ``mesh:`` specs.
+        self.meshes = MeshStore()
 
     async def _call(self, function: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._executor, function, *args)
@@ -237,6 +241,9 @@ class GLWorker:
         large file in the scene reader process) and map it; refuse it when it exceeds the budget.
         The scene, and its cache entry (None: read into memory)."""
         spec, share = request.scene, request.share
+        if is_mesh(spec):   # issue 33: from memory, no cache entry
+            mesh = self.meshes.scene(spec, self.face_limit)
+            return (mesh if share is None else keep_share(mesh, share.weights, share.index)), None
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
         known = request.sha256 if source != spec else None
         read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
@@ -267,6 +274,9 @@ class GLWorker:
             planning = PlanningScene.of(scene, renderer.culler.bvh)
         version = None if share is None else share.version
         held = ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
+        if is_mesh(key[0]):   # a session's newer mesh: its older ones are drawn no more
+            self._scenes.release(lambda other: is_mesh(other[0]) and group_of(other[0]) == group_of(key[0])
+                                 and other[0] != key[0])
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))

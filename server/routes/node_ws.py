@@ -49,7 +49,11 @@ async def _read_hello(ws: WebSocket, token: str | None, limits: guards.SocketLim
 
 async def _write(ws: WebSocket, link: NodeLink) -> None:
     while True:
-        await ws.send_text(await link.outbox.get())
+        message = await link.outbox.get()
+        if isinstance(message, bytes):
+            await ws.send_bytes(message)
+        else:
+            await ws.send_text(message)
 
 
 @router.websocket("/ws/node")

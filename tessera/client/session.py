@@ -23,6 +23,7 @@ from tessera.client.render_jobs import Progress, path_body, run_job
 from tessera.client.scene_state import Animation, Objects
 from tessera.client.values import SessionInfo, camera_json
 from tessera.geometry import Camera
+from tessera.wire.mesh_update import MeshError, checked_mesh, pack_mesh
 
 if TYPE_CHECKING:
     from tessera.client.notebook import TesseraView
@@ -189,6 +190,23 @@ class Session:
             body["camera"] = camera_json(camera)
         self._ready = False
         return self.changed(self.call("PUT", "scene", json=body))
+
+    def update_mesh(self, vertices: Any, faces: Any, normals: Any = None, colors: Any = None) -> int:
+        """Show this mesh from now on, in place of the session's scene (or its last mesh): ``vertices``
+        N×3 float (scene units), ``faces`` M×3 int indices into them, optional ``normals`` N×3
+        (default: smooth, computed by the nodes) and ``colors`` N×3 or N×4 (floats 0–1 or integers
+        0–255). Sent as binary arrays, with no upload to the library; the camera is kept. Every frame
+        from the returned frame id on shows this mesh (or a newer one) on every tile, those before it
+        the one before, never a mix. TesseraError for arrays of the wrong shape, values that are not
+        finite, indices out of range or a mesh over ``--max-upload-mb``."""
+        try:
+            body = pack_mesh(checked_mesh(vertices, faces, normals, colors))
+        except MeshError as exc:
+            raise TesseraError(str(exc), what="update_mesh") from None
+        self._ready = False
+        return self.changed(self.connection.call(
+            "PUT", f"api/sessions/{quote(self.id, safe='')}/mesh", content=body,
+            headers={"content-type": "application/octet-stream"}))
 
     # ----------------------------------------------------------------- pictures
     def snapshot(self, still: bool = True, after: int | None = None) -> np.ndarray:
