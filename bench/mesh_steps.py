@@ -2,14 +2,17 @@
 second reach the screen, and whether each one does.
 
 ``python -m bench.mesh_steps [--nodes 2] [--triangles 100000] [--rate 10] [--steps 20] [--size 640x360]
-[--json OUT]``
+[--via update|upload|both] [--json OUT]``
 
-A height field of ``--triangles`` triangles (a wave moving a step each time) is uploaded as arrays
-(a GLB written in memory) and shown with ``Session.set_scene`` at most ``--rate`` times a second.
+A height field of ``--triangles`` triangles (a wave moving a step each time) is pushed at most
+``--rate`` times a second, ``--via update`` (default) with ``Session.update_mesh`` (binary arrays, no
+library), ``--via upload`` uploaded as arrays (a GLB written in memory) and shown with
+``Session.set_scene``; ``both`` runs one then the other on the same coordinator.
 A second connection reads the session's frames as they are published (``Session.frames``) and
 sorts each into the step it shows (its frame id at or after that step's first frame id, before the
 next step's). Figures: steps per second pushed, the share of steps that reached a published frame,
-each the upload's time (the GLB written in memory, sent, checked by the coordinator) and the switch's.
+each update's time, or the upload's (the GLB written in memory, sent, checked by the coordinator)
+and the switch's.
 Steps per second: the steps after the first over the time from the first one's start until the
 last one was on screen.
 """
@@ -70,39 +73,43 @@ class FrameLog:
             self.error = exc.reason
 
 
-def measure(args: argparse.Namespace) -> dict[str, Any]:
-    data = tempfile.TemporaryDirectory(prefix="tessera-bench-mesh-steps-")   # the uploads, removed after
-    coordinator, url = start_coordinator(["--local-nodes", str(args.nodes), "--size", "160x90", "--data-dir",
-                                          data.name], timeout=120.0)
-    grid, faces = height_field(args.triangles)
+def push_steps(tessera: Any, reader: Any, args: argparse.Namespace, via: str, grid: np.ndarray,
+               faces: np.ndarray) -> dict[str, Any]:
+    """Push ``args.steps`` steps through ``via`` ("update": ``Session.update_mesh``; "upload":
+    ``upload`` then ``set_scene``) in a session of its own; the figures of that run."""
+    camera = {"eye": [2.0, 1.5, 2.0], "target": [0, 0, 0], "up": [0, 1, 0], "fovy_deg": 45}
+    if via == "update":
+        session = tessera.open_session("builtin:cluster", size=args.size, camera=camera)
+        session.update_mesh(wave(grid, 0.0), faces)
+    else:
+        session = tessera.open_session(tessera.upload((wave(grid, 0.0), faces)), size=args.size, camera=camera)
     steps: list[dict[str, float]] = []
-    try:
-        with Tessera(url) as tessera, Tessera(url) as reader:
-            camera = {"eye": [2.0, 1.5, 2.0], "target": [0, 0, 0], "up": [0, 1, 0], "fovy_deg": 45}
-            session = tessera.open_session(tessera.upload((wave(grid, 0.0), faces)), size=args.size, camera=camera)
-            session.snapshot(still=False)
-            log = FrameLog(reader.session(session.id))
-            started = time.monotonic()
-            for step in range(args.steps):
-                due = started + step / args.rate
-                time.sleep(max(0.0, due - time.monotonic()))
-                begin = time.monotonic()
-                name = tessera.upload((wave(grid, 0.1 * (step + 1)), faces))
+    with session:
+        session.snapshot(still=False)
+        log = FrameLog(reader.session(session.id))
+        started = time.monotonic()
+        for step in range(args.steps):
+            due = started + step / args.rate
+            time.sleep(max(0.0, due - time.monotonic()))
+            begin = time.monotonic()
+            vertices = wave(grid, 0.1 * (step + 1))
+            if via == "update":
+                first = session.update_mesh(vertices, faces)
+                steps.append({"first": first, "begin": begin, "update_s": time.monotonic() - begin})
+            else:
+                name = tessera.upload((vertices, faces))
                 uploaded = time.monotonic()
                 first = session.set_scene(name)
                 steps.append({"first": first, "begin": begin, "upload_s": uploaded - begin,
                               "switch_s": time.monotonic() - uploaded})
-            final_id, _ = session.snapshot_frame(still=False, after=steps[-1]["first"])
-            shown_at = time.monotonic()
-            elapsed = shown_at - started   # from the first step's start to the last step on screen
-            while not log.ids or log.ids[-1] < final_id:
-                if time.monotonic() - shown_at > 30.0:
-                    break
-                time.sleep(0.05)
-            ids, reader_error = sorted(log.ids), log.error
-    finally:
-        coordinator.stop()
-        data.cleanup()
+        final_id, _ = session.snapshot_frame(still=False, after=steps[-1]["first"])
+        shown_at = time.monotonic()
+        elapsed = shown_at - started   # from the first step's start to the last step on screen
+        while not log.ids or log.ids[-1] < final_id:
+            if time.monotonic() - shown_at > 30.0:
+                break
+            time.sleep(0.05)
+        ids, reader_error = sorted(log.ids), log.error
     firsts = [int(s["first"]) for s in steps]
     shown = 0
     for index, first in enumerate(firsts):
@@ -114,23 +121,46 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         ordered = sorted(values)
         return {"p50": statistics.median(ordered), "p90": ordered[min(len(ordered) - 1, int(0.9 * len(ordered)))]}
 
-    return {"benchmark": "mesh_steps", "triangles": len(faces), "rate": args.rate, "steps": args.steps,
-            "size": list(args.size), "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed,
-            "steps_shown": shown, "shown_share": shown / len(steps), "frames_seen": len(ids),
-            "upload_s": quantiles([s["upload_s"] for s in steps]),
-            "switch_s": quantiles([s["switch_s"] for s in steps]),
-            "reader_error": reader_error, "load_average": os.getloadavg()}
+    times = {key: quantiles([s[key] for s in steps]) for key in ("update_s", "upload_s", "switch_s") if key in steps[0]}
+    return {"via": via, "triangles": len(faces), "rate": args.rate, "steps": args.steps, "size": list(args.size),
+            "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed, "steps_shown": shown,
+            "shown_share": shown / len(steps), "frames_seen": len(ids), **times, "reader_error": reader_error}
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """Every mode of ``args.via`` on one coordinator with ``args.nodes`` local nodes: one run's
+    figures at the top level, several runs' in ``runs``."""
+    data = tempfile.TemporaryDirectory(prefix="tessera-bench-mesh-steps-")   # the uploads, removed after
+    coordinator, url = start_coordinator(["--local-nodes", str(args.nodes), "--size", "160x90", "--data-dir",
+                                          data.name], timeout=120.0)
+    grid, faces = height_field(args.triangles)
+    modes = ["update", "upload"] if args.via == "both" else [args.via]
+    try:
+        with Tessera(url) as tessera, Tessera(url) as reader:
+            runs = [push_steps(tessera, reader, args, via, grid, faces) for via in modes]
+    finally:
+        coordinator.stop()
+        data.cleanup()
+    result: dict[str, Any] = {"benchmark": "mesh_steps", **(runs[0] if len(runs) == 1 else {"runs": runs}),
+                              "load_average": os.getloadavg()}
+    return result
 
 
 def report(result: dict[str, Any]) -> str:
-    return "\n".join([
-        f"{result['triangles']} triangles a step, asked {result['rate']:g} steps/s, {result['steps']} steps, "
-        f"{result['size'][0]}x{result['size'][1]}, {result['nodes']} local nodes",
-        f"steps/s reached: {result['steps_per_s']:.2f}; steps shown: {result['steps_shown']} of {result['steps']} "
-        f"({100 * result['shown_share']:.0f} %); frames published: {result['frames_seen']}",
-        f"upload (GLB in memory, send, the coordinator's check) p50 {result['upload_s']['p50']:.3f} s, "
-        f"p90 {result['upload_s']['p90']:.3f} s; set_scene p50 {result['switch_s']['p50']:.3f} s",
-        "load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"])])
+    lines = []
+    for run in result.get("runs", [result]):
+        times = (f"update_mesh (checked, sent as arrays) p50 {run['update_s']['p50']:.3f} s, "
+                 f"p90 {run['update_s']['p90']:.3f} s" if run["via"] == "update" else
+                 f"upload (GLB in memory, send, the coordinator's check) p50 {run['upload_s']['p50']:.3f} s, "
+                 f"p90 {run['upload_s']['p90']:.3f} s; set_scene p50 {run['switch_s']['p50']:.3f} s")
+        lines += [
+            f"via {run['via']}: {run['triangles']} triangles a step, asked {run['rate']:g} steps/s, {run['steps']} "
+            f"steps, {run['size'][0]}x{run['size'][1]}, {run['nodes']} local nodes",
+            f"  steps/s reached: {run['steps_per_s']:.2f}; steps shown: {run['steps_shown']} of {run['steps']} "
+            f"({100 * run['shown_share']:.0f} %); frames published: {run['frames_seen']}",
+            f"  {times}"]
+    lines.append("load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"]))
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -140,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--rate", type=float, default=10.0, help="steps per second asked for (default 10)")
     parser.add_argument("--steps", type=int, default=20, help="steps pushed (default 20)")
     parser.add_argument("--size", type=size_parser(16, 4096), default=(640, 360), help="frame size WxH (640x360)")
+    parser.add_argument("--via", choices=("update", "upload", "both"), default="update",
+                        help="update: Session.update_mesh (default); upload: upload then set_scene; both, in turn")
     parser.add_argument("--json", type=Path, help="write the result as JSON here")
     return parser
 

@@ -219,10 +219,11 @@ class RenderService(SessionPersistence, ServiceReport):
         log.info("session %s… now shows %s", session.id[:6], name)
         return first
 
-    def update_mesh(self, session: Session, mesh: MeshArrays) -> int:
-        """``session`` shows ``mesh`` (:class:`server.mesh_updates.MeshUpdates`) from the frame whose id
-        this returns on, every tile of it; a newer mesh supersedes one not shown yet."""
-        return self.meshes.update(session, mesh)
+    async def update_mesh(self, session: Session, mesh: MeshArrays) -> int:
+        """``session`` shows ``mesh`` from the frame whose id this returns on, every tile of it
+        (:class:`server.mesh_updates.MeshUpdates`: once the mesh before was shown; a newer mesh sent
+        meanwhile takes its place)."""
+        return await self.meshes.update(session, mesh)
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -501,6 +502,7 @@ class RenderService(SessionPersistence, ServiceReport):
                                samples=0 if refined is None else refined.samples,
                                estimate_db=None if refined is None else refined.estimate_db)
         session.store.add(frame)
+        self.meshes.published(session.id, job.frame_id)
         if session.viewers.slots:
             session.viewers.publish_frame(frame)
         self.cpu_ms["publish"] += (time.thread_time() - started) * 1000.0

@@ -6,8 +6,10 @@ watch key changes nothing."""
 
 from __future__ import annotations
 
+import asyncio
 import threading
 from collections.abc import Iterator
+from types import SimpleNamespace
 
 import httpx
 import numpy as np
@@ -17,6 +19,7 @@ import trimesh
 from bench.mesh_steps import height_field, wave
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
+from server.mesh_updates import MeshUpdates
 from tessera.client import Tessera, TesseraError
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
 from tessera.wire.mesh_update import MeshArrays, MeshError, checked_mesh, pack_mesh, unpack_mesh
@@ -90,6 +93,50 @@ def test_the_node_keeps_the_newest_mesh_of_a_group_and_builds_its_scene():
     assert [o.name for o in scene.objects.objects] == ["mesh"]
     with pytest.raises(SceneError, match="no such mesh"):
         store.scene("mesh:other:1", 1000)
+
+
+class FakeService:
+    """What :class:`MeshUpdates` asks of the service: switching counts frame ids up."""
+
+    def __init__(self) -> None:
+        self.sessions = {"s": SimpleNamespace(id="s", scene="builtin:cluster", state="ready")}
+        self.sent: list[bytes] = []
+        self.nodes = {1: SimpleNamespace(send_bytes=self.sent.append)}
+        self.scheduler = SimpleNamespace(load_now=lambda session_id: None)
+        self.switched: list[str] = []
+
+    def switch_scene(self, session, name, spec, fetch) -> int:
+        session.scene = spec
+        self.switched.append(spec)
+        return 10 * len(self.switched)
+
+    def apply(self) -> None:
+        pass
+
+
+def test_a_step_waits_until_the_one_before_is_shown_and_the_latest_waiting_wins():
+    async def run() -> None:
+        service = FakeService()
+        meshes, session = MeshUpdates(service), service.sessions["s"]
+        mesh = checked_mesh(**plane(0.0, HUES[0], cells=2))
+        assert await meshes.update(session, mesh) == 10
+        meshes.before_load(1, service.switched[0])
+        assert unpack_mesh(service.sent[0])[0]["scene"] == service.switched[0]
+        second, third = (asyncio.ensure_future(meshes.update(session, mesh)) for _ in range(2))
+        await asyncio.sleep(0.01)
+        assert not second.done() and not third.done() and len(service.switched) == 1
+        meshes.published("s", 9)    # a frame of the step before the mesh: the mesh is not shown yet
+        await asyncio.sleep(0.01)
+        assert not second.done()
+        meshes.published("s", 10)
+        assert await second == await third == 20 and len(service.switched) == 2   # the second's step skipped
+        fourth = asyncio.ensure_future(meshes.update(session, mesh))
+        await asyncio.sleep(0.01)
+        assert not fourth.done()
+        meshes.published("s", 21)
+        assert await fourth == 30
+
+    asyncio.run(asyncio.wait_for(run(), 5.0))
 
 
 # ----------------------------------------------------------------- against a real coordinator

@@ -9,6 +9,7 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
 
+from server.mesh_updates import SessionGone
 from server.routes.deps import get_service, get_session, require_token
 from server.service import RenderService
 from server.sessions import Session
@@ -50,7 +51,9 @@ async def put_mesh(request: Request, session: Session = Depends(get_session),
     """Show the mesh of the body (``application/octet-stream``, the layout of
     :mod:`tessera.wire.mesh_update`) from now on, in place of the session's scene or mesh, its
     camera kept: ``frame`` is the first frame id that shows it on every tile (until it is published,
-    viewers keep the frame before; a newer mesh sent meanwhile wins). A body that is not a mesh, of
+    viewers keep the frame before). While the mesh before is not shown yet, the answer waits for it
+    (at most 10 s); a newer mesh sent meanwhile takes this one's place, and both answers give the
+    frame id from which the newer one shows. A body that is not a mesh, of
     the wrong size, with values that are not finite or indices out of range is 422 with the reason;
     over ``--max-upload-mb`` 413; the default session shows ``--scene`` (409)."""
     if session is service.default:
@@ -63,4 +66,8 @@ async def put_mesh(request: Request, session: Session = Depends(get_session),
         raise HTTPException(status_code=422, detail=str(exc)) from None
     if service.find_session(session.id) is not session:
         raise HTTPException(status_code=404, detail="no such session")
-    return {"frame": service.update_mesh(session, mesh), "vertices": len(mesh.positions), "faces": len(mesh.faces)}
+    try:
+        frame = await service.update_mesh(session, mesh)
+    except SessionGone:
+        raise HTTPException(status_code=404, detail="no such session") from None
+    return {"frame": frame, "vertices": len(mesh.positions), "faces": len(mesh.faces)}

@@ -197,8 +197,10 @@ class Session:
         (default: smooth, computed by the nodes) and ``colors`` N×3 or N×4 (floats 0–1 or integers
         0–255). Sent as binary arrays, with no upload to the library; the camera is kept. Every frame
         from the returned frame id on shows this mesh (or a newer one) on every tile, those before it
-        the one before, never a mix. TesseraError for arrays of the wrong shape, values that are not
-        finite, indices out of range or a mesh over ``--max-upload-mb``."""
+        the one before, never a mix. While the mesh before is not on screen yet the call waits for it,
+        so a loop calling it shows every step (a mesh sent from elsewhere meanwhile takes its place).
+        TesseraError for arrays of the wrong shape, values that are not finite, indices out of range
+        or a mesh over ``--max-upload-mb``."""
         try:
             body = pack_mesh(checked_mesh(vertices, faces, normals, colors))
         except MeshError as exc:

@@ -129,6 +129,13 @@ class FrameScheduler(FrameDispatch):
             self._repartition(session, now, force=True)
         return session
 
+    def load_now(self, session_id: str) -> None:
+        """Tell every node still waiting to load the session's scene to load it now, side by side
+        (a mesh sent as arrays, issue 33: read from memory in milliseconds, not parsed from a file)."""
+        session = self.sessions.get(session_id)
+        while session is not None and session.loads_waiting:
+            self._load_next(session)
+
     def remove_session(self, session_id: str, now: float) -> None:
         """The session is closed: its frames are dropped (nodes skip their tiles)."""
         session = self.sessions.pop(session_id, None)
