@@ -45,7 +45,9 @@ class MeshHost(Protocol):
 
     nodes: dict[int, NodeLink]
     sessions: dict[str, Session]
-    scheduler: FrameScheduler
+
+    @property
+    def scheduler(self) -> FrameScheduler: ...
 
     def switch_scene(self, session: Session, name: str, spec: str, fetch: tuple[str, str] | None) -> int: ...
 

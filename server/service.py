@@ -51,7 +51,6 @@ from tessera.scheduling import actions
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.wire import messages
-from tessera.wire.mesh_update import MeshArrays
 from tessera.wire.messages import (
     Calibration,
     Cancel,
@@ -127,7 +126,7 @@ class RenderService(SessionPersistence, ServiceReport):
         #: Picks waiting for their nodes' answers, posters and films (issue 35).
         self.picks = PickDesk(self)
         self.jobs = RenderJobs(self, settings.max_jobs)
-        #: Meshes sent as arrays (issue 33).
+        #: Meshes sent as arrays (issue 33: ``PUT /api/sessions/{id}/mesh``).
         self.meshes = MeshUpdates(self)
         if self.session_store is not None:
             self._restore_sessions()
@@ -218,12 +217,6 @@ class RenderService(SessionPersistence, ServiceReport):
         self.changed_sessions = True
         log.info("session %s… now shows %s", session.id[:6], name)
         return first
-
-    async def update_mesh(self, session: Session, mesh: MeshArrays) -> int:
-        """``session`` shows ``mesh`` from the frame whose id this returns on, every tile of it
-        (:class:`server.mesh_updates.MeshUpdates`: once the mesh before was shown; a newer mesh sent
-        meanwhile takes its place)."""
-        return await self.meshes.update(session, mesh)
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
