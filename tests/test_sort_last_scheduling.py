@@ -69,6 +69,7 @@ def test_each_join_makes_a_partition_and_frames_wait_for_every_share():
     s.set_camera(CAMERA, 0.0)
     s.node_ready(1, 0.0, 2)
     assert not [a for a in s.drain() if isinstance(a, RenderTiles)], "share 1 is not loaded yet"
+    assert s.next_deadline(0.0) is None, "nothing to wake for until the next share is loaded (no busy timer)"
     s.node_ready(2, 0.0, 1)
     assert not [a for a in s.drain() if isinstance(a, RenderTiles)], "node 2 holds a share of an older partition"
     s.node_ready(2, 0.0, 2)

@@ -104,8 +104,10 @@ class SessionFrames:
 
     def start_due(self, now: float, idle: set[int]) -> float | None:
         """When a frame owed could start (the frame-rate cap, the still frame's quiet time) while a
-        node holding the scene is ``idle``; None: none is owed, or none may start."""
-        if len(self.frames) >= self.config.max_in_flight or self.ready.isdisjoint(idle):
+        node holding the scene is ``idle``; None: none is owed, or none may start (as
+        :meth:`may_start`: sort-last waits for every share, and the share that completes them wakes
+        the scheduler)."""
+        if len(self.frames) >= self.config.max_in_flight or not self.mode.can_start or self.ready.isdisjoint(idle):
             return None
         owed = self.owed(now, ignore_quiet=True)
         if owed is None:
