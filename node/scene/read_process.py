@@ -80,7 +80,7 @@ class SceneReaderProcess:
                     raise SceneError(payload[0])
                 else:
                     return payload[0]
-        except (EOFError, OSError):
+        except (EOFError, OSError, TypeError):   # TypeError: close() took the handle from under recv()
             code = self._stop()
             raise SceneError(f"{name}: the scene reader process died (exit code {code}) "
                              "while reading it; out of memory?") from None
