@@ -114,6 +114,8 @@ class CalibrationRounds:
         self.waiting_since: float | None = None
         #: Times came in since :meth:`take_speeds` last answered.
         self._fresh = False
+        #: Per node, the measurements given up on (timed out) whose answers may still come: dropped.
+        self.late: dict[int, int] = {}
 
     def request(self, node_id: int) -> None:
         """Measure ``node_id``, and every node known, again from the start."""
@@ -124,25 +126,37 @@ class CalibrationRounds:
     def forget(self, node_id: int) -> None:
         self.times.pop(node_id, None)
         self.failures.pop(node_id, None)
+        self.late.pop(node_id, None)
         if self.current == node_id:
             self.current = None
         self._fresh = True
 
     def measured(self, node_id: int, ms: float) -> bool:
-        """The time ``node_id`` reported; False when it was not the node being measured."""
+        """The time ``node_id`` reported; False when it was not the node being measured (nor
+        answers a measurement that timed out: that answer is dropped)."""
         if self.current != node_id:
-            return False
+            return self._late_answer(node_id)
         self.current = None
         self.times[node_id].append(float(ms))
         self._fresh = True
         return True
 
     def failed(self, node_id: int) -> bool:
-        """``node_id``'s measurement failed; False when it was not the node being measured."""
+        """``node_id``'s measurement failed; False when it was not the node being measured (nor
+        answers a measurement that timed out)."""
         if self.current != node_id:
-            return False
+            return self._late_answer(node_id)
         self.current = None
         self.failures[node_id] += 1
+        return True
+
+    def _late_answer(self, node_id: int) -> bool:
+        """An answer of a node not being measured is to a measurement that timed out (a node busy
+        with a long tile answers late): counted off, nothing recorded. (The node being measured
+        answers for this measurement whichever request it answers: a time is its time.)"""
+        if not self.late.get(node_id):
+            return False
+        self.late[node_id] -= 1
         return True
 
     def left_out(self, node_id: int) -> bool:
@@ -169,7 +183,9 @@ class CalibrationRounds:
         if self.current is not None:
             if now - self.started_at < CALIBRATION_TIMEOUT_S:
                 return None
-            self.failed(self.current)
+            timed_out = self.current
+            self.failed(timed_out)
+            self.late[timed_out] = self.late.get(timed_out, 0) + 1
         if self.finished():
             self.waiting_since = None
             return None

@@ -101,6 +101,18 @@ def test_a_silent_or_failing_node_is_left_after_its_failures_and_the_others_go_o
     assert set(times) == {2} and speeds[2].speed == 1.0
 
 
+def test_a_late_answer_to_a_measurement_that_timed_out_is_dropped_not_a_protocol_error():
+    rounds = CalibrationRounds()
+    rounds.request(1)
+    rounds.request(2)
+    assert rounds.next_to_start(0.0) == 1
+    assert rounds.next_to_start(CALIBRATION_TIMEOUT_S) == 2, "node 1 timed out (a long tile): a failure"
+    assert rounds.measured(1, 50.0), "its late answer is expected, not an error"
+    assert rounds.times[1] == [] and rounds.failures[1] == 1, "and recorded nowhere"
+    assert not rounds.measured(1, 50.0), "a second one was never asked for"
+    assert rounds.measured(2, 5.0) and rounds.times[2] == [5.0]
+
+
 def test_forgetting_the_node_being_measured_lets_the_next_start():
     rounds = CalibrationRounds()
     rounds.request(1)
