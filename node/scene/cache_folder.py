@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from node.scene.cache import CACHE_FORMAT, TABLE, CacheError, Progress, entry_info, read_table, remove_entry
+from node.scene.mesh import SceneError
 
 #: Bytes hashed at a time.
 HASH_BLOCK = 8 << 20
@@ -38,6 +39,8 @@ HASH_BLOCK = 8 << 20
 LOCK_POLL_S = 0.1
 #: The folder's default bound, in MiB (``--scene-cache-mb``).
 DEFAULT_CACHE_MB = 20480
+#: Times an entry that fails its check is built again before the load fails.
+REBUILDS = 1
 
 
 def entry_name(sha256: str, face_limit: int) -> str:
@@ -187,3 +190,38 @@ class CacheFolder:
             total -= size
             removed.append(path)
         return removed
+
+
+def checked_entry(folder: CacheFolder, whole_name: str, build_whole: Callable[[Path], int],
+                  share: tuple[str, Callable[[Path, Path], int]] | None, check: Callable[[Path], object],
+                  source: Path, progress: Progress) -> Path:
+    """Entry ``whole_name`` of ``folder`` built by ``build_whole(directory)`` if need be, or, with
+    ``share`` = (name, build(whole, directory)), that share of it; checked by ``check(entry)``
+    (raising CacheError) unless this process just wrote it. An entry that fails is removed with its
+    whole and built again, :data:`REBUILDS` times; then SceneError."""
+    built: set[str] = set()
+
+    def noted(build: Callable[[Path], int]) -> Callable[[Path], int]:
+        def noting(directory: Path) -> int:
+            built.add(directory.name)
+            return build(directory)
+        return noting
+
+    for attempt in range(REBUILDS + 1):
+        whole = folder.ensure(whole_name, noted(build_whole), progress)
+        entry = whole if share is None else folder.ensure(
+            share[0], noted(lambda directory, whole=whole: share[1](whole, directory)), progress)
+        if entry.name in built:   # written from the arrays it checksummed just now: nothing to check
+            return entry
+        try:
+            progress(0.9, "checking the scene cache")
+            check(entry)
+            return entry
+        except CacheError as exc:
+            remove_entry(entry)
+            if entry != whole:
+                remove_entry(whole)
+            if attempt == REBUILDS:
+                raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
+            progress(0.1, f"the scene cache failed its check ({exc}); building it again")
+    raise AssertionError("unreachable")

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from node.scene.cache import CacheError, Progress, open_entry, remove_entry, write_entry, write_share
-from node.scene.cache_folder import CacheFolder, entry_name, share_name
+from node.scene.cache_folder import REBUILDS, CacheFolder, checked_entry, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
 from node.scene.lod import build_lod, lod_name, read_lod, write_lod
@@ -27,9 +27,6 @@ from node.scene.point_files import is_point_file
 from node.scene.points import PointCloud
 from node.scene.shares import keep_share
 from tessera.wire.messages import ShareSpec
-
-#: How many times an entry that fails its check is built again before the load fails.
-REBUILDS = 1
 
 
 def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress) -> Callable[[Path], int]:
@@ -47,45 +44,20 @@ def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder:
     """The checked entry of ``source`` (its ``share`` only, when given) in ``folder``, built first if
     need be; ``sha256``: the file's digest when known. Raises SceneError."""
     digest = sha256 or folder.content_hash(source, progress)
-    for attempt in range(REBUILDS + 1):
-        built: list[Path] = []
-        whole = folder.ensure(entry_name(digest, face_limit),
-                              _noted(build_entry(source, face_limit, digest, progress), built), progress)
-        entry = whole if share is None else folder.ensure(
-            share_name(whole.name, share.weights, share.index),
-            _noted(_share_builder(whole, share, {"sha256": digest, "name": source.name}), built), progress)
-        if entry in built:   # written from the arrays it checksummed just now: nothing to check
-            return entry
+    whole_name = entry_name(digest, face_limit)
+    origin = {"sha256": digest, "name": source.name}
+
+    def build_share(whole: Path, directory: Path) -> int:
         try:
-            progress(0.9, "checking the scene cache")
-            open_entry(entry, source.name, verify=True)
-            return entry
+            scene = open_entry(whole, source.name, verify=False)
+            assert share is not None
+            return write_share(directory, scene, share.weights, share.index, origin)
         except CacheError as exc:
-            remove_entry(entry)
-            if entry != whole:
-                remove_entry(whole)
-            if attempt == REBUILDS:
-                raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
-            progress(0.1, f"the scene cache failed its check ({exc}); building it again")
-    raise AssertionError("unreachable")
+            raise SceneError(f"{source.name}: {exc}") from None
 
-
-def _noted(builder: Callable[[Path], int], built: list[Path]) -> Callable[[Path], int]:
-    """``builder``, noting in ``built`` each directory it builds."""
-    def build(directory: Path) -> int:
-        built.append(directory)
-        return builder(directory)
-    return build
-
-
-def _share_builder(whole: Path, share: ShareSpec, source: dict[str, str]) -> Callable[[Path], int]:
-    def build(directory: Path) -> int:
-        try:
-            scene = open_entry(whole, source["name"], verify=False)
-            return write_share(directory, scene, share.weights, share.index, source)
-        except CacheError as exc:
-            raise SceneError(f"{source['name']}: {exc}") from None
-    return build
+    return checked_entry(folder, whole_name, build_entry(source, face_limit, digest, progress),
+                         None if share is None else (share_name(whole_name, share.weights, share.index), build_share),
+                         lambda entry: open_entry(entry, source.name, verify=True), source, progress)
 
 
 def read_scene(source: str, spec: str, face_limit: int, share: ShareSpec | None, progress: Progress,

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from node.scene.cache import CACHE_FORMAT, CacheError, Progress, read_arrays, read_table, remove_entry, write_arrays
-from node.scene.cache_folder import CacheFolder, share_name
+from node.scene.cache import CACHE_FORMAT, CacheError, Progress, read_arrays, read_table, write_arrays
+from node.scene.cache_folder import CacheFolder, checked_entry, share_name
 from node.scene.mesh import SceneError
 from node.scene.point_files import read_points
 from node.scene.points import POINTS_FORMAT, PointChunks, PointCloud, PointNodes, build_octree
@@ -30,9 +30,6 @@ from tessera.decomposition.data_partition import split_chunks
 from tessera.points.budget import PointTree
 from tessera.scene.graph import ObjectGraph
 from tessera.wire.messages import ShareSpec
-
-#: How many times an entry that fails its check is built again before the load fails.
-REBUILDS = 1
 
 
 def points_entry_name(sha256: str) -> str:
@@ -133,34 +130,15 @@ def cached_points(source: Path, share: ShareSpec | None, folder: CacheFolder, pr
         progress(0.8, f"writing the scene cache: {cloud.point_count} points in {cloud.nodes.count} nodes")
         return write_points_entry(directory, cloud, origin)
 
-    built: set[str] = set()     # entries this process wrote: not read back to check them
-
-    def build_whole_here(directory: Path) -> int:
-        built.add(directory.name)
-        return build_whole(directory)
-
-    for attempt in range(REBUILDS + 1):
-        whole = folder.ensure(whole_name, build_whole_here, progress)
-        entry = whole
-        if share is not None:
-            def build_share(directory: Path, whole: Path = whole) -> int:
-                try:
-                    cloud = open_points_entry(whole, source.name, verify=False)
-                except CacheError as exc:
-                    raise SceneError(f"{source.name}: {exc}") from None
-                built.add(directory.name)
-                return write_points_entry(directory, keep_point_share(cloud, share.weights, share.index), origin)
-            entry = folder.ensure(share_name(whole_name, share.weights, share.index), build_share, progress)
+    def build_share(whole: Path, directory: Path) -> int:
         try:
-            progress(0.9, "checking the scene cache")
-            open_points_entry(entry, source.name, verify=entry.name not in built)
-            return entry
+            cloud = open_points_entry(whole, source.name, verify=False)
         except CacheError as exc:
-            remove_entry(entry)
-            if entry != whole:
-                remove_entry(whole)
-            if attempt == REBUILDS:
-                raise SceneError(f"{source}: its scene cache {entry} fails again after a rebuild ({exc})") from None
-            progress(0.1, f"the scene cache failed its check ({exc}); building it again")
-    raise AssertionError("unreachable")
+            raise SceneError(f"{source.name}: {exc}") from None
+        assert share is not None
+        return write_points_entry(directory, keep_point_share(cloud, share.weights, share.index), origin)
+
+    return checked_entry(folder, whole_name, build_whole,
+                         None if share is None else (share_name(whole_name, share.weights, share.index), build_share),
+                         lambda entry: open_points_entry(entry, source.name, verify=True), source, progress)
 
