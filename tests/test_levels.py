@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from node.culling.lod import LodCut, lod_cut, projected_errors, subtract_ranges
+from node.culling.switch import CullMode, SwitchParams
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
@@ -155,6 +156,30 @@ def test_tiles_at_mixed_levels_join_as_the_whole_frame(ctx, dragon):
             stitched[y:y + h, x:x + w] = tile.pixels
     assert np.array_equal(stitched, whole.pixels)
     renderer.release()
+
+
+@pytest.mark.gl
+def test_hybrid_culling_draws_the_levels_on_a_gpu_stint_too(ctx, dragon):
+    """Hybrid culling (the default on a hardware GPU) culls a tile with coarse levels on the CPU,
+    also while its switch has sent the tile's slot to the GPU: the levels are drawn, as with CPU
+    culling, and tiles without levels go on culling on the GPU."""
+    scene, tree = dragon
+    eager = SwitchParams(threshold_s=1e-12, frames_to_switch=1, gpu_frames=50, check_frames=1)
+    hybrid = TileRenderer(ctx, scene, culling=CullMode.HYBRID, switch_params=eager)
+    cpu = TileRenderer(ctx, scene, culling=CullMode.CPU)
+    for renderer in (hybrid, cpu):
+        renderer.attach_lod(tree)
+    size, camera, rect = (200, 150), close_camera(scene), Rect(0, 0, 120, 150)
+    full = [hybrid.render_tile(camera, size, rect, slot="a") for _ in range(3)]
+    assert full[-1].cull_path == "gpu"
+    for _ in range(2):
+        tile = hybrid.render_tile(camera, size, rect, slot="a", lod_error_px=1.5)
+        expected = cpu.render_tile(camera, size, rect, slot="a", lod_error_px=1.5)
+        assert tile.cull_path == "cpu" and tile.triangles == expected.triangles < full[-1].triangles
+        assert np.array_equal(tile.pixels, expected.pixels)
+    assert hybrid.render_tile(camera, size, rect, slot="a").cull_path == "gpu"
+    for renderer in (hybrid, cpu):
+        renderer.release()
 
 
 def grid_plane(cells: int) -> SceneData:

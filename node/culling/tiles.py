@@ -125,9 +125,10 @@ class TileCuller:
 
     @property
     def takes_levels(self) -> bool:
-        """Whether its tiles can leave out chunks a level of detail stands in for (CPU culling or
-        none: the GPU path draws every chunk its compute shader keeps)."""
-        return self.mode in (CullMode.CPU, CullMode.OFF)
+        """Whether its tiles can leave out chunks a level of detail stands in for: every mode but gpu,
+        whose compute shader draws every chunk it keeps (hybrid culls a tile with coarse levels on
+        the CPU)."""
+        return self.mode is not CullMode.GPU
 
     def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect,
              lod: LodCut | None = None) -> TileCull:
@@ -148,7 +149,7 @@ class TileCuller:
             state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
         if self.clip is not None:   # chunks wholly cut away are culled like those outside the tile
             return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj, lod if coarse else None)
-        if self.mode is CullMode.GPU or state.switch.device is CullDevice.GPU:
+        if self.mode is CullMode.GPU or (state.switch.device is CullDevice.GPU and not coarse):
             return self._cull_gpu(state, planes)
         return self._cull_cpu(state, planes, view_proj, lod if coarse else None)
 
@@ -202,8 +203,8 @@ class TileCuller:
             first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
         runs = front_to_back(self.chunks, self.groups, first, end, view_proj)
         elapsed = time.perf_counter() - started
-        if self.mode is CullMode.HYBRID and self.gpu_bvh is not None:
-            state.switch = state.switch.step(elapsed)
+        if self.mode is CullMode.HYBRID and self.gpu_bvh is not None and state.switch.device is CullDevice.CPU:
+            state.switch = state.switch.step(elapsed)   # a GPU stint's coarse or clipped tile leaves it be
             if state.switch.device is CullDevice.GPU:
                 state.gpu = state.gpu or self._gpu_culler()
                 state.gpu.seed(result.terminal_nodes)
