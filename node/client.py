@@ -214,11 +214,11 @@ class NodeClient:
                 else f"{scene.triangle_count} triangles, {len(scene.batches)} meshes, {scene.chunks.chunk_count} chunks"
             log.info("scene %s ready: %s, %.0f ms", spec, what, (time.perf_counter() - started) * 1e3)
             ready = self.protocol.scene_loaded(message, scene, loaded.share_version)
+            if loaded.levels is not None:   # before 'ready': the first frame drawn on this node may use them
+                outbox.put_nowait(levels_ready(spec, loaded.share_version, loaded.levels, scene))
             outbox.put_nowait(ready.model_copy(update={"scene_mb": round(loaded.nbytes / (1 << 20), 2),
                                                        "held_mb": round(loaded.held_bytes / (1 << 20), 2),
                                                        "rss_mb": round(resident_mb(), 1)}))
-            if loaded.levels is not None:
-                outbox.put_nowait(levels_ready(spec, loaded.share_version, loaded.levels, scene))
         work.set()
 
     async def _draw(self, action: Draw, outbox: Outbox) -> None:

@@ -342,6 +342,8 @@ class RenderService(SessionPersistence, ServiceReport):
                 tables = None if None in (message.group_errors, message.group_triangles, message.group_boxes) else \
                     (np.asarray(message.group_errors), np.asarray(message.group_triangles),
                      np.asarray(message.group_boxes))
+                if tables is not None:
+                    link.level_tables[message.scene] = tables
                 for session in self._showing(message.scene):
                     self.scheduler.levels_ready(link.node_id, session.id, tables)
                 self.apply()
@@ -408,7 +410,7 @@ class RenderService(SessionPersistence, ServiceReport):
         showing = self._showing(message.scene)
         for session in showing:
             if session.bounds is None:
-                self._adopt_scene(session, message, bounds, now)
+                self._adopt_scene(session, link, message, bounds, now)
             self.scheduler.node_ready(link.node_id, now, message.share, session.id)
         log.info("node %d (%s) ready: %s, %d triangles%s", link.node_id, link.name,
                  message.scene or self.settings.scene, link.triangles,
@@ -417,9 +419,11 @@ class RenderService(SessionPersistence, ServiceReport):
         if link.can_calibrate and self.default in showing:
             self.calibration.request([link.node_id])
 
-    def _adopt_scene(self, session: Session, message: SceneReady, bounds: np.ndarray, now: float) -> None:
-        """The first node that loaded ``session``'s scene reported it: its objects, groups and bounds,
-        and a camera that frames it if the session has none."""
+    def _adopt_scene(self, session: Session, link: NodeLink, message: SceneReady, bounds: np.ndarray,
+                     now: float) -> None:
+        """The first node that loaded ``session``'s scene reported it (``link``): its objects, groups
+        (with their levels, when the node sent them first) and bounds, and a camera that frames it
+        if the session has none."""
         if message.objects is not None:
             self.scheduler.set_scene(timeline_of(message, now), now, session.id)
         session.bounds, session.state, session.error = bounds, "ready", None

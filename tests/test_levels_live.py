@@ -77,3 +77,23 @@ def test_the_still_after_motion_is_full_detail(coordinator_factory, tmp_path):
                                  "the still after motion, at full detail")
     finally:
         client.close()
+
+
+def test_after_a_restart_the_first_frame_is_drawn_at_the_levels_of_detail(coordinator_factory, tmp_path):
+    """Levels the scene cache holds are attached before a node says 'ready': after a restart of
+    coordinator and nodes (cache kept), the very first frame draws fewer triangles than the scan
+    (it used to be drawn at full detail, the levels attached only after the node was ready)."""
+    env = {"TESSERA_SCENE_CACHE_DIR": str(tmp_path / "cache")}
+    scene = str(scene_path(DRAGON))
+    args = ("--scene", scene, "--size", f"{SIZE[0]}x{SIZE[1]}", "--local-nodes", "2", "--codec", "png",
+            "--still-codec", "none", "--lod-error-px", str(BOUND), "--lod-max-error-px", str(BOUND))
+    first = coordinator_factory(*args, env=env)
+    with httpx.Client(base_url=first.url, timeout=seconds(30)) as client:
+        wait_until(lambda: levels_in_use(client), seconds(180), "the nodes' levels of detail")
+    first.proc.stop()
+    again = coordinator_factory(*args, env=env)
+    with httpx.Client(base_url=again.url, timeout=seconds(30)) as client:
+        drew = wait_until(lambda: [n for n in stats(client)["nodes"] if n["busy_ms"] > 0], seconds(120),
+                          "the first frame after the restart, its figures rolled up")
+        drawn = sum(int(node["triangles"]) for node in drew)
+        assert 0 < drawn < DRAGON_TRIANGLES, f"the first frame drew {drawn} triangles of {DRAGON_TRIANGLES}"

@@ -18,6 +18,7 @@ sort-last as the mode that serves it (its buffers are all host memory on llvmpip
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Hashable
@@ -42,7 +43,7 @@ from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
-from node.scene.lod import LodTree, read_lod
+from node.scene.lod import LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore, group_of, is_mesh
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -188,11 +189,32 @@ class GLWorker:
             task.exception()
 
     async def _read_and_upload(self, key: SceneKey, request: LoadScene, progress: ProgressCallback) -> LoadedScene:
-        scene, entry = await asyncio.get_running_loop().run_in_executor(self._loader, self._read, request, progress)
+        """Read, upload and hold the scene; levels of detail the cache holds already are attached
+        before it is answered (its first frame may use them), others built in the background."""
+        loop = asyncio.get_running_loop()
+        scene, entry = await loop.run_in_executor(self._loader, self._read, request, progress)
         loaded: LoadedScene = await self._call(self._upload, key, request, scene, entry, progress)
         if request.levels:
-            self._build_levels(key)
+            tree = None if entry is None else await loop.run_in_executor(self._loader, self._cached_levels, entry)
+            held = None if tree is None else await self._call(self._attach_levels, key, tree)
+            if held is None:
+                self._build_levels(key)
+            else:
+                loaded = dataclasses.replace(loaded, nbytes=held.nbytes, held_bytes=self._scenes.total_bytes,
+                                             levels=tree)
         return loaded
+
+    def _cached_levels(self, entry: Path) -> LodTree | None:
+        """In the loader thread: the levels of detail of cache entry ``entry`` when the cache holds
+        them and they pass their check; None otherwise (then they are built, or rebuilt, apart)."""
+        found = None if self.cache is None else self.cache.existing(lod_name(entry.name))
+        if found is None:
+            return None
+        try:
+            tree = read_lod(found, verify=True)
+        except CacheError:
+            return None
+        return tree if tree.node_count else None
 
     def _build_levels(self, key: SceneKey) -> None:
         """Start building the levels of detail of the scene held as ``key`` (from its cache entry;

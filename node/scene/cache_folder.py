@@ -114,6 +114,15 @@ class CacheFolder:
         self.trim(keep=name)
         return directory
 
+    def existing(self, name: str) -> Path | None:
+        """The entry ``name`` when it is there and its table reads (marked used), else None; never
+        builds. Its arrays are not checked here."""
+        directory = self.entry(name)
+        if not self._usable(directory):
+            return None
+        self._touch(directory)
+        return directory
+
     def _usable(self, directory: Path) -> bool:
         try:
             read_table(directory)
