@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from node.scene.builtin import BUILTIN_SCENES
+from node.scene.digests import DigestMemo
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
 from node.scene.mesh import SceneError
 from node.scene.objects import GLTF_SUFFIXES
@@ -37,6 +38,8 @@ LIBRARY_PREFIX = "library/"
 UPLOAD_PREFIX = "upload/"
 #: Uploads live in this folder of ``--data-dir``.
 UPLOADS_FOLDER = "scenes"
+#: Where the digests of library files and uploads are remembered, in the data folder.
+DIGESTS_FOLDER = "digests"
 #: How an upload's temporary file starts: hidden, so never listed, and removed at start-up.
 TEMPORARY_PREFIX = ".upload-"
 #: Longest file name most file systems take, in UTF-8 bytes, less room for the temporary prefix.
@@ -153,8 +156,9 @@ class SceneLibrary:
         self.scenes_dir = scenes_dir.resolve() if scenes_dir is not None else None
         self.uploads_dir = (data_dir / UPLOADS_FOLDER).resolve() if data_dir is not None else None
         self.max_upload_bytes = max_upload_bytes
-        #: path → (size, mtime_ns, SHA-256 hex) of every file hashed so far.
-        self._hashes: dict[Path, tuple[int, int, str]] = {}
+        #: The SHA-256 of every file hashed so far, kept across restarts; packed glTF files' apart.
+        self._digests = DigestMemo(None if data_dir is None else data_dir / DIGESTS_FOLDER)
+        self._packed = DigestMemo(None)
         self._remove_temporary_files()
 
     def _remove_temporary_files(self) -> None:
@@ -227,23 +231,20 @@ class SceneLibrary:
 
     def content_hash(self, entry: SceneEntry) -> str:
         """SHA-256 (hex) of the bytes nodes fetch of a scene (its file's, or :meth:`packed_gltf`'s),
-        computed once per (path, size, modification time) of the file. Blocking: reads the whole
-        file the first time."""
+        computed once per (path, size, modification time, inode) of the file and remembered in
+        ``data_dir``/digests across restarts (a packed glTF's in memory only: the files it refers to
+        may change). Blocking: reads the whole file the first time."""
         assert entry.path is not None, "built-in scenes have no file"
-        stat = entry.path.stat()
-        known = self._hashes.get(entry.path)
-        if known is not None and known[:2] == (stat.st_size, stat.st_mtime_ns):
-            return known[2]
-        digest = hashlib.sha256()
+        memo = self._packed if entry.format == "gltf" else self._digests
+        known = memo.known(entry.path)
+        if known is not None:
+            return known
         packed = self.packed_gltf(entry)
-        if packed is not None:
-            digest.update(packed)
-        else:
-            with entry.path.open("rb") as file:
-                while chunk := file.read(1 << 20):
-                    digest.update(chunk)
-        self._hashes[entry.path] = (stat.st_size, stat.st_mtime_ns, digest.hexdigest())
-        return digest.hexdigest()
+        if packed is None:
+            return memo.digest(entry.path)
+        sha256 = hashlib.sha256(packed).hexdigest()
+        memo.remember(entry.path, sha256)
+        return sha256
 
     def packed_gltf(self, entry: SceneEntry) -> bytes | None:
         """A library ``.gltf`` whose buffers or images are separate files, made one self-contained
@@ -292,8 +293,7 @@ class SceneLibrary:
         return UploadTooLarge(f"upload over the limit of {self.max_upload_bytes / (1 << 20):g} MiB (--max-upload-mb)")
 
     def remember_hash(self, path: Path, sha256: str) -> None:
-        stat = path.stat()
-        self._hashes[path] = (stat.st_size, stat.st_mtime_ns, sha256)
+        self._digests.remember(path, sha256)
 
 
 class PendingUpload:

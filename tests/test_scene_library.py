@@ -194,8 +194,13 @@ def test_the_hash_is_kept_until_the_file_changes(tmp_path):
     path.write_bytes(b"y" * len(TRIANGLE_PLY))  # same size: the modification time tells
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))
     assert library.content_hash(entry) == hashlib.sha256(TRIANGLE_PLY).hexdigest(), "read once"
+    restarted = make_library(tmp_path)   # a coordinator started again over the same data folder
+    assert restarted.content_hash(entry) == hashlib.sha256(TRIANGLE_PLY).hexdigest(), "not read after a restart"
+    assert SceneLibrary(tmp_path / "library", None, 1 << 20).content_hash(entry) == \
+        hashlib.sha256(b"y" * len(TRIANGLE_PLY)).hexdigest(), "without a data folder, read"
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))
     assert library.content_hash(entry) == hashlib.sha256(b"y" * len(TRIANGLE_PLY)).hexdigest()
+    assert make_library(tmp_path).content_hash(entry) == hashlib.sha256(b"y" * len(TRIANGLE_PLY)).hexdigest()
 
 
 def test_the_check_loads_as_a_node_does(tmp_path):

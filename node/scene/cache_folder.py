@@ -31,10 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from node.scene.cache import CACHE_FORMAT, TABLE, CacheError, Progress, entry_info, read_table, remove_entry
+from node.scene.digests import DigestMemo
 from node.scene.mesh import SceneError
 
-#: Bytes hashed at a time.
-HASH_BLOCK = 8 << 20
 #: Seconds between two looks at a lock another process holds.
 LOCK_POLL_S = 0.1
 #: The folder's default bound, in MiB (``--scene-cache-mb``).
@@ -63,32 +62,12 @@ class CacheFolder:
 
     def content_hash(self, path: Path, progress: Progress) -> str:
         """The SHA-256 of the file at ``path``: remembered while its size, modification time and inode
-        stay the same, else read and hashed (progress reported by bytes)."""
-        stat = path.stat()
-        key = hashlib.sha1(str(path.resolve()).encode()).hexdigest()
-        remembered = self.root / "paths" / f"{key}.json"
-        signature = [str(path.resolve()), stat.st_size, stat.st_mtime_ns, stat.st_ino, stat.st_dev]
-        with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
-            known = json.loads(remembered.read_text())
-            if known["signature"] == signature:
-                return str(known["sha256"])
-        digest, done = hashlib.sha256(), 0
-        with path.open("rb") as file:
-            while block := file.read(HASH_BLOCK):
-                digest.update(block)
-                done += len(block)
-                progress(0.1 * done / max(stat.st_size, 1), f"hashing {path.name}: {done >> 20} of "
-                                                            f"{stat.st_size >> 20} MB")
-        sha256 = digest.hexdigest()
-        with contextlib.suppress(OSError):
-            self._write_atomically(remembered, json.dumps({"signature": signature, "sha256": sha256}))
-        return sha256
+        stay the same (:class:`node.scene.digests.DigestMemo`), else read and hashed (progress
+        reported by bytes)."""
+        def report(done: int, total: int) -> None:
+            progress(0.1 * done / max(total, 1), f"hashing {path.name}: {done >> 20} of {total >> 20} MB")
 
-    def _write_atomically(self, path: Path, text: str) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f".{path.name}.{os.getpid()}.part")
-        partial.write_text(text)
-        os.replace(partial, path)
+        return DigestMemo(self.root / "paths").digest(path, report)
 
     def entry(self, name: str) -> Path:
         return self.root / name
