@@ -26,6 +26,7 @@ from concurrent.futures import Executor, Future, ThreadPoolExecutor
 import numpy as np
 
 from server.frame_store import FrameStore, PublishedFrame
+from server.local_nodes import LOCAL_NODES_JOIN_S
 from server.mesh_updates import MeshUpdates
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
@@ -107,6 +108,8 @@ class RenderService(SessionPersistence, ServiceReport):
         self.scheduler = JobScheduler(settings.scheduler_config(), create_balancer(settings.balancer),
                                         settings.scene)
         self.scheduler.default.stats = ObservedFrameStats(self.metrics)
+        if settings.local_nodes:   # sort-last shares are cut once they joined (or the wait ran out)
+            self.scheduler.expect_nodes(settings.local_nodes, time.monotonic() + LOCAL_NODES_JOIN_S)
         self.nodes: dict[int, NodeLink] = {}
         self.still_executor: Executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-still")
         self.default = Session(self, DEFAULT_SESSION, settings.scene)

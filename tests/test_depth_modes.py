@@ -85,6 +85,18 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, mode
         assert sum(n["triangles"] for n in nodes_stats) > 0
 
 
+def test_local_nodes_get_their_shares_once_all_three_joined(coordinator_factory):
+    """The coordinator knows its ``--local-nodes`` are on their way: its first data partition is
+    cut over all three (version 1), not one per node as each joins, so no node ever loads the
+    whole scene as a share of one (before: partitions 1, 2, 3, the first node's share the scan)."""
+    scene = str(scene_path(SCENE_FILES["dragon"]))
+    with serving(coordinator_factory, "sort-last", scene, 3, "--local-nodes", "3") as client:
+        found = stats(client)
+        assert found["partition"]["version"] == 1 and found["partition"]["shares"] == 3, found["partition"]
+        loaded = [n["triangles_loaded"] for n in found["nodes"]]
+        assert sum(loaded) == 202_520 and max(loaded) < 0.5 * 202_520, loaded
+
+
 def test_a_node_killed_mid_stream_in_sort_last_loses_no_frame(coordinator_factory, node_factory, tmp_path):
     """Three nodes of their own (so that one can be killed) while the camera turns: the killed
     node's share is loaded again by the two left (a new partition), and the frames asked for

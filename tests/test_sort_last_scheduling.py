@@ -81,6 +81,46 @@ def test_each_join_makes_a_partition_and_frames_wait_for_every_share():
     assert [a.job.frame_id for a in done if isinstance(a, PublishFrame)] == [1]
 
 
+def shares_told(actions) -> list[tuple[int, int, int, int]]:
+    """(node, partition version, share index, shares) of each LoadScene among ``actions``."""
+    return [(a.node_id, a.share.version, a.share.index, len(a.share.weights)) for a in actions
+            if isinstance(a, LoadScene)]
+
+
+def test_expected_nodes_get_their_shares_once_all_joined_not_one_partition_per_join():
+    s = FrameScheduler(SchedulerConfig(size=SIZE, mode="sort-last", settle_frames=0), StaticBalancer())
+    s.expect_nodes(3, until=20.0)
+    s.add_node(1, 0.0)
+    s.add_node(2, 0.5)
+    assert shares_told(s.drain()) == [], "no share of one, then of two"
+    assert s.next_deadline(0.5) == 20.0, "the wait's end wakes the scheduler"
+    s.add_node(3, 1.0)
+    assert shares_told(s.drain()) == [(1, 1, 0, 3), (2, 1, 1, 3), (3, 1, 2, 3)]
+    s.add_node(4, 2.0)
+    assert shares_told(s.drain()) == [(1, 2, 0, 4), (2, 2, 1, 4), (3, 2, 2, 4), (4, 2, 3, 4)], \
+        "a node beyond those expected joins as before"
+
+
+def test_when_the_wait_for_expected_nodes_runs_out_those_there_get_shares():
+    s = FrameScheduler(SchedulerConfig(size=SIZE, mode="sort-last", settle_frames=0), StaticBalancer())
+    s.expect_nodes(3, until=20.0)
+    s.add_node(1, 0.0)
+    s.add_node(2, 0.5)
+    s.tick(19.9)
+    assert shares_told(s.drain()) == []
+    s.tick(20.0)
+    assert shares_told(s.drain()) == [(1, 1, 0, 2), (2, 1, 1, 2)]
+    s.add_node(3, 30.0)
+    assert shares_told(s.drain()) == [(1, 2, 0, 3), (2, 2, 1, 3), (3, 2, 2, 3)]
+
+
+def test_a_sort_first_session_loads_as_nodes_join_while_others_are_expected():
+    s = FrameScheduler(SchedulerConfig(size=SIZE, settle_frames=0), StaticBalancer())
+    s.expect_nodes(3, until=20.0)
+    s.add_node(1, 0.0)
+    assert [a.node_id for a in s.drain() if isinstance(a, LoadScene)] == [1]
+
+
 def test_a_node_leaving_drops_the_frames_in_flight_and_repartitions_over_the_others():
     s = sort_last(nodes=3)
     load_shares(s, s.drain())

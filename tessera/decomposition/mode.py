@@ -38,6 +38,8 @@ class DecompositionMode(ABC):
     needs_depth: ClassVar[bool] = False
     #: Any ready node can draw any tile: a straggler's tiles may be backed up, a failed one moved.
     tiles_move: ClassVar[bool] = True
+    #: Each node holds a share of the scene that follows the node set (:meth:`nodes_changed`).
+    shares_data: ClassVar[bool] = False
 
     def __init__(self, size: tuple[int, int], balancer: Balancer, background: np.ndarray) -> None:
         """``background``: (3,) uint8, painted where no layer drew (depth modes)."""

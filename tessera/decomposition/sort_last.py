@@ -26,6 +26,7 @@ class SortLast(DecompositionMode):
     name = "sort-last"
     needs_depth = True
     tiles_move = False
+    shares_data = True
 
     def __init__(self, *args: Any) -> None:
         super().__init__(*args)

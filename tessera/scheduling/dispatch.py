@@ -52,6 +52,8 @@ class FrameDispatch:
     backups: int
     _actions: list[Action]
     _next_straggler_check: float
+    #: Nodes expected to join (their count) and until when they are waited for (s); None: none.
+    _expected: tuple[int, float] | None
     def _back_up_stragglers(self, now: float) -> None:
         """Copy the tiles of overdue nodes to others that hold their scene (see the module
         docstring); not where tiles cannot move (sort-last: no other node holds the share)."""
@@ -221,6 +223,8 @@ class FrameDispatch:
         new). True when the session's mode makes a new data partition of it (sort-last): its frames
         in flight are dropped and every node is told its share. Otherwise the joined node (every
         node, with ``force``) is told to load the session's scene."""
+        if session.mode.shares_data and self._joining(now):
+            return False   # shares cut now would be cut again as each expected node joins
         loads = session.mode.nodes_changed({n.node_id: n.speed for n in self.nodes.values()})
         if loads is None:
             if force:   # one node after the other: the others keep serving the sessions on screen
@@ -233,6 +237,13 @@ class FrameDispatch:
             self._cancel(job, now)
         self._actions.extend(LoadScene(node_id, share, session.scene_key) for node_id, share in loads.items())
         return True
+
+    def _joining(self, now: float) -> bool:
+        """Nodes are still expected to join (:meth:`FrameScheduler.expect_nodes`): fewer than
+        expected have, and the wait has not run out. Once not, never again."""
+        if self._expected is not None and (len(self.nodes) >= self._expected[0] or now >= self._expected[1]):
+            self._expected = None
+        return self._expected is not None
 
     def _load_next(self, session: SessionFrames) -> None:
         """Tell the next node of ``session.loads_waiting`` to load the session's scene. A new

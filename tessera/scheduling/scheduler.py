@@ -78,6 +78,7 @@ class FrameScheduler(FrameDispatch):
         self.nodes = self.table.nodes
         self._actions: list[Action] = []
         self._next_straggler_check = 0.0
+        self._expected = None
         self.backups = 0
         self.add_session(DEFAULT_SESSION, config, balancer, scene, 0.0)
 
@@ -104,6 +105,8 @@ class FrameScheduler(FrameDispatch):
             times = [at for s in self.sessions.values()
                      if (at := s.start_due(now, self._free_for(s, free))) is not None
                      and self.fair.in_turn(s.id, backlogged)]
+        if self._expected is not None:
+            times.append(self._expected[1])
         if self.in_flight:
             times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
             if any(self._goes_ahead(s) for s in self.sessions.values()) and (
@@ -115,6 +118,13 @@ class FrameScheduler(FrameDispatch):
         """No tile owed was dispatched before this (the oldest frame in flight's start; tiles
         re-dispatched later only make it early, so a tick comes early, never late)."""
         return min(job.started_at for job in self.in_flight.values())
+
+    def expect_nodes(self, count: int, until: float) -> None:
+        """``count`` nodes are on their way (the coordinator's local nodes): sessions whose nodes
+        each hold a share of the scene (sort-last) are partitioned once that many joined, or at
+        ``until`` (s), not once per node as they join (the first would load the whole scene as
+        a share of one, then a half, ...)."""
+        self._expected = (count, until) if count > len(self.nodes) else None
 
     # ----------------------------------------------------------------- sessions
     def add_session(self, session_id: str, config: SchedulerConfig, balancer: Balancer, scene_key: str | None,
@@ -378,6 +388,10 @@ class FrameScheduler(FrameDispatch):
         if now >= self._next_straggler_check:
             self._next_straggler_check = now + STRAGGLER_CHECK_S
             self._back_up_stragglers(now)
+        if self._expected is not None and not self._joining(now):   # the wait ran out: partition those there
+            for session in [s for s in self.sessions.values() if s.mode.shares_data]:
+                if self._repartition(session, now):
+                    self._changed(session, now, supersede=False)
         deadline = now - self.config.tile_timeout_s
         if self.in_flight and self._oldest_dispatch() < deadline:
             for node in list(self.nodes.values()):
