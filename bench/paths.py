@@ -123,6 +123,21 @@ def random_cameras(bounds: np.ndarray, count: int, seed: int = 0, aspect: float 
     return cameras
 
 
+def orbit_around(camera: Camera, frames: int = DEFAULT_FRAMES, dt_ms: float = DEFAULT_DT_MS) -> dict[str, Any]:
+    """A camera path of one turn of ``camera``'s eye around its target about the vertical (Y)
+    axis, at its height and distance, its field of view kept: ``frames`` cameras ``dt_ms`` apart,
+    the first ``camera`` itself (a random camera moving as ``orbit`` moves the default one)."""
+    eye, target = np.asarray(camera.eye, dtype=np.float64), np.asarray(camera.target, dtype=np.float64)
+    offset = eye - target
+    cameras = []
+    for angle in 2.0 * math.pi * np.arange(frames) / frames:
+        c, s = math.cos(angle), math.sin(angle)
+        turned = np.array([c * offset[0] + s * offset[2], offset[1], -s * offset[0] + c * offset[2]])
+        cameras.append(Camera(eye=tuple(np.round(target + turned, 6).tolist()), target=camera.target,
+                              fovy_deg=camera.fovy_deg).to_json())
+    return {"dt_ms": dt_ms, "frames": cameras}
+
+
 def surface_focus(positions: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """(3,) the vertex of ``positions`` (N, 3) nearest the default camera's eye for ``bounds``."""
     eye = np.asarray(default_camera(bounds).eye)

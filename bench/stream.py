@@ -79,8 +79,10 @@ from PIL import Image
 
 from bench.images import psnr, reported_psnr, viewer_frame_image
 from bench.live import latencies, wait_ready
-from bench.paths import KINDS, make_path, surface_focus
+from bench.paths import KINDS, make_path, orbit_around, random_cameras, surface_focus
 from bench.processes import PYTHON, LoggedProcess, show_result, start_coordinator
+from bench.quality import camera_seed
+from bench.stream_summary import summarize, summary_table
 from bench.stream_viewer import StreamViewer
 from bench.synthetic_nodes import SCENE_BOUNDS
 from bench.throttle import throttled_proxy
@@ -321,6 +323,8 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
         "encode_ms_p50": stream.get("encode_cpu_ms_p50"), "compose_ms": stream.get("compose_cpu_ms_mean"),
         "encode_wall_ms": stream.get("encode_ms_mean"), "compose_wall_ms": stream.get("compose_ms_mean"),
         "frames_encoded": stream.get("frames_encoded"), "target_bitrate": stream.get("bitrate"),
+        "crf": stream.get("crf"), "crf_changes": stream.get("crf_changes"),
+        "psnr_video_measured": stream.get("psnr_video_db"), "psnr_tiles_measured": stream.get("psnr_tiles_db"),
         "keyframes": viewer.keyframes, "frames_lost": viewer.lost, "tile_frames_after_choice":
         viewer.tfrm_after_choice if choice.get("transport") != "tiles" else None,
         "frame_interval_ms": round(interval_ms, 2), "latency_p50_ms": round(p50, 1),
@@ -330,25 +334,31 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
     return out
 
 
-def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """Start the service, play every transport, stop it, then measure the samples' PSNR."""
-    scene: SceneData | None = None
-    if args.synthetic:
-        bounds, positions = np.asarray(SCENE_BOUNDS, dtype=float), None
-        server_args = ["--size", f"{args.size[0]}x{args.size[1]}"]
-    else:
-        scene = load_scene(args.scene)
-        bounds = scene.bounds
-        positions = np.concatenate([b.positions for b in scene.batches]).astype(np.float64)
-        server_args = ["--local-nodes", str(args.nodes), "--scene", args.scene, "--size",
-                       f"{args.size[0]}x{args.size[1]}"]
+def camera_paths(args: argparse.Namespace, bounds: np.ndarray, positions: np.ndarray | None,
+                 size: tuple[int, int]) -> list[tuple[str, dict[str, Any]]]:
+    """(name, camera path) pairs to play at ``size``: ``--path``, or with ``--cameras N`` an orbit
+    (:func:`bench.paths.orbit_around`) from each of N random cameras around the scene
+    (:func:`bench.paths.random_cameras`, from ``--seed`` and the scene's name, framed for ``size``'s aspect)."""
+    if not args.cameras:
+        return [(args.path, load_path(args.path, bounds, positions))]
+    cameras = random_cameras(bounds, args.cameras, camera_seed(args.scene, args.seed), aspect=size[0] / size[1])
+    return [(f"camera {i}", orbit_around(camera)) for i, camera in enumerate(cameras)]
+
+
+def measure_size(args: argparse.Namespace, size: tuple[int, int], scene: SceneData | None, bounds: np.ndarray,
+                 positions: np.ndarray | None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Start the service at ``size``, play every transport along each camera path, stop it, then
+    measure the samples' PSNR: one run per path (``size``, ``camera``, ``transports``: figures per
+    transport), and what the service said of itself (still samples, renderer)."""
+    server_args = ["--size", f"{size[0]}x{size[1]}"]
+    if not args.synthetic:
+        server_args += ["--local-nodes", str(args.nodes), "--scene", args.scene]
     extra = shlex.split(args.server_args)
     if args.synthetic and "--still-samples" not in extra:
         server_args += ["--still-samples", "1"]
     if "--stream" not in extra and any(t != "tiles" for t in args.transports):
         server_args += ["--stream", "auto"]
-    player = PathPlayer(load_path(args.path, bounds, positions))
-    runs: dict[str, dict[str, Any]] = {}
+    played: list[tuple[str, dict[str, dict[str, Any]]]] = []
     coordinator, url = start_coordinator([*server_args, *extra], log_level="warning")
     synthetic: LoggedProcess | None = None
     try:
@@ -358,28 +368,53 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         with httpx.Client(base_url=url, timeout=120) as client:
             stats = wait_ready(client, args.nodes)
             still_plan = still_plan_of(stats)
-            for transport in args.transports:
-                runs[transport] = play(args, url, client, transport, player)
+            for name, path in camera_paths(args, bounds, positions, size):
+                player = PathPlayer(path)
+                played.append((name, {t: play(args, url, client, t, player) for t in args.transports}))
     finally:
         if synthetic is not None:
             synthetic.stop()
         coordinator.stop(timeout=30.0)
-    references = References(scene, args.size) if scene is not None else None
+    references = References(scene, size) if scene is not None else None
+    runs = []
     try:
-        result: dict[str, Any] = {t: figures(run, references) for t, run in runs.items()}
-        for transport, run in runs.items():
-            if run.get("rest") is not None:
-                result[transport].update(rest_figures(run, references, still_plan))
+        for name, transports in played:
+            result: dict[str, Any] = {t: figures(run, references) for t, run in transports.items()}
+            for transport, run in transports.items():
+                if run.get("rest") is not None:
+                    result[transport].update(rest_figures(run, references, still_plan))
+            runs.append({"size": list(size), "camera": name, "transports": result})
     finally:
         if references is not None:
             references.release()
-    result["run"] = {"scene": "synthetic" if args.synthetic else args.scene, "path": args.path,
-                     "size": list(args.size), "nodes": args.nodes, "synthetic": args.synthetic,
-                     "input_hz": args.input_hz, "moving_s": args.moving_s, "server_args": args.server_args,
-                     "throttle_mbps": args.throttle_mbps, "rest_s": args.rest_s, "resume_s": args.resume_s,
-                     "still_samples": "auto" if still_plan.adaptive else still_plan.samples,
-                     "renderer": stats["nodes"][0]["renderer"]}
-    return result
+    return runs, {"still_samples": "auto" if still_plan.adaptive else still_plan.samples,
+                  "renderer": stats["nodes"][0]["renderer"]}
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """Every size's runs (:func:`measure_size`): one run's figures keyed by transport, or with more
+    runs (``--cameras``, ``--sizes``) each run's under ``runs``, their means and worst cases keyed by
+    transport and under ``summary`` per size (:func:`bench.stream_summary.summarize`)."""
+    scene: SceneData | None = None
+    if args.synthetic:
+        bounds, positions = np.asarray(SCENE_BOUNDS, dtype=float), None
+    else:
+        scene = load_scene(args.scene)
+        bounds = scene.bounds
+        positions = np.concatenate([b.positions for b in scene.batches]).astype(np.float64)
+    runs: list[dict[str, Any]] = []
+    for size in args.sizes:
+        size_runs, service = measure_size(args, size, scene, bounds, positions)
+        runs += size_runs
+    meta = {"scene": "synthetic" if args.synthetic else args.scene, "path": args.path,
+            "size": list(args.sizes[0]), "sizes": [list(size) for size in args.sizes], "cameras": args.cameras,
+            "seed": args.seed, "nodes": args.nodes, "synthetic": args.synthetic,
+            "input_hz": args.input_hz, "moving_s": args.moving_s, "server_args": args.server_args,
+            "throttle_mbps": args.throttle_mbps, "rest_s": args.rest_s, "resume_s": args.resume_s, **service}
+    if len(runs) == 1:
+        return {**runs[0]["transports"], "run": meta}
+    return {**summarize(runs), "runs": runs, "summary": {f"{w}x{h}": summarize([r for r in runs if r["size"] == [w, h]])
+                                                         for w, h in args.sizes}, "run": meta}
 
 
 def cell(value: float | None, width: int, places: int) -> str:
@@ -394,14 +429,36 @@ def _sum(*values: float | None) -> float | None:
 
 def report(result: dict[str, Any]) -> str:
     run = result["run"]
-    lines = [f"Tessera stream benchmark: {run['scene']} at {run['size'][0]}x{run['size'][1]}, {run['nodes']} "
-             f"{'synthetic' if run['synthetic'] else 'local'} nodes ({run['renderer']}), path {run['path']} "
+    sizes = ", ".join(f"{w}x{h}" for w, h in run["sizes"])
+    paths = (f"orbits from {run['cameras']} random cameras (seed {run['seed']})" if run["cameras"]
+             else f"path {run['path']}")
+    lines = [f"Tessera stream benchmark: {run['scene']} at {sizes}, {run['nodes']} "
+             f"{'synthetic' if run['synthetic'] else 'local'} nodes ({run['renderer']}), {paths} "
              f"with input at {run['input_hz']:g} Hz for {run['moving_s']:g} s per transport"
              + (f", server args {run['server_args']!r}" if run["server_args"] else "")
-             + (f", link {run['throttle_mbps']:g} Mbit/s" if run["throttle_mbps"] else ""),
-             f"{'transport':<10}{'KB/frame':>9}{'wire':>6}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}"
+             + (f", link {run['throttle_mbps']:g} Mbit/s" if run["throttle_mbps"] else "")]
+    for one in result.get("runs") or [{"transports": result}]:
+        if "size" in one:
+            lines.append(f"{one['size'][0]}x{one['size'][1]}, {one['camera']}:")
+        lines += transport_rows(one["transports"])
+    reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
+                 else "the coordinator's composite of the same frame (GET /api/frame.png)")
+    lines.append("KB/frame: messages, wire: on the wire (permessage-deflate); "
+                 f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
+                 "(the encoder's source); enc/comp ms: the coordinator's CPU per frame (its stream thread), "
+                 "wall: both on the wall clock; dec ms: this "
+                 "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms); crf: the "
+                 "H.264 stream's at the end, with the coordinator's own PSNR of the video and the tiles' JPEG")
+    if "summary" in result:
+        lines += summary_table(result["summary"])
+    return "\n".join(lines)
+
+
+def transport_rows(result: dict[str, Any]) -> list[str]:
+    """The table of one run's figures keyed by transport."""
+    lines = [f"{'transport':<10}{'KB/frame':>9}{'wire':>6}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}"
              f"{'min':>7}{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
-             f"{'keys':>5}{'lost':>5}"]
+             f"{'keys':>5}{'lost':>5}{'crf':>7}{'own video/tiles dB':>20}"]
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is None:
@@ -417,7 +474,9 @@ def report(result: dict[str, Any]) -> str:
                      f"{cell(row['encode_ms'], 8, 2)}{cell(row['compose_ms'], 8, 2)}"
                      f"{cell(_sum(row.get('encode_wall_ms'), row.get('compose_wall_ms')), 6, 1)}"
                      f"{cell(row['viewer_decode_ms'], 8, 2)}{cell(row['latency_intervals_p50'], 8, 2)} "
-                     f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}")
+                     f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}"
+                     f"{cell(row.get('crf'), 7, 2)}{cell(row.get('psnr_video_measured'), 11, 2)}"
+                     f"{cell(row.get('psnr_tiles_measured'), 9, 2)}")
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is not None and "still_s" in row:
@@ -426,14 +485,13 @@ def report(result: dict[str, Any]) -> str:
                          f"exact: {row['still_exact']}, "
                          f"PSNR vs render-once still {cell(row['still_psnr'], 6, 2)}; moving again: first answer "
                          f"{cell(row['resume_ms'], 6, 0)} ms, {cell(row['fps_resumed'], 5, 1)} fps")
-    reference = ("render-once of each sampled frame's camera" if not run["synthetic"]
-                 else "the coordinator's composite of the same frame (GET /api/frame.png)")
-    lines.append("KB/frame: messages, wire: on the wire (permessage-deflate); "
-                 f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
-                 "(the encoder's source); enc/comp ms: the coordinator's CPU per frame (its stream thread), "
-                 "wall: both on the wall clock; dec ms: this "
-                 "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms)")
-    return "\n".join(lines)
+    return lines
+
+
+def sizes_parser(text: str) -> list[tuple[int, int]]:
+    """``--sizes``: comma-separated WxH."""
+    one = size_parser(16, 8192)
+    return [one(part.strip()) for part in text.split(",") if part.strip()]
 
 
 def parse_transports(text: str) -> list[str]:
@@ -450,6 +508,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"camera path JSON (bench/paths/*.json) or one of {', '.join(KINDS)} (default orbit)")
     parser.add_argument("--size", type=size_parser(16, 8192),
                         help="WxH (default 1280x720; with --synthetic 1920x1080)")
+    parser.add_argument("--sizes", type=sizes_parser, help="WxH,WxH,...: a run at each size (instead of --size)")
+    parser.add_argument("--cameras", type=int, default=0,
+                        help="play an orbit from each of N random cameras around the scene instead of --path")
+    parser.add_argument("--seed", type=int, default=0, help="the random cameras' seed (default 0)")
     parser.add_argument("--nodes", type=int, help=f"local nodes (default 3; with --synthetic {SYNTHETIC_NODES})")
     parser.add_argument("--moving-s", type=float, default=8.0, help="seconds of camera motion per transport")
     parser.add_argument("--input-hz", type=float, default=60.0, help="camera messages per second (default 60)")
@@ -471,10 +533,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    args.size = args.size or (SYNTHETIC_SIZE if args.synthetic else (1280, 720))
+    args.sizes = args.sizes or [args.size or (SYNTHETIC_SIZE if args.synthetic else (1280, 720))]
     args.nodes = args.nodes or (SYNTHETIC_NODES if args.synthetic else 3)
     if args.moving_s <= 1.0 or args.psnr_frames < 1:
         raise SystemExit("--moving-s must exceed 1 s and --psnr-frames be >= 1")
+    if args.cameras < 0 or (args.cameras and args.synthetic):
+        raise SystemExit("--cameras must be >= 0, and synthetic nodes draw no cameras")
     result = measure(args)
     show_result(report(result), result, args.json, argv)
     return 0
