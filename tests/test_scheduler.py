@@ -505,6 +505,35 @@ def test_a_node_that_owes_a_tile_too_long_is_closed_and_its_tile_moves_on():
     assert 2 not in s.nodes and renders(actions) == {1: [(1, 1)]}
 
 
+def test_the_tile_timeout_follows_the_tile_times_measured():
+    """A node whose tiles took 12 s each (a share of a huge model) may owe the next for three
+    times that, not the 5 s floor; once its tiles are quick again the allowance shrinks back."""
+    s = scheduler(tile_timeout_s=5.0, max_in_flight=1, still_codec=None)
+    s.set_camera(camera(), 0.0)
+    s.drain()
+    deliver(s, 1, 1, 0, 12.0)   # no tick came meanwhile: the 5 s floor alone would have closed both
+    deliver(s, 2, 1, 1, 12.0)
+    s.set_camera(camera(1), 12.0)
+    assert renders(s.drain()) == {1: [(2, 0)], 2: [(2, 1)]}
+    deliver(s, 1, 2, 0, 13.0)
+    s.tick(40.0)   # its tile is backed up on node 1 meanwhile (a straggler), node 2 kept
+    assert not [a for a in s.drain() if isinstance(a, CloseNode)] and 2 in s.nodes, "owing for 28 s, within 3 x 12 s"
+    assert s.next_deadline(40.0) <= 12.0 + 36.0 + 1e-9
+    s.tick(48.5)
+    assert s.drain()[0] == CloseNode(2, 1011, "tile timeout"), "owing for 36.5 s, over 3 x 12 s"
+    deliver(s, 1, 2, 1, 48.6)   # node 1's copy of it completes frame 2
+    node = s.nodes[1]
+    assert s.table.allowed_s(node, 5.0) > 5.0
+    for step in range(40):   # quick tiles: the longest recent tile time decays
+        now = 50.0 + step
+        s.set_camera(camera(step + 3), now)
+        s.drain()
+        for frame_id in sorted(s.in_flight):
+            for key in [k for k in node.outstanding if k[0] == frame_id]:
+                deliver(s, 1, *key, now + 0.1)
+    assert node.tiles_rendered > 30 and s.table.allowed_s(node, 5.0) == 5.0
+
+
 def test_slots_are_small_and_reused():
     s = scheduler(nodes=0)
     assert [s.add_node(n, 0.0).slot for n in (10, 11, 12)] == [0, 1, 2]

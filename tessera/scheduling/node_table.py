@@ -23,6 +23,12 @@ LEAD_SMOOTHING = 0.2
 #: Longest lead (s): a node is never sent its next tile earlier than this before its last ends.
 MAX_LEAD_S = 0.05
 
+#: A node may owe its head tile this many times its longest recent tile time (dispatch to answer)
+#: before the tile timeout closes it (never sooner than ``tile_timeout_s``).
+TILE_TIMEOUT_FACTOR = 3.0
+#: Each tile answered shrinks the longest recent tile time by this factor before it is compared.
+TILE_TIME_DECAY = 0.9
+
 #: Slots for node indices in viewer frames (u16 on the wire).
 MAX_NODE_SLOTS = 1 << 16
 #: Tiles of dropped frames a node is remembered to have owed (it may still send the one it was
@@ -72,6 +78,8 @@ class NodeSchedule:
     last_phases: dict[str, float] = field(default_factory=dict)
     counters: dict[str, Any] = field(default_factory=dict)
     tiles_rendered: int = 0
+    #: Its longest recent tile, dispatch to answer (s), decayed by :data:`TILE_TIME_DECAY` a tile.
+    tile_s: float = 0.0
 
     @property
     def schedulable(self) -> bool:
@@ -201,6 +209,23 @@ class NodeTable:
                 out.append(node)
         return out
 
+    def timeout_at(self, floor_s: float) -> float | None:
+        """When the first node owing a tile times out (:meth:`timed_out`); None: none owes one."""
+        return min((next(iter(n.outstanding.values())) + self.allowed_s(n, floor_s)
+                    for n in self.nodes.values() if n.outstanding), default=None)
+
+    def timed_out(self, now: float, floor_s: float) -> list[NodeSchedule]:
+        """Nodes that owe their first tile for longer than they are allowed (:meth:`allowed_s`)."""
+        return [n for n in self.nodes.values()
+                if n.outstanding and now - next(iter(n.outstanding.values())) > self.allowed_s(n, floor_s)]
+
+    @staticmethod
+    def allowed_s(node: NodeSchedule, floor_s: float) -> float:
+        """How long ``node`` may owe a tile: :data:`TILE_TIMEOUT_FACTOR` times its longest recent
+        tile, at least ``floor_s`` (``tile_timeout_s``): a node drawing a share of a huge model
+        in tens of seconds is not taken for a silent one."""
+        return max(floor_s, TILE_TIMEOUT_FACTOR * node.tile_s)
+
     def heads(self, frame_id: int) -> bool:
         """A tile of frame ``frame_id`` heads a node's queue (the node is on it)."""
         return any(next(iter(n.outstanding))[0] == frame_id for n in self.nodes.values() if n.outstanding)
@@ -230,7 +255,9 @@ class NodeTable:
                 sample = max(now - node.fresh[1] - busy_ms / 1000.0, 0.0)
                 node.lead_s = sample if node.lead_s is None else node.lead_s + LEAD_SMOOTHING * (sample - node.lead_s)
             node.fresh = None
-        if node.outstanding.pop(key, None) is not None:
+        sent_at = node.outstanding.pop(key, None)
+        if sent_at is not None:
+            node.tile_s = max(now - sent_at, node.tile_s * TILE_TIME_DECAY)
             if node.outstanding:
                 node.head_since = now
             else:

@@ -23,8 +23,8 @@ render message, cancel frames on a node, publish a frame, close a node.
   first, fastest node first. A node that leaves has its owed tiles re-dispatched.
 * **Stragglers and failed tiles.** A node ``backup_factor`` times later than its expected time for
   its tile (at least ``backup_floor_s``) has its tiles copied to other nodes, the first copy back
-  winning; a failed tile goes to another node; ``max_tile_failures`` in a row, or silence past
-  ``tile_timeout_s``, close the node.
+  winning; a failed tile goes to another node; ``max_tile_failures`` in a row, or owing a tile
+  longer than ``tile_timeout_s`` and three times its longest recent tile, close the node.
 * **Decomposition modes.** One :class:`tessera.decomposition.mode.DecompositionMode` (``--mode``)
   says what a frame is cut into, what the nodes are asked and must load, and whether tiles may move.
 * **Sessions.** Every frame belongs to a :class:`SessionFrames`; sessions share the nodes, the least
@@ -37,6 +37,7 @@ render message, cancel frames on a node, publish a frame, close a node.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Hashable, Iterable, Mapping
 
 import numpy as np
@@ -108,16 +109,12 @@ class FrameScheduler(FrameDispatch):
         if self._expected is not None:
             times.append(self._expected[1])
         if self.in_flight:
-            times.append(min(self._oldest_dispatch() + self.config.tile_timeout_s, self._next_straggler_check))
+            times.append(min(self.table.timeout_at(self.config.tile_timeout_s) or math.inf,
+                             self._next_straggler_check))
             if any(self._goes_ahead(s) for s in self.sessions.values()) and (
                     at := self.table.next_wanting_at(self.in_flight, now)) is not None:
                 times.append(at)
         return min(times) if times else None
-
-    def _oldest_dispatch(self) -> float:
-        """No tile owed was dispatched before this (the oldest frame in flight's start; tiles
-        re-dispatched later only make it early, so a tick comes early, never late)."""
-        return min(job.started_at for job in self.in_flight.values())
 
     def expect_nodes(self, count: int, until: float) -> None:
         """``count`` nodes are on their way (the coordinator's local nodes): sessions whose nodes
@@ -383,8 +380,8 @@ class FrameScheduler(FrameDispatch):
             self._advance(now)
 
     def tick(self, now: float) -> None:
-        """Time passed: back up stragglers' tiles, drop nodes that owe a tile for over
-        ``tile_timeout_s``, start what is due."""
+        """Time passed: back up stragglers' tiles, drop nodes that owe a tile for longer than they
+        are allowed (:meth:`NodeTable.allowed_s`), start what is due."""
         if now >= self._next_straggler_check:
             self._next_straggler_check = now + STRAGGLER_CHECK_S
             self._back_up_stragglers(now)
@@ -392,12 +389,9 @@ class FrameScheduler(FrameDispatch):
             for session in [s for s in self.sessions.values() if s.mode.shares_data]:
                 if self._repartition(session, now):
                     self._changed(session, now, supersede=False)
-        deadline = now - self.config.tile_timeout_s
-        if self.in_flight and self._oldest_dispatch() < deadline:
-            for node in list(self.nodes.values()):
-                if node.outstanding and next(iter(node.outstanding.values())) < deadline:
-                    self._actions.append(CloseNode(node.node_id, 1011, "tile timeout"))
-                    self.remove_node(node.node_id, now)
+        for node in self.table.timed_out(now, self.config.tile_timeout_s):
+            self._actions.append(CloseNode(node.node_id, 1011, "tile timeout"))
+            self.remove_node(node.node_id, now)
         self._advance(now)
 
     def viewer_tiles(self, job: FrameJob) -> list[ViewerTile]:
