@@ -21,6 +21,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Mapping
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 
 import numpy as np
@@ -33,6 +34,7 @@ from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
 from server.picking import PickDesk
 from server.render_jobs import RenderJobs
+from server.scene_adoption import adopt_scene
 from server.scene_library import SceneLibrary
 from server.service_report import ServiceReport
 from server.session_persistence import SessionPersistence
@@ -43,11 +45,7 @@ from server.still_refinement import Refined
 from server.viewers import ViewerHub
 from tessera.balancers import create_balancer
 from tessera.decomposition.wall_cells import WallLayout
-from tessera.geometry import DEFAULT_BACKGROUND, Camera, default_camera
-from tessera.scene.animation import Animation, AnimationError
-from tessera.scene.graph import ObjectGraph
-from tessera.scene.state import SceneStateError
-from tessera.scene.timeline import SceneTimeline
+from tessera.geometry import DEFAULT_BACKGROUND, Camera
 from tessera.scheduling import actions
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.job_scheduler import JobScheduler
@@ -65,7 +63,6 @@ from tessera.wire.messages import (
     ShareSpec,
     TilesDropped,
     TileSent,
-    ViewerScene,
     Welcome,
 )
 from tessera.wire.pick_messages import PickResult
@@ -79,18 +76,6 @@ class SessionsFull(RuntimeError):
 
 #: Longest wait of the timer task between two looks at the scheduler and calibration (s).
 TIMER_MAX_WAIT_S = 1.0
-
-
-def timeline_of(message: SceneReady, now: float) -> SceneTimeline:
-    """The scene's objects and animations as a node reported them; ProtocolError when they do not
-    make a scene."""
-    assert message.objects is not None
-    try:
-        graph = ObjectGraph.from_json([item.model_dump() for item in message.objects])
-        animations = [Animation.from_keyframes_json(item.model_dump()) for item in message.animations]
-        return SceneTimeline(graph, animations, now)
-    except (SceneStateError, AnimationError) as exc:
-        raise ProtocolError(f"scene_ready: {exc}") from None
 
 
 class RenderService(SessionPersistence, ServiceReport):
@@ -193,12 +178,13 @@ class RenderService(SessionPersistence, ServiceReport):
         return session
 
     def switch_scene(self, session: Session, name: str, spec: str, fetch: tuple[str, str] | None,
-                     camera: Camera | None = None) -> int:
+                     camera: Camera | None = None, held: Mapping[int, SceneReady] | None = None) -> int:
         """``session`` shows library scene ``name`` (``spec``: what nodes load; ``fetch`` as in
         :meth:`create_session`) from now on, with its size, balancer, viewers and frame store, its
         camera kept unless ``camera`` is given. Its frames in flight are dropped, so the next frame
         published is the new scene's, whole; until then viewers keep the old scene's last frame.
-        Returns the first frame id that can show the new scene."""
+        ``held``: the nodes that hold it already (a mesh loaded ahead) and their ``scene_ready``:
+        ready at once, together, sent no load. Returns the first frame id that can show the new scene."""
         now = time.monotonic()
         if fetch is not None:
             self._fetch[spec] = fetch
@@ -211,11 +197,15 @@ class RenderService(SessionPersistence, ServiceReport):
                 node.state_sent = None
         session.scene, session.name, session.bounds, session.state, session.error = spec, name, None, "loading", None
         config = dataclasses.replace(self.settings.scheduler_config(), size=size)
-        self.scheduler.add_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now)
+        self.scheduler.add_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now,
+                                   held=held or {})
         session.frames.wall = session.wall
         first = self.scheduler.next_frame_id
         if camera is not None:
             first = self.scheduler.set_camera(camera, now, session_id=session.id)
+        if held:
+            adopt_scene(self.scheduler, session, next(iter(held.values())), now)
+            self.scheduler.nodes_ready(list(held), now, session_id=session.id)
         self.apply()
         self.changed_sessions = True
         log.info("session %s… now shows %s", session.id[:6], name)
@@ -266,7 +256,7 @@ class RenderService(SessionPersistence, ServiceReport):
                 self.nodes[action.node_id].send(Cancel(frames=action.frames))
             elif isinstance(action, actions.LoadScene):
                 self.meshes.before_load(action.node_id, action.scene)
-                self.nodes[action.node_id].send(self._load_scene(action.scene, action.share))
+                self.nodes[action.node_id].send(self.load_message(action.scene, action.share))
             elif isinstance(action, actions.BalancerFailed):
                 log.error("balancer failed, the static split was used: %s", action.reason)
             elif isinstance(action, actions.PublishFrame):
@@ -301,7 +291,7 @@ class RenderService(SessionPersistence, ServiceReport):
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link
 
-    def _load_scene(self, scene: str | None, share: ShareSpec | None) -> messages.LoadScene:
+    def load_message(self, scene: str | None, share: ShareSpec | None = None) -> messages.LoadScene:
         """Load ``scene`` (None: ``--scene``), with where to fetch it for a session's library file."""
         spec = scene or self.settings.scene
         url, sha256 = self._fetch.get(spec, (None, None))
@@ -351,8 +341,10 @@ class RenderService(SessionPersistence, ServiceReport):
                     self.scheduler.levels_ready(link.node_id, session.id, tables)
                 self.apply()
             case SceneError():
-                link.state, link.scene_message = "error", message.message[:500]
                 link.loading.pop(message.scene, None)
+                if self.meshes.failed_ahead(link.node_id, message.scene):   # a mesh step loading ahead, or passed over
+                    return
+                link.state, link.scene_message = "error", message.message[:500]
                 log.error("node %d (%s) could not load the scene: %s", link.node_id, link.name, link.scene_message)
                 for session in self._showing(message.scene):
                     if session.state != "ready":
@@ -411,9 +403,11 @@ class RenderService(SessionPersistence, ServiceReport):
         link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
         now = time.monotonic()
         showing = self._showing(message.scene)
+        if not showing and self.meshes.loaded_ahead(link.node_id, message):
+            return
         for session in showing:
             if session.bounds is None:
-                self._adopt_scene(session, link, message, bounds, now)
+                adopt_scene(self.scheduler, session, message, now)
             self.scheduler.node_ready(link.node_id, now, message.share, session.id)
         log.info("node %d (%s) ready: %s, %d triangles%s", link.node_id, link.name,
                  message.scene or self.settings.scene, link.triangles,
@@ -421,29 +415,6 @@ class RenderService(SessionPersistence, ServiceReport):
         self.apply()
         if link.can_calibrate and self.default in showing:
             self.calibration.request([link.node_id])
-
-    def _adopt_scene(self, session: Session, link: NodeLink, message: SceneReady, bounds: np.ndarray,
-                     now: float) -> None:
-        """The first node that loaded ``session``'s scene reported it (``link``): its objects, groups
-        (with their levels, when the node sent them first) and bounds, and a camera that frames it
-        if the session has none."""
-        if message.objects is not None:
-            self.scheduler.set_scene(timeline_of(message, now), now, session.id)
-        session.bounds, session.state, session.error = bounds, "ready", None
-        if message.points is not None:      # a point cloud (issue 36): budget, EDL after a sort-last merge
-            self.scheduler.sessions[session.id].set_points(bounds)
-        if message.groups is not None:
-            self.scheduler.set_groups(np.asarray(message.groups.boxes, dtype=np.float64),
-                                      np.asarray(message.groups.counts, dtype=np.float64), bounds,
-                                      message.groups.objects, session.id)
-        if session.camera is None:
-            width, height = session.size
-            self.scheduler.set_camera(default_camera(bounds, aspect=width / height), now, session_id=session.id)
-        assert session.camera is not None
-        if session.pending_state is not None:
-            session.restore_state(session.pending_state, now)
-            session.pending_state = None
-        session.viewers.broadcast(ViewerScene(bounds=message.bounds, camera=session.camera))
 
     # ----------------------------------------------------------------- calibration (seed 003 §1)
     def calibrate_all(self) -> list[int]:

@@ -22,7 +22,7 @@ from node.scene.mesh_store import MeshStore
 from server.mesh_updates import MeshUpdates
 from tessera.client import Tessera, TesseraError
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
-from tessera.wire.mesh_update import MeshArrays, MeshError, checked_mesh, pack_mesh, unpack_mesh
+from tessera.wire.mesh_update import MeshArrays, MeshError, checked_mesh, pack_mesh, unpack_mesh, with_header
 from tests.conftest import Coordinator, seconds, start_coordinator
 from tests.integration_support import assert_matches_reference, render_once, wait_until
 
@@ -95,20 +95,50 @@ def test_the_node_keeps_the_newest_mesh_of_a_group_and_builds_its_scene():
         store.scene("mesh:other:1", 1000)
 
 
+def test_the_node_keeps_the_step_shown_while_the_next_loads():
+    store = MeshStore()
+    mesh = checked_mesh(**plane(1.0, HUES[0], cells=2))
+    store.receive(pack_mesh(mesh, scene="mesh:g:1"))
+    store.receive(pack_mesh(mesh, scene="mesh:g:2", keep="mesh:g:1"))   # step 2 loads while step 1 is shown
+    assert store.live("mesh:g:1") and store.live("mesh:g:2")
+    store.receive(pack_mesh(mesh, scene="mesh:g:3", keep="mesh:g:1"))   # step 3 takes step 2's place
+    assert store.live("mesh:g:1") and not store.live("mesh:g:2") and store.live("mesh:g:3")
+    with pytest.raises(SceneError, match="superseded"):
+        store.scene("mesh:g:2", 1000)
+    assert store.scene("mesh:g:1", 1000).triangle_count == store.scene("mesh:g:3", 1000).triangle_count == 8
+    store.receive(pack_mesh(mesh, scene="mesh:g:4", keep="mesh:g:3"))
+    assert not store.live("mesh:g:1") and store.live("mesh:g:3") and store.live("mesh:g:4")
+
+
+def test_a_message_with_a_new_header_keeps_its_arrays():
+    mesh = checked_mesh(**plane(0.5, HUES[1], cells=3))
+    body = pack_mesh(mesh)
+    header, again = unpack_mesh(with_header(body, scene="mesh:a:b", keep=None))
+    assert header["scene"] == "mesh:a:b" and header["keep"] is None
+    assert np.array_equal(again.positions, mesh.positions) and np.array_equal(again.faces, mesh.faces)
+    assert again.colors is not None and mesh.colors is not None and np.array_equal(again.colors, mesh.colors)
+
+
 class FakeService:
-    """What :class:`MeshUpdates` asks of the service: switching counts frame ids up."""
+    """What :class:`MeshUpdates` asks of the service: switching counts frame ids up; each node's
+    messages are kept in order."""
 
     def __init__(self) -> None:
         self.sessions = {"s": SimpleNamespace(id="s", scene="builtin:cluster", state="ready")}
-        self.sent: list[bytes] = []
-        self.nodes = {1: SimpleNamespace(send_bytes=self.sent.append)}
-        self.scheduler = SimpleNamespace(load_now=lambda session_id: None)
-        self.switched: list[str] = []
+        self.sent: dict[int, list] = {1: [], 2: []}
+        self.nodes = {i: SimpleNamespace(send_bytes=sent.append, send=sent.append) for i, sent in self.sent.items()}
+        self.rested: list[str] = []
+        self.scheduler = SimpleNamespace(load_now=lambda session_id: None, rest=self.rested.append)
+        self.settings = SimpleNamespace(mode="sort-first")
+        self.switched: list[tuple[str, dict]] = []
 
-    def switch_scene(self, session, name, spec, fetch) -> int:
+    def switch_scene(self, session, name, spec, fetch, camera=None, held=None) -> int:
         session.scene = spec
-        self.switched.append(spec)
+        self.switched.append((spec, dict(held or {})))
         return 10 * len(self.switched)
+
+    def load_message(self, scene):
+        return ("load", scene)
 
     def apply(self) -> None:
         pass
@@ -118,11 +148,13 @@ def test_a_step_waits_until_the_one_before_is_shown_and_the_latest_waiting_wins(
     async def run() -> None:
         service = FakeService()
         meshes, session = MeshUpdates(service), service.sessions["s"]
-        mesh = checked_mesh(**plane(0.0, HUES[0], cells=2))
-        assert await meshes.update(session, mesh) == 10
-        meshes.before_load(1, service.switched[0])
-        assert unpack_mesh(service.sent[0])[0]["scene"] == service.switched[0]
-        second, third = (asyncio.ensure_future(meshes.update(session, mesh)) for _ in range(2))
+        body = pack_mesh(checked_mesh(**plane(0.0, HUES[0], cells=2)))
+        assert await meshes.update(session, body) == 10
+        first = service.switched[0][0]
+        meshes.before_load(1, first)
+        meshes.before_load(1, first)   # a node has the bytes once
+        assert [unpack_mesh(m)[0]["scene"] for m in service.sent[1]] == [first]
+        second, third = (asyncio.ensure_future(meshes.update(session, body)) for _ in range(2))
         await asyncio.sleep(0.01)
         assert not second.done() and not third.done() and len(service.switched) == 1
         meshes.published("s", 9)    # a frame of the step before the mesh: the mesh is not shown yet
@@ -130,11 +162,40 @@ def test_a_step_waits_until_the_one_before_is_shown_and_the_latest_waiting_wins(
         assert not second.done()
         meshes.published("s", 10)
         assert await second == await third == 20 and len(service.switched) == 2   # the second's step skipped
-        fourth = asyncio.ensure_future(meshes.update(session, mesh))
+        fourth = asyncio.ensure_future(meshes.update(session, body))
         await asyncio.sleep(0.01)
         assert not fourth.done()
         meshes.published("s", 21)
         assert await fourth == 30
+
+    asyncio.run(asyncio.wait_for(run(), 5.0))
+
+
+def test_a_step_waiting_is_loaded_ahead_and_switched_in_where_it_is_held():
+    async def run() -> None:
+        service = FakeService()
+        meshes, session = MeshUpdates(service), service.sessions["s"]
+        body = pack_mesh(checked_mesh(**plane(0.0, HUES[0], cells=2)))
+        await meshes.update(session, body)
+        shown = service.switched[0][0]
+        waiting = asyncio.ensure_future(meshes.update(session, body))
+        await asyncio.sleep(0.01)
+        assert service.rested == ["s"]    # the step shown is drawn once, no settle frames or still
+        for node_id, sent in service.sent.items():   # every node: the bytes, then the load of them
+            header = unpack_mesh(sent[0])[0]
+            assert header["keep"] == shown and sent[1] == ("load", header["scene"])
+            if node_id == 1:
+                assert meshes.loaded_ahead(1, SimpleNamespace(scene=header["scene"]))
+        assert not meshes.loaded_ahead(2, SimpleNamespace(scene=shown))
+        meshes.published("s", 10)
+        await asyncio.sleep(0.05)
+        assert not waiting.done()   # node 2 has not answered yet: its first frame would be node 1's alone
+        assert not meshes.failed_ahead(2, shown) and meshes.failed_ahead(2, header["scene"])
+        assert await waiting == 20
+        spec, held = service.switched[1]
+        assert spec == header["scene"] and list(held) == [1]
+        meshes.before_load(2, spec)   # sent already with the load ahead
+        assert len(service.sent[2]) == 2
 
     asyncio.run(asyncio.wait_for(run(), 5.0))
 

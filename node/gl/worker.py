@@ -283,6 +283,8 @@ class GLWorker:
                 progress: ProgressCallback) -> LoadedScene:
         """On the GL thread: upload ``scene``, hold it, release the least recently used others over budget."""
         assert self._ctx is not None
+        if is_mesh(key[0]) and not self.meshes.live(key[0]):
+            raise SceneError(f"{key[0]}: superseded by a newer mesh while it was read")
         share = request.share
         background = DEFAULT_BACKGROUND if request.background is None else request.background
         renderer: TileRenderer | PointRenderer
@@ -296,9 +298,9 @@ class GLWorker:
             planning = PlanningScene.of(scene, renderer.culler.bvh)
         version = None if share is None else share.version
         held = ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
-        if is_mesh(key[0]):   # a session's newer mesh: its older ones are drawn no more
+        if is_mesh(key[0]):   # a session's newer mesh: those of its group not kept are drawn no more
             self._scenes.release(lambda other: is_mesh(other[0]) and group_of(other[0]) == group_of(key[0])
-                                 and other[0] != key[0])
+                                 and other[0] != key[0] and not self.meshes.live(other[0]))
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))

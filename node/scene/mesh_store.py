@@ -1,10 +1,13 @@
 """Meshes the coordinator sent as arrays (issue 33, :mod:`tessera.wire.mesh_update`): kept in memory,
-only the newest of each group (a session's steps) of the last :data:`MAX_GROUPS`, and made into a scene as a PLY
-file is (one batch, one object, smooth normals computed when none came), with no cache entry. No GL.
+per group (a session's steps) of the last :data:`MAX_GROUPS` the newest and the one its header says
+to keep (the step shown while the newest loads: double-buffered), and made into a scene as a PLY
+file is (one batch, one object, smooth normals computed when none came), with no cache entry and no
+levels of detail. No GL.
 
 A mesh's spec is ``mesh:GROUP:STEP`` (:mod:`server.mesh_updates`); a ``load_scene`` of a step
 superseded before its load began fails at once, which the coordinator ignores (its session shows
-the newer step by then).
+the newer step by then). The coordinator checked the arrays before sending them: only the layout
+is checked again here.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from tessera.wire.mesh_update import MeshError, mesh_header, unpack_mesh
 MESH_PREFIX = "mesh:"
 #: The one object of a mesh scene.
 MESH_OBJECT = "mesh"
-#: Most groups whose newest mesh is kept (the oldest is dropped past it: a closed session's).
+#: Most groups whose meshes are kept (the oldest is dropped past it: a closed session's).
 MAX_GROUPS = 16
 
 
@@ -37,38 +40,46 @@ def group_of(spec: str) -> str:
 
 
 class MeshStore:
-    """The newest mesh message of each group, by spec; filled on the event loop, read by the loader
-    thread."""
+    """Each group's newest mesh message and the one it keeps, by spec; filled on the event loop,
+    read by the loader and GL threads."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._newest: dict[str, tuple[str, bytes]] = {}
+        self._groups: dict[str, dict[str, bytes]] = {}
 
     def receive(self, data: bytes) -> str:
-        """Keep mesh message ``data`` (it supersedes its group's older one); returns its spec.
-        MeshError when it is not a mesh message with a ``mesh:`` spec (only its header is read here)."""
+        """Keep mesh message ``data``: its group keeps it and the spec its header names ``keep``
+        (if held), nothing else. Returns its spec; MeshError when it is not a mesh message with a
+        ``mesh:`` spec (only its header is read here)."""
         header, _ = mesh_header(data)
-        spec = header.get("scene")
+        spec, keep = header.get("scene"), header.get("keep")
         if not isinstance(spec, str) or not is_mesh(spec):
             raise MeshError(f"a mesh message names its scene mesh:GROUP:STEP, got {spec!r}")
+        group = group_of(spec)
         with self._lock:
-            self._newest.pop(group_of(spec), None)
-            self._newest[group_of(spec)] = (spec, data)
-            while len(self._newest) > MAX_GROUPS:
-                del self._newest[next(iter(self._newest))]
+            held = self._groups.pop(group, {})
+            self._groups[group] = {**({keep: held[keep]} if keep in held else {}), spec: data}
+            while len(self._groups) > MAX_GROUPS:
+                del self._groups[next(iter(self._groups))]
         return spec
+
+    def live(self, spec: str) -> bool:
+        """Whether mesh ``spec`` is one its group keeps (else it was superseded, or never came)."""
+        with self._lock:
+            return spec in self._groups.get(group_of(spec), {})
 
     def scene(self, spec: str, face_limit: int) -> SceneData:
         """The scene of mesh ``spec``, split into chunks of at most ``face_limit`` faces. SceneError
-        when it never came (or was dropped) or a newer one of its group did."""
+        when it never came (or was dropped) or newer ones of its group took its place."""
         with self._lock:
-            newest = self._newest.get(group_of(spec))
-            if newest is None or newest[0] != spec:
-                raise SceneError(f"{spec}: no such mesh here (meshes sent as arrays are not kept across restarts: "
-                                 "send it again)" if newest is None else
-                                 f"{spec}: superseded by a newer mesh before it was loaded")
+            held = self._groups.get(group_of(spec))
+            data = None if held is None else held.get(spec)
+        if data is None:
+            raise SceneError(f"{spec}: no such mesh here (meshes sent as arrays are not kept across restarts: "
+                             "send it again)" if held is None else
+                             f"{spec}: superseded by a newer mesh before it was loaded")
         try:
-            _, mesh = unpack_mesh(newest[1])
+            _, mesh = unpack_mesh(data, checked=False)
         except MeshError as exc:
             raise SceneError(f"{spec}: {exc}") from None
         colors = None if mesh.colors is None else mesh.colors.astype(np.float32) / np.float32(255.0)

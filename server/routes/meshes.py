@@ -67,7 +67,7 @@ async def put_mesh(request: Request, session: Session = Depends(get_session),
     if service.find_session(session.id) is not session:
         raise HTTPException(status_code=404, detail="no such session")
     try:
-        frame = await service.meshes.update(session, mesh)
+        frame = await service.meshes.update(session, body)
     except SessionGone:
         raise HTTPException(status_code=404, detail="no such session") from None
     return {"frame": frame, "vertices": len(mesh.positions), "faces": len(mesh.faces)}

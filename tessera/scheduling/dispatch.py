@@ -7,6 +7,7 @@ events that drive them. Pure: the clock comes in as ``now`` (s)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 from tessera.scheduling.actions import (
     Action,
@@ -218,17 +219,18 @@ class FrameDispatch:
                 self._push(job, self.nodes[node_id], tile_ids, now)
 
     def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
-                     force: bool = False) -> bool:
+                     force: bool = False, held: Collection[int] = ()) -> bool:
         """The node set changed (``joined``: a node that just connected; ``force``: the session is
         new). True when the session's mode makes a new data partition of it (sort-last): its frames
         in flight are dropped and every node is told its share. Otherwise the joined node (every
-        node, with ``force``) is told to load the session's scene."""
+        node but those ``held`` names, with ``force``) is told to load the session's scene."""
         if session.mode.shares_data and self._joining(now):
             return False   # shares cut now would be cut again as each expected node joins
         loads = session.mode.nodes_changed({n.node_id: n.speed for n in self.nodes.values()})
         if loads is None:
             if force:   # one node after the other: the others keep serving the sessions on screen
-                session.loads_waiting = sorted(self.nodes, key=lambda i: (-self.nodes[i].speed, i))
+                session.loads_waiting = sorted((i for i in self.nodes if i not in held),
+                                               key=lambda i: (-self.nodes[i].speed, i))
                 self._load_next(session)
             elif joined is not None:
                 self._actions.append(LoadScene(joined, None, session.scene_key))

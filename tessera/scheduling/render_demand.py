@@ -39,6 +39,11 @@ class RenderDemand:
         self.changed_at = now
         self._settle_left = self.settle_frames
 
+    def rest(self) -> None:
+        """No settle frames and no still for the current version: only its frame, if not started."""
+        self._settle_left = 0
+        self._still = self.version
+
     def still_dropped(self, version: int) -> None:
         """A still frame of ``version`` was dropped: when nothing changed since (e.g. the nodes'
         data partition did), that still starts again from its first sample."""

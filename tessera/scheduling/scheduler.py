@@ -38,7 +38,7 @@ render message, cancel frames on a node, publish a frame, close a node.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Iterable, Mapping
+from collections.abc import Collection, Hashable, Iterable, Mapping
 
 import numpy as np
 
@@ -125,15 +125,16 @@ class FrameScheduler(FrameDispatch):
 
     # ----------------------------------------------------------------- sessions
     def add_session(self, session_id: str, config: SchedulerConfig, balancer: Balancer, scene_key: str | None,
-                    now: float, weight: float = 1.0) -> SessionFrames:
+                    now: float, weight: float = 1.0, held: Collection[int] = ()) -> SessionFrames:
         """A new session of ``config``'s size, mode and codecs, whose nodes load ``scene_key``
-        (None: the coordinator's scene); every node connected is told to load it."""
+        (None: the coordinator's scene); every node connected is told to load it, but those
+        ``held`` names (they hold it already: :meth:`nodes_ready` follows)."""
         if session_id in self.sessions:
             raise ValueError(f"session {session_id!r} exists already")
         session = self.sessions[session_id] = SessionFrames(session_id, config, balancer, scene_key)
         self.fair.add(session_id, weight)
         if self.nodes:
-            self._repartition(session, now, force=True)
+            self._repartition(session, now, force=True, held=held)
         return session
 
     def load_now(self, session_id: str) -> None:
@@ -142,6 +143,13 @@ class FrameScheduler(FrameDispatch):
         session = self.sessions.get(session_id)
         while session is not None and session.loads_waiting:
             self._load_next(session)
+
+    def rest(self, session_id: str) -> None:
+        """The session's state is drawn once more at most (a frame owed or in flight), with no
+        settle frames and no still: a new scene is on its way (issue 33: a mesh loaded ahead)."""
+        session = self.sessions.get(session_id)
+        if session is not None:
+            session.demand.rest()
 
     def remove_session(self, session_id: str, now: float) -> None:
         """The session is closed: its frames are dropped (nodes skip their tiles)."""
@@ -224,14 +232,21 @@ class FrameScheduler(FrameDispatch):
         flight will show, is not drawn again for it (at rest, a scan's session would draw its
         progressive still once more per node joining; a moving one, its frame twice); the node
         takes its tiles from the next frame owed."""
-        node, session = self.nodes[node_id], self.sessions.get(session_id)
+        self.nodes_ready([node_id], now, share, session_id)
+
+    def nodes_ready(self, node_ids: Collection[int], now: float, share: int | None = None,
+                    session_id: str = DEFAULT_SESSION) -> None:
+        """:meth:`node_ready` of several nodes at once (those gone are passed over): the next frame
+        is split among them all."""
+        session = self.sessions.get(session_id)
         if session is None:
             return
-        if not node.ready:
-            node.ready, node.idle_since = True, now
-            self.table.touch(node, state_changed=True)
-        session.ready.add(node_id)
-        session.mode.share_loaded(node_id, share)
+        for node in [self.nodes[i] for i in node_ids if i in self.nodes]:
+            if not node.ready:
+                node.ready, node.idle_since = True, now
+                self.table.touch(node, state_changed=True)
+            session.ready.add(node.node_id)
+            session.mode.share_loaded(node.node_id, share)
         self._load_next(session)
         if session.mode.needs_depth or not (session.demand.shown or session.interactive_in_flight):
             self._changed(session, now, supersede=False)

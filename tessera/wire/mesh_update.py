@@ -88,15 +88,27 @@ def pack_mesh(mesh: MeshArrays, **header: Any) -> bytes:
     """``mesh`` as one message; ``header``: more JSON keys (plain values)."""
     head = {**header, "vertices": len(mesh.positions), "faces": len(mesh.faces),
             "normals": mesh.normals is not None, "colors": mesh.colors is not None}
-    text = json.dumps(head, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    parts = [_PREFIX.pack(MESH_MAGIC, len(text)), text, mesh.positions.astype("<f4", copy=False).tobytes(),
+    parts = [_head(head), mesh.positions.astype("<f4", copy=False).tobytes(),
              mesh.faces.astype("<u4", copy=False).tobytes()]
     if mesh.normals is not None:
         parts.append(mesh.normals.astype("<f4", copy=False).tobytes())
     if mesh.colors is not None:
         parts.append(mesh.colors.tobytes())
     return b"".join(parts)
+
+
+def with_header(data: bytes, **header: Any) -> bytes:
+    """Message ``data`` (checked already) with ``header``'s keys set in its header; its arrays
+    copied once, not unpacked."""
+    head, offset = mesh_header(data)
+    return b"".join([_head({**head, **header}), memoryview(data)[offset:]])
+
+
+def _head(head: dict[str, Any]) -> bytes:
+    """The magic, the header's length and the header, padded to a multiple of 4 bytes."""
+    text = json.dumps(head, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    return _PREFIX.pack(MESH_MAGIC, len(text)) + text
 
 
 def mesh_header(data: bytes | memoryview) -> tuple[dict[str, Any], int]:
@@ -123,9 +135,10 @@ def mesh_header(data: bytes | memoryview) -> tuple[dict[str, Any], int]:
     return header, _PREFIX.size + length
 
 
-def unpack_mesh(data: bytes | memoryview) -> tuple[dict[str, Any], MeshArrays]:
+def unpack_mesh(data: bytes | memoryview, checked: bool = True) -> tuple[dict[str, Any], MeshArrays]:
     """The header and arrays of a message of :func:`pack_mesh`, every value checked as
-    :func:`checked_mesh` does (the arrays are views of ``data``); MeshError otherwise."""
+    :func:`checked_mesh` does (``checked`` False: only the layout, for a message from a sender that
+    checked them; the arrays are views of ``data``); MeshError otherwise."""
     header, offset = mesh_header(data)
     count, faces = header["vertices"], header["faces"]
     sizes = [("positions", "<f4", (count, 3)), ("faces", "<u4", (faces, 3))]
@@ -140,11 +153,13 @@ def unpack_mesh(data: bytes | memoryview) -> tuple[dict[str, Any], MeshArrays]:
         arrays[name] = np.frombuffer(data, dtype=kind, count=shape[0] * shape[1], offset=offset).reshape(shape)
         offset += arrays[name].nbytes
     positions, index = arrays["positions"], arrays["faces"]
+    mesh = MeshArrays(positions, index, arrays.get("normals"), arrays.get("colors"))
+    if not checked:
+        return header, mesh
     if not np.isfinite(positions).all():
         raise MeshError("vertices must be finite (a NaN or an infinity was found)")
     if int(index.max()) >= count:
         raise MeshError(f"faces index vertices 0…{count - 1}, got up to {int(index.max())}")
-    normals = arrays.get("normals")
-    if normals is not None and not np.isfinite(normals).all():
+    if mesh.normals is not None and not np.isfinite(mesh.normals).all():
         raise MeshError("normals must be finite (a NaN or an infinity was found)")
-    return header, MeshArrays(positions, index, normals, arrays.get("colors"))
+    return header, mesh
