@@ -128,6 +128,17 @@ class MeshUpdates:
             self._advance(session.id)   # the step before was not shown in time: this one goes in
             return await answer
 
+    def steps_shown(self) -> dict[str, MeshStep]:
+        """The step each session shows (switched in last), by session id: what a restart restores."""
+        return {i: state.step for i, state in self._sessions.items() if state.step is not None
+                and (session := self.service.sessions.get(i)) is not None and session.scene == state.step.spec}
+
+    def restore(self, session_id: str, spec: str, data: bytes) -> None:
+        """Session ``session_id`` shows mesh ``spec`` (its message ``data``), as before a restart:
+        nodes get its bytes before they load it."""
+        group = spec[len(MESH_PREFIX):].rsplit(":", 1)[0]
+        self._sessions[session_id] = SessionMeshes(group, MeshStep(spec, data))
+
     def published(self, session_id: str, frame_id: int) -> None:
         """A frame of the session was published: the step it shows is on screen; the one waiting
         goes in next (once the publishing is done)."""

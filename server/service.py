@@ -116,6 +116,7 @@ class RenderService(SessionPersistence, ServiceReport):
         self.jobs = RenderJobs(self, settings.max_jobs)
         #: Meshes sent as arrays (issue 33: ``PUT /api/sessions/{id}/mesh``).
         self.meshes = MeshUpdates(self)
+        self._meshes_saved: dict[str, str] = {}
         if self.session_store is not None:
             self._restore_sessions()
 

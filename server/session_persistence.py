@@ -1,19 +1,23 @@
 """The sessions across restarts and idle time: :class:`SessionPersistence`, the part of
-:class:`server.service.RenderService` that writes every session to ``--data-dir``, opens them again
-when the coordinator starts, and closes sessions nobody used for ``--session-idle-timeout-s``."""
+:class:`server.service.RenderService` that writes every session to ``--data-dir`` (and the mesh
+step a session shows, issue 33: ``meshes/SESSION_ID.tmsh``), opens them again when the coordinator
+starts, and closes sessions nobody used for ``--session-idle-timeout-s``."""
 
 from __future__ import annotations
 
 import logging
+import re
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
+from server.mesh_updates import MESH_PREFIX, MeshUpdates
 from server.sessions import Session
 from tessera.balancers import create_balancer
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Camera
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
+from tessera.wire.mesh_update import MeshError, mesh_header
 
 if TYPE_CHECKING:
     from server.render_jobs import RenderJobs
@@ -22,6 +26,9 @@ if TYPE_CHECKING:
     from tessera.scheduling.job_scheduler import JobScheduler
 
 log = logging.getLogger("tessera.server")
+
+#: What a session id is made of (``secrets.token_urlsafe``, or ``default``): safe as a file name.
+SESSION_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
 
 
 class SessionPersistence:
@@ -38,6 +45,9 @@ class SessionPersistence:
     _session_writer: ThreadPoolExecutor
     _watch_keys: dict[str, str]
     _sessions_opened: int
+    meshes: MeshUpdates
+    #: The spec of each session's mesh step written to ``--data-dir`` last.
+    _meshes_saved: dict[str, str]
 
     if TYPE_CHECKING:
         def _open(self, session: Session, size: tuple[int, int] | None, camera: Camera | None,
@@ -53,13 +63,20 @@ class SessionPersistence:
         records = [{**s.record(), "jobs": [j.record() for j in self.jobs.of_session(s.id)]}
                    for s in self.sessions.values()]
         self.changed_sessions = False
-        path = self.session_store.path
+        path, store = self.session_store.path, self.session_store
+        steps = self.meshes.steps_shown()   # each session's last mesh step, written when it changed
+        changed = {i: step.data for i, step in steps.items() if self._meshes_saved.get(i) != step.spec}
+        self._meshes_saved = {i: step.spec for i, step in steps.items()}
 
         def report(done: Future[None]) -> None:
             if done.exception() is not None:
                 log.error("cannot save the sessions to %s: %s", path, done.exception())
 
-        written = self._session_writer.submit(self.session_store.save, records)
+        def save() -> None:   # the meshes first: the sessions file never names a mesh not written
+            store.save_meshes(changed, set(steps))
+            store.save(records)
+
+        written = self._session_writer.submit(save)
         written.add_done_callback(report)
         return written
 
@@ -79,6 +96,8 @@ class SessionPersistence:
             if camera is not None:
                 self.scheduler.set_camera(camera, time.monotonic())
         else:
+            if str(record["scene"]).startswith(MESH_PREFIX):
+                self._restore_mesh(str(record["id"]), str(record["scene"]))
             wall = None if record.get("wall") is None else WallLayout.from_json(record["wall"])
             session = Session(self, str(record["id"]), str(record["scene"]), str(record["name"]),
                               label=str(record["label"]), wall=wall)
@@ -95,6 +114,18 @@ class SessionPersistence:
         session.restore_clip(record.get("clip"), record.get("annotations"))
         self.jobs.restore(session.id, record.get("jobs"))
         log.info("session %s… restored: %s", session.id[:6], session.name)
+
+    def _restore_mesh(self, session_id: str, spec: str) -> None:
+        """The last mesh step of session ``session_id``, ``spec``, as saved; ValueError when it was not."""
+        assert self.session_store is not None
+        data = self.session_store.load_mesh(session_id) if SESSION_ID.fullmatch(session_id) else None
+        try:
+            if data is None or mesh_header(data)[0].get("scene") != spec:
+                raise ValueError(f"its mesh {spec} was not saved")
+        except MeshError as exc:
+            raise ValueError(f"its mesh {spec} does not read: {exc}") from None
+        self.meshes.restore(session_id, spec, data)
+        self._meshes_saved[session_id] = spec
 
     def close_session(self, session: Session, reason: str = "session closed") -> None:
         """Close ``session`` (not the default one): its frames are dropped, its viewers told."""

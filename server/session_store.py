@@ -17,6 +17,9 @@ from typing import Any
 log = logging.getLogger("tessera.server")
 
 FILE_NAME = "sessions.json"
+#: The folder of each session's last mesh step (issue 33): ``SESSION_ID.tmsh``, a mesh message.
+MESH_FOLDER = "meshes"
+MESH_SUFFIX = ".tmsh"
 #: The format of the file; another one is set aside, not misread.
 FORMAT = 1
 
@@ -26,6 +29,7 @@ class SessionStore:
 
     def __init__(self, data_dir: Path) -> None:
         self.path = data_dir / FILE_NAME
+        self.meshes = data_dir / MESH_FOLDER
 
     def load(self) -> list[dict[str, Any]]:
         """The records saved last; [] when there are none or the file does not read."""
@@ -51,3 +55,26 @@ class SessionStore:
             file.flush()
             os.fsync(file.fileno())
         temporary.replace(self.path)
+
+    def save_meshes(self, changed: dict[str, bytes], kept: set[str]) -> None:
+        """Write each session's mesh of ``changed`` (session id → mesh message) atomically and
+        remove those of sessions not in ``kept``."""
+        if changed:
+            self.meshes.mkdir(exist_ok=True)
+        for session_id, data in changed.items():
+            temporary = self.meshes / f".{session_id}.{os.getpid()}.tmp"
+            with temporary.open("wb") as file:
+                file.write(data)
+                file.flush()
+                os.fsync(file.fileno())
+            temporary.replace(self.meshes / f"{session_id}{MESH_SUFFIX}")
+        for old in self.meshes.glob(f"*{MESH_SUFFIX}") if self.meshes.is_dir() else ():
+            if old.name[:-len(MESH_SUFFIX)] not in kept:
+                old.unlink(missing_ok=True)
+
+    def load_mesh(self, session_id: str) -> bytes | None:
+        """The mesh message saved for ``session_id`` (None: none)."""
+        try:
+            return (self.meshes / f"{session_id}{MESH_SUFFIX}").read_bytes()
+        except (FileNotFoundError, ValueError):
+            return None

@@ -332,3 +332,36 @@ def test_a_watch_key_cannot_send_a_mesh(coordinator):
         assert httpx.get(f"{base}/api/sessions/{opened['id']}").json()["scene"] == "builtin:cluster"
     finally:
         httpx.delete(f"{base}/api/sessions/{opened['id']}")
+
+
+@pytest.mark.integration
+@pytest.mark.gl
+def test_a_sessions_last_mesh_step_comes_back_after_a_coordinator_restart(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    grid, faces = height_field(2000)
+    args = ("--local-nodes", "2", "--size", f"{SIZE[0]}x{SIZE[1]}", "--data-dir", str(data))
+    first = start_coordinator(*args)
+    try:
+        with Tessera(first.url, timeout=seconds(120)) as client:
+            session = client.open_session("builtin:cluster", size=SIZE, camera=CAMERA)
+            session.update_mesh(wave(grid, 0.3), faces)
+            before = session.update_mesh(wave(grid, 1.1), faces)   # the last step is the one kept
+            frame_id, shown = session.snapshot_frame(still=True)
+            assert frame_id >= before
+            assert first.proc.stop() == 0   # with the session open
+    finally:
+        first.proc.stop()
+    assert [p.name for p in (data / "meshes").iterdir()] == [f"{session.id}.tmsh"]
+    second = start_coordinator(*args)
+    try:
+        with Tessera(second.url, timeout=seconds(120)) as client:
+            again = client.session(session.id)
+            assert again.info().scene == "mesh"
+            _, restored = again.snapshot_frame(still=True)
+            assert_matches_reference(restored, shown, "the mesh step after the restart")
+            assert_matches_reference(restored, reference(wave(grid, 1.1), faces, CAMERA, tmp_path), "its render-once")
+            again.close()
+    finally:
+        second.proc.stop()
+    assert not list((data / "meshes").iterdir()), "a closed session's mesh is removed"
