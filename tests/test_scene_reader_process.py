@@ -20,7 +20,7 @@ from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.ingest import open_cached, read_scene
 from node.scene.mesh import SceneError
-from node.scene.read_process import READER_NICE, SceneReaderProcess, reads_in_process
+from node.scene.read_process import READER_NICE, SceneReaderProcess, reads_in_process, ready_entry
 from tessera.geometry import Rect, default_camera
 from tessera.wire.messages import LoadScene, ShareSpec
 from tests.conftest import scene_path, seconds
@@ -151,3 +151,31 @@ def test_the_worker_draws_a_scene_read_in_the_child_like_one_read_in_its_thread(
     in_thread, child_started = asyncio.run(drawn(1 << 40))
     assert child_used and not child_started
     assert np.array_equal(in_child, in_thread) and (in_child != in_child[0, 0]).any()
+
+
+def test_an_entry_the_folder_holds_is_opened_without_the_reader_and_a_torn_one_is_left_to_it(reader, tmp_path: Path):
+    """After a restart (the digest remembered, the entry there), the entry is checked and opened in
+    the caller's thread: no reader process to start. An entry that fails its check, or a file
+    whose digest is not known, is left to the reader (which rebuilds it)."""
+    path = str(scene_path(BUNNY))
+    folder = CacheFolder(tmp_path / "cache")
+    share = ShareSpec(version=1, index=0, weights=(1.0, 1.0))
+    assert ready_entry(path, 4096, None, folder) is None, "nothing built yet"
+    for wanted in (None, share):
+        built = reader.read(path, "library/bunny.ply", 4096, wanted, lambda f, m: None, folder)
+        assert ready_entry(path, 4096, wanted, folder) == built
+    assert ready_entry(path, 4096, None, None) is None and ready_entry("builtin:cluster", 4096, None, folder) is None
+    whole = ready_entry(path, 4096, None, folder)
+    assert whole is not None
+    array = max((p for p in whole.iterdir() if p.suffix != ".json"), key=lambda p: p.stat().st_size)
+    with array.open("r+b") as file:   # one flipped byte
+        file.seek(array.stat().st_size // 2)
+        byte = file.read(1)
+        file.seek(-1, os.SEEK_CUR)
+        file.write(bytes([byte[0] ^ 0xFF]))
+    assert ready_entry(path, 4096, None, folder) is None
+    rebuilt = reader.read(path, "library/bunny.ply", 4096, None, lambda f, m: None, folder)
+    assert ready_entry(path, 4096, None, folder) == rebuilt
+    copy = tmp_path / "bunny.ply"   # the same bytes under another path: its digest is not known here
+    copy.write_bytes(Path(path).read_bytes())
+    assert ready_entry(str(copy), 4096, None, folder) is None

@@ -48,7 +48,7 @@ from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore, group_of, is_mesh
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.points import PointCloud
-from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process
+from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process, ready_entry
 from node.scene.shares import keep_share
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
@@ -268,8 +268,10 @@ class GLWorker:
             return (mesh if share is None else keep_share(mesh, share.weights, share.index)), None
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
         known = request.sha256 if source != spec else None
-        read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
-        made = read(source, spec, self.face_limit, share, progress, self.cache, known)
+        made: SceneData | PointCloud | Path | None = ready_entry(source, self.face_limit, share, self.cache, known)
+        if made is None:
+            read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
+            made = read(source, spec, self.face_limit, share, progress, self.cache, known)
         scene = open_cached(made, spec)
         needed, budget = scene.gpu_bytes + scene.nbytes, self._scenes.budget_bytes
         if needed > budget:

@@ -69,6 +69,13 @@ class CacheFolder:
 
         return DigestMemo(self.root / "paths").digest(path, report)
 
+    def known_hash(self, path: Path) -> str | None:
+        """The SHA-256 of the file at ``path`` when remembered (:meth:`content_hash`), else None;
+        never reads the file."""
+        with contextlib.suppress(OSError):
+            return DigestMemo(self.root / "paths").known(path)
+        return None
+
     def entry(self, name: str) -> Path:
         return self.root / name
 

@@ -25,10 +25,11 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from node.scene.cache_folder import CacheFolder
+from node.scene.cache import CacheError, open_entry
+from node.scene.cache_folder import CacheFolder, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.ingest import cached_levels, read_scene
-from node.scene.loading import ProgressCallback
+from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
 from node.scene.mesh import SceneError
 from tessera.wire.messages import ShareSpec
 
@@ -36,6 +37,29 @@ from tessera.wire.messages import ShareSpec
 READ_IN_PROCESS_BYTES = 4 << 20
 #: How much lower the child's CPU priority is than the node's (``nice`` increment).
 READER_NICE = 10
+
+
+def ready_entry(source: str, face_limit: int, share: ShareSpec | None, folder: CacheFolder | None,
+                sha256: str | None = None) -> Path | None:
+    """The scene cache entry of the file ``source`` (its ``share`` only, when given), checked, when
+    ``folder`` holds it already and the file's digest is known without reading the file (``sha256``,
+    or remembered); None otherwise: then :func:`node.scene.ingest.read_scene` builds it (or removes
+    and rebuilds one that fails the check) in the reader process. After a restart this opens a
+    scene without starting the reader (a new interpreter: a second or more on a loaded machine)."""
+    if folder is None or source.startswith(BUILTIN_PREFIX):
+        return None
+    digest = sha256 or folder.known_hash(Path(source))
+    if digest is None:
+        return None
+    whole = entry_name(digest, face_limit)
+    entry = folder.existing(whole if share is None else share_name(whole, share.weights, share.index))
+    if entry is None:
+        return None
+    try:
+        open_entry(entry, Path(source).name, verify=True)
+    except CacheError:
+        return None
+    return entry
 
 
 def reads_in_process(source: str, threshold_bytes: int = READ_IN_PROCESS_BYTES) -> bool:
