@@ -10,13 +10,15 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
 - ``cold``: a coordinator with ``--local-nodes N`` (its library the scene's folder) is started, a
   session of the scene opened, and the seconds until its first frame taken; each node's peak
   resident memory (VmHWM of the node process, and of its scene reader children apart) and the MB
-  it holds for the scene (``/api/stats``);
+  it holds for the scene (``/api/stats``); with levels of detail on, then the seconds until every
+  node holds the levels (built and written to the cache, as while a user moves the model);
 - ``warm``: the same after stopping and starting coordinator and nodes again, the cache kept;
 - for each ``--lod`` setting (the coordinator's ``--lod-error-px``: its default, or 0), once the
-  nodes hold the levels: a scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s``
-  at ``--moving-size``: frames per second, input → frame latency (p50, ms and frame intervals),
-  the triangles the nodes drew per frame, the nodes' busy time per frame, the bound in use; then
-  the moving frame of the last camera against ``--render-once --interactive`` at full detail (PSNR).
+  nodes hold the levels: the model as the coordinator's own scene (one session, no still), a
+  scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s`` at ``--moving-size``:
+  frames per second, input → frame latency (p50, ms and frame intervals), the triangles the nodes
+  drew per frame, the nodes' busy time per frame, the bound in use; then the moving frame of the
+  last camera against ``--render-once --interactive`` at full detail (PSNR).
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
@@ -72,16 +74,19 @@ def node_peaks(coordinator_pid: int) -> list[dict[str, float]]:
             for pid in nodes]
 
 
-def start(args: argparse.Namespace, mode: str, cache: Path, *extra: str) -> tuple[Any, str]:
+def start(args: argparse.Namespace, mode: str, cache: Path, *extra: str,
+          size: tuple[int, int] | None = None) -> tuple[Any, str]:
     scene = Path(args.scene).resolve()
     flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(scene.parent), "--mode", mode,
-             "--frame-wait-s", "600", "--size", SIZE_TEXT.format(*args.size), *extra]
+             "--frame-wait-s", "600", "--size", SIZE_TEXT.format(*(size or args.size)), *extra]
     return start_coordinator(flags, log_level="warning", timeout=120,
                              env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
 
 
-def first_frame(args: argparse.Namespace, mode: str, cache: Path) -> dict[str, Any]:
-    """Start, open the session, time its first frame, take the nodes' peaks; stop."""
+def first_frame(args: argparse.Namespace, mode: str, cache: Path, levels: bool = False) -> dict[str, Any]:
+    """Start, open the session, time its first frame, take the nodes' peaks; with ``levels``, then
+    wait until every node holds the levels of detail (so that a restart finds them in the cache,
+    as after a session a user moved in) and time that too; stop."""
     coordinator, url = start(args, mode, cache)
     try:
         with httpx.Client(base_url=url, timeout=600) as client:
@@ -91,27 +96,40 @@ def first_frame(args: argparse.Namespace, mode: str, cache: Path) -> dict[str, A
             seconds = time.perf_counter() - started
             stats = client.get(f"/api/sessions/{session}").json()
             nodes = client.get("/api/stats").json()["nodes"]
-            return {"first_frame_s": round(seconds, 2), "peaks": node_peaks(coordinator.process.pid),
-                    "scene_mb": stats.get("scene_mb"), "rss_mb": [n.get("rss_mb") for n in nodes]}
+            figures = {"first_frame_s": round(seconds, 2), "peaks": node_peaks(coordinator.process.pid),
+                       "scene_mb": stats.get("scene_mb"), "rss_mb": [n.get("rss_mb") for n in nodes]}
+            if levels:
+                wait_levels(client, session)
+                figures["levels_s"] = round(time.perf_counter() - started, 2)
+                figures["peaks_with_levels"] = node_peaks(coordinator.process.pid)
+            return figures
     finally:
         coordinator.stop(timeout=60.0)
 
 
+def wait_levels(client: httpx.Client, session: str, timeout: float = 900.0) -> None:
+    """Until every node that holds the session's scene holds its levels of detail."""
+    deadline = time.monotonic() + timeout
+    while client.get(f"/api/sessions/{session}").json()["lod_error_px"] is None:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the nodes did not hold the levels of detail within {timeout:.0f} s")
+        time.sleep(0.5)
+
+
 def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[str, Any]:
-    """The moving phase with levels of detail ``lod`` ("on": the coordinator's default, "off": 0)."""
+    """The moving phase with levels of detail ``lod`` ("on": the coordinator's default, "off": 0):
+    the model is the coordinator's own scene (the default session, alone: the nodes' figures are
+    its frames'), at ``--moving-size``, without a still (the frame compared is a moving one)."""
     extra = [] if lod == "on" else ["--lod-error-px", "0"]
-    coordinator, url = start(args, mode, cache, *extra)
+    coordinator, url = start(args, mode, cache, "--scene", str(Path(args.scene).resolve()), "--still-codec", "none",
+                             *extra, size=args.moving_size)
     try:
         with httpx.Client(base_url=url, timeout=600) as client:
-            session = open_session(client, f"library/{Path(args.scene).name}", args.moving_size)
+            session = "default"
             wait_session_ready(client, session, timeout=1800)
             if lod == "on":
-                deadline = time.monotonic() + 900
-                while client.get(f"/api/sessions/{session}").json()["lod_error_px"] is None:
-                    if time.monotonic() > deadline:
-                        raise RuntimeError("the nodes did not hold the levels of detail within 900 s")
-                    time.sleep(0.5)
-            ws_url = url.replace("http://", "ws://") + f"/ws/view?session={session}"
+                wait_levels(client, session)
+            ws_url = url.replace("http://", "ws://") + "/ws/view"
             with ws_client.connect(ws_url, max_size=256 << 20) as ws:
                 viewer = ScriptedViewer(ws)
                 triangles: list[float] = []
@@ -137,7 +155,10 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
                 figures = session_figures(viewer, started + 1.0, ended)
                 camera = orbit(viewer.camera, 0.05)
                 first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
-                frame = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
+                response = client.get(f"/api/sessions/{session}/frame.png", params={"after": first})
+                if response.headers.get("x-frame-still") == "1" or int(response.headers.get("x-frame-samples", 0)) > 1:
+                    raise RuntimeError("the frame compared is not a moving frame")
+                frame = response.content
                 viewer.stop()
     finally:
         coordinator.stop(timeout=60.0)
@@ -189,7 +210,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     for mode in args.modes.split(","):
         cache = Path(tempfile.mkdtemp(prefix="tessera-bigscene-"))
         try:
-            figures: dict[str, Any] = {"cold": first_frame(args, mode, cache)}
+            figures: dict[str, Any] = {"cold": first_frame(args, mode, cache, levels="on" in args.lod.split(","))}
             figures["warm"] = first_frame(args, mode, cache)
             for lod in args.lod.split(",") if args.moving_s > 0 else ():
                 figures[f"moving_lod_{lod}"] = moving(args, mode, cache, lod)
@@ -210,7 +231,9 @@ def report(result: dict[str, Any]) -> str:
         for phase in ("cold", "warm"):
             f = figures[phase]
             peaks = ", ".join(f"{p['node_mb']:.0f}/{p['readers_mb']:.0f}" for p in f["peaks"])
-            lines.append(f"  {mode:10s} {phase}: first frame {f['first_frame_s']:6.2f} s; node/readers peak MB {peaks}")
+            levels = f" (levels held after {f['levels_s']} s)" if "levels_s" in f else ""
+            lines.append(f"  {mode:10s} {phase}: first frame {f['first_frame_s']:6.2f} s{levels}; "
+                         f"node/readers peak MB {peaks}")
         for key, f in figures.items():
             if key.startswith("moving"):
                 lines.append(f"  {mode:10s} {key}: {f['fps']:.1f} fps, latency p50 {f['latency_p50_ms']:.0f} ms "
