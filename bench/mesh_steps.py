@@ -2,7 +2,7 @@
 second reach the screen, and whether each one does.
 
 ``python -m bench.mesh_steps [--nodes 2] [--triangles 100000] [--rate 10] [--steps 20] [--size 640x360]
-[--via update|upload|both] [--json OUT]``
+[--via update|upload|both] [--turn-s 4] [--json OUT]``
 
 A height field of ``--triangles`` triangles (a wave moving a step each time) is pushed at most
 ``--rate`` times a second, ``--via update`` (default) with ``Session.update_mesh`` (binary arrays, no
@@ -14,7 +14,9 @@ next step's). Figures: steps per second pushed, the share of steps that reached 
 each update's time, or the upload's (the GLB written in memory, sent, checked by the coordinator)
 and the switch's.
 Steps per second: the steps after the first over the time from the first one's start until the
-last one was on screen.
+last one was on screen. Then the camera turns about the last step for ``--turn-s`` seconds: the
+frames per second published meanwhile are the most steps a second could reach on this machine (a
+frame each), and ``of_frame_rate`` the share of it the steps reached.
 """
 
 from __future__ import annotations
@@ -110,6 +112,7 @@ def push_steps(tessera: Any, reader: Any, args: argparse.Namespace, via: str, gr
                 break
             time.sleep(0.05)
         ids, reader_error = sorted(log.ids), log.error
+        frame_rate = turning_rate(session, log, args.turn_s)
     firsts = [int(s["first"]) for s in steps]
     shown = 0
     for index, first in enumerate(firsts):
@@ -123,8 +126,24 @@ def push_steps(tessera: Any, reader: Any, args: argparse.Namespace, via: str, gr
 
     times = {key: quantiles([s[key] for s in steps]) for key in ("update_s", "upload_s", "switch_s") if key in steps[0]}
     return {"via": via, "triangles": len(faces), "rate": args.rate, "steps": args.steps, "size": list(args.size),
-            "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed, "steps_shown": shown,
+            "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed, "frames_per_s_turning": frame_rate,
+            "of_frame_rate": (args.steps - 1) / elapsed / frame_rate if frame_rate else None, "steps_shown": shown,
             "shown_share": shown / len(steps), "frames_seen": len(ids), **times, "reader_error": reader_error}
+
+
+def turning_rate(session: Any, log: FrameLog, seconds: float) -> float | None:
+    """Frames a second ``log`` saw published while the camera turned a degree every 20 ms for
+    ``seconds`` (the first half second not counted); None for 0 s."""
+    if seconds <= 0:
+        return None
+    started = time.monotonic()
+    counted, count = None, 0
+    while (now := time.monotonic()) < started + seconds:
+        if counted is None and now >= started + 0.5:
+            counted, count = now, len(log.ids)
+        session.orbit(1.0)
+        time.sleep(0.02)
+    return None if counted is None else (len(log.ids) - count) / (time.monotonic() - counted)
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -158,6 +177,8 @@ def report(result: dict[str, Any]) -> str:
             f"steps, {run['size'][0]}x{run['size'][1]}, {run['nodes']} local nodes",
             f"  steps/s reached: {run['steps_per_s']:.2f}; steps shown: {run['steps_shown']} of {run['steps']} "
             f"({100 * run['shown_share']:.0f} %); frames published: {run['frames_seen']}",
+            *([f"  frames/s while the camera turns about the last step: {run['frames_per_s_turning']:.2f} "
+               f"(the steps reached {100 * run['of_frame_rate']:.0f} % of it)"] if run["frames_per_s_turning"] else []),
             f"  {times}"]
     lines.append("load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"]))
     return "\n".join(lines)
@@ -172,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--size", type=size_parser(16, 4096), default=(640, 360), help="frame size WxH (640x360)")
     parser.add_argument("--via", choices=("update", "upload", "both"), default="update",
                         help="update: Session.update_mesh (default); upload: upload then set_scene; both, in turn")
+    parser.add_argument("--turn-s", type=float, default=4.0,
+                        help="seconds the camera turns about the last step, for the frame rate (default 4; 0: none)")
     parser.add_argument("--json", type=Path, help="write the result as JSON here")
     return parser
 

@@ -22,7 +22,8 @@ def test_the_height_field_has_the_triangles_asked_for_and_a_moving_wave():
 def test_a_short_run_pushes_each_step_to_the_screen(tmp_path):
     out = tmp_path / "steps.json"
     mesh_steps.main(["--nodes", "1", "--triangles", "2000", "--rate", "2", "--steps", "3", "--size", "96x64",
-                     "--json", str(out)])
+                     "--turn-s", "1.5", "--json", str(out)])
     result = json.loads(out.read_text())
     assert result["steps_shown"] == 3 and result["reader_error"] is None
     assert 0 < result["steps_per_s"] <= 2.0 and result["triangles"] == 2048
+    assert result["frames_per_s_turning"] > 0 and result["of_frame_rate"] > 0
