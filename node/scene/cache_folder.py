@@ -121,6 +121,14 @@ class CacheFolder:
             os.utime(directory / TABLE)
 
     @contextlib.contextmanager
+    def reading(self, path: Path, progress: Progress) -> Iterator[None]:
+        """Hold the lock of the file at ``path`` while it is hashed and read ahead (before its entry's
+        name is known), waiting while another process holds it: one process reads a file at a time."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        with self._locked(f"path-{hashlib.sha1(str(path.resolve()).encode()).hexdigest()}", progress):
+            yield
+
+    @contextlib.contextmanager
     def _locked(self, name: str, progress: Progress) -> Iterator[None]:
         """Hold the lock of entry ``name``, waiting (and saying so) while another process holds it."""
         with (self.root / f"{name}.lock").open("a") as lock:

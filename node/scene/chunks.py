@@ -155,7 +155,7 @@ def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_L
             counts, batch_boxes = np.array([batch.triangle_count]), batch.bounds()[None].astype(np.float32)
         else:
             split = octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None)
-            batch = batch.with_vertices(split.vertex_order, split.faces)
+            batch = batch.with_vertices(split.vertex_order, split.faces, split.positions)
             if split.normals is not None:
                 batch = dataclasses.replace(batch, normals=split.normals)
             counts, batch_boxes = split.face_counts, split.bounds

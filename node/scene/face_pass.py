@@ -25,6 +25,8 @@ import scipy.sparse
 
 #: Faces a block holds at least (blocks end at a chunk's end).
 BLOCK_FACES = 1 << 18
+#: Vertices past a block's last face's first vertex whose sums the block adds up in its window.
+WINDOW_MARGIN = 1 << 16
 #: Threads that run blocks (numpy releases the GIL in them).
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 
@@ -72,39 +74,69 @@ def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, norm
     columns = [np.ascontiguousarray(positions[:, axis], np.float32) for axis in range(3)]
     starts = np.asarray(starts, np.int64)
     boxes = np.empty((starts.size, 2, 3), np.float32)
-    summed = np.zeros((len(positions), 3), np.float64) if normals else None
+    summed = np.empty((len(positions), 3), np.float64) if normals else None
+    blocks = list(_blocks(starts, len(faces)))
+    most = max((end - first for first, end, _, _ in blocks), default=0)
+    ones = np.ones(3 * most)
+    wide = 3 * most >= 1 << 31 or len(positions) >= 1 << 31
+    steps = np.arange(0, 3 * most + 1, 3, dtype=np.int64 if wide else np.int32)
+    empty = np.zeros(0)
 
-    def block(first: int, end: int, first_chunk: int, end_chunk: int) -> tuple[int, np.ndarray | None]:
+    def block(first: int, end: int, first_chunk: int, end_chunk: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         corners = faces[first:end]
+        count = len(corners)
         index = [corners[:, k].astype(np.intp) for k in range(3)]
-        a, b, c = ([column.take(i) for column in columns] for i in index)
+        a, b, c = ([column.take(i, mode="clip") for column in columns] for i in index)
         local = starts[first_chunk:end_chunk] - first
         for axis in range(3):
             low, high = np.minimum(a[axis], b[axis]), np.maximum(a[axis], b[axis])
             boxes[first_chunk:end_chunk, 0, axis] = np.minimum.reduceat(np.minimum(low, c[axis], out=low), local)
             boxes[first_chunk:end_chunk, 1, axis] = np.maximum.reduceat(np.maximum(high, c[axis], out=high), local)
         if summed is None:
-            return 0, None
-        u = [b[axis] - a[axis] for axis in range(3)]
-        v = [c[axis] - a[axis] for axis in range(3)]
-        face_normal = np.empty((len(corners), 3), np.float64)
+            return 0, empty, empty, empty
+        u = [np.subtract(b[axis], a[axis], out=b[axis]) for axis in range(3)]
+        v = [np.subtract(c[axis], a[axis], out=c[axis]) for axis in range(3)]
+        face_normal = np.empty((count, 3), np.float64)
         face_normal[:, 0] = u[1] * v[2] - u[2] * v[1]
         face_normal[:, 1] = u[2] * v[0] - u[0] * v[2]
         face_normal[:, 2] = u[0] * v[1] - u[1] * v[0]
-        lo, hi = int(corners.min()), int(corners.max())
-        count = len(corners)
-        wide = hi - lo >= 1 << 31
-        incidence = scipy.sparse.csc_matrix(
-            (np.ones(3 * count), (corners.reshape(-1) - corners.dtype.type(lo)).astype(np.int64 if wide else np.int32),
-             np.arange(0, 3 * count + 1, 3, dtype=np.int64 if wide else np.int32)), shape=(hi - lo + 1, count))
-        return lo, incidence @ face_normal
+        # Corners beyond the block's window (faces spanning far in the vertex order) are summed apart.
+        lo = int(corners.min())
+        flat = corners.reshape(-1) - corners.dtype.type(lo)
+        rows = min(int(corners[-1].min()) - lo + WINDOW_MARGIN, int(flat.max()) + 1)
+        far = np.flatnonzero(flat >= rows)
+        rows_index = flat.astype(steps.dtype)
+        rows_index[far] = rows
+        incidence = scipy.sparse.csc_matrix((ones[:3 * count], rows_index, steps[:count + 1]), shape=(rows + 1, count))
+        far_faces = face_normal.take(far // 3, axis=0)
+        return lo, (incidence @ face_normal)[:rows], flat.take(far).astype(np.int64) + lo, far_faces
 
-    blocks = list(_blocks(starts, len(faces)))
+    far_index, far_normals = [], []
+    filled = 0   # summed[:filled] written: windows start in order, a later one overlaps the earlier ones' ends only
     with ThreadPoolExecutor(WORKERS) as pool:
-        for lo, window in pool.map(lambda args: block(*args), blocks):
-            if summed is not None and window is not None:
-                summed[lo:lo + len(window)] += window
-    return FacePass(boxes, None if summed is None else normalized(summed).astype(np.float32))
+        for lo, window, index, normal in pool.map(lambda args: block(*args), blocks):
+            if summed is not None:
+                summed[filled:lo] = 0.0
+                overlap = min(max(filled - lo, 0), len(window))
+                summed[lo:lo + overlap] += window[:overlap]
+                summed[lo + overlap:lo + len(window)] = window[overlap:]
+                filled = max(filled, lo + len(window))
+                far_index.append(index)
+                far_normals.append(normal)
+    if summed is None:
+        return FacePass(boxes, None)
+    summed[filled:] = 0.0
+    np.add.at(summed, np.concatenate(far_index), np.concatenate(far_normals))
+    unit = np.empty(summed.shape, np.float32)
+    for_blocks(len(summed), lambda first, end: unit_vectors(summed[first:end], unit[first:end]))
+    return FacePass(boxes, unit)
+
+
+def unit_vectors(vectors: np.ndarray, out: np.ndarray) -> None:
+    """``vectors`` (N, 3) scaled to unit length into ``out`` (N, 3) (any float dtype); zero vectors stay zero."""
+    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+    inverse = np.divide(1.0, lengths, out=np.zeros_like(lengths), where=lengths > 0.0)
+    np.multiply(vectors, inverse[:, None], out=out, casting="unsafe")
 
 
 def normalized(vectors: np.ndarray) -> np.ndarray:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from node.scene.cache import CacheError, Progress, open_entry, remove_entry, write_entry, write_share
@@ -29,10 +30,12 @@ from node.scene.shares import keep_share
 from tessera.wire.messages import ShareSpec
 
 
-def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress) -> Callable[[Path], int]:
-    """Read ``source`` and write its entry; the builder :meth:`CacheFolder.ensure` calls. Returns bytes."""
+def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress,
+                read_ahead: list[SceneData] | None = None) -> Callable[[Path], int]:
+    """Read ``source`` and write its entry; the builder :meth:`CacheFolder.ensure` calls. Returns
+    bytes. ``read_ahead``: the scene already read (taken from the list, so that it is not held after)."""
     def build(directory: Path) -> int:
-        scene = load_scene(str(source), progress, face_limit)
+        scene = read_ahead.pop() if read_ahead else load_scene(str(source), progress, face_limit)
         progress(0.8, f"writing the scene cache: {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
         return write_entry(directory, scene, pack(scene.batches),
                            {"sha256": sha256, "bytes": source.stat().st_size, "name": source.name})
@@ -42,8 +45,29 @@ def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress) 
 def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder: CacheFolder, progress: Progress,
                  sha256: str | None = None) -> Path:
     """The checked entry of ``source`` (its ``share`` only, when given) in ``folder``, built first if
-    need be; ``sha256``: the file's digest when known. Raises SceneError."""
-    digest = sha256 or folder.content_hash(source, progress)
+    need be; ``sha256``: the file's digest when known. A file whose digest is neither given nor
+    remembered is read while it is hashed (both take seconds for a big file; the hash runs on a thread
+    of its own), under the folder's lock of its path. Raises SceneError."""
+    digest = sha256 or folder.known_hash(source)
+    if digest is not None and (sha256 is not None or folder.existing(entry_name(digest, face_limit)) is not None):
+        return _checked(source, face_limit, share, folder, progress, digest, None)
+    with folder.reading(source, progress):
+        digest = sha256 or folder.known_hash(source)   # another process may have read it while this one waited
+        if digest is not None:
+            return _checked(source, face_limit, share, folder, progress, digest, None)
+        hashing = ThreadPoolExecutor(1)
+        try:
+            digest_later = hashing.submit(folder.content_hash, source, lambda fraction, message: None)
+            read_ahead = [load_scene(str(source), progress, face_limit)]
+            digest = digest_later.result()
+        finally:
+            hashing.shutdown(wait=False)
+        return _checked(source, face_limit, share, folder, progress, digest, read_ahead)
+
+
+def _checked(source: Path, face_limit: int, share: ShareSpec | None, folder: CacheFolder, progress: Progress,
+             digest: str, read_ahead: list[SceneData] | None) -> Path:
+    """:func:`cached_scene` once the digest is known."""
     whole_name = entry_name(digest, face_limit)
     origin = {"sha256": digest, "name": source.name}
 
@@ -55,7 +79,7 @@ def cached_scene(source: Path, face_limit: int, share: ShareSpec | None, folder:
         except CacheError as exc:
             raise SceneError(f"{source.name}: {exc}") from None
 
-    return checked_entry(folder, whole_name, build_entry(source, face_limit, digest, progress),
+    return checked_entry(folder, whole_name, build_entry(source, face_limit, digest, progress, read_ahead),
                          None if share is None else (share_name(whole_name, share.weights, share.index), build_share),
                          lambda entry: open_entry(entry, source.name, verify=True), source, progress)
 

@@ -58,13 +58,15 @@ class MeshBatch:
     def vertex_count(self) -> int:
         return len(self.positions)
 
-    def with_vertices(self, order: np.ndarray, faces: np.ndarray) -> MeshBatch:
+    def with_vertices(self, order: np.ndarray, faces: np.ndarray, positions: np.ndarray | None = None) -> MeshBatch:
         """This batch with vertices ``order`` (M,) (indices of its vertices: every per-vertex array
-        taken in that order) and ``faces`` (F', 3) indexing them."""
+        taken in that order) and ``faces`` (F', 3) indexing them; ``positions``: the positions in that
+        order when already at hand."""
         def take(values: np.ndarray | None) -> np.ndarray | None:
             return None if values is None else values[order]
 
-        return dataclasses.replace(self, positions=self.positions[order], normals=take(self.normals),
+        moved = self.positions[order] if positions is None else positions
+        return dataclasses.replace(self, positions=moved, normals=take(self.normals),
                                    uvs=take(self.uvs), colors=take(self.colors), tangents=take(self.tangents),
                                    uvs1=take(self.uvs1), faces=np.asarray(faces, np.uint32))
 

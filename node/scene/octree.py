@@ -63,7 +63,9 @@ class ChunkSplit:
     int64: new face k is old face ``face_order[k]``; ``faces`` (F, 3) uint32: the faces in the new
     order, numbering the vertices in the new order. ``starts``/``ends`` (C,) int64: chunk i is new
     faces [starts[i], ends[i]). ``bounds`` (C, 2, 3) float32: each chunk's tight [min, max] box over
-    its faces' vertices. ``depths`` (C,) int64: octree level of its cell.
+    its faces' vertices. ``depths`` (C,) int64: octree level of its cell. ``normals`` (V, 3) float32:
+    the smooth vertex normals in the new order, when asked for; ``positions`` (V, 3) float32: the
+    positions in the new order.
     """
 
     vertex_order: np.ndarray
@@ -74,6 +76,7 @@ class ChunkSplit:
     bounds: np.ndarray
     depths: np.ndarray
     normals: np.ndarray | None = None
+    positions: np.ndarray | None = None
 
     @property
     def chunk_count(self) -> int:
@@ -113,14 +116,18 @@ def morton_codes(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: int 
     cells = 1 << depth
     scale = cells / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
     codes = np.zeros(len(points), np.uint64)
-    cell = np.empty(len(points), np.float64)
-    index = np.empty(len(points), np.intp)
-    for axis, shift in ((0, 2), (1, 1), (2, 0)):
-        np.subtract(points[:, axis], lo[axis], out=cell)
-        cell *= scale[axis]
-        np.clip(cell, 0, cells - 1, out=cell)
-        index[:] = cell
-        codes |= _SPREAD.take(index) << np.uint64(shift)
+
+    def block(first: int, end: int) -> None:
+        cell = np.empty(end - first, np.float64)
+        index = np.empty(end - first, np.intp)
+        for axis, shift in ((0, 2), (1, 1), (2, 0)):
+            np.subtract(points[first:end, axis], lo[axis], out=cell)
+            cell *= scale[axis]
+            np.clip(cell, 0, cells - 1, out=cell)
+            index[:] = cell
+            codes[first:end] |= _SPREAD.take(index, mode="clip") << np.uint64(shift)
+
+    for_blocks(len(points), block)
     return codes
 
 
@@ -157,48 +164,67 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     if face_total == 0:
         empty = np.zeros(0, np.int64)
         return ChunkSplit(np.arange(vertex_total), empty, np.zeros((0, 3), np.uint32), empty, empty,
-                          np.zeros((0, 2, 3), np.float32), empty)
+                          np.zeros((0, 2, 3), np.float32), empty, None, positions)
 
     vertex_order, vertex_codes = sorted_by_code(morton_codes(positions, *octree_root(positions), max_depth))
     rank = np.empty(vertex_total, np.uint32)
     rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
+    moved = np.empty_like(positions)
+    for_blocks(vertex_total, lambda first, end: positions.take(vertex_order[first:end], axis=0, out=moved[first:end],
+                                                                   mode="clip"))
+    # Faces sorted by their first vertex in the new order, then by number: one sort of keys that hold both.
+    item_bits = max(1, int(face_total - 1).bit_length())
     renumbered = np.empty((face_total, 3), np.uint32)
-    first_vertex = np.empty(face_total, np.uint64)
+    keys = np.empty(face_total, np.uint64)
 
-    def renumber(first: int, end: int, out: np.ndarray = renumbered, lowest: np.ndarray = first_vertex) -> None:
-        block = rank.take(faces[first:end].astype(np.intp))
-        out[first:end] = block
-        lowest[first:end] = np.minimum(np.minimum(block[:, 0], block[:, 1]), block[:, 2])
+    def renumber(first: int, end: int, renumbered: np.ndarray = renumbered, rank: np.ndarray = rank,
+                 keys: np.ndarray = keys) -> None:
+        block = renumbered[first:end]
+        block[:] = rank.take(faces[first:end].astype(np.intp, copy=False))
+        lowest = np.minimum(np.minimum(block[:, 0], block[:, 1]), block[:, 2]).astype(np.uint64)
+        np.bitwise_or(lowest << np.uint64(item_bits), np.arange(first, end, dtype=np.uint64), out=keys[first:end])
 
     for_blocks(face_total, renumber)
-    del renumber
-    face_order, first_sorted = sorted_by_code(first_vertex)
-    del first_vertex
+    del renumber, rank
+    keys.sort()
+    face_order = np.empty(face_total, np.int64)
     new_faces = np.empty((face_total, 3), np.uint32)
+    group_start = np.empty(face_total, bool)
 
-    def reorder(first: int, end: int, old: np.ndarray = renumbered) -> None:
-        new_faces[first:end] = old.take(face_order[first:end], axis=0)
+    def reorder(first: int, end: int, renumbered: np.ndarray = renumbered, keys: np.ndarray = keys,
+                group_start: np.ndarray = group_start) -> None:
+        order = face_order[first:end]
+        np.bitwise_and(keys[first:end], np.uint64((1 << item_bits) - 1), out=order, casting="unsafe")
+        renumbered.take(order, axis=0, out=new_faces[first:end], mode="clip")
+        lowest = keys[max(first - 1, 0):end] >> np.uint64(item_bits)
+        group_start[first] = first == 0 or lowest[0] != lowest[1]
+        np.not_equal(lowest[1 + (first > 0):], lowest[(first > 0):-1], out=group_start[first + 1:end])
 
     for_blocks(face_total, reorder)
     del reorder, renumbered
-    starts, ends, depths = _cells(vertex_codes.take(first_sorted.astype(np.intp)), face_limit, max_depth)
-    swept = face_pass(positions.take(vertex_order, axis=0), new_faces, starts, normals)
-    return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals)
+    groups = np.flatnonzero(group_start)
+    group_codes = vertex_codes.take((keys.take(groups) >> np.uint64(item_bits)).astype(np.intp))
+    del keys, group_start
+    starts, ends, depths = _cells(group_codes, groups, face_total, face_limit, max_depth)
+    swept = face_pass(moved, new_faces, starts, normals)
+    return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
 
 
-def _cells(codes: np.ndarray, face_limit: int, max_depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(starts, ends, depths) (C,) int64 of the adaptive octree's leaves over sorted face ``codes``.
+def _cells(codes: np.ndarray, group_faces: np.ndarray, face_total: int, face_limit: int,
+           max_depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(starts, ends, depths) (C,) int64 of the adaptive octree's leaves over ``face_total`` faces
+    in groups of one code: group g holds the faces from ``group_faces[g]`` (G,) int64 (0 first) to
+    the next group's, its code ``codes[g]`` (G,) uint64, sorted.
 
     Two neighbours in code order first fall into different cells at the level of their codes'
     highest differing bit, so each cell boundary is found once, with its level; then level by level
-    the cells still over the limit are cut at that level's boundaries. Work grows with the faces,
-    not with the faces times the depth."""
-    face_total = codes.size
+    the cells still over the limit are cut at that level's boundaries. Work grows with the groups
+    (at most the vertices), not with the faces times the depth."""
     differing = codes[1:] ^ codes[:-1]
     highest = np.frexp(differing.astype(np.float64))[1] - 1          # highest set bit; -1 where equal
     boundary_level = np.where(differing > 0, max_depth - highest // 3, max_depth + 1).astype(np.int8)
     del differing, highest
-    # Each level's boundaries (the first face of a cell), in face order: one stable radix sort by level.
+    # Each level's boundaries (the first group of a cell), in order: one stable radix sort by level.
     by_level = np.argsort(boundary_level, kind="stable")
     level_bounds = np.searchsorted(boundary_level[by_level], np.arange(max_depth + 2))
     del boundary_level
@@ -206,7 +232,7 @@ def _cells(codes: np.ndarray, face_limit: int, max_depth: int) -> tuple[np.ndarr
     open_starts, open_ends = np.zeros(1, np.int64), np.full(1, face_total, np.int64)
     for depth in range(max_depth + 1):
         if depth > 0:
-            cuts = by_level[level_bounds[depth]:level_bounds[depth + 1]].astype(np.int64) + 1
+            cuts = group_faces.take(by_level[level_bounds[depth]:level_bounds[depth + 1]].astype(np.int64) + 1)
             inside = np.searchsorted(open_starts, cuts, side="right") - 1
             cuts = cuts[(inside >= 0) & (cuts < open_ends[np.maximum(inside, 0)])]
             bounds = np.sort(np.concatenate([open_starts, cuts]))   # disjoint: a cut is no cell's start yet

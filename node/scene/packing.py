@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene.face_pass import for_blocks
 from node.scene.mesh import MeshBatch
 
 #: Bytes of indices converted at a time when batches are made one buffer.
@@ -90,13 +91,17 @@ def pack_vertices(batches: Sequence[MeshBatch], layout: VertexLayout | None = No
     first = 0
     for batch in batches:
         assert batch.normals is not None, "normals are computed before packing"
-        rows = out[first:first + batch.vertex_count]
-        rows["position"] = batch.positions
-        rows["normal"] = batch.normals
-        if layout.uvs and batch.uvs is not None:
-            rows["uv"] = batch.uvs
-        if layout.colors:
-            rows["color"] = 1.0 if batch.colors is None else batch.colors
+
+        def fill(start: int, end: int, batch: MeshBatch = batch, offset: int = first) -> None:
+            rows = out[offset + start:offset + end]
+            rows["position"] = batch.positions[start:end]
+            rows["normal"] = batch.normals[start:end]
+            if layout.uvs and batch.uvs is not None:
+                rows["uv"] = batch.uvs[start:end]
+            if layout.colors:
+                rows["color"] = 1.0 if batch.colors is None else batch.colors[start:end]
+
+        for_blocks(batch.vertex_count, fill)
         first += batch.vertex_count
     return out
 
@@ -119,8 +124,8 @@ def vertex_extras(batches: Sequence[MeshBatch]) -> np.ndarray | None:
 def pack(batches: Sequence[MeshBatch]) -> PackedGeometry:
     """The :class:`PackedGeometry` of ``batches``."""
     counts = np.array([b.vertex_count for b in batches], np.int64)
-    indices = np.concatenate([np.asarray(b.faces, np.uint32).reshape(-1) for b in batches]) if batches else \
-        np.zeros(0, np.uint32)
+    parts = [np.asarray(b.faces, np.uint32).reshape(-1) for b in batches]
+    indices = parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.zeros(0, np.uint32)
     layout = VertexLayout.of(batches)
     return PackedGeometry(layout, pack_vertices(batches, layout), indices, np.concatenate(([0], np.cumsum(counts))))
 

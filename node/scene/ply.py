@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from node.scene.face_pass import for_blocks
 from node.scene.mesh import SceneError
 
 #: PLY scalar type names and their numpy little-endian types.
@@ -116,26 +117,48 @@ def _read_fixed_layout(data: np.ndarray, path: Path) -> PlyMesh | None:
     if len(data) < needed:
         raise SceneError(f"{path}: corrupt or unreadable PLY (truncated: {len(data)} bytes, its header needs {needed})")
     rows = np.frombuffer(data, vertex_type, vertex.count, offset)
-    faces = np.frombuffer(data, face_type, face.count, offset + vertex.count * vertex_type.itemsize)
-    if face.count and not (faces["n"] == 3).all():
-        return None
     names = set(vertex_type.names or ())
     if not {"x", "y", "z"} <= names:
         raise SceneError(f"{path}: corrupt or unreadable PLY (its vertices have no x, y, z)")
-    indices = faces["v"]
-    if face.count and (int(indices.min()) < 0 or int(indices.max()) >= vertex.count):
-        raise SceneError(f"{path}: face indices out of range (0..{vertex.count - 1})")
+    faces = _faces(np.frombuffer(data, face_type, face.count, offset + vertex.count * vertex_type.itemsize),
+                   vertex.count, path)
+    if faces is None:
+        return None
     return PlyMesh(
         vertices=_columns(rows, ("x", "y", "z"), np.float32),
-        faces=indices.astype(np.uint32),
+        faces=faces,
         normals=_columns(rows, ("nx", "ny", "nz"), np.float32) if {"nx", "ny", "nz"} <= names else None,
         uvs=next((_columns(rows, pair, np.float32) for pair in UV_NAMES if set(pair) <= names), None),
         colors=_colors(rows, names),
     )
 
 
+def _faces(records: np.ndarray, vertex_count: int, path: Path) -> np.ndarray | None:
+    """(F, 3) uint32 indices of the face ``records`` (a count and three indices each), copied a
+    block at a time on every core; None when some face is not a triangle. Raises SceneError when an
+    index is out of range (a negative one wraps to a large one in the copy)."""
+    out = np.empty((len(records), 3), np.uint32)
+    triangles, largest = [True], [0]
+
+    def block(first: int, end: int) -> None:
+        piece = records[first:end]
+        triangles.append(bool((piece["n"] == 3).all()))
+        out[first:end] = piece["v"]
+        largest.append(int(out[first:end].max()))
+
+    for_blocks(len(records), block, 1 << 20)
+    if not all(triangles):
+        return None
+    if len(records) and max(largest) >= vertex_count:
+        raise SceneError(f"{path}: face indices out of range (0..{vertex_count - 1})")
+    return out
+
+
 def _columns(rows: np.ndarray, names: tuple[str, ...], dtype: type) -> np.ndarray:
-    """(N, len(names)) ``dtype`` of the named fields of structured ``rows``."""
+    """(N, len(names)) ``dtype`` of the named fields of structured ``rows``: one copy when they are
+    all its fields, in that order, of that type."""
+    if rows.dtype.names == names and all(rows.dtype[name] == np.dtype(dtype) for name in names):
+        return rows.view(np.dtype(dtype)).reshape(len(rows), len(names)).copy()
     out = np.empty((len(rows), len(names)), dtype)
     for column, name in enumerate(names):
         out[:, column] = rows[name]
