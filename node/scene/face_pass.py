@@ -4,8 +4,10 @@ when wanted, the smooth vertex normals. No GL here.
 Each face's corners are fetched once (per axis, from contiguous columns), its normal is the cross
 product of two edges (its length twice the face's area),
 and its box is the corners' min and max. Chunk boxes are the faces' boxes reduced per chunk; vertex
-normals are the face normals summed at their vertices by a sparse product per block covering only
-the vertices the block uses (after the octree split, a narrow range), added in block order.
+normals are the face normals summed at their vertices by a sparse product per block over a window
+of vertices: from the block's first face's first vertex to :data:`WINDOW_MARGIN` past its last
+face's (after the octree split, where nearly all its corners lie). The few corners beyond it (faces
+reaching across a cell boundary far in the vertex order) are summed apart, once, at the end.
 
 The sums are taken in float64 over float32 face normals, which holds them exactly (a vertex's few
 faces never span 2**29 in magnitude), so a vertex's normal does not depend on the order of its

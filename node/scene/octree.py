@@ -11,12 +11,15 @@ no per-face loop (issue 31: linear-time preprocessing, tens of millions of faces
    :data:`MAX_DEPTH` levels): the mesh's new vertex order, so the vertices of a chunk sit together
    in memory (culled tiles fetch few) and a range of chunks uses a narrow range of vertices;
 2. each face belongs to the cell of its first vertex in that order (the one of lowest code), and the
-   faces are sorted by it: sorting by code lists every cell's faces contiguously, in depth-first
-   octree order;
-3. level by level, a cell within the limit becomes a chunk, the others are split.
+   faces are sorted by that vertex's new number: this lists every cell's faces contiguously, in
+   depth-first octree order;
+3. level by level, a cell within the limit becomes a chunk, the others are split; the cells are
+   found over the runs of faces that share a first vertex (at most the vertices), not face by face.
 
-Each sort is one ``numpy.sort`` of 64-bit keys that hold the code above the item's number, so no
-``argsort`` is needed. Chunk ``i`` is ``split.faces[starts[i]:ends[i]]``: the renderer keeps one
+Each sort is one ``numpy.sort`` of 64-bit keys that hold the code (or the vertex's new number) above
+the item's number, so no ``argsort`` is needed (numpy sorts such keys with SIMD). The passes between
+the sorts run a block at a time on threads (:func:`node.scene.face_pass.for_blocks`).
+Chunk ``i`` is ``split.faces[starts[i]:ends[i]]``: the renderer keeps one
 index buffer and draws ranges. Chunks come in Morton order, so neighbouring chunks are neighbours in
 space and visible chunks often form longer contiguous ranges.
 
