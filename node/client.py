@@ -257,7 +257,8 @@ class NodeClient:
         try:
             drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
                                                    Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                   job.lod_error_px or 0.0, (job.point_budget, job.point_size))
+                                                   job.lod_error_px or 0.0, (job.point_budget, job.point_size),
+                                                   request.rect, job.window)
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

@@ -38,6 +38,7 @@ import av
 import numpy as np
 from PIL import Image
 
+from server.settings import MAX_TILE_BYTES_PER_PIXEL
 from tessera.geometry import Camera
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.job_scheduler import JobScheduler
@@ -51,7 +52,7 @@ from tessera.scheduling.render_jobs import (
     RenderWork,
     piece_side,
 )
-from tessera.wire.codec import decode
+from tessera.wire.codec import Codec, decode
 
 log = logging.getLogger("tessera.server")
 
@@ -243,16 +244,17 @@ class RenderJobs:
               frames: Any, fps: float | None = None) -> RenderJob:
         """A new job of ``session_id`` (its scheduler side ``frames``: scene, state, clip, selection
         now) drawing ``cameras`` at ``size`` from ``samples`` samples each; JobRefused beyond
-        ``--max-jobs`` (503) or for a session whose scene is not loaded (409)."""
+        ``--max-jobs`` (503), for a session whose scene is not loaded or a sort-last point cloud (409)."""
         unfinished = sum(1 for job in self.jobs.values() if job.work is not None and not job.work.finished)
         if unfinished >= self.max_jobs:
             raise JobRefused(503, f"{unfinished} render jobs are under way, the most this coordinator takes "
                                   "(--max-jobs); wait for one to end or cancel one")
         if frames.camera is None or not frames.ready:
             raise JobRefused(409, "no node has loaded the session's scene yet")
-        if frames.mode.name == "sort-last":
-            raise JobRefused(409, "posters and films of a sort-last session are not drawn yet (each node holds "
-                                  "a share): use sort-first or hybrid")
+        sort_last = frames.mode.job_nodes() is not None
+        if sort_last and frames.point_bounds is not None:
+            raise JobRefused(409, "posters and films of a point cloud are drawn in sort-first, not sort-last (its "
+                                  "layers are shaded once merged, whole)")
         now = time.monotonic()
         state = None if frames.scene is None else frames.scene.bind(now)
         spec = JobSpec(kind, session_id, frames.scene_key, cameras, size, StillPlan(samples), state, frames.clip,
@@ -260,7 +262,9 @@ class RenderJobs:
         rates = [node.ms_per_px for node in self.host.scheduler.nodes.values() if node.ms_per_px is not None]
         job_id = secrets.token_urlsafe(9)
         # a piece's tile, raw or PNG (at most a little more than raw), fits in a node's message
-        fitting = int(math.sqrt(max(self.host.settings.node_message_bytes - (1 << 20), 1 << 16) / 3.5)) // 2 * 2
+        # (sort-last: a depth tile, colour and depth)
+        per_px = MAX_TILE_BYTES_PER_PIXEL if sort_last else 3.5
+        fitting = int(math.sqrt(max(self.host.settings.node_message_bytes - (1 << 20), 1 << 16) / per_px)) // 2 * 2
         work = RenderWork(job_id, spec, side=min(piece_side(max(rates, default=None)), fitting))
         suffix = "png" if kind == "poster" else "mp4"
         job = RenderJob(job_id, session_id, kind, work, self.folder / f"{job_id}.{suffix}", fps)
@@ -333,14 +337,16 @@ class RenderJobs:
             self._delete(job)
 
     # ----------------------------------------------------------------- tiles
-    def tile(self, frame: FrameJob) -> None:
-        """A job tile came back (the scheduler published it): its pixels go to the worker thread."""
+    def tile(self, frame: FrameJob, merged: list[tuple[Any, Codec, int, bytes]] | None = None) -> None:
+        """A job tile came back (the scheduler published it): its pixels (sort-last: its depth
+        tiles ``merged``, the one image of the piece) go to the worker thread."""
         job = self.jobs.get(frame.job or "")
         pixels = self._pixels.get(frame.job or "")
         tile = frame.tiles[0]
         if job is None or pixels is None or frame.item is None or tile.payload is None or tile.header is None:
             return
-        done: Future[list[int]] = self._worker.submit(pixels.add, frame.item, tile.payload, tile.header.codec)
+        _, codec, _, payload = merged[0] if merged else (tile.rect, tile.header.codec, 0, tile.payload)
+        done: Future[list[int]] = self._worker.submit(pixels.add, frame.item, payload, codec)
         loop = asyncio.get_running_loop()
 
         def back_to_the_loop(future: Future[list[int]]) -> None:

@@ -453,8 +453,8 @@ class RenderService(SessionPersistence, ServiceReport):
         session = self.sessions.get(job.session)
         if session is None:
             return
-        if job.job is not None:   # a render job's tile (issue 35)
-            self.jobs.tile(job)
+        if job.job is not None:   # a render job's tile (issue 35; sort-last's merged as a still's sample is)
+            self.jobs.tile(job, self._frame_tiles(job) if job.depth is not None else None)
             return
         if job.samples > 1:
             self._refine(session, job)

@@ -33,6 +33,7 @@ from tessera.scheduling.render_jobs import (
 )
 from tessera.scheduling.scheduler import SchedulerConfig
 from tessera.wire.codec import Codec
+from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import ProtocolError, TileHeader
 
 CAMERA = Camera(eye=(0.0, 1.0, 5.0), target=(0.0, 0.0, 0.0))
@@ -201,3 +202,40 @@ def test_a_dropped_job_tile_that_comes_late_is_ignored_not_refused() -> None:
     assert s.receive_tile(1, header, b"x" * rect.area * 3, 0.2) is None
     with pytest.raises(ProtocolError, match="outside the 2000x1000 picture"):
         s.receive_tile(1, TileHeader(frame_id, 0, Rect(1990, 0, 20, 10), Codec.RAW, 5.0, 1.0, 1.0), b"", 0.3)
+
+
+def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_back() -> None:
+    """Sort-last: a job tile is one depth tile per share over the same piece, started when every
+    holder is free, published once all are in; a node joining (a new data partition) hands it back."""
+    s = JobScheduler(SchedulerConfig(size=(64, 32), mode="sort-last", max_fps=1e6, settle_frames=0, still_codec=None),
+                     StaticBalancer())
+    for node_id in (1, 2):
+        s.add_node(node_id, 0.0)
+    version = s.default.mode.shares.plan.version
+    for node_id in (1, 2):
+        s.node_ready(node_id, 0.0, version)
+    s.drain()
+    work = RenderWork("j", spec(samples=2), side=50)
+    s.add_job(work, 0.0)
+    renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
+    assert sorted(r.node_id for r in renders) == [1, 2] and len({r.message.frame for r in renders}) == 1
+    frame_id = renders[0].message.frame
+    job = s.in_flight[frame_id]
+    assert [t.rect for t in job.tiles] == [work.pieces[0][0]] * 2 and job.item == JobItem(0, 0, 0)
+    assert all(r.message.depth is not None and r.message.depth.share == version for r in renders)
+    s.tile_arrived(1, TileHeader(frame_id, 0, job.tiles[0].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
+                   DecodedDepthTile(version, None, ()))
+    assert not [a for a in s.drain() if isinstance(a, (PublishFrame, RenderTiles))], "node 2's share is not in"
+    s.tile_arrived(2, TileHeader(frame_id, 1, job.tiles[1].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
+                   DecodedDepthTile(version, None, ()))
+    actions = s.drain()
+    assert [a.job.item for a in actions if isinstance(a, PublishFrame)] == [JobItem(0, 0, 0)]
+    (following,) = {a.message.frame for a in actions if isinstance(a, RenderTiles)}
+    item = s.in_flight[following].item
+    s.add_node(3, 0.2)
+    assert following not in s.in_flight and item in work.again, "drawn from the old shares: handed back"
+    assert not [a for a in s.drain() if isinstance(a, RenderTiles)], "the new shares are not loaded yet"
+    for node_id in (1, 2, 3):
+        s.node_ready(node_id, 0.3, s.default.mode.shares.plan.version)
+    renders = [a for a in s.drain() if isinstance(a, RenderTiles) and s.in_flight[a.message.frame].job == "j"]
+    assert sorted(r.node_id for r in renders) == [1, 2, 3] and s.in_flight[renders[0].message.frame].item == item

@@ -10,7 +10,8 @@ node-side half of :mod:`tessera.compositing.depth_merge`.
   that needs no depth: all of a tile that a blended chunk touches, which is then drawn complete.
 - Sort-last (:mod:`tessera.decomposition.data_partition`): a node draws the chunks of its share that the whole
   frame's frustum keeps, into the rect their projected bounds cover (IceT's bounding-box
-  read-back); a share with nothing in view has no layer.
+  read-back); a share with nothing in view has no layer. A poster's piece (a render job's tile)
+  is drawn the same way over the piece alone.
 - Live (:func:`live_plan`): what a ``render`` message's depth request asks of a serving node. In
   sort-last the node holds only its share, so its share is all its chunks; its blended chunks are
   drawn apart, over its layer (:meth:`node.gl.renderer.TileRenderer.render_blend`), since their
@@ -106,31 +107,36 @@ def hybrid_plan(chunks: PlanningScene, camera: Camera, size: tuple[int, int], ti
 
 
 def sort_last_plan(chunks: PlanningScene, camera: Camera, size: tuple[int, int],
-                   share: np.ndarray | None = None) -> LayerPlan | None:
+                   share: np.ndarray | None = None, area: Rect | None = None) -> LayerPlan | None:
     """The layer of a node holding chunks ``share`` (sorted ids; None: every chunk of ``chunks``,
-    as a serving node holds only its share): those in view and the rect they project to; None when
-    none is on screen."""
-    whole = visible_chunks(chunks, camera, size, Rect(0, 0, *size))
+    as a serving node holds only its share) over ``area`` of the frame (None: all of it; a
+    poster's piece): those in view there and the part of it they project to; None when none is."""
+    area = Rect(0, 0, *size) if area is None else area
+    whole = visible_chunks(chunks, camera, size, area)
     drawn = whole if share is None else whole[np.isin(whole, share, assume_unique=True)]
     rect = covering_rect(chunk_bounds(chunks, drawn, camera, size), size)
-    return None if rect is None else LayerPlan(rect, drawn)
+    if rect is None:
+        return None
+    x0, y0, x1, y1 = max(rect.x, area.x), max(rect.y, area.y), min(rect.x1, area.x1), min(rect.y1, area.y1)
+    return None if x1 <= x0 or y1 <= y0 else LayerPlan(Rect(x0, y0, x1 - x0, y1 - y0), drawn)
 
 
 def live_plan(chunks: PlanningScene, pose: ScenePose, camera: Camera, size: tuple[int, int], request: DepthRequest,
-              tile_id: int) -> LayerPlan | None:
+              tile_id: int, area: Rect | None = None) -> LayerPlan | None:
     """The layer tile ``tile_id`` of a ``render`` message with depth ``request`` asks for, in scene
     ``pose`` (:meth:`node.gl.renderer.TileRenderer.pose_of` its state): a hybrid tile of
-    ``request.tiles``, or (sort-last) the node's whole share; None: nothing of it in view. Raises
+    ``request.tiles``, or (sort-last) the node's whole share over the tile's ``area`` (None: the
+    whole frame, a live frame's one tile; a poster's piece); None: nothing of it in view. Raises
     ValueError for a tile id the request does not list."""
     if request.mode == "hybrid":
         if not 0 <= tile_id < len(request.tiles):
             raise ValueError(f"tile {tile_id} is not one of the frame's {len(request.tiles)} tiles")
         return hybrid_plan(chunks, camera, size, request.tiles, tile_id, request.strip)
     if pose.whole:
-        frame = Rect(0, 0, *size)
-        plan: LayerPlan | None = LayerPlan(frame, visible_chunks(chunks, camera, size, frame))
+        area = Rect(0, 0, *size) if area is None else area
+        plan: LayerPlan | None = LayerPlan(area, visible_chunks(chunks, camera, size, area))
     else:
-        plan = sort_last_plan(chunks, camera, size)
+        plan = sort_last_plan(chunks, camera, size, area=area)
     if plan is None:
         return None
     blends = chunks.blended[plan.chunk_ids]
@@ -141,18 +147,19 @@ def live_plan(chunks: PlanningScene, pose: ScenePose, camera: Camera, size: tupl
 
 def render_plan(renderer: TileRenderer, camera: Camera, size: tuple[int, int], plan: LayerPlan,
                 state: SceneState | None, subsample: Subsample | None = None,
-                lod_error_px: float = 0.0) -> tuple[RenderedTile, BlendedFragments | None]:
+                lod_error_px: float = 0.0, window: Rect | None = None) -> tuple[RenderedTile, BlendedFragments | None]:
     """Draw ``plan`` in scene ``state`` (as ``subsample`` of a still; None: a plain frame, at the
-    levels of detail within ``lod_error_px``): its layer (depth read back) and, when it has blended
-    chunks apart, the blended fragments in front of that layer (moved objects' blended batches with
-    them; None: no blend pass)."""
+    levels of detail within ``lod_error_px``; in a poster's ``window``, None: the whole frame's
+    framebuffer): its layer (depth read back) and, when it has blended chunks apart, the blended
+    fragments in front of that layer (moved objects' blended batches with them; None: no blend pass)."""
     apart = plan.blend_ids is not None
     layer = renderer.render_layer(camera, size, plan.rect, plan.chunk_ids, state=state, blend_apart=apart,
-                                  subsample=subsample, lod_error_px=lod_error_px)
+                                  subsample=subsample, lod_error_px=lod_error_px, window=window)
     if plan.blend_ids is None:
         return layer, None
     assert layer.depth is not None
-    return layer, renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state, subsample)
+    return layer, renderer.render_blend(camera, size, plan.rect, plan.blend_ids, layer.depth, state, subsample,
+                                        window)
 
 
 def as_depth_layer(tile: RenderedTile, slot: int) -> DepthLayer:

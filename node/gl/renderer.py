@@ -172,6 +172,19 @@ def validate_rect(rect: Rect, size: tuple[int, int]) -> None:
         raise ValueError(f"tile {rect.as_list()} is empty or outside the {width}x{height} frame")
 
 
+def windowed(size: tuple[int, int], rect: Rect, window: Rect | None) -> tuple[tuple[int, int], Rect]:
+    """The framebuffer size and the rect in it of ``rect`` of the ``size`` frame drawn in ``window``
+    (a poster's part, :mod:`tessera.scheduling.render_jobs`; None: the whole frame, as they are);
+    ValueError for a rect or window outside what holds it."""
+    validate_rect(rect, size)
+    if window is None:
+        return size, rect
+    validate_rect(window, size)
+    inside = Rect(rect.x - window.x, rect.y - window.y, rect.w, rect.h)
+    validate_rect(inside, (window.w, window.h))
+    return (window.w, window.h), inside
+
+
 class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: the scene's batches as
@@ -263,14 +276,10 @@ class TileRenderer:
         culling switch (default: the rect itself). ``window``: the part of the frame (a poster's,
         :mod:`tessera.scheduling.render_jobs`) drawn into a framebuffer of its own size, the
         projection narrowed to it (None: the whole frame's); the frame's size decides the samples."""
-        validate_rect(rect, size)
         started = time.perf_counter()
         slot = tuple(rect.as_list()) if slot is None else slot
         frame, whole = size, rect
-        if window is not None:
-            validate_rect(window, size)
-            size, rect = (window.w, window.h), Rect(rect.x - window.x, rect.y - window.y, rect.w, rect.h)
-            validate_rect(rect, size)
+        size, rect = windowed(size, rect, window)
         antialiasing = self.antialiasing.for_size(frame)
         kx, ky = antialiasing.grid
         if subsample is None:   # a filtered frame reads textures one level finer than its samples' spacing would
@@ -349,26 +358,28 @@ class TileRenderer:
     def render_layer(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray | None = None,
                      slot: Hashable | None = None, state: SceneState | None = None,
                      blend_apart: bool = False, subsample: Subsample | None = None,
-                     lod_error_px: float = 0.0) -> RenderedTile:
+                     lod_error_px: float = 0.0, window: Rect | None = None) -> RenderedTile:
         """A depth layer: the ``rect`` part of the ``size`` frame as :meth:`render_tile` draws it in
         scene ``state``, but of the chunks ``chunk_ids`` (K,) (sorted, unique; None: those the rect's
         culling keeps, ``slot`` naming it as there; of hidden ones nothing), and of moved objects
         what the rect's culling keeps where they are now (``blend_apart``: their blended batches left
-        to :meth:`render_blend`), with its depth read back as well; ``subsample`` and
-        ``lod_error_px`` as there (levels of detail are for layers that draw all of a scene's
-        chunks they see: a sort-last share's)."""
-        validate_rect(rect, size)
+        to :meth:`render_blend`), with its depth read back as well; ``subsample``, ``lod_error_px``
+        and ``window`` as there (levels of detail are for layers that draw all of a scene's chunks
+        they see: a sort-last share's)."""
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
-        cut = self.level_cut(camera, size, lod_error_px if subsample is None else 0.0)
+        frame, whole = size, rect
+        size, rect = windowed(size, rect, window)
+        pose, matrix, moved = self._posed(camera, frame, rect, state, subsample, window)
+        cut = self.level_cut(camera, frame, lod_error_px if subsample is None else 0.0)
         if chunk_ids is None:
-            culled = self.culler.cull(tuple(rect.as_list()) if slot is None else slot, matrix, size, rect, cut)
+            culled = self.culler.cull(tuple(whole.as_list()) if slot is None else slot, matrix, size, rect, cut)
         else:
             culled = self.culler.listed(chunk_ids, matrix, cut)
-        return self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
+        tile = self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None,
                             lod_bias=0.0 if subsample is None else subsample.lod_bias,
                             coarse=self._coarse(cut, matrix, size, rect, pose))
+        return tile if window is None else dataclasses.replace(tile, rect=whole)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
@@ -416,7 +427,7 @@ class TileRenderer:
 
     def render_blend(self, camera: Camera, size: tuple[int, int], rect: Rect, chunk_ids: np.ndarray,
                      under: np.ndarray, state: SceneState | None = None,
-                     subsample: Subsample | None = None) -> BlendedFragments:
+                     subsample: Subsample | None = None, window: Rect | None = None) -> BlendedFragments:
         """Blended chunks ``chunk_ids`` (sorted, unique) in front of the layer :meth:`render_layer`
         has drawn of the same ``rect``, camera, size and ``state``, whose depth is ``under``
         (rect.h, rect.w) float32. Peeling: pass j keeps the fragments between the (j−1)-th depth
@@ -425,9 +436,11 @@ class TileRenderer:
         accumulated in draw order (:data:`BLEND_ACCUMULATE`) into a cleared buffer, as GL blends
         them over whatever the compositor finds behind them. Moved objects' blended batches are drawn
         with them, culled to ``rect`` where they are now (:meth:`render_layer` with ``blend_apart``
-        leaves them out); ``subsample`` as the layer's."""
+        leaves them out); ``subsample`` and ``window`` as the layer's."""
         started = time.perf_counter()
-        pose, matrix, moved = self._posed(camera, size, rect, state, subsample)
+        frame = size
+        size, rect = windowed(size, rect, window)
+        pose, matrix, moved = self._posed(camera, frame, rect, state, subsample, window)
         culled = self.culler.listed(chunk_ids)
         framebuffer = self.framebuffers.get(size)
         gl_box = (rect.x, size[1] - rect.y1, rect.w, rect.h)

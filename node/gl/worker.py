@@ -355,19 +355,22 @@ class GLWorker:
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,
                            subsample: Subsample | None = None, tools: ViewTools | None = None,
-                           lod_error_px: float = 0.0, points: PointStyle = (None, None)) -> DepthRender:
+                           lod_error_px: float = 0.0, points: PointStyle = (None, None),
+                           area: Rect | None = None, window: Rect | None = None) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
-        version; ``subsample`` and ``tools`` as :meth:`render`'s; sort-last layers at the levels of
+        version over the tile's ``area`` (None: the whole frame; a poster's piece, in its
+        ``window``); ``subsample`` and ``tools`` as :meth:`render`'s; sort-last layers at the levels of
         detail within ``lod_error_px`` (hybrid layers at full detail: a coarse node spans chunks
         other tiles own); a point cloud's sort-last layer within the ``points`` budget, unshaded (the
         coordinator shades the merged frame). Raises SceneNotLoadedError for a scene or share not held."""
         return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools,
-                                lod_error_px, points)
+                                lod_error_px, points, area, window)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                      tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None)) -> DepthRender:
+                      tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None),
+                      area: Rect | None = None, window: Rect | None = None) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
         renderer.use_tools(tools)
@@ -375,16 +378,18 @@ class GLWorker:
         if isinstance(renderer, PointRenderer):
             if request.mode != "sort-last":
                 raise ValueError("point clouds are drawn in the sort-first and sort-last modes, not hybrid")
+            if window is not None or (area is not None and area != Rect(0, 0, *size)):
+                raise ValueError("a point cloud's sort-last layer is drawn over the whole frame")
             renderer.point_size = points[1] or DEFAULT_POINT_SIZE
             layer = renderer.render_layer(camera, size, points[0], subsample)
             return DepthRender(layer, None, None, 0.0, share)
         assert held.planning is not None
-        plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id)
+        plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id, area)
         plan_ms = (time.perf_counter() - started) * 1e3
         if plan is None:
             return DepthRender(None, None, None, plan_ms, share)
         layer, blend = render_plan(renderer, camera, size, plan, state, subsample,
-                                   lod_error_px if request.mode == "sort-last" else 0.0)
+                                   lod_error_px if request.mode == "sort-last" else 0.0, window)
         return DepthRender(layer, plan.exclusive, blend, plan_ms, share)
 
     async def pick(self, request: Pick) -> PickHit | None:

@@ -16,8 +16,9 @@ from tessera.wire.depth_tiles import DecodedDepthTile
 
 def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], background: np.ndarray,
                    exclusive: Iterable[tuple[Rect, np.ndarray]] = (), blends: Iterable[BlendLayer] = (),
-                   depth_out: np.ndarray | None = None) -> np.ndarray:
-    """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame, ``background``
+                   depth_out: np.ndarray | None = None, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """(h, w, 3) uint8: ``layers`` merged by depth into a ``size`` = (w, h) frame (its top left
+    pixel ``origin`` (x, y) of the frame the rects are in: a poster's piece), ``background``
     (3,) uint8 where none drew, the ``blends`` laid over it in slot order (at each pixel the
     accumulation of the m fragments in front of the merged depth: its colour + (255 − alpha) / 255
     × what is there, rounded), then the ``exclusive`` (rect, (rect.h, rect.w, 3) uint8 colour)
@@ -45,8 +46,12 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
     color[0] = np.asarray(background, np.uint8)
     color[1:] = color[0]   # whole rows: broadcasting the pixel over (h, w) is ~100x slower
     pixels = pixel_view(color)
+
+    def placed(rect: Rect) -> Rect:
+        return Rect(rect.x - origin[0], rect.y - origin[1], rect.w, rect.h)
+
     for layer in ordered:
-        rect = layer.rect
+        rect = placed(layer.rect)
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
             raise ValueError(f"layer {rect.as_list()} lies outside the {width}x{height} frame")
         window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
@@ -54,7 +59,7 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
         np.minimum(depth[window], layer.depth, out=depth[window])
         np.copyto(pixels[window], pixel_view(layer.color), where=wins)
     for blend in sorted(blends, key=lambda item: item.slot):
-        rect = blend.rect
+        rect = placed(blend.rect)
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height:
             raise ValueError(f"blend layer {rect.as_list()} lies outside the {width}x{height} frame")
         window = np.s_[rect.y:rect.y1, rect.x:rect.x1]
@@ -65,7 +70,8 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
         through = (255.0 - blend.alpha[layer, rows, columns].astype(np.float32))[:, None] / np.float32(255.0)
         mixed = blend.color[layer, rows, columns].astype(np.float32) + through * under
         color[window][rows, columns] = np.minimum(np.rint(mixed), 255.0).astype(np.uint8)
-    for rect, region in exclusive:
+    for frame_rect, region in exclusive:
+        rect = placed(frame_rect)
         if rect.x < 0 or rect.y < 0 or rect.x1 > width or rect.y1 > height or region.shape != (rect.h, rect.w, 3):
             raise ValueError(f"exclusive region {rect.as_list()} with colour {region.shape} does not fit the "
                              f"{width}x{height} frame")
@@ -74,12 +80,13 @@ def merge_by_depth(layers: Iterable[DepthLayer], size: tuple[int, int], backgrou
 
 
 def merge_depth_tiles(tiles: Sequence[DecodedDepthTile], size: tuple[int, int], background: np.ndarray,
-                      with_depth: bool = False) -> Any:
-    """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame, ``background``
+                      with_depth: bool = False, origin: tuple[int, int] = (0, 0)) -> Any:
+    """(h, w, 3) uint8: every tile's layers merged by depth over the ``size`` frame (at ``origin``
+    of theirs, :func:`merge_by_depth`), ``background``
     (3,) uint8 where none drew, their blend layers laid over it
     (:func:`merge_by_depth`); ``with_depth``: (that, the merged window depth (h, w) float32). Cores
     are not pasted: they are published as they came (:func:`tessera.decomposition.hybrid.hybrid_frame_tiles`)."""
     depth = np.empty((size[1], size[0]), np.float32) if with_depth else None
     color = merge_by_depth([layer for tile in tiles for layer in tile.layers], size, background,
-                           blends=[blend for tile in tiles for blend in tile.blends], depth_out=depth)
+                           blends=[blend for tile in tiles for blend in tile.blends], depth_out=depth, origin=origin)
     return (color, depth) if with_depth else color

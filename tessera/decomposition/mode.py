@@ -68,6 +68,11 @@ class DecompositionMode(ABC):
         """Frames may start (sort-last: every share of the newest data partition is loaded)."""
         return True
 
+    def job_nodes(self) -> tuple[int, ...] | None:
+        """The nodes that each draw every tile of a render job (sort-last: a share each, merged by
+        depth; empty: none now, a share still loading); None: any one node holding the scene does."""
+        return None
+
     def take_timings(self, frame_id: int, timings: tuple[TileTiming, ...]) -> bool:
         """An interactive frame's tile timings for the next partition; True when taken."""
         return self.tiles.take_timings(frame_id, timings)

@@ -49,6 +49,11 @@ class SortLast(DecompositionMode):
     def can_start(self) -> bool:
         return self.shares.complete
 
+    def job_nodes(self) -> tuple[int, ...]:
+        """Every holder of a share of the newest data partition, once all are loaded."""
+        plan = self.shares.plan
+        return tuple(plan.holders) if plan is not None and self.shares.complete else ()
+
     def nodes_changed(self, weights: Mapping[int, float]) -> dict[int, ShareSpec | None]:
         """A new data partition over the nodes of ``weights``, weighted by their speeds."""
         for node_id in list(self.shares.loaded):
@@ -65,23 +70,26 @@ class SortLast(DecompositionMode):
             self.shares.share_loaded(node_id, share)
 
     def read_depth_tile(self, job: FrameJob, header: TileHeader, payload: bytes) -> DecodedDepthTile:
-        """Pieces inside the frame, drawn from the frame's data partition; ProtocolError if not."""
+        """Pieces inside the tile (the frame; a render job's piece), drawn from the frame's data
+        partition; ProtocolError if not."""
         assert job.depth is not None
-        tile = read_depth_tile(payload, Rect(0, 0, *job.size), None, header.tile_id)
+        tile = read_depth_tile(payload, job.tiles[header.tile_id].rect, None, header.tile_id)
         if tile.version != job.depth.share:
             raise ProtocolError(f"depth tile drawn from the share of partition {tile.version}, the frame's is "
                                 f"{job.depth.share}")
         return tile
 
     def viewer_tiles(self, job: FrameJob, slot_of: SlotOf) -> list[ViewerTile]:
-        """The merge, one image."""
+        """The merge, one image of the tiles' rect (the frame; a render job's piece)."""
         tiles = [t.depth_tile for t in job.tiles if t.depth_tile is not None]
+        area = job.tiles[0].rect
         if job.eye_dome is not None:     # a point cloud: shaded by EDL once merged (issue 36)
-            color, depth = merge_depth_tiles(tiles, job.size, self.background, with_depth=True)
+            color, depth = merge_depth_tiles(tiles, (area.w, area.h), self.background, with_depth=True,
+                                             origin=(area.x, area.y))
             merged = eye_dome(color, depth, *job.eye_dome)
         else:
-            merged = merge_depth_tiles(tiles, job.size, self.background)
-        return [(Rect(0, 0, *job.size), job.codec, NO_NODE_SLOT, encode(merged, job.codec, job.jpeg_quality))]
+            merged = merge_depth_tiles(tiles, (area.w, area.h), self.background, origin=(area.x, area.y))
+        return [(area, job.codec, NO_NODE_SLOT, encode(merged, job.codec, job.jpeg_quality))]
 
     def describe(self) -> dict[str, Any]:
         """The newest data partition (its version, shares, their holders and weights) and whether

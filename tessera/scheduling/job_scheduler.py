@@ -18,7 +18,10 @@ actions out, the clock passed in) that also hands out render jobs' work:
 * **Frames of one tile.** A job tile is a frame of its own (:class:`FrameJob` with ``job`` and
   ``item``), of its session's scene and of the state, clip and selection the job was made with,
   lossless (raw from the coordinator's machine, else PNG; the coordinator sizes pieces to fit a
-  node's messages), in a still's sample's jitter; it is
+  node's messages), in a still's sample's jitter. In sort-last (each node holds a share) it is
+  a tile per share over the same piece, each drawn by the share's holder with depth, started when
+  every holder is free and merged by depth on the coordinator as a progressive still's sample is;
+  a new data partition hands the session's job tiles in flight back to their jobs. A job tile is
   never the session's frame (it neither supersedes nor is superseded by them). A tile that fails
   or whose node lags goes to another node as any tile does; one whose node leaves is handed back
   to its job and drawn again; a complete one is published (:class:`PublishFrame`) for the
@@ -35,6 +38,7 @@ from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.node_table import NodeSchedule
 from tessera.scheduling.render_jobs import CANCELLED, JobItem, RenderWork
 from tessera.scheduling.scheduler import FrameScheduler
+from tessera.scheduling.session_frames import SessionFrames
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError, TileHeader
 
@@ -98,6 +102,16 @@ class JobScheduler(FrameScheduler):
                 self._drop(job, now, hand_back=True)
         self._advance(now)
 
+    def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
+                     force: bool = False) -> bool:
+        """As the frame scheduler does; a new data partition (sort-last) drops the session's job
+        tiles in flight (drawn from the old shares) and hands them back to their jobs."""
+        changed = super()._repartition(session, now, joined, force)
+        if changed:
+            for job in [job for job in self.in_flight.values() if job.job is not None and job.session == session.id]:
+                self._drop(job, now, hand_back=True)
+        return changed
+
     def receive_tile(self, node_id: int, header: TileHeader, payload: bytes, now: float) -> FrameJob | None:
         """As the frame scheduler does; a tile of a dropped job tile is checked against its picture's
         size (larger than any session's frame) and then ignored."""
@@ -156,31 +170,49 @@ class JobScheduler(FrameScheduler):
         waiting = [work for work in self.jobs.values() if work.waiting]
         if not waiting:
             return
-        free = self.table.wanting_work(self.in_flight, now) if self._quiet(now) else set(self.table.idle)
+        free = set(self.table.wanting_work(self.in_flight, now) if self._quiet(now) else self.table.idle)
         for node in sorted((self.nodes[i] for i in free), key=lambda n: (-n.speed, n.node_id)):
-            holding = [work for work in waiting if node.node_id in self.sessions[work.spec.session].ready]
+            holding = [work for work in waiting if self._may_draw(work, node.node_id, free)]
             if not holding:
                 continue
             work = min(holding, key=lambda w: self.fair.served.get(w.spec.session, 0.0))   # then the oldest
             item = work.take()
             if item is not None:
-                self._start_job_tile(work, item, node, now)
+                free -= self._start_job_tile(work, item, node, now)
             waiting = [work for work in waiting if work.waiting]
             if not waiting:
                 return
 
-    def _start_job_tile(self, work: RenderWork, item: JobItem, node: NodeSchedule, now: float) -> None:
+    def _may_draw(self, work: RenderWork, node_id: int, free: set[int]) -> bool:
+        """Node ``node_id`` (of the ``free`` ones) may start a tile of ``work``: it holds its
+        session's scene, and in sort-last every share's holder is free (each draws the tile)."""
+        session = self.sessions[work.spec.session]
+        shares = session.mode.job_nodes()
+        if shares is None:
+            return node_id in free and node_id in session.ready
+        return node_id in shares and free.issuperset(shares) and session.ready.issuperset(shares)
+
+    def _start_job_tile(self, work: RenderWork, item: JobItem, node: NodeSchedule, now: float) -> set[int]:
+        """Start ``item`` on ``node`` (sort-last: on every share's holder, as a frame's depth tiles
+        over the piece, merged on the coordinator as a still's sample is); returns the nodes it went to."""
         spec = work.spec
         rect, window = work.pieces[item.piece]
-        codec = Codec.RAW if node.local else Codec.PNG
-        job = FrameJob.create(self.next_frame_id, spec.cameras[item.picture], spec.size, codec, 95,
-                              Partition((Tile(rect, node.node_id),)), now, still=True, version=-1, state=spec.state,
-                              session=spec.session, scene=spec.scene, sample=item.sample, plan=spec.plan,
-                              clip=spec.clip, highlight=spec.highlight)
+        mode = self.sessions[spec.session].mode
+        shares = mode.job_nodes()
+        drawers = [node] if shares is None else [self.nodes[node_id] for node_id in shares]
+        # a sort-last tile is all depth (no core): its picture, merged, never leaves the coordinator
+        codec = Codec.RAW if node.local or shares is not None else Codec.PNG
+        partition = Partition(tuple(Tile(rect, drawer.node_id) for drawer in drawers))
+        job = FrameJob.create(self.next_frame_id, spec.cameras[item.picture], spec.size, codec, 95, partition, now,
+                              still=True, version=-1, state=spec.state, session=spec.session, scene=spec.scene,
+                              depth=None if shares is None else mode.depth_request(partition), sample=item.sample,
+                              plan=spec.plan, clip=spec.clip, highlight=spec.highlight)
         job.job, job.item, job.window = work.job_id, item, window
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
-        self._push(job, node, [0], now)
+        for index, drawer in enumerate(drawers):
+            self._push(job, drawer, [index], now)
+        return {drawer.node_id for drawer in drawers}
 
     def _drop(self, job: FrameJob, now: float, hand_back: bool) -> None:
         """Drop job tile ``job`` (nodes skip it if still queued); ``hand_back``: its item is drawn again."""
