@@ -1,7 +1,8 @@
 """What users do with a model on the live service (issue 35): picking, a section box, a poster, a
 film, each on a coordinator with N local nodes and its defaults.
 
-``python -m bench.tools KIND [--scene S] [--nodes 3] [--size WxH] [--json OUT]`` with KIND one of:
+``python -m bench.tools KIND [--scene S] [--nodes 3] [--size WxH] [--mode M] [--json OUT]`` with KIND
+one of (``--mode``: the coordinator's decomposition mode, sort-first by default):
 
 * ``pick``: while a scripted user turns the camera (``PUT /api/camera`` at 30 Hz), ``--picks``
   picks of pixels near the middle, one at a time; each pick's time (request to answer) in ms and
@@ -17,6 +18,9 @@ film, each on a coordinator with N local nodes and its defaults.
 * ``film``: a ``--seconds`` orbit at ``--fps`` of ``--size``: wall time from the request to the MP4,
   the frames' node time (the job's ``node_ms``), wall ÷ (node time ÷ nodes), and the frames the
   MP4 plays back (PyAV).
+
+Posters and films also report the coordinator process's CPU time while the job ran and the part
+of it spent merging depth tiles (sort-last).
 
 Everything shares this machine's cores with whatever else runs: the figures come with the load
 average before and after.
@@ -44,6 +48,7 @@ from PIL import Image
 
 from bench.images import psnr
 from bench.processes import PYTHON, REPO, orbit, show_result, start_coordinator
+from tessera.decomposition.modes import MODES
 
 DEFAULT_SCENE = str(REPO.parent / "shared" / "scenes" / "large_scan" / "threedscans_pan_990k.ply")
 
@@ -195,6 +200,9 @@ def bench_section(service: Service, seconds: float, fraction: float, scene: str)
 
 
 def run_job(service: Service, route: str, body: dict[str, Any]) -> tuple[dict[str, Any], float, bytes]:
+    """A job's final state (with ``coordinator_cpu_s`` and ``merge_s``: the coordinator process's CPU
+    time and its depth merging's while it ran), its wall time (s) and its output."""
+    before = service.call("/api/stats")["coordinator_cpu"]
     started = time.perf_counter()
     job = service.call(f"/api/{route}", "POST", body)["id"]
     state = service.wait(lambda: (s := service.call(f"/api/{route}/{job}"))["state"] not in ("queued", "rendering")
@@ -202,6 +210,9 @@ def run_job(service: Service, route: str, body: dict[str, Any]) -> tuple[dict[st
     wall = time.perf_counter() - started
     if state["state"] != "done":
         raise RuntimeError(f"{route} {job}: {state}")
+    after = service.call("/api/stats")["coordinator_cpu"]
+    state["coordinator_cpu_s"] = round((after["process_ms"] - before["process_ms"]) / 1e3, 1)
+    state["merge_s"] = round((after["merge_ms"] - before["merge_ms"]) / 1e3, 1)
     suffix = "png" if route == "posters" else "mp4"
     return state, wall, service.call(f"/api/{route}/{job}.{suffix}")
 
@@ -219,7 +230,8 @@ def bench_poster(service: Service, poster: tuple[int, int], samples: int) -> dic
         state, wall, _ = run_job(service, "posters", {"size": list(size), "samples": samples})
         pixels = size[0] * size[1] * samples
         out[name] = {"size": list(size), "samples": samples, "wall_s": round(wall, 1),
-                     "node_ms": state["node_ms"], "node_ms_per_mpx_sample": round(state["node_ms"] / pixels * 1e6, 1)}
+                     "node_ms": state["node_ms"], "node_ms_per_mpx_sample": round(state["node_ms"] / pixels * 1e6, 1),
+                     "coordinator_cpu_s": state["coordinator_cpu_s"], "merge_s": state["merge_s"]}
     out["per_pixel_ratio"] = round(out["poster"]["node_ms_per_mpx_sample"]
                                    / out["frame_size"]["node_ms_per_mpx_sample"], 3)
     return out
@@ -237,7 +249,8 @@ def bench_film(service: Service, seconds: float, fps: float, samples: int) -> di
     ideal_s = state["node_ms"] / 1000.0 / service.nodes
     return {"frames": state["total"], "played_back": played, "size": size, "samples": samples,
             "wall_s": round(wall, 1), "node_ms": state["node_ms"], "node_s_per_node": round(ideal_s, 1),
-            "wall_over_node_time": round(wall / ideal_s, 3)}
+            "wall_over_node_time": round(wall / ideal_s, 3), "coordinator_cpu_s": state["coordinator_cpu_s"],
+            "merge_s": state["merge_s"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -246,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene", default=DEFAULT_SCENE)
     parser.add_argument("--nodes", type=int, default=3)
     parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--mode", choices=MODES, default="sort-first", help="the coordinator's decomposition mode")
     parser.add_argument("--picks", type=int, default=30)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--box", type=float, default=0.3, help="the section box's share of the scene along x")
@@ -257,7 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     before = load()
-    service = Service(args.scene, args.nodes, size, args.server_args.split())   # type: ignore[arg-type]
+    service = Service(args.scene, args.nodes, size,   # type: ignore[arg-type]
+                      ["--mode", args.mode, *args.server_args.split()])
     try:
         if args.kind == "pick":
             figures = bench_pick(service, args.picks)
@@ -270,7 +285,8 @@ def main(argv: list[str] | None = None) -> int:
             figures = bench_film(service, args.seconds, args.fps, args.samples)
     finally:
         service.stop()
-    result = {"kind": args.kind, "scene": Path(args.scene).name, "nodes": args.nodes, "size": list(size),
+    result = {"kind": args.kind, "scene": Path(args.scene).name, "nodes": args.nodes, "mode": args.mode,
+              "size": list(size),
               **figures, "load_before": before, "load_after": load()}
     show_result(json.dumps(result, indent=2), result, args.json, argv)
     return 0

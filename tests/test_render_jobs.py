@@ -205,8 +205,9 @@ def test_a_dropped_job_tile_that_comes_late_is_ignored_not_refused() -> None:
 
 
 def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_back() -> None:
-    """Sort-last: a job tile is one depth tile per share over the same piece, started when every
-    holder is free, published once all are in; a node joining (a new data partition) hands it back."""
+    """Sort-last: a job tile is one depth tile per share over the same piece, started when a holder
+    is free and the others at most on their last tile, published once all are in; a node joining
+    (a new data partition) hands it back."""
     s = JobScheduler(SchedulerConfig(size=(64, 32), mode="sort-last", max_fps=1e6, settle_frames=0, still_codec=None),
                      StaticBalancer())
     for node_id in (1, 2):
@@ -225,12 +226,16 @@ def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_ba
     assert all(r.message.depth is not None and r.message.depth.share == version for r in renders)
     s.tile_arrived(1, TileHeader(frame_id, 0, job.tiles[0].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
                    DecodedDepthTile(version, None, ()))
-    assert not [a for a in s.drain() if isinstance(a, (PublishFrame, RenderTiles))], "node 2's share is not in"
+    actions = s.drain()
+    assert not [a for a in actions if isinstance(a, PublishFrame)], "node 2's share is not in"
+    renders = [a for a in actions if isinstance(a, RenderTiles)]
+    assert sorted(r.node_id for r in renders) == [1, 2], "node 1 is free, node 2 on its last tile: the next goes"
+    (following,) = {r.message.frame for r in renders}
     s.tile_arrived(2, TileHeader(frame_id, 1, job.tiles[1].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
                    DecodedDepthTile(version, None, ()))
     actions = s.drain()
     assert [a.job.item for a in actions if isinstance(a, PublishFrame)] == [JobItem(0, 0, 0)]
-    (following,) = {a.message.frame for a in actions if isinstance(a, RenderTiles)}
+    assert all(len(node.outstanding) <= 2 for node in s.nodes.values()), "at most one queued behind the last"
     item = s.in_flight[following].item
     s.add_node(3, 0.2)
     assert following not in s.in_flight and item in work.again, "drawn from the old shares: handed back"

@@ -69,7 +69,8 @@ def test_a_poster_at_the_session_s_size_is_its_still(coordinator) -> None:
     assert picture.std() > 2.0, "the poster is blank"
 
 
-@pytest.mark.parametrize("size, samples", [((800, 450), 3), ((4400, 64), 1)], ids=["800x450", "two-windows"])
+@pytest.mark.parametrize("size, samples", [((800, 450), 3), ((2048, 2048), 1), ((4400, 64), 1)],
+                         ids=["800x450", "2048x2048", "two-windows"])
 def test_a_sort_last_poster_equals_render_once(coordinator, tmp_path, size, samples: int) -> None:
     _, client = coordinator
     client.put("/api/camera", json=CAMERA).raise_for_status()

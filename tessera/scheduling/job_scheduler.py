@@ -20,7 +20,8 @@ actions out, the clock passed in) that also hands out render jobs' work:
   lossless (raw from the coordinator's machine, else PNG; the coordinator sizes pieces to fit a
   node's messages), in a still's sample's jitter. In sort-last (each node holds a share) it is
   a tile per share over the same piece, each drawn by the share's holder with depth, started when
-  every holder is free and merged by depth on the coordinator as a progressive still's sample is;
+  one holder is free and the others too (while no session draws: at most on their last tile), and
+  merged by depth on the coordinator as a progressive still's sample is;
   a new data partition hands the session's job tiles in flight back to their jobs. A job tile is
   never the session's frame (it neither supersedes nor is superseded by them). A tile that fails
   or whose node lags goes to another node as any tile does; one whose node leaves is handed back
@@ -170,27 +171,35 @@ class JobScheduler(FrameScheduler):
         waiting = [work for work in self.jobs.values() if work.waiting]
         if not waiting:
             return
-        free = set(self.table.wanting_work(self.in_flight, now) if self._quiet(now) else self.table.idle)
+        quiet = self._quiet(now)
+        free = set(self.table.wanting_work(self.in_flight, now) if quiet else self.table.idle)
+        # sort-last: the other holders may be on their last tile still (while quiet), so that one
+        # slower share does not leave the others idle at every piece
+        behind = {n.node_id for n in self.nodes.values() if n.schedulable and len(n.outstanding) <= 1} if quiet \
+            else set(free)
         for node in sorted((self.nodes[i] for i in free), key=lambda n: (-n.speed, n.node_id)):
-            holding = [work for work in waiting if self._may_draw(work, node.node_id, free)]
+            holding = [work for work in waiting if self._may_draw(work, node.node_id, free, behind)]
             if not holding:
                 continue
             work = min(holding, key=lambda w: self.fair.served.get(w.spec.session, 0.0))   # then the oldest
             item = work.take()
             if item is not None:
-                free -= self._start_job_tile(work, item, node, now)
+                started = self._start_job_tile(work, item, node, now)
+                free -= started
+                behind -= started
             waiting = [work for work in waiting if work.waiting]
             if not waiting:
                 return
 
-    def _may_draw(self, work: RenderWork, node_id: int, free: set[int]) -> bool:
+    def _may_draw(self, work: RenderWork, node_id: int, free: set[int], behind: set[int]) -> bool:
         """Node ``node_id`` (of the ``free`` ones) may start a tile of ``work``: it holds its
-        session's scene, and in sort-last every share's holder is free (each draws the tile)."""
+        session's scene; in sort-last it holds a share and every other holder is free or, while no
+        session draws, on its last tile (``behind``): each draws the tile."""
         session = self.sessions[work.spec.session]
         shares = session.mode.job_nodes()
         if shares is None:
             return node_id in free and node_id in session.ready
-        return node_id in shares and free.issuperset(shares) and session.ready.issuperset(shares)
+        return node_id in shares and behind.issuperset(shares) and session.ready.issuperset(shares)
 
     def _start_job_tile(self, work: RenderWork, item: JobItem, node: NodeSchedule, now: float) -> set[int]:
         """Start ``item`` on ``node`` (sort-last: on every share's holder, as a frame's depth tiles

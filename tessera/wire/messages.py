@@ -483,7 +483,7 @@ class DepthRequest(BaseModel):
     (seed 000 §4.4): ``tiles`` is the frame's whole partition (tile ids index it; a node needs
     every tile to find which chunks its tile owns) and ``strip`` the border strip in pixels;
     "sort-last": ``share`` is the data partition version the node's share must be of, and its one
-    tile is the whole frame."""
+    tile is the whole frame (a render job's: a piece of the picture, drawn in ``window``)."""
 
     model_config = _FIELDS
     mode: Literal["hybrid", "sort-last"]
