@@ -32,6 +32,7 @@ actions out, the clock passed in) that also hands out render jobs' work:
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Collection
 
 from tessera.balancers.base import Partition, Tile
 from tessera.scheduling.actions import CancelFrames, PublishFrame
@@ -104,10 +105,10 @@ class JobScheduler(FrameScheduler):
         self._advance(now)
 
     def _repartition(self, session: SessionFrames, now: float, joined: int | None = None,
-                     force: bool = False) -> bool:
+                     force: bool = False, held: Collection[int] = ()) -> bool:
         """As the frame scheduler does; a new data partition (sort-last) drops the session's job
         tiles in flight (drawn from the old shares) and hands them back to their jobs."""
-        changed = super()._repartition(session, now, joined, force)
+        changed = super()._repartition(session, now, joined, force, held)
         if changed:
             for job in [job for job in self.in_flight.values() if job.job is not None and job.session == session.id]:
                 self._drop(job, now, hand_back=True)
