@@ -1,17 +1,19 @@
-"""Choosing levels of detail for a frame (issue 32), without GL: which nodes of a scene's
-:class:`node.scene.lod.LodTree` stand in for its full detail, for one camera and frame size.
+"""Choosing levels of detail for a frame (issue 32), without GL: which clusters of a scene's
+:class:`node.scene.lod.LodTree` (a cluster DAG) stand in for its full detail, for one camera and
+frame size.
 
-A node's error (world units) shows on screen as ``error · s / d`` pixels, where ``d`` is the distance
-from the eye to the nearest point of the node's box (0 inside it: never coarse there) and ``s`` the
+A group's error (world units) shows on screen as ``error · s / d`` pixels, where ``d`` is the
+distance from the eye to the nearest point of its box (0 inside it: never coarse there) and ``s`` the
 frame's pixels per unit at distance 1 (half its height over the tangent of half the vertical field
-of view). The coarsest node within ``error_px`` is drawn (:func:`lod_cut`): a node whose own error
-fits and whose parent's does not. Errors grow towards the root while boxes only grow, so a parent
-shows at least its children's error from any eye, and the chosen nodes and the leaves left at full
-detail tile the model exactly once.
+of view). A cluster is drawn when its own group's error fits ``error_px`` and its parent group's does
+not (:func:`lod_cut`); a leaf's chunks are left to the coarse levels when its parent group fits.
+Errors grow up the DAG while boxes only grow, so a group shows at least its inputs' errors from any
+eye: the groups that fit are closed under their inputs, and the clusters drawn and the leaves left at
+full detail cover the model exactly once.
 
 The choice depends on the camera, the frame's height and the bound only — not on the tile — so
 every tile of a frame, on every node, draws every part of the model at the same level, and tiles
-join as the whole frame (their borders are the nodes' locked borders, :mod:`node.scene.lod`).
+join as the whole frame (they meet on the groups' locked borders, :mod:`node.scene.lod`).
 """
 
 from __future__ import annotations
@@ -27,8 +29,8 @@ from tessera.geometry import Camera
 
 @dataclass(frozen=True, slots=True, eq=False)
 class LodCut:
-    """A frame's levels: ``nodes`` (K,) int64 the coarse nodes drawn (sorted), ``blocked_first`` /
-    ``blocked_end`` (K,) int64 the chunk ranges they stand in for (not drawn at full detail), sorted."""
+    """A frame's levels: ``nodes`` (K,) int64 the coarse clusters drawn (sorted), ``blocked_first`` /
+    ``blocked_end`` (J,) int64 the chunk ranges they stand in for (not drawn at full detail), sorted."""
 
     nodes: np.ndarray
     blocked_first: np.ndarray
@@ -36,7 +38,7 @@ class LodCut:
 
     @classmethod
     def full(cls) -> LodCut:
-        """Full detail: no coarse node."""
+        """Full detail: no coarse cluster."""
         empty = np.zeros(0, np.int64)
         return cls(empty, empty, empty)
 
@@ -57,25 +59,24 @@ def box_distances(eye: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 
 
 def projected_errors(tree: LodTree, camera: Camera, size: tuple[int, int]) -> np.ndarray:
-    """(N,) float64 each node's error on screen in pixels, seen from ``camera`` in a ``size`` frame
+    """(G,) float64 each group's error on screen in pixels, seen from ``camera`` in a ``size`` frame
     (infinite where the eye is inside its box)."""
     eye = np.asarray(camera.eye, np.float64)
-    distance = box_distances(eye, tree.boxes.astype(np.float64))
+    distance = box_distances(eye, tree.group_boxes.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = tree.error.astype(np.float64) * pixels_per_unit(camera, size) / distance
+        pixels = tree.group_error.astype(np.float64) * pixels_per_unit(camera, size) / distance
     return np.where(distance > 0.0, pixels, np.inf)
 
 
 def lod_cut(tree: LodTree | None, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
-    """The coarsest nodes whose error on screen is at most ``error_px`` (0 or no tree: full detail)."""
+    """The coarsest clusters whose error on screen is at most ``error_px`` (0 or no tree: full detail)."""
     if tree is None or error_px <= 0.0 or tree.node_count == 0:
         return LodCut.full()
     fits = projected_errors(tree, camera, size) <= error_px
-    parent = tree.parent
-    chosen = fits & ((parent < 0) | ~fits[np.maximum(parent, 0)])
-    nodes = np.flatnonzero(chosen)
-    order = np.argsort(tree.chunk_first[nodes], kind="stable")
-    return LodCut(nodes, tree.chunk_first[nodes][order], tree.chunk_end[nodes][order])
+    fits = np.append(fits, False)   # index −1 (no group) never fits
+    nodes = np.flatnonzero(fits[tree.own] & ~fits[tree.parent])
+    blocked = fits[tree.leaf_group]
+    return LodCut(nodes, tree.leaf_first_chunk[blocked], tree.leaf_end_chunk[blocked])
 
 
 def subtract_ranges(first: np.ndarray, end: np.ndarray, cut_first: np.ndarray,

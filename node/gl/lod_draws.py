@@ -1,5 +1,5 @@
 """The GL side of a scene's levels of detail (issue 32): their index buffer and vertex arrays, and
-per tile the indirect draw commands of the coarse nodes a frame's cut (:mod:`node.culling.lod`)
+per tile the indirect draw commands of the coarse clusters a frame's cut (:mod:`node.culling.lod`)
 chose that touch the tile. Use it on the GL thread only."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ BLOCK_INDICES = 1 << 21
 
 
 class LodDraws:
-    """``tree``'s coarse nodes on ``shaders``' context: their indices (batch-local in the tree) with
+    """``tree``'s coarse clusters on ``shaders``' context: their indices (batch-local in the tree) with
     each batch's first vertex (``vertex_bounds`` (B + 1,)) added, in a buffer of their own, drawn
     through vertex arrays of every program over it."""
 
@@ -30,7 +30,7 @@ class LodDraws:
         ctx: moderngl.Context = shaders.ctx
         self.tree = tree
         indices = tree.indices
-        # The tree's nodes come batch by batch: each batch's indices are one range of the buffer.
+        # The clusters come batch by batch: each batch's indices are one range of the buffer.
         batch_count = len(vertex_bounds) - 1
         first_node = np.searchsorted(tree.batch, np.arange(batch_count + 1), side="left")
         batch_index_bounds = tree.index_bounds[first_node]
@@ -57,7 +57,7 @@ class LodDraws:
     def tile_runs(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
                   clip: np.ndarray | None, skip: np.ndarray) -> DrawRuns:
         """:meth:`runs` of the tile ``rect`` of the (4, 4) full-frame ``matrix`` of a ``size`` frame, less
-        the nodes wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks."""
+        the clusters wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks."""
         planes = frustum_planes_from_matrix(matrix, size, rect)
         if clip is not None:
             planes = np.vstack((planes, clip))
@@ -68,8 +68,8 @@ class LodDraws:
         return int(self.index_buffer.size + self.commands.size)
 
     def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None) -> DrawRuns:
-        """The cut's nodes touching the tile of ``planes`` (None: all of them), but those of the
-        batches ``skip`` (B,) marks, as index runs of this buffer (one per node, batch by batch),
+        """The cut's clusters touching the tile of ``planes`` (None: all of them), but those of the
+        batches ``skip`` (B,) marks, as index runs of this buffer (one per cluster, batch by batch),
         written to :attr:`commands`."""
         nodes = cut.nodes
         if skip is not None and nodes.size:

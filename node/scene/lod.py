@@ -1,84 +1,105 @@
-"""Levels of detail (issue 32): a tree of coarser versions of a scene's big batches, built once per
-scene cache entry and stored beside it. No GL here; the per-frame choice is :mod:`node.culling.lod`.
+"""Levels of detail (issue 32): a cluster DAG of coarser versions of a scene's big batches (as
+Nanite's), built once per scene cache entry and stored beside it. No GL here; the per-frame choice is
+:mod:`node.culling.lod`.
 
-A batch's chunks, in their Morton order, are cut into **leaves** of about :data:`LEAF_FACES` faces
-(runs of whole chunks: neighbours in space). Every :data:`FANOUT` consecutive leaves get a parent:
-their faces simplified together to about a quarter (meshoptimizer's ``simplify``, the group's border
-locked), then every :data:`FANOUT` parents a grandparent simplified from the parents' faces, and so
-on up to one root a batch, or until a level no longer halves its input (its locked border left
-nothing to remove). The coarse levels index the scene's own vertices: they add indices only (about
-a third of the full level's when every level quarters its input).
+A batch's chunks, in their Morton order, are cut into **leaves** of about :data:`CLUSTER_FACES`
+faces (runs of whole chunks): the full-detail clusters. Each level then **groups** the clusters of
+the level below that share the most border (a greedy merge of neighbours up to about
+:data:`GROUP_FACES` faces), simplifies each group's faces to about :data:`KEEP` of them with the
+group's border locked (meshoptimizer's ``simplify``), and **splits** the result into clusters of
+about :data:`CLUSTER_FACES` faces (runs of its triangles in Morton order). The next level regroups
+those with other neighbours, so a border locked at one level lies inside a group at the next and is
+simplified there: the coarse levels halve and halve again, down to a few clusters a batch (a level
+stops where no group could be simplified to at most :data:`MAX_KEPT` of its faces).
 
-Every node's border is its region's border at full detail, locked at every level, so the nodes of
-any cut of the tree — any mix of levels — meet edge to edge: no cracks where the model has none.
-Each node's ``error`` is meshoptimizer's absolute deviation of its simplification plus its children's
-largest error, in world units: it only grows towards the root, as a node's box only grows, so the
-error a node shows on screen from any eye is at least any of its descendants' (the cut is then
-found level-free, :func:`node.culling.lod.lod_cut`).
+A **group** is replaced whole: its clusters all carry its ``group_error`` (meshoptimizer's absolute
+deviation plus its inputs' largest, world units) and ``group_boxes`` (around its inputs' groups'),
+and its inputs all carry it as their ``parent``. Errors and boxes only grow up the DAG, so a group
+shows on screen at least its inputs' errors from any eye, and drawing every cluster whose own group
+fits a bound and whose parent does not (:func:`node.culling.lod.lod_cut`) covers the model exactly
+once; the clusters of groups drawn side by side meet on locked borders: no cracks where the model has
+none. The coarse levels index the scene's own vertices: they add indices only (about a third of the
+full level's when each level keeps a quarter).
 
-The simplifier is meshoptimizer because it locks a submesh's border (a group's simplification must
-keep the edges it shares with its neighbours; why not another: see the design notes). Its calls
-release the GIL: the nodes of a level are simplified on :data:`WORKERS` threads.
+The simplifier is meshoptimizer because it locks a submesh's border. Its calls release the GIL:
+a level's groups are simplified on :data:`WORKERS` threads.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from node.scene.cache import CacheError, Progress, read_arrays, write_arrays
+from node.scene.chunks import SceneChunks
 from node.scene.data import SceneData
+from node.scene.octree import morton_codes
 
-#: Faces of a leaf (runs of whole chunks of about this many faces).
-LEAF_FACES = 2048
-#: Children per node.
-FANOUT = 4
-#: A node is made only when its simplification keeps at most this fraction of its children's faces.
+#: Faces of a leaf (runs of whole chunks of about this many) and of a coarse cluster.
+CLUSTER_FACES = 2048
+#: Faces a group gathers (neighbouring clusters of a level, about this many in all).
+GROUP_FACES = 8 * CLUSTER_FACES
+#: The fraction of its faces a group's simplification aims at.
+KEEP = 0.25
+#: A group's error is at most this many times its inputs' largest (it keeps more faces instead).
+GROWTH = 8.0
+#: A group is made only when its simplification keeps at most this fraction of its faces.
 MAX_KEPT = 0.5
 #: Batches of fewer faces than this get no levels (nothing to gain).
-MIN_FACES = 2 * FANOUT * LEAF_FACES
+MIN_FACES = GROUP_FACES
+#: Levels at most (each keeps at most :data:`MAX_KEPT`: far more than a batch needs).
+MAX_LEVELS = 48
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 1
+LOD_FORMAT = 2
 WORKERS = max(1, min(4, os.cpu_count() or 1))
+#: Corners whose clusters' adjacency is found at a time.
+BLOCK_CORNERS = 1 << 23
 
 
 @dataclass(frozen=True, eq=False)
 class LodTree:
-    """The levels of a scene: L leaves and N coarse nodes.
+    """The levels of a scene: L leaves, G groups and N coarse clusters (a DAG).
 
-    Leaves: ``leaf_chunks`` (L + 1,) int64: leaf i is the scene's chunks [leaf_chunks[i],
-    leaf_chunks[i + 1]) (leaves cover the chunks of the batches with levels, in order: their first
-    chunk, ``leaf_first_chunk`` (L,), and end ``leaf_end_chunk`` (L,)); ``leaf_parent`` (L,) int64
-    the node over it (−1: none).
+    Leaves: ``leaf_first_chunk`` / ``leaf_end_chunk`` (L,) int64 the scene chunks each covers (in
+    order); ``leaf_group`` (L,) int64 the group that simplified it (−1: none).
 
-    Nodes: ``batch`` (N,) int64; ``level`` (N,) int64 (1 over leaves); ``parent`` (N,) int64 (−1: a
-    root); ``error`` (N,) float32 world units; ``boxes`` (N, 2, 3) float32 [min, max];
-    ``index_bounds`` (N + 1,) int64: node n is ``indices[index_bounds[n]:index_bounds[n + 1]]``,
-    uint32 batch-local like the scene's own indices; ``chunk_first``/``chunk_end`` (N,) int64 the
-    scene chunks its region covers.
+    Groups: ``group_level`` (G,) int64 (1: made of leaves); ``group_error`` (G,) float32 world units;
+    ``group_boxes`` (G, 2, 3) float32 [min, max], around its inputs' groups' boxes.
+
+    Clusters: ``batch`` (N,) int64; ``own`` (N,) int64 the group that made it; ``parent`` (N,) int64
+    the group that simplified it in turn (−1: none); ``boxes`` (N, 2, 3) float32 around its
+    triangles; ``index_bounds`` (N + 1,) int64: cluster n is ``indices[index_bounds[n]:index_bounds[n
+    + 1]]``, uint32 batch-local like the scene's own indices, batch by batch. ``share_cluster``,
+    ``share_chunk``, ``share_triangles`` (P,) int64: how many of a cluster's triangles start at a
+    vertex of each chunk (where its triangles lie, for :func:`group_levels`).
     """
 
     leaf_first_chunk: np.ndarray
     leaf_end_chunk: np.ndarray
-    leaf_parent: np.ndarray
+    leaf_group: np.ndarray
+    group_level: np.ndarray
+    group_error: np.ndarray
+    group_boxes: np.ndarray
     batch: np.ndarray
-    level: np.ndarray
+    own: np.ndarray
     parent: np.ndarray
-    error: np.ndarray
     boxes: np.ndarray
     index_bounds: np.ndarray
-    chunk_first: np.ndarray
-    chunk_end: np.ndarray
     indices: np.ndarray
+    share_cluster: np.ndarray
+    share_chunk: np.ndarray
+    share_triangles: np.ndarray
 
     @property
     def node_count(self) -> int:
+        """Coarse clusters."""
         return int(self.batch.size)
 
     @property
@@ -87,167 +108,345 @@ class LodTree:
 
     @property
     def triangles(self) -> np.ndarray:
-        """(N,) int64 triangles of each node."""
+        """(N,) int64 triangles of each cluster."""
         return np.diff(self.index_bounds) // 3
+
+    @property
+    def level(self) -> np.ndarray:
+        """(N,) int64 each cluster's level (its group's)."""
+        return self.group_level[self.own]
+
+    @property
+    def error(self) -> np.ndarray:
+        """(N,) float32 each cluster's error (its group's)."""
+        return self.group_error[self.own]
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {name: np.asarray(getattr(self, name)) for name in self.__dataclass_fields__}
 
 
 def _leaves(face_counts: np.ndarray, first: int, end: int) -> np.ndarray:
-    """Chunk bounds (K + 1,) of runs of chunks [first, end) with about :data:`LEAF_FACES` faces each."""
+    """Chunk bounds (K + 1,) of runs of chunks [first, end) with about :data:`CLUSTER_FACES` faces each."""
     running = np.cumsum(face_counts[first:end])
-    cuts = np.searchsorted(running, np.arange(LEAF_FACES, running[-1], LEAF_FACES), side="left") + 1
+    cuts = np.searchsorted(running, np.arange(CLUSTER_FACES, running[-1], CLUSTER_FACES), side="left") + 1
     return np.unique(np.concatenate(([0], cuts, [end - first]))) + first
 
 
-def _simplify(indices: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, float]:
-    """(indices, absolute error) of ``indices`` (3T,) uint32 over ``positions`` (V, 3) float32
-    simplified to about a quarter, the submesh's border locked.
+def _weld(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(weld (V,) int64 the id of each vertex's position, first (W,) int64 the first vertex at each):
+    a scan split at texture or normal seams has borders everywhere, which would all be locked."""
+    bits = np.ascontiguousarray(positions, np.float32).view(np.uint32).astype(np.uint64)
+    key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
+        ^ (bits[:, 2] * np.uint64(0x165667B19E3779F9))
+    _, first, weld = np.unique(key, return_index=True, return_inverse=True)
+    if not np.array_equal(positions[first[weld.reshape(-1)]], positions):   # a hash collision: exact
+        rows = np.ascontiguousarray(positions, np.float32).view(np.dtype((np.void, 12))).reshape(-1)
+        _, first, weld = np.unique(rows, return_index=True, return_inverse=True)
+    return weld.reshape(-1).astype(np.int64), first.astype(np.int64)
 
-    Vertices at one position are welded first (a scan split at texture or normal seams has borders
-    everywhere, which would all be locked): the simplification sees the surface's own topology, and
-    its triangles index the first of the vertices at each position."""
+
+def _simplify(indices: np.ndarray, limit: float, positions: np.ndarray) -> tuple[np.ndarray, float]:
+    """(indices, absolute error) of ``indices`` (3T,) over ``positions`` (V, 3) float32 simplified to
+    about :data:`KEEP` of them, the submesh's border locked, or fewer where the error would pass
+    ``limit`` (world units)."""
     import meshoptimizer
 
     used, local = np.unique(indices, return_inverse=True)
-    points = np.ascontiguousarray(positions[used], np.float32)
-    keys = points.view(np.dtype((np.void, points.dtype.itemsize * 3))).reshape(-1)
-    _, first, welded = np.unique(keys, return_index=True, return_inverse=True)
-    local = welded.reshape(-1)[local.reshape(-1)].astype(np.uint32)
+    local = local.reshape(-1).astype(np.uint32)
     out = np.empty_like(local)
     error = np.zeros(1, np.float32)
     kept = meshoptimizer.simplify(
-        out, local, np.ascontiguousarray(points[first]), target_index_count=len(local) // FANOUT,
-        target_error=np.finfo(np.float32).max, options=meshoptimizer.SIMPLIFY_LOCK_BORDER |
-        meshoptimizer.SIMPLIFY_ERROR_ABSOLUTE, result_error=error)
-    return used[first[out[:kept]]].astype(np.uint32), float(error[0])
+        out, local, np.ascontiguousarray(positions[used], np.float32),
+        target_index_count=int(len(local) * KEEP) // 3 * 3, target_error=limit,
+        options=meshoptimizer.SIMPLIFY_LOCK_BORDER | meshoptimizer.SIMPLIFY_ERROR_ABSOLUTE, result_error=error)
+    return used[out[:kept]].astype(np.uint32), float(error[0])
+
+
+def _split(indices: np.ndarray, positions: np.ndarray) -> list[np.ndarray]:
+    """``indices`` (3T,) cut into clusters of about :data:`CLUSTER_FACES` triangles: runs of them in
+    the Morton order of their centres."""
+    parts = -(-(indices.size // 3) // CLUSTER_FACES)
+    if parts <= 1:
+        return [indices]
+    triangles = indices.reshape(-1, 3)
+    centres = positions[triangles].mean(axis=1)
+    lo = centres.min(axis=0)
+    side = max(float((centres.max(axis=0) - lo).max()), 1e-30)   # a cube: flat parts too
+    order = np.argsort(morton_codes(centres, lo, lo + side, 10), kind="stable")
+    cuts = np.linspace(0, len(triangles), parts + 1).round().astype(np.int64)
+    return [triangles[order[a:b]].reshape(-1) for a, b in itertools.pairwise(cuts)]
+
+
+def _adjacency(clusters: list[np.ndarray], weld: np.ndarray, welded: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pairs (P, 2) int64 of clusters that share border vertices, a < b; weights (P,) int64 their
+    shared corners) of ``clusters`` (index arrays over vertices that ``weld`` maps to ``welded`` ids)."""
+    low, high = np.full(welded, -1, np.int64), np.full(welded, -1, np.int64)
+    blocks, start, size = [], 0, 0
+    for number, cluster in enumerate(clusters):
+        size += cluster.size
+        if size >= BLOCK_CORNERS or number == len(clusters) - 1:
+            blocks.append((start, number + 1))
+            start, size = number + 1, 0
+
+    def corners(first: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+        ids = np.concatenate(clusters[first:end])
+        owner = np.repeat(np.arange(first, end), [c.size for c in clusters[first:end]])
+        return weld[ids], owner
+
+    for first, end in blocks:   # clusters in order: the last writer of a vertex is its highest cluster
+        vertex, owner = corners(first, end)
+        high[vertex] = owner
+    for first, end in reversed(blocks):
+        vertex, owner = corners(first, end)
+        low[vertex[::-1]] = owner[::-1]
+    keys = []
+    for first, end in blocks:
+        vertex, _ = corners(first, end)
+        a, b = low[vertex], high[vertex]
+        shared = a != b
+        keys.append(a[shared] * len(clusters) + b[shared])
+    pairs, weights = np.unique(np.concatenate(keys), return_counts=True)
+    return np.stack([pairs // len(clusters), pairs % len(clusters)], axis=1), weights
+
+
+def _partition(sizes: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> list[list[int]]:
+    """Groups of clusters with ``sizes`` (C,) faces: the smallest group merges with the neighbour it
+    shares most border with (``pairs`` (P, 2), ``weights`` (P,)) while they stay within
+    :data:`GROUP_FACES` faces."""
+    neighbours: list[dict[int, int]] = [{} for _ in range(len(sizes))]
+    for (a, b), weight in zip(pairs.tolist(), weights.tolist(), strict=True):
+        neighbours[a][b] = neighbours[a].get(b, 0) + weight
+        neighbours[b][a] = neighbours[b].get(a, 0) + weight
+    size = [int(s) for s in sizes]
+    members: list[list[int] | None] = [[c] for c in range(len(sizes))]
+    heap = [(s, c) for c, s in enumerate(size)]
+    heapq.heapify(heap)
+    done: list[list[int]] = []
+    while heap:
+        got, group = heapq.heappop(heap)
+        listed = members[group]
+        if listed is None or got != size[group]:
+            continue
+        fitting = [(weight, -size[other], other) for other, weight in neighbours[group].items()
+                   if members[other] is not None and size[group] + size[other] <= GROUP_FACES]
+        if not fitting:
+            done.append(listed)
+            members[group] = None
+            continue
+        _, _, other = max(fitting)
+        merged = members[other]
+        assert merged is not None
+        listed.extend(merged)
+        members[other] = None
+        size[group] += size[other]
+        for far, weight in neighbours[other].items():
+            if far != group:
+                neighbours[far].pop(other)
+                neighbours[far][group] = neighbours[far].get(group, 0) + weight
+                neighbours[group][far] = neighbours[group].get(far, 0) + weight
+        neighbours[group].pop(other)
+        neighbours[other] = {}
+        heapq.heappush(heap, (size[group], group))
+    return done
+
+
+class _Builder:
+    """The DAG's groups and clusters as they are made, batch by batch (:func:`build_lod`)."""
+
+    def __init__(self) -> None:
+        self.group_level: list[int] = []
+        self.group_error: list[float] = []
+        self.group_boxes: list[np.ndarray] = []
+        self.batch: list[int] = []
+        self.own: list[int] = []
+        self.parent: list[int] = []
+        self.indices: list[np.ndarray] = []
+        self.leaf_group: list[np.ndarray] = []
+        self.leaf_bounds: list[np.ndarray] = []
+        self.shares: list[np.ndarray] = []
+
+    def batch_levels(self, number: int, scene: SceneData, pool: ThreadPoolExecutor, progress: Progress) -> None:
+        """Build the levels of batch ``number`` of ``scene``."""
+        chunks, batch = scene.chunks, scene.batches[number]
+        first, end = int(chunks.batch_bounds[number]), int(chunks.batch_bounds[number + 1])
+        bounds = _leaves(chunks.face_counts, first, end)
+        positions = np.asarray(batch.positions, np.float32)
+        weld, first_vertex = _weld(positions)
+        canonical = first_vertex[weld].astype(np.uint32)   # each vertex as the first at its position
+        faces = np.asarray(batch.faces).reshape(-1)
+        base = int(chunks.index_bounds[first])
+        corner = chunks.index_bounds[bounds] - base
+        leaf_group = np.full(bounds.size - 1, -1, np.int64)
+        # The level below: each cluster's indices, error, box (its group's) and id (≥ 0: a coarse
+        # cluster, < 0: −1 − its leaf in this batch).
+        below = [canonical[faces[a:b]] for a, b in itertools.pairwise(corner)]
+        errors = [0.0] * len(below)
+        boxes = [_box(chunks.boxes, int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+        ids = [-1 - leaf for leaf in range(len(below))]
+        first_cluster = len(self.own)
+        for level in range(1, MAX_LEVELS + 1):
+            if len(below) < 2:
+                break
+            pairs, weights = _adjacency(below, weld, first_vertex.size)
+            groups = _partition(np.array([c.size // 3 for c in below]), pairs, weights)
+            inputs = [np.concatenate([below[m] for m in group]) for group in groups]
+            # A group stops short of a quarter rather than pass GROWTH times its inputs' error (one
+            # straddling separate pieces of a model would otherwise collapse them far).
+            limits = [GROWTH * max(errors[m] for m in group) or float(np.finfo(np.float32).max) for group in groups]
+            results = list(pool.map(partial(_simplify, positions=positions), inputs, limits))
+            above: list[tuple[np.ndarray, float, np.ndarray, int]] = []
+            made = 0
+            for group, source, (kept, error) in zip(groups, inputs, results, strict=True):
+                if kept.size == 0 or kept.size > MAX_KEPT * source.size:   # left for the next level
+                    above.extend((below[m], errors[m], boxes[m], ids[m]) for m in group)
+                    continue
+                made += 1
+                error += max(errors[m] for m in group)
+                box = np.stack([np.min([boxes[m][0] for m in group], axis=0),
+                                np.max([boxes[m][1] for m in group], axis=0)])
+                made_by = self._group(level, error, box)
+                for m in group:
+                    if ids[m] < 0:
+                        leaf_group[-1 - ids[m]] = made_by
+                    else:
+                        self.parent[ids[m]] = made_by
+                for part in _split(kept, positions):
+                    above.append((part, error, box, len(self.own)))
+                    self.batch.append(number)
+                    self.own.append(made_by)
+                    self.parent.append(-1)
+                    self.indices.append(part)
+            progress(min(0.99, level / 12), f"levels of detail: level {level}, {made} groups of batch {batch.name}")
+            if made == 0:
+                break
+            below, errors, boxes, ids = (list(column) for column in zip(*above, strict=True))
+        self.leaf_bounds.append(bounds)
+        self.leaf_group.append(leaf_group)
+        self.shares.append(_shares(self.indices[first_cluster:], first_cluster, faces, weld, bounds, chunks))
+
+    def _group(self, level: int, error: float, box: np.ndarray) -> int:
+        """A new group's id."""
+        self.group_level.append(level)
+        self.group_error.append(error)
+        self.group_boxes.append(box)
+        return len(self.group_level) - 1
+
+    def tree(self, positions_of: list[np.ndarray]) -> LodTree:
+        """The DAG built; ``positions_of`` each batch's positions (V, 3) (for the clusters' boxes)."""
+        counts = np.array([part.size for part in self.indices], np.int64)
+        index_bounds = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
+        indices = np.concatenate(self.indices) if self.indices else np.zeros(0, np.uint32)
+        batch = np.array(self.batch, np.int64)
+        boxes = np.zeros((batch.size, 2, 3), np.float32)
+        for number, positions in enumerate(positions_of):
+            mine = np.flatnonzero(batch == number)
+            if mine.size:
+                a, b = index_bounds[mine[0]], index_bounds[mine[-1] + 1]
+                corners = positions[indices[a:b]]
+                starts = index_bounds[mine] - a
+                boxes[mine, 0] = np.minimum.reduceat(corners, starts, axis=0)
+                boxes[mine, 1] = np.maximum.reduceat(corners, starts, axis=0)
+        empty = np.zeros(0, np.int64)
+        shares = np.concatenate(self.shares, axis=1) if self.shares else np.zeros((3, 0), np.int64)
+        return LodTree(
+            leaf_first_chunk=np.concatenate([b[:-1] for b in self.leaf_bounds]) if self.leaf_bounds else empty,
+            leaf_end_chunk=np.concatenate([b[1:] for b in self.leaf_bounds]) if self.leaf_bounds else empty,
+            leaf_group=np.concatenate(self.leaf_group) if self.leaf_group else empty,
+            group_level=np.array(self.group_level, np.int64), group_error=np.array(self.group_error, np.float32),
+            group_boxes=np.array(self.group_boxes, np.float32).reshape(-1, 2, 3),
+            batch=batch, own=np.array(self.own, np.int64), parent=np.array(self.parent, np.int64), boxes=boxes,
+            index_bounds=index_bounds, indices=indices.astype(np.uint32),
+            share_cluster=shares[0], share_chunk=shares[1], share_triangles=shares[2])
+
+
+def _shares(clusters: list[np.ndarray], first_cluster: int, faces: np.ndarray, weld: np.ndarray,
+            bounds: np.ndarray, chunks: SceneChunks) -> np.ndarray:
+    """(3, P) int64 rows cluster, chunk, triangles: how many of ``clusters``' (numbered from
+    ``first_cluster``) triangles start at a position of each chunk of the batch (``faces`` (3F,)
+    its indices, chunks [bounds[0], bounds[-1]))."""
+    if not clusters:
+        return np.zeros((3, 0), np.int64)
+    first, end = int(bounds[0]), int(bounds[-1])
+    chunk_of_face = np.repeat(np.arange(first, end, dtype=np.int32), chunks.face_counts[first:end])
+    chunk_at = np.zeros(int(weld.max()) + 1, np.int32)
+    for corner in range(3):
+        chunk_at[weld[faces[corner::3]]] = chunk_of_face
+    starts = np.concatenate([c[0::3] for c in clusters])
+    owner = np.repeat(np.arange(first_cluster, first_cluster + len(clusters)), [c.size // 3 for c in clusters])
+    keys = owner * (end + 1) + chunk_at[weld[starts]]
+    pairs, counts = np.unique(keys, return_counts=True)
+    return np.stack([pairs // (end + 1), pairs % (end + 1), counts]).astype(np.int64)
+
+
+def _box(boxes: np.ndarray, first: int, end: int) -> np.ndarray:
+    return np.stack([boxes[first:end, 0].min(axis=0), boxes[first:end, 1].max(axis=0)]).astype(np.float64)
 
 
 def build_lod(scene: SceneData, progress: Progress) -> LodTree:
     """The levels of ``scene``'s non-blended batches of at least :data:`MIN_FACES` faces."""
-    chunks = scene.chunks
-    face_counts = chunks.face_counts
-    leaf_bounds: list[np.ndarray] = []
-    nodes: list[dict[str, Any]] = []
-    leaf_parent: list[np.ndarray] = []
+    builder = _Builder()
+    positions_of = []
     pool = ThreadPoolExecutor(WORKERS)
-    total = sum(b.triangle_count for b in scene.batches)
-    done = 0
     try:
         for number, batch in enumerate(scene.batches):
-            if batch.alpha_mode == "BLEND" or batch.triangle_count < MIN_FACES:
-                continue
-            first, end = int(chunks.batch_bounds[number]), int(chunks.batch_bounds[number + 1])
-            bounds = _leaves(face_counts, first, end)
-            leaf_bounds.append(bounds)
-            parents = np.full(bounds.size - 1, -1, np.int64)
-            positions = np.asarray(batch.positions, np.float32)
-            batch_index_first = int(chunks.index_bounds[first])
-            # The level below, as (chunk first, chunk end, indices, error, node id or leaf id) per member.
-            below = [(int(bounds[i]), int(bounds[i + 1]),
-                      np.asarray(batch.faces).reshape(-1)[int(chunks.index_bounds[bounds[i]]) - batch_index_first:
-                                                          int(chunks.index_bounds[bounds[i + 1]]) - batch_index_first],
-                      0.0, -1 - i) for i in range(bounds.size - 1)]
-            level = 0
-            while len(below) > 1:
-                level += 1
-                groups = [below[i:i + FANOUT] for i in range(0, len(below), FANOUT)]
-                inputs = [np.concatenate([member[2] for member in group]) for group in groups]
-                results = list(pool.map(partial(_simplify, positions=positions), inputs))
-                above = []
-                for group, source, (kept, error) in zip(groups, inputs, results, strict=True):
-                    if len(group) < 2 or kept.size > MAX_KEPT * source.size:
-                        continue
-                    node = len(nodes)
-                    error += max(member[3] for member in group)
-                    box = _box(chunks.boxes, group[0][0], group[-1][1])
-                    nodes.append({"batch": number, "level": level, "error": error, "box": box, "indices": kept,
-                                  "chunk_first": group[0][0], "chunk_end": group[-1][1], "parent": -1})
-                    for member in group:
-                        if member[4] < 0:
-                            parents[-1 - member[4]] = node
-                        else:
-                            nodes[member[4]]["parent"] = node
-                    above.append((group[0][0], group[-1][1], kept, error, node))
-                done += sum(source.size for source in inputs) // 3
-                progress(min(0.99, done / max(1, total * 4 / 3)), f"levels of detail: level {level}, "
-                                                                   f"{len(above)} nodes of batch {batch.name}")
-                below = above
-            leaf_parent.append(parents)
+            positions_of.append(np.asarray(batch.positions, np.float32))
+            if batch.alpha_mode != "BLEND" and batch.triangle_count >= MIN_FACES:
+                builder.batch_levels(number, scene, pool, progress)
     finally:
         pool.shutdown()
-    return _tree(leaf_bounds, leaf_parent, nodes)
-
-
-def _box(boxes: np.ndarray, first: int, end: int) -> np.ndarray:
-    return np.stack([boxes[first:end, 0].min(axis=0), boxes[first:end, 1].max(axis=0)])
-
-
-def _tree(leaf_bounds: list[np.ndarray], leaf_parent: list[np.ndarray], nodes: list[dict[str, Any]]) -> LodTree:
-    def column(name: str, dtype: type) -> np.ndarray:
-        return np.array([node[name] for node in nodes], dtype)
-
-    counts = np.array([node["indices"].size for node in nodes], np.int64)
-    firsts = [b[:-1] for b in leaf_bounds]
-    ends = [b[1:] for b in leaf_bounds]
-    empty = np.zeros(0, np.int64)
-    return LodTree(
-        leaf_first_chunk=np.concatenate(firsts) if firsts else empty,
-        leaf_end_chunk=np.concatenate(ends) if ends else empty,
-        leaf_parent=np.concatenate(leaf_parent) if leaf_parent else empty,
-        batch=column("batch", np.int64), level=column("level", np.int64), parent=column("parent", np.int64),
-        error=column("error", np.float32),
-        boxes=np.array([node["box"] for node in nodes], np.float32).reshape(-1, 2, 3),
-        index_bounds=np.concatenate(([0], np.cumsum(counts))),
-        chunk_first=column("chunk_first", np.int64), chunk_end=column("chunk_end", np.int64),
-        indices=np.concatenate([node["indices"] for node in nodes]) if nodes else np.zeros(0, np.uint32))
+    return builder.tree(positions_of)
 
 
 def group_levels(tree: LodTree, group_starts: np.ndarray, face_counts: np.ndarray,
                  chunk_boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the coordinator's balancers predict with (issue 32): for each primitive group (runs of
     chunks starting at ``group_starts`` (K,); chunk faces ``face_counts`` (C,), chunk boxes
-    ``chunk_boxes`` (C, 2, 3)) and each level k of 0 (full detail) … L: the group's ``errors``
-    (K, L + 1) float64 (world units, the largest of the level's nodes over it), ``triangles``
-    (K, L + 1) float64 (the level's nodes' triangles over it, shared out by faces) and ``boxes``
-    (K, L + 1, 6) float64 (x0, y0, z0, x1, y1, z1 around those nodes: their error shows from the
-    nearest of them). Where a level has no node over some chunks (a batch without levels, or whose
-    tree stops lower), the level below stands."""
+    ``chunk_boxes`` (C, 2, 3)) and each level k of 0 (full detail) … L: its ``triangles`` (K, L + 1)
+    float64 when every group of level ≤ k is drawn instead of its inputs (a coarse cluster counts
+    where its triangles start), the ``errors`` (K, L + 1) float64 (world units) and ``boxes``
+    (K, L + 1, 6) float64 (x0, y0, z0, x1, y1, z1) of the level-k group that made most of those
+    triangles (the level below's where none did; level 0: error 0, the group's own box). Errors
+    only grow and triangles only shrink from a level to the next."""
     chunk_count = int(face_counts.size)
-    faces = np.concatenate(([0], np.cumsum(face_counts, dtype=np.int64)))
     group_starts = np.asarray(group_starts, np.int64)
     count = group_starts.size
-    points = np.unique(np.concatenate([group_starts, [chunk_count], tree.chunk_first, tree.chunk_end]))
-    points = points[points <= chunk_count]
-    first, end = points[:-1], points[1:]
-    segment_faces = (faces[end] - faces[first]).astype(np.float64)
-    group = np.searchsorted(group_starts, first, side="right") - 1
-    ratio, error = np.ones(first.size), np.zeros(first.size)
-    box = np.concatenate([np.minimum.reduceat(chunk_boxes[:, 0], first, axis=0),
-                          np.maximum.reduceat(chunk_boxes[:, 1], first, axis=0)], axis=1).astype(np.float64)
-    node_faces = (faces[tree.chunk_end] - faces[tree.chunk_first]).astype(np.float64)
-    node_boxes = tree.boxes.reshape(-1, 6).astype(np.float64)
+    primitive = np.searchsorted(group_starts, np.arange(chunk_count), side="right") - 1
+    # The level at which each chunk stops being drawn at full detail (a large number: never).
+    never = np.iinfo(np.int64).max
+    leaf_until = np.where(tree.leaf_group >= 0, tree.group_level[np.maximum(tree.leaf_group, 0)], never)
+    until = np.full(chunk_count, never, np.int64)
+    lengths = tree.leaf_end_chunk - tree.leaf_first_chunk
+    offsets = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    until[np.repeat(tree.leaf_first_chunk, lengths) + offsets] = np.repeat(leaf_until, lengths)
+    cluster_level = tree.level
+    cluster_until = np.where(tree.parent >= 0, tree.group_level[np.maximum(tree.parent, 0)], never)
+    share_group = primitive[tree.share_chunk]
+    share_level = cluster_level[tree.share_cluster]
+    flat_boxes = chunk_boxes.reshape(-1, 6).astype(np.float64)
+    box = np.concatenate([np.minimum.reduceat(flat_boxes[:, :3], group_starts, axis=0),
+                          np.maximum.reduceat(flat_boxes[:, 3:], group_starts, axis=0)], axis=1)
+    error = np.zeros(count)
+    levels = int(tree.group_level.max()) + 1 if tree.group_level.size else 1
     errors, triangles, boxes = [], [], []
-    for level in range(int(tree.level.max()) + 1 if tree.node_count else 1):
-        if level:
-            nodes = np.flatnonzero(tree.level == level)
-            nodes = nodes[np.argsort(tree.chunk_first[nodes])]
-            at = np.searchsorted(tree.chunk_first[nodes], first, side="right") - 1
-            covered = (at >= 0) & (first < tree.chunk_end[nodes[np.maximum(at, 0)]])
-            chosen = nodes[at[covered]]
-            ratio, error, box = ratio.copy(), error.copy(), box.copy()
-            ratio[covered] = tree.triangles[chosen] / np.maximum(node_faces[chosen], 1.0)
-            error[covered] = tree.error[chosen]
-            box[covered] = node_boxes[chosen]
-        triangles.append(np.bincount(group, segment_faces * ratio, count))
-        most, low, high = np.zeros(count), np.full((count, 3), np.inf), np.full((count, 3), -np.inf)
-        np.maximum.at(most, group, error)
-        np.minimum.at(low, group, box[:, :3])
-        np.maximum.at(high, group, box[:, 3:])
-        errors.append(most)
-        boxes.append(np.concatenate([low, high], axis=1))
-    return np.stack(errors, axis=1), np.stack(triangles, axis=1), np.stack(boxes, axis=1)
+    for level in range(levels):
+        drawn = (cluster_level <= level) & (cluster_until > level)
+        share = drawn[tree.share_cluster]
+        triangles.append(np.bincount(primitive, face_counts * (until > level), count).astype(np.float64)
+                         + np.bincount(share_group[share], tree.share_triangles[share], count))
+        # The group of this level that made most of a primitive group's triangles speaks for it.
+        made = np.flatnonzero(share_level == level)
+        if made.size:
+            made = made[np.lexsort((-tree.share_triangles[made], share_group[made]))]
+            head = made[np.flatnonzero(np.diff(share_group[made], prepend=-1) != 0)]
+            group = tree.own[tree.share_cluster[head]]
+            error, box = error.copy(), box.copy()
+            error[share_group[head]] = tree.group_error[group]
+            box[share_group[head]] = tree.group_boxes[group].reshape(-1, 6)
+        errors.append(error)
+        boxes.append(box)
+    errors_out = np.maximum.accumulate(np.stack(errors, axis=1), axis=1)
+    triangles_out = np.minimum.accumulate(np.stack(triangles, axis=1), axis=1)
+    return errors_out, triangles_out, np.stack(boxes, axis=1)
 
 
 def lod_name(entry: str) -> str:
@@ -262,7 +461,7 @@ def write_lod(directory: Path, tree: LodTree) -> int:
 
 
 def read_lod(directory: Path, verify: bool = True) -> LodTree:
-    """The tree of the entry ``directory`` (arrays mapped); raises CacheError."""
+    """The levels of the entry ``directory`` (arrays mapped); raises CacheError."""
     _, arrays = read_arrays(directory, verify, LOD_FORMAT)
     try:
         return LodTree(**{name: (arrays[name] if name == "indices" else np.array(arrays[name]))
