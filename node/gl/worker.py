@@ -43,7 +43,7 @@ from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
-from node.scene.lod import LodTree, lod_name, read_lod
+from node.scene.lod import LOD_FORMAT, LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore, group_of, is_mesh
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -207,7 +207,7 @@ class GLWorker:
     def _cached_levels(self, entry: Path) -> LodTree | None:
         """In the loader thread: the levels of detail of cache entry ``entry`` when the cache holds
         them and they pass their check; None otherwise (then they are built, or rebuilt, apart)."""
-        found = None if self.cache is None else self.cache.existing(lod_name(entry.name))
+        found = None if self.cache is None else self.cache.existing(lod_name(entry.name), LOD_FORMAT)
         if found is None:
             return None
         try:

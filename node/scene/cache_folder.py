@@ -79,18 +79,19 @@ class CacheFolder:
     def entry(self, name: str) -> Path:
         return self.root / name
 
-    def ensure(self, name: str, build: Callable[[Path], int], progress: Progress) -> Path:
+    def ensure(self, name: str, build: Callable[[Path], int], progress: Progress,
+               format_version: int = CACHE_FORMAT) -> Path:
         """The entry ``name``: used as it is when there, else built by ``build(directory)`` (which
         writes it atomically and returns its bytes) under the entry's lock, once among the processes
         sharing the folder; then the folder is trimmed to its bound. An entry that fails to read
-        (another format, torn) is removed and built again."""
+        (another format than ``format_version``, torn) is removed and built again."""
         directory = self.entry(name)
-        if self._usable(directory):
+        if self._usable(directory, format_version):
             self._touch(directory)
             return directory
         self.root.mkdir(parents=True, exist_ok=True)
         with self._locked(name, progress):
-            if self._usable(directory):
+            if self._usable(directory, format_version):
                 self._touch(directory)
                 return directory
             remove_entry(directory)
@@ -100,18 +101,18 @@ class CacheFolder:
         self.trim(keep=name)
         return directory
 
-    def existing(self, name: str) -> Path | None:
-        """The entry ``name`` when it is there and its table reads (marked used), else None; never
-        builds. Its arrays are not checked here."""
+    def existing(self, name: str, format_version: int = CACHE_FORMAT) -> Path | None:
+        """The entry ``name`` when it is there and its table reads as ``format_version`` (marked
+        used), else None; never builds. Its arrays are not checked here."""
         directory = self.entry(name)
-        if not self._usable(directory):
+        if not self._usable(directory, format_version):
             return None
         self._touch(directory)
         return directory
 
-    def _usable(self, directory: Path) -> bool:
+    def _usable(self, directory: Path, format_version: int = CACHE_FORMAT) -> bool:
         try:
-            read_table(directory)
+            read_table(directory, format_version)
         except CacheError:
             return False
         return True

@@ -20,7 +20,7 @@ from node.scene.cache import CacheError, Progress, open_entry, remove_entry, wri
 from node.scene.cache_folder import REBUILDS, CacheFolder, checked_entry, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
-from node.scene.lod import build_lod, lod_name, read_lod, write_lod
+from node.scene.lod import LOD_FORMAT, build_lod, lod_name, read_lod, write_lod
 from node.scene.mesh import SceneError
 from node.scene.packing import pack
 from node.scene.point_cache import cached_points, is_points_entry, keep_point_share, load_points, open_points_entry
@@ -131,7 +131,7 @@ def cached_levels(entry: Path, folder: CacheFolder, progress: Progress) -> Path 
         return write_lod(directory, build_lod(scene, progress))
 
     for attempt in range(REBUILDS + 1):
-        levels = folder.ensure(lod_name(entry.name), build, progress)
+        levels = folder.ensure(lod_name(entry.name), build, progress, LOD_FORMAT)
         try:
             tree = read_lod(levels, verify=True)
         except CacheError as exc:
