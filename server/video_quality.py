@@ -1,8 +1,8 @@
 """What a video stream's viewers see, measured as it runs (issue 37): a decoder follows the stream's
 access units on a thread of its own, and as often as :data:`MEASURE_SHARE` of a core allows the
 decoded picture and the tiles' JPEG at the session's quality (what a viewer on tiles gets) are
-compared with the encoder's source, the tiles as received (raw from local nodes up to 1280x720;
-above it JPEG q88, and then the figures are against those). The pairs steer the H.264 stream's CRF
+compared with the encoder's source, the tiles as received (raw from local nodes up to 1280x720; above it JPEG q88,
+then the figures are against those). The pairs steer the H.264 stream's CRF
 (:class:`tessera.video.quality_control.CrfControl`) and go to ``/api/stats``.
 
 The decoder costs about 2 ms of CPU a 720p frame, a measurement about 15 ms more; both on the
@@ -71,8 +71,7 @@ def measure(picture: np.ndarray, tiles: list[tuple[Rect, Codec, int, bytes]], si
 
 
 class QualityProbe:
-    """Follows one stream in ``codec``: :meth:`submit` each frame's access units in order (on the
-    event loop), after asking :meth:`due` whether to measure it."""
+    """Follows one stream in ``codec``: :meth:`follow` each frame's access units in order."""
 
     def __init__(self, codec: VideoCodec) -> None:
         self._loop = asyncio.get_running_loop()
