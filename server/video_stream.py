@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import statistics
 import time
 from collections import deque
@@ -52,11 +51,6 @@ VIDEO_SOURCE_QUALITY = 88
 #: each, tiles 23.4 KB 43.4 dB): H.264 0.09 → 7.8 KB (tiles / 3.0), 0.5–0.6 dB above the tiles;
 #: **0.085** → 7.4 KB (tiles / 3.2), 0.5–0.6 dB above.
 BITS_PER_PIXEL = {VideoCodec.H264: 0.085, VideoCodec.VP9: 0.11}
-#: H.264 frames smaller than this (pixels) get more bits a pixel: a small frame's blocks hold more
-#: detail each. Offline (bench.stream's random cameras at 640x360, the default scene, the CRF loop
-#: running): at 0.085 bit a pixel the loop reached its lowest CRF (19) with the video still 0.88 dB
-#: under the JPEG q60 tiles, the cap binding; at twice that, +0.25 dB at CRF 27.
-SMALL_FRAME_PIXELS = 1280 * 720
 #: Figures kept for the mean and median encode times.
 TIMINGS_KEPT = 240
 #: Measurements of the video's and the tiles' PSNR kept for ``/api/stats``.
@@ -90,12 +84,8 @@ class EncodedFrame:
 
 
 def default_bitrate(codec: VideoCodec, size: tuple[int, int], fps: float, max_bitrate: float) -> float:
-    """The target (bit/s) of ``codec`` frames of ``size`` at ``fps``: :data:`BITS_PER_PIXEL`, within
-    ``max_bitrate``; H.264 frames under :data:`SMALL_FRAME_PIXELS` get √(that / their pixels) times more
-    a pixel (a cap its constant quality reaches only when the picture needs it)."""
-    pixels = size[0] * size[1]
-    scale = math.sqrt(max(1.0, SMALL_FRAME_PIXELS / pixels)) if codec is VideoCodec.H264 else 1.0
-    return min(max_bitrate, BITS_PER_PIXEL[codec] * scale * pixels * fps)
+    """The target (bit/s) of ``codec`` frames of ``size`` at ``fps``: :data:`BITS_PER_PIXEL`, within ``max_bitrate``."""
+    return min(max_bitrate, BITS_PER_PIXEL[codec] * size[0] * size[1] * fps)
 
 
 class VideoStream:
