@@ -1,14 +1,12 @@
 """What a video stream's viewers see, measured as it runs (issue 37): a decoder follows the stream's
-access units on a thread of its own, and as often as :data:`MEASURE_SHARE` of a core allows the
-decoded picture and the tiles' JPEG at the session's quality (what a viewer on tiles gets) are
-compared with the encoder's source, the tiles as received (raw from local nodes up to 1280x720; above it JPEG q88,
+access units on a thread of its own, and every :data:`MEASURE_EVERY` th frame the decoded picture
+and the tiles' JPEG at the session's quality (what a viewer on tiles gets) are compared with the
+encoder's source, the tiles as received (raw from local nodes up to 1280x720; above it JPEG q88,
 then the figures are against those). The pairs steer the H.264 stream's CRF
 (:class:`tessera.video.quality_control.CrfControl`) and go to ``/api/stats``.
 
-The decoder costs about 2 ms of CPU a 720p frame, a measurement about 15 ms more; both on the
-probe's thread, never the event loop's or the encoder's. Measurements are paced by their CPU time,
-not by frames: a slow stream (a few frames a second) is measured nearly every frame, so its CRF
-settles in seconds, and a fast one no more than the share allows.
+The decoder costs about 2 ms of CPU a 720p frame, a measurement about 15 ms; both on the probe's
+thread, never the event loop's or the encoder's.
 """
 
 from __future__ import annotations
@@ -28,10 +26,8 @@ from tessera.wire.codec import Codec, encode, paste_into
 from tessera.wire.video import VideoCodec
 
 _DECODERS = {VideoCodec.H264: "h264", VideoCodec.VP9: "vp9"}
-#: The share of one core the measurements may take, over time (the decoding not counted).
-MEASURE_SHARE = 0.1
-#: The CPU ms a measurement is taken to cost before the first says (a 720p frame's, about).
-FIRST_COST_MS = 15.0
+#: Frames between two measurements.
+MEASURE_EVERY = 4
 #: Frames after a keyframe not measured: a keyframe stays near a frame's share of the bitrate, and
 #: the frames after it build the picture back up (the loop holds the picture in between).
 SETTLE_FRAMES = 4
@@ -79,24 +75,20 @@ class QualityProbe:
         self._codec = codec
         self._decoder: VideoCodecContext | None = None
         self._since_keyframe = 0
-        #: CPU ms the measurements may still spend, as of ``_credit_at`` (monotonic s), and what one costs.
-        self._credit_ms = self.cost_ms = FIRST_COST_MS
-        self._credit_at = time.monotonic()
+        self._since_measured = 0
         #: Frames handed to the thread and not yet followed (counted on the event loop).
         self.waiting = 0
         #: CPU ms of the probe's thread, decoding and measuring, and the frames it followed.
         self.cpu_ms = 0.0
         self.followed = 0
 
-    def due(self, keyframe: bool, now: float) -> bool:
-        """Whether the next frame (``keyframe``: it starts with one), at ``now`` (monotonic s), is
-        to be measured: not just after a keyframe, not while frames wait, and within the CPU share."""
+    def due(self, keyframe: bool) -> bool:
+        """Whether the next frame (``keyframe``: it starts with one) is to be measured."""
         self._since_keyframe = 0 if keyframe else self._since_keyframe + 1
-        self._credit_ms = min(self._credit_ms + (now - self._credit_at) * 1000.0 * MEASURE_SHARE, 2.0 * self.cost_ms)
-        self._credit_at = now
-        if self._since_keyframe < SETTLE_FRAMES or self.waiting > MAX_WAITING or self._credit_ms < self.cost_ms:
+        self._since_measured += 1
+        if self._since_keyframe < SETTLE_FRAMES or self._since_measured < MEASURE_EVERY or self.waiting > MAX_WAITING:
             return False
-        self._credit_ms -= self.cost_ms
+        self._since_measured = 0
         return True
 
     def submit(self, units: list[tuple[bytes, bool]], tiles: list[tuple[Rect, Codec, int, bytes]] | None,
@@ -108,10 +100,8 @@ class QualityProbe:
         task.add_done_callback(self._followed)
         return task
 
-    def _followed(self, task: asyncio.Future[Measurement | None]) -> None:
+    def _followed(self, _task: asyncio.Future[Measurement | None]) -> None:
         self.waiting -= 1
-        if not task.cancelled() and task.exception() is None and (measurement := task.result()) is not None:
-            self.cost_ms = max(measurement.cpu_ms, 1.0)
 
     def _follow(self, units: list[tuple[bytes, bool]], tiles: list[tuple[Rect, Codec, int, bytes]] | None,
                 size: tuple[int, int], quality: int | None) -> Measurement | None:

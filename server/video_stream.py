@@ -213,7 +213,7 @@ class VideoStream:
         if not encoded.units:
             return
         quality = self._tiles_quality()
-        measured = self.probe.due(encoded.units[0][1], time.monotonic()) and quality is not None
+        measured = self.probe.due(encoded.units[0][1]) and quality is not None
         task = self.probe.submit(encoded.units, encoded.frame.tiles if measured else None, encoded.frame.size, quality)
         if measured:
             task.add_done_callback(self._measured)
