@@ -75,6 +75,10 @@ def test_a_new_session_from_the_library_and_a_dropped_file_open_in_the_page(coor
         page.goto(base + "/")
         page.wait_for_function("() => document.querySelectorAll('#scene-pick option').length > 1", timeout=wait_ms)
         page.select_option("#scene-pick", "builtin:cluster")
+        # The session's scene, once the stats say it, leaves the user's pick alone.
+        page.wait_for_function("() => document.getElementById('session-name').title === 'scene: builtin:spheres'",
+                               timeout=wait_ms)
+        assert page.input_value("#scene-pick") == "builtin:cluster"
         page.click("#new-session")
         page.wait_for_url("**/?session=*", timeout=wait_ms)
         page.wait_for_function(f"() => ({DRAWN_FRACTION_JS})() > 0.02", timeout=wait_ms, polling=100)

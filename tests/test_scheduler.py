@@ -635,6 +635,8 @@ def test_a_straggler_s_tiles_are_copied_to_the_others_and_it_gets_no_new_work():
     assert deliver(s, 2, 2, 1, 0.6) == [], "its late copy is dropped quietly"
     assert not s.nodes[2].suspect, "a node that answers is trusted again"
     finish(s, 3, 0.7)
+    assert s.nodes[2].last_tiles == [], "left out of the latest frame: none of its tiles are that frame's"
+    assert sum(w * h for n in s.nodes.values() for _, _, w, h in n.last_tiles) == SIZE[0] * SIZE[1]
     s.set_camera(camera(3), 0.8)
     assert {t.node_id for t in s.in_flight[max(s.in_flight)].tiles} == {1, 2, 3}
 

@@ -41,6 +41,8 @@ export class SessionControls {
     this.library = null;
     this.scene = null;
     this.size = null;
+    /** Whether the user has chosen a scene in the picker. */
+    this.picked = false;
   }
 
   $(id) {
@@ -49,6 +51,8 @@ export class SessionControls {
 
   async start() {
     if (this.steering) this.$("new-session").addEventListener("click", () => this.create(this.$("scene-pick").value));
+    // Once the user picks a scene, the session's own scene no longer takes the picker back.
+    this.$("scene-pick").addEventListener("change", () => { this.picked = true; });
     const target = this.doc.body;
     // A file dropped anywhere would make the browser leave the page for it: the page takes every drop.
     target.addEventListener("dragover", (event) => event.preventDefault());
@@ -111,7 +115,7 @@ export class SessionControls {
     for (const option of pick.options) {
       const current = option.value === this.scene;
       option.textContent = shortSceneName(option.value) + (current ? " · shown now" : "");
-      if (current && this.doc.activeElement !== pick) pick.value = option.value;
+      if (current && !this.picked && this.doc.activeElement !== pick) pick.value = option.value;
     }
   }
 

@@ -309,10 +309,12 @@ class FrameDispatch:
             return
         timings = job.timings()
         rollup = job.rollup_by_node(timings)
-        for node_id, (phases, rects, readback, counters) in rollup.items():
-            node = self.nodes.get(node_id)
-            if node is not None:
+        for node_id, node in self.nodes.items():
+            if node_id in rollup:
+                phases, rects, readback, counters = rollup[node_id]
                 node.last_phases, node.last_tiles, node.last_readback, node.counters = phases, rects, readback, counters
+            else:   # no part in the latest frame: its tiles are not this frame's
+                node.last_tiles, node.last_readback = [], []
         busy_ms = {n: sum(r[0].values()) for n, r in rollup.items()}
         if not job.still:
             session.lod.frame_done(max(busy_ms.values(), default=0.0) / 1e3)
