@@ -32,8 +32,11 @@ from tests.integration_support import (
 pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
 SIZE = (320, 240)
-MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}")
-          for mode in ("hybrid", "sort-last") for scene in ("bunny", "dragon", "diorama") for nodes in (2, 3, 4)]
+# Two Latin squares: each mode meets every scene and every node count once (the full product took
+# 18 coordinators, a third of the suite's integration time, for no case the squares miss).
+MATRIX = [pytest.param(mode, scene, nodes, id=f"{mode}-{scene}-{nodes}") for mode, scene, nodes in (
+    ("hybrid", "bunny", 2), ("hybrid", "dragon", 3), ("hybrid", "diorama", 4),
+    ("sort-last", "bunny", 3), ("sort-last", "dragon", 4), ("sort-last", "diorama", 2))]
 
 
 @contextlib.contextmanager

@@ -56,8 +56,9 @@ def cancels(actions) -> dict[int, tuple[int, ...]]:
 def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: float, rect: Rect | None = None):
     """Node ``node_id`` returns the tile it was sent (or ``rect``), with its send time; returns the actions."""
     job = s.in_flight.get(frame_id)
-    tile_rect = rect or (job.tiles[tile_id].rect if job else Rect(0, 0, 1, 1))
-    codec = job.codec if job else Codec.JPEG
+    asked = (job.codec, [t.rect for t in job.tiles]) if job else s.retired.get(frame_id, (Codec.JPEG, []))
+    codec, rects = asked
+    tile_rect = rect or (rects[tile_id] if tile_id < len(rects) else Rect(0, 0, 1, 1))
     s.tile_arrived(node_id, TileHeader(frame_id, tile_id, tile_rect, codec, 5.0, 1.0, 1.0), b"tile", now)
     s.tile_sent(node_id, frame_id, tile_id, 0.5)
     return s.drain()
@@ -338,6 +339,26 @@ def test_a_tile_a_node_does_not_owe_is_a_protocol_error_even_when_its_frame_is_g
     s.tiles_skipped(1, 2, [0])
     with pytest.raises(ProtocolError, match="was not dropped"):
         s.tiles_skipped(1, 2, [0])
+    assert published(finish(s, 3, 0.3)) == [3], "the others serve on"
+
+
+def test_a_late_tile_of_a_dropped_frame_is_checked_against_what_was_asked():
+    """Fuzz finding: a node's late tile of a frame dropped meanwhile, with another codec or rect
+    than its frame asked for, was ignored as any late tile is; it is a protocol error."""
+    s = scheduler(still_delay_ms=100)
+    s.set_camera(camera(0), 0.0)
+    finish(s, 1, 0.01)
+    s.tick(0.2)
+    s.drain()
+    s.set_camera(camera(1), 0.22)
+    assert cancels(s.drain()) == {1: (2,), 2: (2,)}, "the still frame is dropped"
+    codec, rects = s.retired[2]
+    other = next(c for c in Codec if c is not codec)
+    with pytest.raises(ProtocolError, match="codec"):
+        s.tile_arrived(1, TileHeader(2, 0, rects[0], other, 5.0, 1.0, 1.0), b"tile", 0.23)
+    moved = Rect(rects[1].x, rects[1].y, rects[1].w, rects[1].h - 1)
+    with pytest.raises(ProtocolError, match="has rect"):
+        s.tile_arrived(2, TileHeader(2, 1, moved, codec, 5.0, 1.0, 1.0), b"tile", 0.23)
     assert published(finish(s, 3, 0.3)) == [3], "the others serve on"
 
 

@@ -7,8 +7,10 @@ events that drive them. Pure: the clock comes in as ``now`` (s)."""
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Collection
 
+from tessera.geometry import Rect
 from tessera.scheduling.actions import (
     Action,
     BalancerFailed,
@@ -24,9 +26,13 @@ from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
 from tessera.video.budget import full_analysis
+from tessera.wire.codec import Codec
 
 #: Frames that stay in the awaiting-send table after completing (their ``tile_sent`` may lag).
 AWAITING_SEND_FRAMES = 8
+#: Frames out of flight (published or dropped) whose tiles' rects and codec are remembered, so that
+#: a late tile of one is still checked against what was asked.
+RETIRED_MEMORY = 256
 #: How often frames in flight are looked at for stragglers (s).
 STRAGGLER_CHECK_S = 0.1
 #: While few nodes hold a session's scene, its frames are cut into pieces expected to take about
@@ -45,6 +51,8 @@ class FrameDispatch:
     sessions: dict[str, SessionFrames]
     fair: FairShare
     in_flight: dict[int, FrameJob]
+    #: frame id → (its codec, each tile's rect) of the newest :data:`RETIRED_MEMORY` frames out of flight.
+    retired: OrderedDict[int, tuple[Codec, list[Rect]]]
     next_frame_id: int
     last_published_id: int
     frames_cancelled: int
@@ -108,7 +116,7 @@ class FrameDispatch:
     def _cancel(self, job: FrameJob, now: float) -> None:
         """Drop ``job``: nodes that owe tiles of it are told to skip those still queued (the next
         tile a node owes counts as begun now: lenient, the node may still finish the dropped one)."""
-        del self.in_flight[job.frame_id]
+        self._retire(job)
         session = self.sessions.get(job.session)
         if session is not None:
             session.frames.pop(job.frame_id, None)
@@ -278,9 +286,16 @@ class FrameDispatch:
                 idle.remove(node)
                 self._push(job, node, job.pull_next(), now)
 
+    def _retire(self, job: FrameJob) -> None:
+        """Take ``job`` out of flight, remembering what its tiles asked for."""
+        del self.in_flight[job.frame_id]
+        self.retired[job.frame_id] = (job.codec, [tile.rect for tile in job.tiles])
+        while len(self.retired) > RETIRED_MEMORY:
+            self.retired.popitem(last=False)
+
     def _complete(self, job: FrameJob, now: float) -> None:
         session = self.sessions[job.session]
-        del self.in_flight[job.frame_id]
+        self._retire(job)
         del session.frames[job.frame_id]
         for older in [j for j in session.frames.values() if j.frame_id < job.frame_id]:
             self._cancel(older, now)

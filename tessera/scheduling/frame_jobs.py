@@ -297,6 +297,21 @@ class FrameJob:
         return tuple(out)
 
 
+def check_late_tile(header: TileHeader, asked: tuple[Codec, list[Rect]] | None) -> None:
+    """A tile of a frame out of flight against what its frame asked (``asked``: its codec and each
+    tile's rect; None: forgotten, nothing to check); ProtocolError when it is not that tile."""
+    if asked is None:
+        return
+    codec, rects = asked
+    if not 0 <= header.tile_id < len(rects):
+        raise ProtocolError(f"frame {header.frame_id} had no tile {header.tile_id}")
+    if header.rect != rects[header.tile_id]:
+        raise ProtocolError(f"tile {header.tile_id} has rect {header.rect.as_list()}, "
+                            f"expected {rects[header.tile_id].as_list()}")
+    if header.codec != codec:
+        raise ProtocolError(f"tile codec {header.codec.name} but {codec.name} was requested")
+
+
 def check_payload_size(payload: bytes, codec: Codec, rect: Rect) -> None:
     """A tile's bytes decode to an image of ``rect``'s size, checked when the tile arrives so that no
     published frame holds a tile that cannot be shown: raw length; the image header's format and

@@ -152,7 +152,7 @@ class JobScheduler(FrameScheduler):
         if job.job is None:
             super()._complete(job, now)
             return
-        del self.in_flight[job.frame_id]
+        self._retire(job)
         busy_ms = sum(timing.busy_ms for timing in job.timings())
         self.fair.spent(job.session, busy_ms, now)
         for node_id, rate in job.ms_per_px_by_node().items():
@@ -226,7 +226,8 @@ class JobScheduler(FrameScheduler):
 
     def _drop(self, job: FrameJob, now: float, hand_back: bool) -> None:
         """Drop job tile ``job`` (nodes skip it if still queued); ``hand_back``: its item is drawn again."""
-        self.in_flight.pop(job.frame_id, None)
+        if job.frame_id in self.in_flight:
+            self._retire(job)
         self._dropped_sizes[job.frame_id] = job.size
         while len(self._dropped_sizes) > DROPPED_SIZES:
             self._dropped_sizes.popitem(last=False)

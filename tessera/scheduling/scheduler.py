@@ -38,13 +38,14 @@ render message, cancel frames on a node, publish a frame, close a node.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Collection, Hashable, Iterable, Mapping
 
 import numpy as np
 
 from tessera.balancers.base import Balancer
 from tessera.decomposition.mode import ViewerTile
-from tessera.geometry import Camera
+from tessera.geometry import Camera, Rect
 from tessera.scene.state import ObjectPatch
 from tessera.scene.timeline import SceneTimeline
 from tessera.scheduling.actions import (
@@ -54,9 +55,10 @@ from tessera.scheduling.actions import (
 from tessera.scheduling.config import SchedulerConfig
 from tessera.scheduling.dispatch import STRAGGLER_CHECK_S, FrameDispatch
 from tessera.scheduling.fair_share import FairShare
-from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob, check_late_tile
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.session_frames import SessionFrames
+from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
 from tessera.wire.protocol import NO_NODE_SLOT, ProtocolError, TileHeader
 
@@ -72,6 +74,7 @@ class FrameScheduler(FrameDispatch):
         self.sessions: dict[str, SessionFrames] = {}
         self.fair = FairShare()
         self.in_flight: dict[int, FrameJob] = {}
+        self.retired: OrderedDict[int, tuple[Codec, list[Rect]]] = OrderedDict()
         self.next_frame_id = 1
         self.last_published_id = 0
         self.frames_cancelled = 0
@@ -320,6 +323,7 @@ class FrameScheduler(FrameDispatch):
             if header.frame_id >= self.next_frame_id or header.frame_id < 1:
                 raise ProtocolError(f"tile of frame {header.frame_id}, which was never dispatched")
             self.table.check_owed(node, key, "tile")
+            check_late_tile(header, self.retired.get(header.frame_id))
             self.table.answered(node, key, now)
             self._advance(now)
             return None
