@@ -3,7 +3,8 @@ its first frame with no scene cache (ingest included) and after a restart (cache
 peak memory, then the picture moving with levels of detail on and off.
 
 ``python -m bench.bigscene --scene PATH [--nodes 3] [--size 640x360] [--modes sort-first,sort-last]
-[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--peer] [--json OUT]``
+[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--peer] [--cache-dir DIR]
+[--warm-runs 1] [--json OUT]``
 
 For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
 
@@ -208,15 +209,22 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     if args.peer:
         result["pyvista"] = peer(args)
     for mode in args.modes.split(","):
-        cache = Path(tempfile.mkdtemp(prefix="tessera-bigscene-"))
+        kept = args.cache_dir is not None
+        cache = args.cache_dir / mode if kept else Path(tempfile.mkdtemp(prefix="tessera-bigscene-"))
+        cache.mkdir(parents=True, exist_ok=True)
         try:
-            figures: dict[str, Any] = {"cold": first_frame(args, mode, cache, levels="on" in args.lod.split(","))}
+            figures: dict[str, Any] = {}
+            if not (kept and any(cache.iterdir())):
+                figures["cold"] = first_frame(args, mode, cache, levels="on" in args.lod.split(","))
             figures["warm"] = first_frame(args, mode, cache)
+            for round_ in range(1, args.warm_runs):
+                figures[f"warm{round_ + 1}"] = first_frame(args, mode, cache)
             for lod in args.lod.split(",") if args.moving_s > 0 else ():
                 figures[f"moving_lod_{lod}"] = moving(args, mode, cache, lod)
             result["modes"][mode] = figures
         finally:
-            shutil.rmtree(cache, ignore_errors=True)
+            if not kept:
+                shutil.rmtree(cache, ignore_errors=True)
         print(json.dumps({mode: figures}), flush=True)
     return result
 
@@ -228,7 +236,7 @@ def report(result: dict[str, Any]) -> str:
         lines.append(f"  PyVista: first picture {p['first_picture_s']} s, next frame {p['next_frame_s']} s, "
                      f"peak {p['peak_mb']:.0f} MB")
     for mode, figures in result["modes"].items():
-        for phase in ("cold", "warm"):
+        for phase in [key for key in figures if key == "cold" or key.startswith("warm")]:
             f = figures[phase]
             peaks = ", ".join(f"{p['node_mb']:.0f}/{p['readers_mb']:.0f}" for p in f["peaks"])
             levels = f" (levels held after {f['levels_s']} s)" if "levels_s" in f else ""
@@ -253,6 +261,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--moving-size", type=size_parser(16, 16384), default=(1280, 720))
     parser.add_argument("--input-hz", type=float, default=60.0)
     parser.add_argument("--peer", action="store_true", help="PyVista's first picture of the same file")
+    parser.add_argument("--cache-dir", type=Path,
+                        help="keep each mode's scene cache in a folder of this one; one that holds an entry "
+                             "already skips the cold run (only warm first frames are measured)")
+    parser.add_argument("--warm-runs", type=int, default=1, help="warm first frames measured in turn")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
