@@ -240,8 +240,10 @@ class FrameDispatch:
                 session.loads_waiting = sorted((i for i in self.nodes if i not in held),
                                                key=lambda i: (-self.nodes[i].speed, i))
                 self._load_next(session)
-            elif joined is not None:
-                self._actions.append(LoadScene(joined, None, session.scene_key))
+            elif joined is not None:   # after the node loading it, if one is: it gets the cores first
+                session.loads_waiting.append(joined)
+                if not session.loading & self.nodes.keys():
+                    self._load_next(session)
             return False
         for job in list(session.frames.values()):
             self._cancel(job, now)
@@ -259,9 +261,13 @@ class FrameDispatch:
         """Tell the next node of ``session.loads_waiting`` to load the session's scene. A new
         session's scene is loaded by one node at a time (:meth:`add_session`): a large scene's parse
         and upload then hold up one node's tiles of the other sessions, not every node's at once, and
-        its first node is ready sooner than when all parse it side by side on shared cores."""
+        its first node is ready sooner than when all parse it side by side on shared cores. So are
+        nodes that join while one loads it (local nodes started with the coordinator: after a
+        restart the first of them draws the session's first frame while the others wait)."""
         if session.loads_waiting:
-            self._actions.append(LoadScene(session.loads_waiting.pop(0), None, session.scene_key))
+            node_id = session.loads_waiting.pop(0)
+            session.loading.add(node_id)
+            self._actions.append(LoadScene(node_id, None, session.scene_key))
 
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
         for tile_id in tile_ids:

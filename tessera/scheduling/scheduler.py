@@ -220,11 +220,14 @@ class FrameScheduler(FrameDispatch):
 
     # ----------------------------------------------------------------- node events
     def add_node(self, node_id: int, now: float, local: bool = False) -> NodeSchedule:
-        """A node connected (ready for a session once it has loaded that session's scene); ``local``:
-        from the coordinator's machine."""
+        """A node connected (ready for a session once it has loaded that session's scene, told after
+        the node loading it, if one is; the coordinator's own session's last); ``local``: from the
+        coordinator's machine."""
         node = self.table.add(node_id, now)
         node.local = local
-        for session in self.sessions.values():
+        # The sessions opened for a scene first, the coordinator's own last: a node reads and uploads
+        # its scenes in the order it is told them.
+        for session in sorted(self.sessions.values(), key=lambda s: s.id == DEFAULT_SESSION):
             self._repartition(session, now, joined=node_id)
         return node
 
@@ -249,6 +252,7 @@ class FrameScheduler(FrameDispatch):
                 node.ready, node.idle_since = True, now
                 self.table.touch(node, state_changed=True)
             session.ready.add(node.node_id)
+            session.loading.discard(node.node_id)
             session.mode.share_loaded(node.node_id, share)
         self._load_next(session)
         if session.mode.needs_depth or not (session.demand.shown or session.interactive_in_flight):
@@ -280,10 +284,11 @@ class FrameScheduler(FrameDispatch):
             held = node_id in session.ready
             session.ready.discard(node_id)
             session.levels.discard(node_id)
+            session.loading.discard(node_id)
             if node_id in session.loads_waiting:
                 session.loads_waiting.remove(node_id)
-            elif not held:   # it was loading the scene (or had failed to): the next node loads it
-                self._load_next(session)
+            elif not held and not session.loading & self.nodes.keys():   # it was loading the scene (or had
+                self._load_next(session)                                     # failed to): the next loads it
             if self._repartition(session, now):
                 self._changed(session, now, supersede=False)
                 continue
@@ -426,4 +431,5 @@ class FrameScheduler(FrameDispatch):
         """The node could not load the session's scene: the next node waiting tries."""
         session = self.sessions.get(session_id)
         if session is not None:
+            session.loading.discard(node_id)
             self._load_next(session)

@@ -63,6 +63,8 @@ class SessionFrames:
         self.lod = LodControl(config.lod_error_px, config.lod_max_error_px, config.target_fps)
         #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
         self.loads_waiting: list[int] = []
+        #: Nodes told to load the scene that have not answered yet (a node joining meanwhile waits its turn).
+        self.loading: set[int] = set()
         self.frames_cancelled = 0
         #: A display wall's cells (issue 22): each frame's partition is cut at their edges (the
         #: pieces of a tile name it: a node draws it once).
