@@ -15,6 +15,8 @@ from server.scene_library import UPLOADS_FOLDER
 from server.settings import Settings, load_settings
 
 log = logging.getLogger("tessera.server")
+#: Connections the listening socket queues before the server accepts them (uvicorn's default).
+LISTEN_BACKLOG = 2048
 
 
 def bind_socket(host: str, port: int) -> socket.socket:
@@ -33,6 +35,18 @@ def bind_socket(host: str, port: int) -> socket.socket:
 async def serve(settings: Settings) -> None:
     sock = bind_socket(settings.host, settings.port)
     port = sock.getsockname()[1]
+    nodes = LocalNodes()
+    try:
+        if settings.local_nodes:   # they start (imports, GL) while this process does; the socket queues
+            sock.listen(LISTEN_BACKLOG)   # their connections until the server accepts them
+            nodes.spawn(settings.local_nodes, f"ws://127.0.0.1:{port}/ws/node", settings.token,
+                        settings.node_slowdowns)
+        await _serve(settings, sock, port)
+    finally:
+        nodes.stop()
+
+
+async def _serve(settings: Settings, sock: socket.socket, port: int) -> None:
     # The socket layer's own cap is the largest message any socket may send; /ws/view's lower limit
     # is checked per message (server/routes/guards.py).
     max_message = max(settings.node_message_bytes, settings.max_viewer_message_bytes)
@@ -40,23 +54,17 @@ async def serve(settings: Settings) -> None:
                             ws_ping_interval=settings.heartbeat_s, ws_ping_timeout=2 * settings.heartbeat_s,
                             access_log=False, lifespan="on", root_path=settings.root_path)
     server = uvicorn.Server(config)
-    nodes = LocalNodes()
     task = asyncio.create_task(server.serve(sockets=[sock]))
-    try:
-        while not server.started:
-            if task.done():
-                await task
-                return
-            await asyncio.sleep(0.05)
-        shown_host = "localhost" if settings.host in ("0.0.0.0", "::") else settings.host
-        print(f"Tessera serving on http://{shown_host}:{port}/", flush=True)
-        for line in where_scenes_are(settings):
-            print(line, flush=True)
-        if settings.local_nodes:
-            nodes.spawn(settings.local_nodes, f"ws://127.0.0.1:{port}/ws/node", settings.token, settings.node_slowdowns)
-        await task
-    finally:
-        nodes.stop()
+    while not server.started:
+        if task.done():
+            await task
+            return
+        await asyncio.sleep(0.05)
+    shown_host = "localhost" if settings.host in ("0.0.0.0", "::") else settings.host
+    print(f"Tessera serving on http://{shown_host}:{port}/", flush=True)
+    for line in where_scenes_are(settings):
+        print(line, flush=True)
+    await task
 
 
 def where_scenes_are(settings: Settings) -> list[str]:
