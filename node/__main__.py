@@ -17,8 +17,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return render_once(settings)
     from node.client import run_node
     from node.gl.environment import EnvironmentError
-    from node.gl.image_lighting import prefiltered_environment
+    from node.gl.image_lighting import keep_environments_in, prefiltered_environment
 
+    keep_environments_in(settings.scene_cache_dir)
     try:
         prefiltered_environment(settings.environment)
     except EnvironmentError as exc:

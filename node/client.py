@@ -40,7 +40,7 @@ from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, PickPixel, Send
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
-from node.scene.lod import LodTree, group_levels
+from node.scene.lod import GroupLevels, LodTree, group_levels
 from node.scene.pages import resident_mb
 from node.scene.points import PointCloud
 from node.settings import NodeSettings
@@ -215,7 +215,8 @@ class NodeClient:
             log.info("scene %s ready: %s, %.0f ms", spec, what, (time.perf_counter() - started) * 1e3)
             ready = self.protocol.scene_loaded(message, scene, loaded.share_version)
             if loaded.levels is not None:   # before 'ready': the first frame drawn on this node may use them
-                outbox.put_nowait(levels_ready(spec, loaded.share_version, loaded.levels, scene))
+                outbox.put_nowait(levels_ready(spec, loaded.share_version, loaded.levels, scene,
+                                               loaded.group_levels))
             outbox.put_nowait(ready.model_copy(update={"scene_mb": round(loaded.nbytes / (1 << 20), 2),
                                                        "held_mb": round(loaded.held_bytes / (1 << 20), 2),
                                                        "rss_mb": round(resident_mb(), 1)}))
@@ -315,11 +316,13 @@ class NodeClient:
             await ws.send(sent.to_text())
 
 
-def levels_ready(spec: str, share: int | None, tree: LodTree, scene: SceneData) -> messages.LevelsReady:
+def levels_ready(spec: str, share: int | None, tree: LodTree, scene: SceneData,
+                 groups: GroupLevels | None = None) -> messages.LevelsReady:
     """The ``levels_ready`` of scene ``spec`` (share version ``share``), ``scene``, whose levels are
-    ``tree``: with its primitive groups' levels (:func:`node.scene.lod.group_levels`)."""
-    errors, triangles, boxes = group_levels(tree, scene.groups.chunk_starts, scene.chunks.face_counts,
-                                            scene.chunks.boxes)
+    ``tree``: with its primitive groups' levels (:func:`node.scene.lod.group_levels`; ``groups``:
+    worked out already, in the loader thread)."""
+    errors, triangles, boxes = groups or group_levels(tree, scene.groups.chunk_starts, scene.chunks.face_counts,
+                                                      scene.chunks.boxes)
     return messages.LevelsReady(scene=spec, share=share, nodes=tree.node_count, triangles=int(tree.triangles.sum()),
                                 group_errors=errors.tolist(), group_triangles=triangles.round(1).tolist(),
                                 group_boxes=boxes.tolist())

@@ -13,14 +13,20 @@ numpy at start-up and cached per process, then uploaded per renderer:
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import functools
+import hashlib
+import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import moderngl
 import numpy as np
 
+from node.gl import environment as environment_module
 from node.gl.environment import directions, read_hdr, solid_angles, studio_environment
 
 #: Mip levels of the prefiltered specular map (256x128 … 8x4); level k is roughness k / (LEVELS − 1).
@@ -141,11 +147,69 @@ def brdf_lut(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> np.ndarray:
         np.float32)
 
 
+#: Where prefiltered environments are kept across runs (:func:`keep_environments_in`); empty: nowhere.
+_KEPT_IN: list[Path] = []
+
+
+def keep_environments_in(folder: Path | None) -> None:
+    """Keep the environments this process prefilters in ``folder`` (the node's scene cache folder;
+    None: nowhere), and read them from there: a node's start-up then skips the 0.7 s of the
+    studio's convolution. A file is named by the digest of this code, of the environment file (its
+    path, size and time) and of numpy's version, so a change of any of them computes it again; one
+    that cannot be read is computed again."""
+    _KEPT_IN[:] = [] if folder is None else [folder]
+    prefiltered_environment.cache_clear()
+
+
+def _kept_name(path: Path | None) -> str:
+    digest = hashlib.sha256(np.__version__.encode())
+    for module in (__file__, environment_module.__file__):
+        digest.update(Path(module).read_bytes())
+    if path is not None:
+        status = path.stat()
+        digest.update(f"{path.resolve()}|{status.st_size}|{status.st_mtime_ns}".encode())
+    return f"environment-{digest.hexdigest()[:32]}.npz"
+
+
+def _read_kept(file: Path) -> PrefilteredEnvironment | None:
+    try:
+        with np.load(file) as arrays:
+            levels = tuple(np.array(arrays[f"level{k}"], np.float32) for k in range(LEVELS))
+            sh, lut = np.array(arrays["sh"], np.float32), np.array(arrays["lut"], np.float32)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+    shapes_good = all(level.shape == (BASE_HEIGHT >> k, 2 * (BASE_HEIGHT >> k), 3) for k, level in enumerate(levels))
+    return PrefilteredEnvironment(levels, sh, lut, 0.0) if shapes_good and sh.shape == (9, 3) else None
+
+
+def _keep(file: Path, lighting: PrefilteredEnvironment) -> None:
+    with contextlib.suppress(OSError):
+        file.parent.mkdir(parents=True, exist_ok=True)
+        partial = file.with_name(f"{file.name}.{os.getpid()}.part")
+        with partial.open("wb") as out:
+            np.savez(out, sh=lighting.sh, lut=lighting.lut, **{f"level{k}": a for k, a in enumerate(lighting.levels)})
+        os.replace(partial, file)
+
+
 @functools.lru_cache(maxsize=4)
 def prefiltered_environment(path: Path | None) -> PrefilteredEnvironment:
     """The lighting of the environment in ``path`` (a Radiance .hdr; None: the studio), computed
-    once per process. Raises :class:`node.gl.environment.EnvironmentError`."""
+    once per process, or read where :func:`keep_environments_in` keeps it. Raises
+    :class:`node.gl.environment.EnvironmentError`."""
     started = time.perf_counter()
+    kept = None
+    with contextlib.suppress(OSError):
+        kept = _KEPT_IN[0] / _kept_name(path) if _KEPT_IN else None
+    found = None if kept is None else _read_kept(kept)
+    if found is not None:
+        return dataclasses.replace(found, prefilter_ms=(time.perf_counter() - started) * 1e3)
+    lighting = _prefilter(path, started)
+    if kept is not None:
+        _keep(kept, lighting)
+    return lighting
+
+
+def _prefilter(path: Path | None, started: float) -> PrefilteredEnvironment:
     image = studio_environment() if path is None else read_hdr(path)
     base = resample(image, BASE_HEIGHT)
     coarse = resample(base, BASE_HEIGHT // 4)

@@ -43,7 +43,7 @@ from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import ProgressCallback
-from node.scene.lod import LOD_FORMAT, LodTree, lod_name, read_lod
+from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, group_levels, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore, group_of, is_mesh
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -113,8 +113,11 @@ class LoadedScene:
     share_version: int | None
     nbytes: int = 0
     held_bytes: int = 0
-    #: Its levels of detail when it has them already (a scene held again).
+    #: Its levels of detail when it has them already (a scene held again, or found in the cache).
     levels: LodTree | None = None
+    #: Its primitive groups' levels (:func:`node.scene.lod.group_levels`) when they were worked out
+    #: with the levels (None: the caller works them out).
+    group_levels: GroupLevels | None = None
 
 
 class GLWorker:
@@ -193,20 +196,29 @@ class GLWorker:
         before it is answered (its first frame may use them), others built in the background."""
         loop = asyncio.get_running_loop()
         scene, entry = await loop.run_in_executor(self._loader, self._read, request, progress)
-        loaded: LoadedScene = await self._call(self._upload, key, request, scene, entry, progress)
+        # The levels the cache holds are read and checked in the loader thread while the GL thread uploads.
+        levels = loop.run_in_executor(self._loader, self._cached_levels, entry, scene) \
+            if request.levels and entry is not None and isinstance(scene, SceneData) else None
+        try:
+            loaded: LoadedScene = await self._call(self._upload, key, request, scene, entry, progress)
+        except BaseException:
+            if levels is not None:
+                levels.add_done_callback(lambda done: done.cancelled() or done.exception())
+            raise
         if request.levels:
-            tree = None if entry is None else await loop.run_in_executor(self._loader, self._cached_levels, entry)
-            held = None if tree is None else await self._call(self._attach_levels, key, tree)
-            if held is None:
+            found = None if levels is None else await levels
+            held = None if found is None else await self._call(self._attach_levels, key, found[0])
+            if held is None or found is None:
                 self._build_levels(key)
             else:
                 loaded = dataclasses.replace(loaded, nbytes=held.nbytes, held_bytes=self._scenes.total_bytes,
-                                             levels=tree)
+                                             levels=found[0], group_levels=found[1])
         return loaded
 
-    def _cached_levels(self, entry: Path) -> LodTree | None:
-        """In the loader thread: the levels of detail of cache entry ``entry`` when the cache holds
-        them and they pass their check; None otherwise (then they are built, or rebuilt, apart)."""
+    def _cached_levels(self, entry: Path, scene: SceneData) -> tuple[LodTree, GroupLevels] | None:
+        """In the loader thread: the levels of detail of cache entry ``entry`` (``scene``) and its
+        primitive groups' levels when the cache holds them and they pass their check; None
+        otherwise (then they are built, or rebuilt, apart)."""
         found = None if self.cache is None else self.cache.existing(lod_name(entry.name), LOD_FORMAT)
         if found is None:
             return None
@@ -214,7 +226,9 @@ class GLWorker:
             tree = read_lod(found, verify=True)
         except CacheError:
             return None
-        return tree if tree.node_count else None
+        if not tree.node_count:
+            return None
+        return tree, group_levels(tree, scene.groups.chunk_starts, scene.chunks.face_counts, scene.chunks.boxes)
 
     def _build_levels(self, key: SceneKey) -> None:
         """Start building the levels of detail of the scene held as ``key`` (from its cache entry;

@@ -23,7 +23,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 #: Faces a block holds at least (blocks end at a chunk's end).
 BLOCK_FACES = 1 << 18
@@ -73,6 +72,9 @@ def _blocks(starts: np.ndarray, face_total: int) -> Iterator[tuple[int, int, int
 def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, normals: bool = True) -> FacePass:
     """Chunk boxes (chunk i is faces [starts[i], starts[i + 1]) of ``faces`` (F, 3) over
     ``positions`` (V, 3) float32) and, with ``normals``, the smooth vertex normals."""
+    # Imported here: a node that opens scene cache entries never needs it (0.2 s of its start-up).
+    import scipy.sparse
+
     columns = [np.ascontiguousarray(positions[:, axis], np.float32) for axis in range(3)]
     starts = np.asarray(starts, np.int64)
     boxes = np.empty((starts.size, 2, 3), np.float32)

@@ -397,8 +397,12 @@ def build_lod(scene: SceneData, progress: Progress) -> LodTree:
     return builder.tree(positions_of)
 
 
+#: A scene's primitive groups' levels: errors, triangles and boxes (:func:`group_levels`).
+GroupLevels = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
 def group_levels(tree: LodTree, group_starts: np.ndarray, face_counts: np.ndarray,
-                 chunk_boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 chunk_boxes: np.ndarray) -> GroupLevels:
     """What the coordinator's balancers predict with (issue 32): for each primitive group (runs of
     chunks starting at ``group_starts`` (K,); chunk faces ``face_counts`` (C,), chunk boxes
     ``chunk_boxes`` (C, 2, 3)) and each level k of 0 (full detail) … L: its ``triangles`` (K, L + 1)
