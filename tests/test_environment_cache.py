@@ -21,7 +21,8 @@ def kept(tmp_path: Path) -> Iterator[Path]:
 
 
 def same(a: PrefilteredEnvironment, b: PrefilteredEnvironment) -> bool:
-    return (len(a.levels) == len(b.levels) and all(np.array_equal(x, y) for x, y in zip(a.levels, b.levels))
+    return (len(a.levels) == len(b.levels)
+            and all(np.array_equal(x, y) for x, y in zip(a.levels, b.levels, strict=True))
             and np.array_equal(a.sh, b.sh) and np.array_equal(a.lut, b.lut))
 
 
