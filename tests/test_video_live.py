@@ -36,10 +36,12 @@ SIZE = (480, 270)
 class VideoViewer:
     """A viewer socket that offers ``codecs`` after hello and decodes what comes: ``choices`` the
     ``stream`` messages, ``video`` (frame id, keyframe, input number, decoded (h, w, 3)) and
-    ``tiles`` (frame id, still) in order of arrival."""
+    ``tiles`` (frame id, still) in order of arrival; ``reports``: send ``stream_report`` each second
+    as the browser's viewer does."""
 
-    def __init__(self, ws: ws_client.ClientConnection, codecs: list[str]) -> None:
+    def __init__(self, ws: ws_client.ClientConnection, codecs: list[str], reports: bool = True) -> None:
         self.ws = ws
+        self.reports = reports
         hello = json.loads(self.ws.recv(timeout=seconds(30)))
         self.camera: dict[str, Any] = hello["camera"]
         self.ws.send(json.dumps({"type": "stream_offer", "codecs": codecs}))
@@ -60,7 +62,7 @@ class VideoViewer:
         browser's viewer does."""
         deadline = time.monotonic() + seconds_
         while (left := deadline - time.monotonic()) > 0:
-            if time.monotonic() - self.reported_at >= 1.0 and self.video:
+            if self.reports and time.monotonic() - self.reported_at >= 1.0 and self.video:
                 self.reported_at = time.monotonic()
                 self.ws.send(json.dumps({"type": "stream_report", "bytes_per_s": 0, "decoded_fps": 0, "decode_queue": 0,
                                          "frames_dropped": 0, "frame": self.video[-1][0]}))
@@ -91,9 +93,9 @@ class VideoViewer:
 
 
 @contextmanager
-def video_viewer(url: str, codecs: list[str]) -> Iterator[VideoViewer]:
+def video_viewer(url: str, codecs: list[str], reports: bool = True) -> Iterator[VideoViewer]:
     with ws_client.connect(url, max_size=None, open_timeout=seconds(30)) as ws:
-        yield VideoViewer(ws, codecs)
+        yield VideoViewer(ws, codecs, reports)
 
 
 @contextmanager
@@ -212,15 +214,17 @@ def read_until_closed(ws: ws_client.ClientConnection) -> None:
 
 def test_a_viewer_sending_garbage_feedback_is_closed_and_the_others_keep_their_frames_and_bitrate(
         coordinator_factory):
+    # Neither viewer reports its link: the only feedback the stream gets is the garbage (on a busy
+    # machine a test viewer's honest reports may rightly bring the bitrate down).
     with started(coordinator_factory) as (coordinator, client), \
-            video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"]) as good:
+            video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"], reports=False) as good:
         while not good.video:
             good.move(0.05)
             good.read(0.2)
         before = stats(client)["video"][0]
         for name, messages, reason in GARBAGE:
             with ws_client.connect(f"{coordinator.ws_url}/ws/view", max_size=None, open_timeout=seconds(30)) as ws:
-                bad = VideoViewer(ws, ["h264"])
+                bad = VideoViewer(ws, ["h264"], reports=False)
                 while not bad.video:
                     good.move(0.05)
                     good.read(0.1)
