@@ -24,7 +24,7 @@ from node.scene.point_cache import (
     write_points_entry,
 )
 from node.scene.point_files import PointArrays, is_point_file, read_points
-from node.scene.points import NODE_GRID_BITS, PointCloud, build_octree
+from node.scene.points import NODE_GRID_BITS, PointCloud, _runs_gathered, _spread_bits, build_octree
 from tessera.compositing.eye_dome import eye_dome, guarded_rect, shade_region
 from tessera.geometry import Camera, Rect
 from tessera.points.budget import refinement, select_nodes
@@ -71,6 +71,19 @@ def test_every_point_is_kept_once_to_the_millimetre(cloud: PointCloud) -> None:
     again = np.lexsort(np.round(back, 3).T)
     np.testing.assert_array_equal(np.round(world, 3)[order], np.round(back, 3)[again])
     assert cloud.nodes.first[-1] == cloud.point_count == cloud.nodes.tree.counts.sum()
+
+
+def test_morton_spreading_and_run_gathering_match_their_plain_definitions() -> None:
+    values = np.random.default_rng(5).integers(0, 1 << 21, 5000)
+    plain = np.zeros(len(values), np.uint64)
+    for bit in range(21):      # bit b of the value goes to bit 3b
+        plain |= ((values.astype(np.uint64) >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit)
+    np.testing.assert_array_equal(_spread_bits(values), plain)
+    runs = np.array([3, 1, 4, 2, 5])
+    starts = np.concatenate(([0], np.cumsum(runs)[:-1]))
+    target = np.array([2, 0, 2, 1, 0])
+    per_point = np.repeat(target, runs)
+    np.testing.assert_array_equal(_runs_gathered(target, starts, runs), np.argsort(per_point, kind="stable"))
 
 
 def test_the_root_is_an_even_subsample_and_nodes_hold_their_points(cloud: PointCloud) -> None:

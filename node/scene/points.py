@@ -183,12 +183,25 @@ def _subtree_counts(tree: PointTree) -> np.ndarray:
 
 
 def _spread_bits(values: np.ndarray) -> np.ndarray:
-    """(N,) uint64: the low 21 bits of ``values`` spread to every third bit (Morton interleave)."""
+    """(N,) uint64: the low 21 bits of ``values`` spread to every third bit (Morton interleave), by
+    a table of 7 bits at a time (three gathers: several times fewer passes than shifts and masks)."""
+    x = values.astype(np.uint32)
+    spread = _SPREAD_TABLE[x & 0x7F]
+    spread |= _SPREAD_TABLE[(x >> 7) & 0x7F] << np.uint64(21)
+    spread |= _SPREAD_TABLE[(x >> 14) & 0x7F] << np.uint64(42)
+    return spread
+
+
+def _spread_slow(values: np.ndarray) -> np.ndarray:
+    """:func:`_spread_bits` by shifts and masks (builds its table)."""
     x = values.astype(np.uint64) & np.uint64(0x1FFFFF)
     for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
                         (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
         x = (x | (x << np.uint64(shift))) & np.uint64(mask)
     return x
+
+
+_SPREAD_TABLE = _spread_slow(np.arange(128))
 
 
 def build_octree(points: PointArrays, name: str, progress: Progress) -> PointCloud:
@@ -214,8 +227,9 @@ def build_octree(points: PointArrays, name: str, progress: Progress) -> PointClo
     cells = 1 << levels
     code = np.zeros(count, np.uint64)
     for axis in range(3):
-        cell = np.floor((world[:, axis] - lo[axis]) * (cells / cube))
-        code |= _spread_bits(np.clip(cell, 0, cells - 1).astype(np.uint64)) << np.uint64(axis)
+        cell = (world[:, axis] - lo[axis]) * (cells / cube)
+        np.clip(cell, 0, cells - 1, out=cell)      # non-negative: the cast floors
+        code |= _spread_bits(cell.astype(np.uint32)) << np.uint64(axis)
     code ^= np.uint64(CODE_MASK & ((1 << (3 * levels)) - 1))
     progress(0.4, f"sorting {count} points ({time.perf_counter() - started:.1f} s)")
     keys = np.sort((code << np.uint64(index_bits)) | np.arange(count, dtype=np.uint64))
@@ -246,13 +260,9 @@ def build_octree(points: PointArrays, name: str, progress: Progress) -> PointClo
     run_node = np.searchsorted(keys_all, keys_found)
     counts_all = np.bincount(run_node, weights=runs, minlength=len(keys_all)).astype(np.int64)
     keys, final = _collapsed(keys_all, counts_all)
-    point_node = np.repeat(final[run_node], runs)
-    if len(keys) < len(keys_all):   # points of collapsed subtrees gathered into their leaf
-        packed = np.sort((point_node.astype(np.uint64) << np.uint64(index_bits)) | np.arange(count, dtype=np.uint64))
-        order = order[(packed & np.uint64((1 << index_bits) - 1)).astype(np.int64)]
-        del packed
-    counts = np.bincount(point_node, minlength=len(keys)).astype(np.int64)
-    del point_node
+    if len(keys) < len(keys_all):   # points of collapsed subtrees gathered into their leaf: whole runs moved
+        order = order[_runs_gathered(final[run_node], starts, runs)]
+    counts = np.bincount(final[run_node], weights=runs, minlength=len(keys)).astype(np.int64)
     first = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
     progress(0.7, f"{len(keys)} nodes; writing colours ({time.perf_counter() - started:.1f} s)")
     relative = np.empty((count, 3), np.float32)
@@ -270,6 +280,16 @@ def build_octree(points: PointArrays, name: str, progress: Progress) -> PointClo
     bounds = np.stack([lo, hi])
     return PointCloud(name, relative, colors, centre, tree_nodes, bounds,
                       ObjectGraph([SceneObject(Path(name).stem or name, bounds=bounds)]))
+
+
+def _runs_gathered(run_target: np.ndarray, starts: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """(N,) int64 the permutation that orders N points, in runs of ``runs`` points starting at
+    ``starts``, by their run's ``run_target`` (stable: runs of one target keep their order, points
+    within a run too) — the runs moved whole, no sort of the points."""
+    moved = np.argsort(run_target, kind="stable")
+    lengths = runs[moved]
+    placed = np.cumsum(lengths) - lengths
+    return np.repeat(starts[moved] - placed, lengths) + np.arange(int(lengths.sum()), dtype=np.int64)
 
 
 def _with_ancestors(keys: np.ndarray) -> np.ndarray:
