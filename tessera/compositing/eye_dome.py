@@ -30,10 +30,13 @@ def log_depth(depth: np.ndarray, near: float, far: float) -> np.ndarray:
     """(h, w) float32 log2 of the eye-space distance of window ``depth`` (h, w) float32 ([0, 1],
     GL's default depth range, a perspective projection between ``near`` and ``far``); +inf where
     nothing was drawn (depth 1)."""
-    ndc = depth * np.float32(2.0) - np.float32(1.0)
-    denominator = np.float32(far + near) - ndc * np.float32(far - near)
+    level = np.multiply(depth, np.float32(2.0), dtype=np.float32)    # in place from here: no temporaries
+    level -= np.float32(1.0)
+    level *= np.float32(far - near)
+    np.subtract(np.float32(far + near), level, out=level)
     with np.errstate(divide="ignore"):
-        level = np.log2(np.float32(2.0 * near * far) / denominator)
+        np.divide(np.float32(2.0 * near * far), level, out=level)
+        np.log2(level, out=level)
     level[depth >= FAR_DEPTH] = np.inf
     return level
 
@@ -46,15 +49,22 @@ def shade(color: np.ndarray, level: np.ndarray, strength: float = DEFAULT_EDL_ST
     exp(−response · :data:`EDL_SCALE` · strength), in steps of 1/256 (integers: the same everywhere)."""
     centre = level[1:-1, 1:-1]
     response = np.zeros(centre.shape, np.float32)
+    step = np.empty(centre.shape, np.float32)
     height, width = centre.shape
     with np.errstate(invalid="ignore"):
         for dy, dx in _NEIGHBOURS:
-            step = centre - level[1 + dy:1 + dy + height, 1 + dx:1 + dx + width]
+            np.subtract(centre, level[1 + dy:1 + dy + height, 1 + dx:1 + dx + width], out=step)
             np.fmax(step, np.float32(0.0), out=step)      # nan (both empty) counts as 0
             response += step
-    factor = np.exp2(response * np.float32(-EDL_SCALE * strength / len(_NEIGHBOURS) / np.log(2.0)))
-    weight = np.rint(factor * np.float32(256.0)).astype(np.uint16)
-    return ((color.astype(np.uint16) * weight[..., None] + 128) >> 8).astype(np.uint8)
+    response *= np.float32(-EDL_SCALE * strength / len(_NEIGHBOURS) / np.log(2.0))
+    np.exp2(response, out=response)
+    response *= np.float32(256.0)
+    weight = np.rint(response, out=response).astype(np.uint16)
+    shaded = color.astype(np.uint16)
+    shaded *= weight[..., None]
+    shaded += 128
+    shaded >>= 8
+    return shaded.astype(np.uint8)
 
 
 def eye_dome(color: np.ndarray, depth: np.ndarray, near: float, far: float,
