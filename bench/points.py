@@ -2,7 +2,8 @@
 within a point budget, and the moving frame against the still.
 
 ``python -m bench.points (--terrain N | --scan-copies K | --cloud PATH) [--nodes 3] [--size 1280x720]
-[--budgets 500000,1000000] [--moving-s 8] [--input-hz 30] [--work DIR] [--json OUT]``
+[--budgets 500000,1000000] [--paths oblique,overhead,ground,close] [--moving-s 8] [--input-hz 30]
+[--work DIR] [--json OUT]``
 
 The cloud: ``--terrain N``, a synthetic terrain of N points in survey coordinates (UTM eastings of
 5·10⁵ m, northings of 4·10⁶ m; a 0.25 m grid jittered by 2 cm, scan-line order, height and RGB),
@@ -15,10 +16,13 @@ file of your own. Then, in a fresh scene cache folder:
   resident memory;
 - ``first_frame_s``: a coordinator with ``--local-nodes N`` (the cache kept) and a session opened on
   the cloud: seconds from ``POST /api/sessions`` to its first frame;
-- for each budget of ``--budgets`` (the coordinator's ``--point-budget``): a scripted viewer orbits
-  an oblique camera at ``--input-hz`` for ``--moving-s`` at ``--size``: frames per second, input →
-  frame latency, the points the busiest node drew per frame, the nodes' busy time; then one camera's
-  moving frame against the still of the same camera (PSNR) and the still's seconds.
+- for each budget of ``--budgets`` (the coordinator's ``--point-budget``), along each camera path of
+  ``--paths`` (:data:`PATHS`: oblique, overhead, near the ground looking across, close to the
+  middle), a scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s`` at ``--size``:
+  frames per second, input → frame latency, the points the busiest node drew per frame, the nodes'
+  busy time; then one camera's moving frame against the still of the same camera (PSNR) and the
+  still's seconds; and the peak memory of the coordinator and its nodes together (PSS: the pages
+  they share, the mapped cache, counted once; and their RSS summed).
 
 Figures depend on what else runs: the table prints the load average beside them.
 """
@@ -26,6 +30,7 @@ Figures depend on what else runs: the table prints the load average beside them.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import math
@@ -47,7 +52,7 @@ from PIL import Image
 from bench.big_models import grid_offsets
 from bench.images import psnr
 from bench.live import ScriptedViewer
-from bench.processes import PYTHON, REPO, show_result, start_coordinator
+from bench.processes import PYTHON, REPO, cpu_seconds, process_tree, show_result, start_coordinator
 from bench.sessions import open_session, session_figures, wait_session_ready
 from tessera.cli_values import parse_point_budget, size_parser
 
@@ -134,33 +139,122 @@ def ingest(cloud: Path, cache: Path) -> dict[str, Any]:
     return {key: round(value, 2) if isinstance(value, float) else value for key, value in figures.items()}
 
 
-def oblique(bounds: list[list[float]], angle: float) -> dict[str, Any]:
-    """A camera 30° above the cloud's middle, turned ``angle`` radians about the vertical (z, or y
-    for a cloud taller than deep), a third of its size away."""
+#: The camera paths a viewer moves along (``--paths``): elevation above the cloud's middle (degrees)
+#: and distance (fractions of its diagonal); each orbits the middle, a turn in 16 s.
+PATHS = {"oblique": (30.0, 0.45), "overhead": (75.0, 0.6), "ground": (4.0, 0.5), "close": (25.0, 0.06)}
+
+
+def oblique(bounds: list[list[float]], angle: float, path: str = "oblique") -> dict[str, Any]:
+    """A camera of ``path`` (:data:`PATHS`; default 30° above the cloud's middle, 0.45 of its
+    diagonal away) turned ``angle`` radians about the vertical (z, or y for a cloud taller than deep)."""
+    elevation, reach = PATHS[path]
     lo, hi = np.asarray(bounds, float)
     centre, extent = (lo + hi) / 2.0, hi - lo
     up = 2 if extent[2] < extent[1] else 1
     across = [axis for axis in range(3) if axis != up]
-    distance = float(np.linalg.norm(extent)) * 0.45
+    distance = float(np.linalg.norm(extent)) * reach
     eye = centre.copy()
-    eye[across[0]] += distance * math.cos(angle) * math.cos(math.radians(30))
-    eye[across[1]] += distance * math.sin(angle) * math.cos(math.radians(30))
-    eye[up] += distance * math.sin(math.radians(30))
+    eye[across[0]] += distance * math.cos(angle) * math.cos(math.radians(elevation))
+    eye[across[1]] += distance * math.sin(angle) * math.cos(math.radians(elevation))
+    eye[up] = max(eye[up] + distance * math.sin(math.radians(elevation)), hi[up] + 0.01 * distance)
     direction = [0.0, 0.0, 0.0]
     direction[up] = 1.0
     return {"eye": eye.tolist(), "target": centre.tolist(), "up": direction, "fovy_deg": 50.0}
 
 
+def tree_memory(pid: int) -> tuple[float, float]:
+    """(PSS, RSS) MB of process ``pid`` and its descendants (PSS: shared pages counted once over all)."""
+    pss = rss = 0
+    for member in process_tree(pid):
+        try:
+            with open(f"/proc/{member}/smaps_rollup") as rollup:
+                for line in rollup:
+                    if line.startswith(("Pss:", "Rss:")):
+                        kb = int(line.split()[1])
+                        pss, rss = (pss + kb, rss) if line.startswith("Pss:") else (pss, rss + kb)
+        except (OSError, ValueError):
+            continue
+    return pss / 1024.0, rss / 1024.0
+
+
+class MemoryPeak:
+    """The peak PSS and RSS of a process tree, sampled every ``every`` s on a thread until :meth:`stop`."""
+
+    def __init__(self, pid: int, every: float = 0.5) -> None:
+        self.pid, self.every = pid, every
+        self.pss_mb = self.rss_mb = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> None:
+        while True:
+            pss, rss = tree_memory(self.pid)
+            self.pss_mb, self.rss_mb = max(self.pss_mb, pss), max(self.rss_mb, rss)
+            if self._stop.wait(self.every):
+                return
+
+    def stop(self) -> dict[str, float]:
+        self._stop.set()
+        self._thread.join()
+        return {"peak_pss_mb": round(self.pss_mb), "peak_rss_mb": round(self.rss_mb)}
+
+
 def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tuple[Any, str]:
     flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(cloud.parent), "--frame-wait-s", "600",
-             "--size", f"{args.size[0]}x{args.size[1]}", "--point-budget", str(budget)]
+             "--size", f"{args.size[0]}x{args.size[1]}", "--point-budget", str(budget),
+             "--session-idle-timeout-s", "86400"]    # a still of every point may take longer than the default
     return start_coordinator(flags, log_level="warning", timeout=120,
                              env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
 
 
+def move(client: httpx.Client, url: str, session: str, bounds: list[list[float]], path: str,
+         args: argparse.Namespace, pid: int) -> dict[str, Any]:
+    """A scripted viewer moving the camera along ``path`` for ``--moving-s``: its figures, the points
+    the busiest node drew and its busy time (medians over the samples of the stats), and the CPU
+    milliseconds a frame cost the coordinator ``pid`` and its nodes together (all their threads: what
+    the load of other work does not change) with the frame rate two idle cores would allow."""
+    with ws_client.connect(url.replace("http://", "ws://") + f"/ws/view?session={session}", max_size=256 << 20) as ws:
+        viewer = ScriptedViewer(ws)
+        points: list[float] = []
+        busy: list[float] = []
+        stop = threading.Event()
+
+        def sample() -> None:
+            while not stop.wait(0.5):
+                nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
+                points.append(max((n.get("points", 0) for n in nodes), default=0))
+                busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
+
+        sampler = threading.Thread(target=sample, daemon=True)
+        moving_started = next_send = time.perf_counter()
+        sampler.start()
+        tree = process_tree(pid)
+        cpu_started = cpu_seconds(tree)
+        while (now := time.perf_counter()) < moving_started + args.moving_s:
+            viewer.send_camera(oblique(bounds, 2.0 * math.pi * (now - moving_started) / 16.0, path))
+            next_send += 1.0 / args.input_hz
+            time.sleep(max(0.0, next_send - time.perf_counter()))
+        ended = time.perf_counter()
+        cpu_used = cpu_seconds(tree) - cpu_started
+        stop.set()
+        sampler.join()
+        figures = session_figures(viewer, moving_started + 1.0, ended)
+        with viewer.lock:
+            frames = sum(1 for f in viewer.frames if moving_started <= f["at"] <= ended and not f["still"])
+        cpu_ms = cpu_used * 1e3 / max(frames, 1)
+        viewer.stop()
+    return {"path": path, **{k: round(v, 2) for k, v in figures.items()}, "cpu_ms_per_frame": round(cpu_ms, 1),
+            "fps_two_idle_cores": round(2000.0 / cpu_ms, 1) if cpu_ms > 0 else None,
+            "points_per_frame": round(float(np.median(points)), 0) if points else None,
+            "busy_ms": round(float(np.median(busy)), 1) if busy else None, "load": round(os.getloadavg()[0], 1)}
+
+
 def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> dict[str, Any]:
-    """One coordinator at ``budget``: its first frame, the picture moving, the moving frame against the still."""
+    """One coordinator at ``budget``: its first frame, the picture moving along each of ``--paths``,
+    the moving frame against the still of one camera, the peak memory of it and its nodes."""
     coordinator, url = start(args, cloud, cache, budget)
+    memory = MemoryPeak(coordinator.pid)
     try:
         with httpx.Client(base_url=url, timeout=600) as client:
             started = time.perf_counter()
@@ -168,45 +262,25 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
             wait_session_ready(client, session, timeout=1800)
             first_s = time.perf_counter() - started
             bounds = client.get(f"/api/sessions/{session}/camera").json()["bounds"]
-            with ws_client.connect(url.replace("http://", "ws://") + f"/ws/view?session={session}",
-                                   max_size=256 << 20) as ws:
-                viewer = ScriptedViewer(ws)
-                points: list[float] = []
-                busy: list[float] = []
-                stop = threading.Event()
-
-                def sample() -> None:
-                    while not stop.wait(0.5):
-                        nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
-                        points.append(max((n.get("points", 0) for n in nodes), default=0))
-                        busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
-
-                sampler = threading.Thread(target=sample, daemon=True)
-                moving_started = next_send = time.perf_counter()
-                sampler.start()
-                while (now := time.perf_counter()) < moving_started + args.moving_s:
-                    viewer.send_camera(oblique(bounds, 2.0 * math.pi * (now - moving_started) / 16.0))
-                    next_send += 1.0 / args.input_hz
-                    time.sleep(max(0.0, next_send - time.perf_counter()))
-                ended = time.perf_counter()
-                stop.set()
-                sampler.join()
-                figures = session_figures(viewer, moving_started + 1.0, ended)
-                viewer.stop()
+            paths = [move(client, url, session, bounds, path, args, coordinator.pid) for path in args.paths]
             camera = oblique(bounds, 1.0)
             first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
             moving = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
             asked = time.perf_counter()
-            still = client.get(f"/api/sessions/{session}/frame.png", params={"after": first, "still": "true"},
-                               timeout=1200).content
+            try:
+                still: bytes | None = client.get(f"/api/sessions/{session}/frame.png", timeout=args.still_s,
+                                                 params={"after": first, "still": "true"}).content
+            except httpx.TimeoutException:
+                still = None
             still_s = time.perf_counter() - asked
     finally:
+        peaks = memory.stop()
         coordinator.stop(timeout=60.0)
-    moving_image, still_image = (np.asarray(Image.open(io.BytesIO(data)).convert("RGB")) for data in (moving, still))
-    return {"budget": budget, "first_frame_s": round(first_s, 2), **{k: round(v, 2) for k, v in figures.items()},
-            "points_per_frame": round(float(np.median(points)), 0) if points else None,
-            "busy_ms": round(float(np.median(busy)), 1) if busy else None,
-            "psnr_moving_vs_still": round(psnr(moving_image, still_image), 2), "still_s": round(still_s, 2),
+    moving_image = np.asarray(Image.open(io.BytesIO(moving)).convert("RGB"))
+    similar = None if still is None else psnr(moving_image, np.asarray(Image.open(io.BytesIO(still)).convert("RGB")))
+    return {"budget": budget, "first_frame_s": round(first_s, 2), "paths": paths, **peaks,
+            "psnr_moving_vs_still": None if similar is None else round(similar, 2),
+            "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}",
             "load": round(os.getloadavg()[0], 1)}
 
 
@@ -223,8 +297,13 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         cloud = work / f"pan_points_{args.scan_copies}x{args.scan_copies}.ply"
         if not cloud.exists():
             write_scan_points(cloud, DEFAULT_SCAN, args.scan_copies)
-    with tempfile.TemporaryDirectory(prefix="tessera-bench-points-", dir=args.work) as cache_dir:
-        cache = Path(cache_dir)
+    with contextlib.ExitStack() as stack:
+        if args.cache:
+            cache = Path(args.cache)
+            cache.mkdir(parents=True, exist_ok=True)
+        else:
+            cache = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="tessera-bench-points-",
+                                                                         dir=args.work)))
         result: dict[str, Any] = {"cloud": cloud.name, "bytes": cloud.stat().st_size, "nodes": args.nodes,
                                   "size": list(args.size), "load_before": round(os.getloadavg()[0], 1)}
         result["ingest"] = ingest(cloud, cache)
@@ -241,13 +320,26 @@ def report(result: dict[str, Any]) -> str:
              f"{ingest_figures['read_s']} s; {ingest_figures['cpu_s']:.1f} CPU s, "
              f"{ingest_figures['points_per_cpu_s'] / 1e6:.2f} M/CPU s; peak {ingest_figures['peak_mb']:.0f} MB; "
              f"{ingest_figures['nodes']} octree nodes; load {ingest_figures['load']})",
-             f"{'budget':>10} {'first s':>8} {'fps':>6} {'lat ms':>7} {'points':>9} {'busy ms':>8} "
-             f"{'PSNR':>6} {'still s':>8} {'load':>5}"]
+             f"{'budget':>10} {'path':>9} {'fps':>6} {'lat ms':>7} {'points':>9} {'busy ms':>8} {'CPU ms':>7} "
+             f"{'fps 2c':>6} {'load':>5}"]
     for run in result["runs"]:
-        lines.append(f"{run['budget']:>10} {run['first_frame_s']:>8} {run['fps']:>6} {run['latency_p50_ms']:>7} "
-                     f"{run['points_per_frame']!s:>9} {run['busy_ms']!s:>8} {run['psnr_moving_vs_still']:>6} "
-                     f"{run['still_s']:>8} {run['load']:>5}")
+        for row in run["paths"]:
+            lines.append(f"{run['budget']:>10} {row['path']:>9} {row['fps']:>6} {row['latency_p50_ms']:>7} "
+                         f"{row['points_per_frame']!s:>9} {row['busy_ms']!s:>8} {row['cpu_ms_per_frame']:>7} "
+                         f"{row['fps_two_idle_cores']!s:>6} {row['load']:>5}")
+        lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; worst fps "
+                     f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
+                     f"dB (still {run['still_s']} s); peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
+                     f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed); load {run['load']}")
     return "\n".join(lines)
+
+
+def parse_paths(text: str) -> list[str]:
+    """``--paths``: names of :data:`PATHS`, comma-separated."""
+    names = text.split(",")
+    if unknown := [name for name in names if name not in PATHS]:
+        raise argparse.ArgumentTypeError(f"unknown paths {unknown}: of {', '.join(PATHS)}")
+    return names
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -260,9 +352,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=size_parser(16, 8192), default=(1280, 720))
     parser.add_argument("--budgets", type=lambda text: [parse_point_budget(v) for v in text.split(",")],
                         default=[500_000])
+    parser.add_argument("--paths", type=parse_paths, default=list(PATHS),
+                        help=f"camera paths, of {', '.join(PATHS)} (default all)")
     parser.add_argument("--moving-s", type=float, default=8.0)
     parser.add_argument("--input-hz", type=float, default=30.0)
     parser.add_argument("--work", default=str(Path(tempfile.gettempdir()) / "tessera-bench-points"))
+    parser.add_argument("--cache", help="a scene cache folder kept between runs (default: a fresh one, "
+                        "removed after); ingest figures are of a build only when it holds no entry of the cloud")
+    parser.add_argument("--still-s", type=float, default=1200.0,
+                        help="seconds the still may take before it is reported as not done")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
