@@ -208,42 +208,39 @@ def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tu
                              env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
 
 
-def move(client: httpx.Client, url: str, session: str, bounds: list[list[float]], path: str,
-         args: argparse.Namespace, pid: int) -> dict[str, Any]:
-    """A scripted viewer moving the camera along ``path`` for ``--moving-s``: its figures, the points
-    the busiest node drew and its busy time (medians over the samples of the stats), and the CPU
+def move(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: list[list[float]], path: str,
+         seconds: float, args: argparse.Namespace, pid: int) -> dict[str, Any]:
+    """``viewer`` moving the camera along ``path`` for ``seconds``: its figures, the points the
+    busiest node drew and its busy time (medians over the samples of the stats), and the CPU
     milliseconds a frame cost the coordinator ``pid`` and its nodes together (all their threads: what
     the load of other work does not change) with the frame rate two idle cores would allow."""
-    with ws_client.connect(url.replace("http://", "ws://") + f"/ws/view?session={session}", max_size=256 << 20) as ws:
-        viewer = ScriptedViewer(ws)
-        points: list[float] = []
-        busy: list[float] = []
-        stop = threading.Event()
+    points: list[float] = []
+    busy: list[float] = []
+    stop = threading.Event()
 
-        def sample() -> None:
-            while not stop.wait(0.5):
-                nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
-                points.append(max((n.get("points", 0) for n in nodes), default=0))
-                busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
+    def sample() -> None:
+        while not stop.wait(0.5):
+            nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
+            points.append(max((n.get("points", 0) for n in nodes), default=0))
+            busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
 
-        sampler = threading.Thread(target=sample, daemon=True)
-        moving_started = next_send = time.perf_counter()
-        sampler.start()
-        tree = process_tree(pid)
-        cpu_started = cpu_seconds(tree)
-        while (now := time.perf_counter()) < moving_started + args.moving_s:
-            viewer.send_camera(oblique(bounds, 2.0 * math.pi * (now - moving_started) / 16.0, path))
-            next_send += 1.0 / args.input_hz
-            time.sleep(max(0.0, next_send - time.perf_counter()))
-        ended = time.perf_counter()
-        cpu_used = cpu_seconds(tree) - cpu_started
-        stop.set()
-        sampler.join()
-        figures = session_figures(viewer, moving_started + 1.0, ended)
-        with viewer.lock:
-            frames = sum(1 for f in viewer.frames if moving_started <= f["at"] <= ended and not f["still"])
-        cpu_ms = cpu_used * 1e3 / max(frames, 1)
-        viewer.stop()
+    sampler = threading.Thread(target=sample, daemon=True)
+    moving_started = next_send = time.perf_counter()
+    sampler.start()
+    tree = process_tree(pid)
+    cpu_started = cpu_seconds(tree)
+    while (now := time.perf_counter()) < moving_started + seconds:
+        viewer.send_camera(oblique(bounds, 2.0 * math.pi * (now - moving_started) / 16.0, path))
+        next_send += 1.0 / args.input_hz
+        time.sleep(max(0.0, next_send - time.perf_counter()))
+    ended = time.perf_counter()
+    cpu_used = cpu_seconds(tree) - cpu_started
+    stop.set()
+    sampler.join()
+    figures = session_figures(viewer, moving_started + 1.0, ended)
+    with viewer.lock:
+        frames = sum(1 for f in viewer.frames if moving_started <= f["at"] <= ended and not f["still"])
+    cpu_ms = cpu_used * 1e3 / max(frames, 1)
     return {"path": path, **{k: round(v, 2) for k, v in figures.items()}, "cpu_ms_per_frame": round(cpu_ms, 1),
             "fps_two_idle_cores": round(2000.0 / cpu_ms, 1) if cpu_ms > 0 else None,
             "points_per_frame": round(float(np.median(points)), 0) if points else None,
@@ -262,7 +259,16 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
             wait_session_ready(client, session, timeout=1800)
             first_s = time.perf_counter() - started
             bounds = client.get(f"/api/sessions/{session}/camera").json()["bounds"]
-            paths = [move(client, url, session, bounds, path, args, coordinator.pid) for path in args.paths]
+            # One viewer moving without a rest: a rest starts a still, whose samples draw every point
+            # (seconds a tile at 100M points on llvmpipe) and hold the next moving frames back. The
+            # warm-up outlasts the still that starts after the first frame.
+            with ws_client.connect(url.replace("http://", "ws://") + f"/ws/view?session={session}",
+                                   max_size=256 << 20) as ws:
+                viewer = ScriptedViewer(ws)
+                warmup = move(client, viewer, session, bounds, args.paths[0], args.warmup_s, args, coordinator.pid)
+                paths = [move(client, viewer, session, bounds, path, args.moving_s, args, coordinator.pid)
+                         for path in args.paths]
+                viewer.stop()
             camera = oblique(bounds, 1.0)
             first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
             moving = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
@@ -278,7 +284,7 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
         coordinator.stop(timeout=60.0)
     moving_image = np.asarray(Image.open(io.BytesIO(moving)).convert("RGB"))
     similar = None if still is None else psnr(moving_image, np.asarray(Image.open(io.BytesIO(still)).convert("RGB")))
-    return {"budget": budget, "first_frame_s": round(first_s, 2), "paths": paths, **peaks,
+    return {"budget": budget, "first_frame_s": round(first_s, 2), "warmup": warmup, "paths": paths, **peaks,
             "psnr_moving_vs_still": None if similar is None else round(similar, 2),
             "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}",
             "load": round(os.getloadavg()[0], 1)}
@@ -327,7 +333,8 @@ def report(result: dict[str, Any]) -> str:
             lines.append(f"{run['budget']:>10} {row['path']:>9} {row['fps']:>6} {row['latency_p50_ms']:>7} "
                          f"{row['points_per_frame']!s:>9} {row['busy_ms']!s:>8} {row['cpu_ms_per_frame']:>7} "
                          f"{row['fps_two_idle_cores']!s:>6} {row['load']:>5}")
-        lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; worst fps "
+        lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; warm-up fps {run['warmup']['fps']}; "
+                     f"worst fps "
                      f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
                      f"dB (still {run['still_s']} s); peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
                      f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed); load {run['load']}")
@@ -355,6 +362,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--paths", type=parse_paths, default=list(PATHS),
                         help=f"camera paths, of {', '.join(PATHS)} (default all)")
     parser.add_argument("--moving-s", type=float, default=8.0)
+    parser.add_argument("--warmup-s", type=float, default=15.0,
+                        help="seconds moved before the paths are measured (the first still's samples drain)")
     parser.add_argument("--input-hz", type=float, default=30.0)
     parser.add_argument("--work", default=str(Path(tempfile.gettempdir()) / "tessera-bench-points"))
     parser.add_argument("--cache", help="a scene cache folder kept between runs (default: a fresh one, "
