@@ -9,8 +9,9 @@ of the scenes already held go on meanwhile, and its end is fed back to the proto
 Functional parallelism (seed 002 §4): three stages per tile run concurrently — drawing (the one GL
 thread), encoding (an encoder thread, :mod:`node.tile_messages`) and sending (the event loop's
 sender task), so tile i+1 is drawn while tile i is compressed and sent. moderngl keeps the GIL
-inside GL calls, so on CPython the overlap is the kernel's transfer of queued bytes and the
-encoder's GIL-free stretches.
+inside GL calls, but the draw's longest wait, ``glFinish``, lets it go
+(:func:`node.gl.context.finish`): the event loop, the encoder and a scene read in the background
+run meanwhile. A ``load_scene`` starts on receipt, also while a tile is being drawn.
 
 Depth modes (issue 10): a tile of a ``render`` with a depth request is drawn as a depth layer
 (:func:`node.gl.depth_layers.live_plan`: a hybrid tile's owned chunks into tile + strip, or the
@@ -145,8 +146,16 @@ class NodeClient:
         self.worker.levels_listener = lambda spec, share, tree, scene: outbox.put_nowait(
             levels_ready(spec, share, tree, scene))
         loads: set[asyncio.Task[None]] = set()
-        tasks = [asyncio.create_task(self._receive(ws, work)), asyncio.create_task(self._send_loop(ws, outbox)),
-                 asyncio.create_task(self._job_loop(work, outbox, loads))]
+
+        def start_load(action: Load) -> None:
+            """Read the scene in the background (in ``loads``); its end wakes ``work``."""
+            load = asyncio.create_task(self._load_scene(action.request, outbox, work))
+            loads.add(load)
+            load.add_done_callback(loads.discard)
+
+        tasks = [asyncio.create_task(self._receive(ws, work, start_load)),
+                 asyncio.create_task(self._send_loop(ws, outbox)),
+                 asyncio.create_task(self._job_loop(work, outbox, start_load))]
         try:
             done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
@@ -159,9 +168,10 @@ class NodeClient:
                 log.error("node session failed", exc_info=error)
                 await ws.close(1011, "node error")
 
-    async def _receive(self, ws: ClientConnection, work: asyncio.Event) -> None:
+    async def _receive(self, ws: ClientConnection, work: asyncio.Event, start_load: Callable[[Load], None]) -> None:
         """Each text message goes to the protocol on receipt (a cancel or the welcome takes effect
-        there and then); ``work`` wakes the job loop for what it queued."""
+        there and then, a load it hands out is started by ``start_load``, even while a tile is being
+        drawn); ``work`` wakes the job loop for what it queued."""
         async for raw in ws:
             if isinstance(raw, bytes):   # a mesh sent as arrays (issue 33), before the load_scene of it
                 try:
@@ -170,11 +180,13 @@ class NodeClient:
                     log.warning("ignoring a binary message from the coordinator: %s", exc)
                 continue
             self.protocol.receive_text(raw)
+            while (load := self.protocol.next_load()) is not None:
+                start_load(load)
             work.set()
 
-    async def _job_loop(self, work: asyncio.Event, outbox: Outbox, loads: set[asyncio.Task[None]]) -> None:
+    async def _job_loop(self, work: asyncio.Event, outbox: Outbox, start_load: Callable[[Load], None]) -> None:
         """Carry out the protocol's actions in order, each done before the next is asked for, but
-        loads: each goes on in the background (in ``loads``) and wakes ``work`` when it ends."""
+        loads: each goes on in the background (``start_load``) and wakes ``work`` when it ends."""
         while True:
             action = self.protocol.next_action()
             match action:
@@ -184,9 +196,7 @@ class NodeClient:
                 case Send():
                     outbox.put_nowait(action.message)
                 case Load():
-                    load = asyncio.create_task(self._load_scene(action.request, outbox, work))
-                    loads.add(load)
-                    load.add_done_callback(loads.discard)
+                    start_load(action)
                 case Measure():
                     await self._calibrate(action, outbox)
                 case Draw():

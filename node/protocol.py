@@ -247,10 +247,8 @@ class NodeProtocol:
         while True:
             if self._ready:
                 return self._ready.popleft()
-            load = next((key for key in self._waiting if key not in self._running), None)
-            if load is not None:
-                pending = self._running[load] = self._waiting.pop(load)
-                return Load(pending.request)
+            if (load := self.next_load()) is not None:
+                return load
             if self._picks:
                 return PickPixel(self._picks.popleft())
             if self._frame is not None:
@@ -261,6 +259,16 @@ class NodeProtocol:
                 return None
             self._jobs.remove(job)
             self._start(job)
+
+    def next_load(self) -> Load | None:
+        """A load waiting to be handed out (None: none), also while a tile is being drawn: loads run
+        in the background, so a scene received meanwhile (a mesh step loaded ahead) is read while
+        the tile of the scene shown is drawn, not after it."""
+        load = next((key for key in self._waiting if key not in self._running), None)
+        if load is None:
+            return None
+        pending = self._running[load] = self._waiting.pop(load)
+        return Load(pending.request)
 
     def _waits(self, job: Job) -> bool:
         """Whether ``job`` waits for a load of its scene received before it (a cancelled frame does not)."""

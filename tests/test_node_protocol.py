@@ -129,6 +129,22 @@ def test_of_several_loads_waiting_for_one_key_only_the_newest_is_loaded():
     assert drawn(actions) == [(1, 0)], "its load is done: the one that superseded the load received before it"
 
 
+def test_a_load_received_while_a_tile_is_drawn_is_handed_out_at_once_and_the_next_tile_waits_its_turn():
+    protocol = connected(load("a.ply"))
+    drain(protocol)
+    protocol.receive_text(render(1, tiles=2, scene="a.ply"))
+    (first,) = drawn([protocol.next_action()])
+    assert first == (1, 0)
+    protocol.receive_text(load("b.ply"))   # a mesh step loaded ahead, while tile (1, 0) is drawn
+    ahead = protocol.next_load()
+    assert isinstance(ahead, Load) and ahead.request.scene == "b.ply", "not held until the tile is done"
+    assert protocol.next_load() is None, "handed out once"
+    protocol.receive_text(render(2, tiles=1, scene="b.ply"))
+    assert drawn(until_idle(protocol)) == [(1, 1)], "frame 1's tiles go on; frame 2 waits for b.ply"
+    protocol.scene_loaded(ahead.request, SPHERES, None)
+    assert drawn(until_idle(protocol)) == [(2, 0)]
+
+
 def test_a_load_holds_back_only_the_jobs_of_its_scene_received_after_it():
     protocol = connected(load("a.ply"))
     drain(protocol)

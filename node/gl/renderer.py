@@ -80,6 +80,7 @@ from node.culling.lod import LodCut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.buffers import upload_geometry
+from node.gl.context import finish
 from node.gl.framebuffers import FramebufferCache
 from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
@@ -407,7 +408,7 @@ class TileRenderer:
             framebuffer.scissor = gl_box
             framebuffer.use()
             self.ctx.copy_framebuffer(framebuffer, target)
-        self.ctx.finish()
+        finish(self.ctx)
         drawn = time.perf_counter()
         data = framebuffer.read(viewport=gl_box, components=3, alignment=1)
         pixels = np.ascontiguousarray(np.frombuffer(data, np.uint8).reshape(rect.h, rect.w, 3)[::-1])
