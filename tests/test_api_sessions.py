@@ -18,7 +18,7 @@ from server.calibration import AGREEING
 from server.settings import Settings
 from tessera.geometry import Rect
 from tessera.wire.codec import Codec, encode
-from tessera.wire.protocol import TileHeader, pack_tile, unpack_frame
+from tessera.wire.protocol import TileHeader, pack_tile, state_tag, unpack_frame
 from tests.conftest import seconds
 from tests.integration_support import wait_until
 from tests.test_api import BOUNDS, HELLO, closed_with, next_json
@@ -72,7 +72,8 @@ class SceneNode:
         level = 40 * (self.scenes.index(render["scene"]) + 1)
         for tile in render["tiles"]:
             rect = Rect(*tile["rect"])
-            header = TileHeader(render["frame"], tile["tile"], rect, Codec.PNG, 1.0, 0.0, 0.0)
+            header = TileHeader(render["frame"], tile["tile"], rect, Codec.PNG, 1.0, 0.0, 0.0,
+                                state=state_tag((render.get("state") or {}).get("version")))
             self.ws.send_bytes(pack_tile(header, encode(np.full((rect.h, rect.w, 3), level, np.uint8), Codec.PNG)))
             self.ws.send_json({"type": "tile_sent", "frame": render["frame"], "tile": tile["tile"], "send_ms": 0.1,
                                "stats": {}})
@@ -105,13 +106,13 @@ def test_a_session_has_unguessable_keys_and_its_own_scene_and_size(client):
         node = SceneNode(ws)
         first = client.put(f"/api/sessions/{session_id}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
         node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
-        assert node.scenes == ["builtin:spheres", "builtin:cluster"], "a node joining loads every session's scene"
+        assert node.scenes == ["builtin:cluster", "builtin:spheres"], "every session's scene, the default's last"
         session_frame = frame_png(client, f"/api/sessions/{session_id}/frame.png", first.json()["frame"])
-        assert session_frame.shape == (40, 80, 3) and (session_frame == 80).all(), "its tiles, its size"
+        assert session_frame.shape == (40, 80, 3) and (session_frame == 40).all(), "its tiles, its size"
         default_first = client.put("/api/camera", json={"eye": [0, 0, 6], "target": [0, 0, 0]}).json()["frame"]
         node.serve(lambda render: render["scene"] == "builtin:spheres" and render["frame"] >= default_first)
         default_frame = frame_png(client, "/api/frame.png", default_first)
-        assert default_frame.shape == (48, 64, 3) and (default_frame == 40).all(), "never the other session's tiles"
+        assert default_frame.shape == (48, 64, 3) and (default_frame == 80).all(), "never the other session's tiles"
         stats = client.get(f"/api/sessions/{session_id}/stats").json()
         assert stats["size"] == [80, 40] and stats["session"] == session_id
         assert {s["id"] for s in client.get("/api/stats").json()["sessions"]} == {"default", session_id}

@@ -432,7 +432,8 @@ def test_never_a_torn_frame_never_backwards_under_random_events(events, balancer
                 node = owing[value % len(owing)]
                 frame_id, tile_id = next(iter(node.outstanding))
                 job = s.in_flight.get(frame_id)
-                rect, codec = (job.tiles[tile_id].rect, job.codec) if job else (Rect(0, 0, 1, 1), Codec.JPEG)
+                codec, rects = (job.codec, [t.rect for t in job.tiles]) if job else s.retired[frame_id]
+                rect = rects[tile_id]
                 s.tile_arrived(node.node_id, TileHeader(frame_id, tile_id, rect, codec, 1.0 + value, 0.1, 0.1),
                                b"t", now)
                 s.tile_sent(node.node_id, frame_id, tile_id, 0.1)
