@@ -88,6 +88,8 @@ class Session:
         self.state = "loading"
         self.error: str | None = None
         self.created_at = self.last_used = time.monotonic()
+        #: Requests waiting for one of its frames (``GET frame.png``): it is not idle while any waits.
+        self.frame_waits = 0
         #: A restored session's object poses and animation clock, applied once its scene is known.
         self.pending_state: dict[str, Any] | None = None
         #: Labels pinned to points of the scene (issue 35): ``{"point": [x, y, z], "text"}`` each.
@@ -115,8 +117,9 @@ class Session:
         self.last_used = time.monotonic()
 
     def idle_for(self, now: float) -> float:
-        """Seconds since the session was last used, 0 while a viewer watches it."""
-        return 0.0 if self.viewers.slots else now - self.last_used
+        """Seconds since the session was last used, 0 while a viewer watches it or a request waits
+        for one of its frames."""
+        return 0.0 if self.viewers.slots or self.frame_waits else now - self.last_used
 
     # ----------------------------------------------------------------- what users change
     def set_camera(self, camera: Camera, viewer_id: int | None = None, seq: int | None = None) -> int:

@@ -272,3 +272,16 @@ def test_a_restored_session_gets_its_object_poses_back_once_a_node_reports_its_s
                                  if second.get(f"/api/sessions/{body['id']}/objects").status_code == 200 else None,
                                  seconds(10), "the restored session's scene")
             assert objects[0]["translation"] == [3.0, 0.0, 0.0]
+
+
+def test_a_session_is_not_idle_while_a_request_waits_for_its_frame():
+    """A REST user waiting for a big scene's still (no viewer) outlasted --session-idle-timeout-s:
+    the session was closed under the waiting request. It stays open while one waits."""
+    settings = dataclasses.replace(SETTINGS, session_idle_timeout_s=1.0)
+    with TestClient(create_app(settings)) as client:
+        session_id = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()["id"]
+        waited = client.get(f"/api/sessions/{session_id}/frame.png", params={"still": "true", "timeout": 3.5})
+        assert waited.status_code == 504, "no node: no frame, after the whole wait"
+        assert client.get(f"/api/sessions/{session_id}").status_code == 200, "still open after the wait"
+        wait_until(lambda: session_id not in {s["id"] for s in client.get("/api/sessions").json()}, seconds(10),
+                   "the idle session closed once nothing waits")

@@ -46,7 +46,12 @@ async def frame_png(after: int | None = Query(None, ge=0), timeout: float | None
                                                     "no such frame is on its way")
     if session.store.first_at_or_after(after, still) is None:
         session.request_frame()
-    frame = await session.store.wait_for(after, timeout or session.service.settings.frame_wait_s, still)
+    session.frame_waits += 1   # a long wait (a big scene's still) keeps the session open
+    try:
+        frame = await session.store.wait_for(after, timeout or session.service.settings.frame_wait_s, still)
+    finally:
+        session.frame_waits -= 1
+        session.touch()
     if frame is None:
         kind = "still frame" if still else "complete frame"
         raise HTTPException(status_code=504, detail=f"no {kind} with id >= {after} in time")
