@@ -323,6 +323,8 @@ def figures(run: dict[str, Any], references: References | None) -> dict[str, Any
         "encode_ms_p50": stream.get("encode_cpu_ms_p50"), "compose_ms": stream.get("compose_cpu_ms_mean"),
         "encode_wall_ms": stream.get("encode_ms_mean"), "compose_wall_ms": stream.get("compose_ms_mean"),
         "frames_encoded": stream.get("frames_encoded"), "target_bitrate": stream.get("bitrate"),
+        "crf": stream.get("crf"), "crf_changes": stream.get("crf_changes"),
+        "psnr_video_measured": stream.get("psnr_video_db"), "psnr_tiles_measured": stream.get("psnr_tiles_db"),
         "keyframes": viewer.keyframes, "frames_lost": viewer.lost, "tile_frames_after_choice":
         viewer.tfrm_after_choice if choice.get("transport") != "tiles" else None,
         "frame_interval_ms": round(interval_ms, 2), "latency_p50_ms": round(p50, 1),
@@ -445,7 +447,8 @@ def report(result: dict[str, Any]) -> str:
                  f"PSNR against {reference}; 'vs src': against the coordinator's composite of the tiles "
                  "(the encoder's source); enc/comp ms: the coordinator's CPU per frame (its stream thread), "
                  "wall: both on the wall clock; dec ms: this "
-                 "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms)")
+                 "viewer's CPU per frame; latency: input to decoded frame, in frame intervals (ms); crf: the "
+                 "H.264 stream's at the end, with the coordinator's own PSNR of the video and the tiles' JPEG")
     if "summary" in result:
         lines += summary_table(result["summary"])
     return "\n".join(lines)
@@ -455,7 +458,7 @@ def transport_rows(result: dict[str, Any]) -> list[str]:
     """The table of one run's figures keyed by transport."""
     lines = [f"{'transport':<10}{'KB/frame':>9}{'wire':>6}{'Mbit/s':>8}{'@60fps':>8}{'fps':>6}{'PSNR mean':>10}"
              f"{'min':>7}{'vs src':>8}{'enc ms':>8}{'comp ms':>8}{'wall':>6}{'dec ms':>8}{'latency p50':>19}"
-             f"{'keys':>5}{'lost':>5}"]
+             f"{'keys':>5}{'lost':>5}{'crf':>7}{'own video/tiles dB':>20}"]
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is None:
@@ -471,7 +474,9 @@ def transport_rows(result: dict[str, Any]) -> list[str]:
                      f"{cell(row['encode_ms'], 8, 2)}{cell(row['compose_ms'], 8, 2)}"
                      f"{cell(_sum(row.get('encode_wall_ms'), row.get('compose_wall_ms')), 6, 1)}"
                      f"{cell(row['viewer_decode_ms'], 8, 2)}{cell(row['latency_intervals_p50'], 8, 2)} "
-                     f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}")
+                     f"({cell(row['latency_p50_ms'], 5, 0)} ms){row['keyframes']:>5}{row['frames_lost']:>5}"
+                     f"{cell(row.get('crf'), 7, 2)}{cell(row.get('psnr_video_measured'), 11, 2)}"
+                     f"{cell(row.get('psnr_tiles_measured'), 9, 2)}")
     for transport in TRANSPORTS:
         row = result.get(transport)
         if row is not None and "still_s" in row:

@@ -77,7 +77,7 @@ def summary_table(by_size: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
     """The summary's lines: per size and transport, means and worst cases (the worst run named)."""
     lines = ["Over the runs, mean / worst (worst: lowest PSNR and PSNR against the tiles, highest byte ratio):",
              f"{'size':<10}{'transport':<10}{'runs':>5}{'PSNR':>15}{'vs tiles dB':>15}{'wire KB':>9}"
-             f"{'wire / tiles':>15}{'msgs / tiles':>15}{'fps':>6}  worst run (vs tiles)"]
+             f"{'wire / tiles':>15}{'msgs / tiles':>15}{'fps':>6}{'crf':>7}  worst run (vs tiles)"]
     for size, summary in by_size.items():
         for transport, row in summary.items():
             lines.append(
@@ -86,5 +86,5 @@ def summary_table(by_size: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
                 f"{cell(row.get('vs_tiles_db_worst'), 6, 2)}{cell((row.get('wire_bytes_per_frame') or 0) / 1000, 9, 1)}"
                 f"{cell(row.get('wire_ratio_mean'), 7, 3)} /{cell(row.get('wire_ratio_worst'), 6, 3)}"
                 f"{cell(row.get('message_ratio_mean'), 7, 3)} /{cell(row.get('message_ratio_worst'), 6, 3)}"
-                f"{cell(row.get('fps'), 6, 1)}  {row.get('vs_tiles_db_worst_run', '')}")
+                f"{cell(row.get('fps'), 6, 1)}{cell(row.get('crf'), 7, 2)}  {row.get('vs_tiles_db_worst_run', '')}")
     return lines

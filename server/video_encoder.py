@@ -1,13 +1,15 @@
 """One video encoder (PyAV: libx264, libvpx-vp9) of a stream: yuv420p pictures in, one
 access unit per picture out, at a target bitrate. Low latency: no B-frames, no look-ahead, one
-picture in, its packet out. A new target takes a new encoder (and so a keyframe): neither libx264
-nor libvpx-vp9, as PyAV drives them, follows a bitrate changed on an open encoder.
+picture in, its packet out. A new target or CRF takes a new encoder (and so a keyframe): neither
+libx264 nor libvpx-vp9, as PyAV drives them, follows a rate option changed on an open encoder (PyAV
+sets codec options only when it opens one).
 
 The target is a rate at the stream's nominal frame rate: pictures are timed ``1/fps`` apart whatever
 the nodes' real rate, so each gets ``bitrate / fps`` bits on average and the link never carries more
 than the target (fewer frames, fewer bits). H.264 is x264 ``ultrafast`` + ``zerolatency`` with what
 pays for itself on top (:data:`X264_PARAMS`: CABAC, 8×8 inter partitions, sub-pixel refinement,
-trellis), Main profile, constant quality (:data:`X264_CRF`) capped by the target under a VBV of
+trellis), Main profile, constant quality (a CRF: :data:`X264_CRF` at first, then where the
+stream's loop holds it, :mod:`tessera.video.quality_control`) capped by the target under a VBV of
 :data:`BUFFER_FRAMES` pictures (a keyframe too stays near a frame's share), SPS/PPS before every
 keyframe (Annex B); VP9 is libvpx ``realtime`` at the fastest speed, tuned for screen content, at
 the target bitrate under the same VBV. Both run on the caller's thread (:data:`THREADS`), so its CPU
@@ -32,10 +34,11 @@ _ENCODERS = {VideoCodec.H264: "libx264", VideoCodec.VP9: "libvpx-vp9"}
 #: chroma QP offset of −2 (chroma costs PSNR more than bits). Each option chosen by its PSNR per
 #: byte and per millisecond at 720p: see the design notes.
 X264_PARAMS = "partitions=i4x4,p8x8:deblock=1,1:cabac=1:subme=2:me=hex:trellis=1:chroma-qp-offset=-2"
-#: x264's constant rate factor, the target a cap over it (capped CRF): a picture gets the bits its
-#: quality needs up to its share of the target, where the target alone (constant bitrate) would spend
-#: every frame's share. 28.5: the fewest bits that stay above the JPEG q60 tiles' PSNR (measured with
-#: ``bench.stream``: see the design notes).
+#: x264's constant rate factor a stream starts at, the target a cap over it (capped CRF): a picture
+#: gets the bits its quality needs up to its share of the target, where the target alone (constant
+#: bitrate) would spend every frame's share. 28.5: the fewest bits that stay above the JPEG q60
+#: tiles' PSNR on the default scene (``bench.stream``: see the design notes); the stream's loop
+#: moves it from there.
 X264_CRF = 28.5
 #: Frames larger than :data:`tessera.video.budget.FULL_ANALYSIS_PIXELS`, encoded from JPEG q88 tiles:
 #: ``ultrafast`` with 4×4 intra partitions, the deblocking filter and CABAC, at CRF 26.
@@ -43,7 +46,7 @@ X264_LIGHT_PARAMS = "partitions=i4x4:deblock=0,0:cabac=1"
 X264_LIGHT_CRF = 26
 _OPTIONS = {
     VideoCodec.H264: {"preset": "ultrafast", "tune": "zerolatency", "profile": "main", "forced-idr": "1",
-                      "x264-params": X264_PARAMS, "crf": f"{X264_CRF:g}"},
+                      "x264-params": X264_PARAMS},
     # tune-content screen: fewer bytes and more dB on rendered frames at the same CPU (see the design notes)
     VideoCodec.VP9: {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "row-mt": "1",
                      "error-resilient": "0", "tune-content": "screen"},
@@ -56,14 +59,22 @@ BUFFER_FRAMES = 2.0
 THREADS = 1
 
 
+def default_crf(size: tuple[int, int]) -> float:
+    """The CRF an H.264 stream of frames of ``size`` (w, h px) starts at."""
+    return X264_CRF if full_analysis(size) else X264_LIGHT_CRF
+
+
 class VideoEncoder:
     """Encodes pictures of ``size`` (w, h px; the coded size is even) with ``codec`` at a target
-    ``bitrate`` (bit/s at ``fps`` pictures per second; H.264: at most); ``options``: the encoder's
-    options as opened (H.264: the fuller analysis up to 1280×720, :mod:`tessera.video.budget`)."""
+    ``bitrate`` (bit/s at ``fps`` pictures per second; H.264: at most, at constant quality ``crf``,
+    None: :func:`default_crf`); ``options``: the encoder's options as opened (H.264: the fuller
+    analysis up to 1280×720, :mod:`tessera.video.budget`)."""
 
-    def __init__(self, codec: VideoCodec, size: tuple[int, int], bitrate: float, fps: float) -> None:
+    def __init__(self, codec: VideoCodec, size: tuple[int, int], bitrate: float, fps: float,
+                 crf: float | None = None) -> None:
         self.codec = codec
         self.size = size
+        self.crf = (default_crf(size) if crf is None else float(crf)) if codec is VideoCodec.H264 else None
         width, height = coded_size(size)
         context = av.CodecContext.create(_ENCODERS[codec], "w")
         context.width, context.height = width, height
@@ -76,8 +87,10 @@ class VideoEncoder:
         context.thread_count = THREADS
         context.bit_rate = 0 if codec is VideoCodec.H264 else int(bitrate)   # H.264: the CRF under the cap
         options = dict(_OPTIONS[codec])
-        if codec is VideoCodec.H264 and not full_analysis(size):
-            options.update({"x264-params": X264_LIGHT_PARAMS, "crf": str(X264_LIGHT_CRF)})
+        if codec is VideoCodec.H264:
+            options["crf"] = f"{self.crf:g}"
+            if not full_analysis(size):
+                options["x264-params"] = X264_LIGHT_PARAMS
         context.options = self.options = {**options, "maxrate": str(int(bitrate)),
                            "bufsize": str(int(bitrate * BUFFER_FRAMES / fps))}
         context.open()

@@ -25,13 +25,16 @@ import asyncio
 import itertools
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any, Protocol
 
 from server.video_stream import EncodedFrame, VideoStream
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Rect
 from tessera.scheduling.frame_lock import FrameLock
+from tessera.video.budget import full_analysis
 from tessera.video.link_rate import LinkReport
+from tessera.video.quality_control import CrfLoop
 from tessera.wire.codec import Codec
 from tessera.wire.messages import CameraUpdate, Message
 from tessera.wire.protocol import pack_frame, with_input_seq
@@ -229,6 +232,9 @@ class ViewerHub:
         self.lock = FrameLock()
         #: The session's video streams, by codec, while a viewer takes one.
         self.streams: dict[VideoCodec, VideoStream] = {}
+        #: The CRF loop of the session's last stream in each codec, and whether its frames had the
+        #: fuller analysis: the next stream of frames like those starts where that one left off.
+        self._crf_loops: dict[VideoCodec, tuple[bool, CrfLoop]] = {}
 
     def join(self, cell: tuple[int, int] | None = None, now: float = 0.0) -> ViewerSlot:
         """A new viewer, of wall cell ``cell`` (None: the whole frame); a cell joins the frame lock."""
@@ -244,13 +250,16 @@ class ViewerHub:
         self.stop_video(slot)
 
     def start_video(self, slot: ViewerSlot, codec: VideoCodec, size: tuple[int, int], max_bitrate: float,
-                    max_fps: float) -> StreamChoice:
+                    max_fps: float, tiles_quality: Callable[[], int | None] = lambda: None) -> StreamChoice:
         """``slot`` takes the session's stream in ``codec`` (made for frames of ``size`` if none
-        is running) from its next keyframe; the ``stream`` message that tells it so."""
+        is running; ``tiles_quality``: :class:`VideoStream`'s) from its next keyframe; the
+        ``stream`` message that tells it so."""
         self.stop_video(slot)
         stream = self.streams.get(codec)
         if stream is None:
-            stream = self.streams[codec] = VideoStream(codec, size, max_bitrate, max_fps, self._deliver)
+            analysis, loop = self._crf_loops.get(codec, (None, None))
+            stream = self.streams[codec] = VideoStream(codec, size, max_bitrate, max_fps, self._deliver, tiles_quality,
+                                                       loop if analysis == full_analysis(size) else None)
         slot.video_codec, slot.needs_keyframe = codec, True
         stream.request_keyframe()
         return StreamChoice(transport=codec.label, codec=stream.codec_string)
@@ -260,7 +269,10 @@ class ViewerHub:
         codec, slot.video_codec = slot.video_codec, None
         slot.video.clear()
         if codec is not None and not any(s.video_codec is codec for s in self.slots):
-            self.streams.pop(codec).close()
+            stream = self.streams.pop(codec)
+            stream.close()
+            if stream.crf_loop is not None:
+                self._crf_loops[codec] = (full_analysis(stream.size), stream.crf_loop)
 
     def request_keyframe(self, slot: ViewerSlot) -> None:
         """``slot``'s decoder lost a frame: it skips to the next keyframe, which its stream sends."""

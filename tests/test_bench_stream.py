@@ -104,6 +104,7 @@ def test_stream_bench_over_random_cameras_and_sizes(tmp_path):
         ([160, 90], "camera 0"), ([160, 90], "camera 1"), ([192, 108], "camera 0"), ([192, 108], "camera 1")]
     for run in result["runs"]:
         assert run["transports"]["h264"]["decoded_size"] == [run["size"]], run
+        assert run["transports"]["h264"]["crf"] is not None, run
     assert set(result["summary"]) == {"160x90", "192x108"}
     for summary in (result, *result["summary"].values()):
         h264 = summary["h264"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import Callable
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
@@ -45,6 +46,7 @@ from server.viewers import MAX_QUEUED_CONTROL, ViewerSlot
 from tessera.decomposition.wall_cells import WallError, parse_cell
 from tessera.video.feedback import FeedbackGuard
 from tessera.video.transport import choose_transport
+from tessera.wire.codec import Codec
 from tessera.wire.messages import (
     FROM_VIEWER,
     CameraUpdate,
@@ -106,6 +108,17 @@ def _video_source(session) -> None:
         frames.video_source_quality = VIDEO_SOURCE_QUALITY if viewers.streams else None
         frames.video_only = bool(viewers.slots) and all(slot.video_codec is not None and slot.cell is None
                                                         for slot in viewers.slots)
+
+
+def _tiles_quality(session) -> Callable[[], int | None]:
+    """The JPEG quality a viewer of ``session`` on tiles would get now (None: its interactive
+    tiles are not JPEG, or the session is closed): what its video's PSNR is held to."""
+    def quality() -> int | None:
+        frames = session.service.scheduler.sessions.get(session.id)
+        if frames is None or frames.config.codec is not Codec.JPEG:
+            return None
+        return int(frames.config.interactive_quality)
+    return quality
 
 
 @router.websocket("/ws/view")
@@ -198,7 +211,7 @@ async def viewer_socket(ws: WebSocket) -> None:
                         slot.put_control(StreamChoice(transport="tiles", reason=reason))
                     else:
                         choice = session.viewers.start_video(slot, codec, session.size, settings.max_bitrate,
-                                                             settings.max_fps)
+                                                             settings.max_fps, _tiles_quality(session))
                         slot.put_control(choice.model_copy(update={"reason": reason}))
                     _video_source(session)
                 case KeyframeRequest():
