@@ -13,7 +13,8 @@ simplified there: the coarse levels halve and halve again, down to a few cluster
 stops where no group could be simplified to at most :data:`MAX_KEPT` of its faces).
 
 A **group** is replaced whole: its clusters all carry its ``group_error`` (meshoptimizer's absolute
-deviation plus its inputs' largest, world units) and ``group_boxes`` (around its inputs' groups'),
+deviation of the positions and, weighted by :data:`NORMAL_WEIGHT`, of the normals, plus its inputs'
+largest, world units) and ``group_boxes`` (around its inputs' groups'),
 and its inputs all carry it as their ``parent``. Errors and boxes only grow up the DAG, so a group
 shows on screen at least its inputs' errors from any eye, and drawing every cluster whose own group
 fits a bound and whose parent does not (:func:`node.culling.lod.lod_cut`) covers the model exactly
@@ -27,13 +28,15 @@ a level's groups are simplified on :data:`WORKERS` threads.
 
 from __future__ import annotations
 
+import ctypes
 import heapq
 import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -56,8 +59,13 @@ MAX_KEPT = 0.5
 MIN_FACES = GROUP_FACES
 #: Levels at most (each keeps at most :data:`MAX_KEPT`: far more than a batch needs).
 MAX_LEVELS = 48
+#: How much a normal turned counts in a group's error: a turn of ``t`` (the difference of unit
+#: normals) counts as ``NORMAL_WEIGHT · t`` times the group's extent (meshoptimizer's attribute
+#: metric, the weight of its own cluster-LOD example). Without it a far view of a scan drew its
+#: coarse levels with the fine level's noisy vertex normals: shading, not outlines, cost the PSNR.
+NORMAL_WEIGHT = 0.5
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 2
+LOD_FORMAT = 3
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 #: Corners whose clusters' adjacency is found at a time.
 BLOCK_CORNERS = 1 << 23
@@ -145,21 +153,45 @@ def _weld(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return weld.reshape(-1).astype(np.int64), first.astype(np.int64)
 
 
-def _simplify(indices: np.ndarray, limit: float, positions: np.ndarray) -> tuple[np.ndarray, float]:
+def _simplify(indices: np.ndarray, limit: float, positions: np.ndarray,
+              normals: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(indices, absolute error) of ``indices`` (3T,) over ``positions`` (V, 3) float32 simplified to
     about :data:`KEEP` of them, the submesh's border locked, or fewer where the error would pass
-    ``limit`` (world units)."""
+    ``limit`` (world units). With ``normals`` (V, 3) the error counts how far the normals turn too
+    (:data:`NORMAL_WEIGHT`)."""
     import meshoptimizer
 
     used, local = np.unique(indices, return_inverse=True)
     local = local.reshape(-1).astype(np.uint32)
     out = np.empty_like(local)
     error = np.zeros(1, np.float32)
-    kept = meshoptimizer.simplify(
-        out, local, np.ascontiguousarray(positions[used], np.float32),
-        target_index_count=int(len(local) * KEEP) // 3 * 3, target_error=limit,
-        options=meshoptimizer.SIMPLIFY_LOCK_BORDER | meshoptimizer.SIMPLIFY_ERROR_ABSOLUTE, result_error=error)
+    points = np.ascontiguousarray(positions[used], np.float32)
+    target = int(len(local) * KEEP) // 3 * 3
+    options = meshoptimizer.SIMPLIFY_LOCK_BORDER | meshoptimizer.SIMPLIFY_ERROR_ABSOLUTE
+    if normals is None:
+        kept = meshoptimizer.simplify(out, local, points, target_index_count=target, target_error=limit,
+                                      options=options, result_error=error)
+    else:
+        attributes = np.ascontiguousarray(normals[used], np.float32)
+        weights = np.full(3, NORMAL_WEIGHT, np.float32)
+        kept = _simplify_with_attributes()(
+            out.ctypes.data, local.ctypes.data, local.size, points.ctypes.data, len(points), 12,
+            attributes.ctypes.data, 12, weights.ctypes.data, 3, None, target, limit, options, error.ctypes.data)
     return used[out[:kept]].astype(np.uint32), float(error[0])
+
+
+@cache
+def _simplify_with_attributes() -> Any:
+    """meshoptimizer's ``meshopt_simplifyWithAttributes``, typed here (its Python wrapper passes the
+    target error as an untyped float, which ctypes refuses), from a handle of our own on its library."""
+    from meshoptimizer import _loader
+
+    function = ctypes.CDLL(_loader.lib._name).meshopt_simplifyWithAttributes
+    pointer, size = ctypes.c_void_p, ctypes.c_size_t
+    function.argtypes = [pointer, pointer, size, pointer, size, size, pointer, size, pointer, size, pointer, size,
+                         ctypes.c_float, ctypes.c_uint, pointer]
+    function.restype = size
+    return function
 
 
 def _split(indices: np.ndarray, positions: np.ndarray) -> list[np.ndarray]:
@@ -271,6 +303,7 @@ class _Builder:
         first, end = int(chunks.batch_bounds[number]), int(chunks.batch_bounds[number + 1])
         bounds = _leaves(chunks.face_counts, first, end)
         positions = np.asarray(batch.positions, np.float32)
+        normals = None if batch.normals is None else np.asarray(batch.normals)
         weld, first_vertex = _weld(positions)
         canonical = first_vertex[weld].astype(np.uint32)   # each vertex as the first at its position
         faces = np.asarray(batch.faces).reshape(-1)
@@ -293,7 +326,7 @@ class _Builder:
             # A group stops short of a quarter rather than pass GROWTH times its inputs' error (one
             # straddling separate pieces of a model would otherwise collapse them far).
             limits = [GROWTH * max(errors[m] for m in group) or float(np.finfo(np.float32).max) for group in groups]
-            results = list(pool.map(partial(_simplify, positions=positions), inputs, limits))
+            results = list(pool.map(partial(_simplify, positions=positions, normals=normals), inputs, limits))
             above: list[tuple[np.ndarray, float, np.ndarray, int]] = []
             made = 0
             for group, source, (kept, error) in zip(groups, inputs, results, strict=True):

@@ -20,7 +20,9 @@ from dataclasses import dataclass
 #: The bound a moving frame starts from, px (``--lod-error-px``); 0 turns levels of detail off.
 #: Measured on the dragon, the Pan scan and the bunny, four cameras each, at 480x270 and 1280x720:
 #: the moving frame's worst PSNR against full detail 39.6 dB at 0.5 px (7-27 % of the triangles
-#: drawn), 37.0 dB at 0.75 px, 36.9 dB at 1 px.
+#: drawn), 37.0 dB at 0.75 px, 36.9 dB at 1 px. With normals counted in the levels' errors (levels
+#: format 3), the Pan scan, four cameras at both sizes: worst 48.1 dB at 0.5 px, 42.7 dB at 1 px
+#: (llvmpipe's pair); 39.5 and 36.9 dB with 4x MSAA, a GPU's (docs: benchmarks, Big models).
 DEFAULT_LOD_ERROR_PX = 0.5
 #: The most it is raised to, px (``--lod-max-error-px``): frame rate bought with at most a dB or two.
 DEFAULT_LOD_MAX_ERROR_PX = 1.0
