@@ -36,7 +36,7 @@ import moderngl
 import numpy as np
 
 from node.culling.frustum import frustum_planes_from_matrix
-from node.gl.context import finish
+from node.gl.context import draw_indirect, finish
 from node.gl.renderer import RenderedTile, validate_rect
 from node.scene.mesh import SceneError
 from node.scene.pages import release_pages
@@ -213,7 +213,7 @@ class PointRenderer:
             ctx = self.ctx
             ctx.enable(moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
             ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
-            self.vertex_array.render_indirect(self.commands, moderngl.POINTS, count=int(ids.size))
+            draw_indirect(self.vertex_array, self.commands, moderngl.POINTS, int(ids.size))
         finish(self.ctx)
         color = framebuffer.read(viewport=gl_box, components=3, alignment=1)
         depth = framebuffer.read(viewport=gl_box, components=1, attachment=-1, alignment=1, dtype="f4")

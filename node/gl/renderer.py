@@ -80,7 +80,7 @@ from node.culling.lod import LodCut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.buffers import upload_geometry
-from node.gl.context import finish
+from node.gl.context import draw_indirect, finish
 from node.gl.framebuffers import FramebufferCache
 from node.gl.id_pass import IdPass
 from node.gl.image_lighting import ImageLighting, prefiltered_environment
@@ -560,7 +560,7 @@ class TileRenderer:
                                             if kind == CULLED else (self.lod.vertex_arrays[key], self.lod.commands,
                                                                     coarse))  # type: ignore[union-attr]
             if self.multi_draw:
-                vertex_array.render_indirect(commands, moderngl.TRIANGLES, count=count, first=first)
+                draw_indirect(vertex_array, commands, moderngl.TRIANGLES, count, first)
                 continue
             assert runs is not None
             for run in range(first, first + count):
