@@ -16,12 +16,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node.scene.cache import CACHE_FORMAT, TABLE, CacheError, entry_info, open_entry, share_chunks
+from node.culling.bvh import ChunkBVH, build_chunk_bvh, bvh_arrays, cull
+from node.culling.frustum import frustum_planes_from_matrix
+from node.scene.cache import CACHE_FORMAT, TABLE, TREE_PREFIX, CacheError, entry_info, open_entry, share_chunks
 from node.scene.cache_folder import CacheFolder, entry_name
 from node.scene.data import SceneData
 from node.scene.ingest import cached_scene, open_cached, read_scene
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
+from tessera.geometry import Rect
 from tessera.wire.messages import ShareSpec
 from tests.conftest import scene_path, seconds
 
@@ -42,11 +45,22 @@ def cached(path: Path, folder: CacheFolder, share: ShareSpec | None = None) -> S
     return open_cached(entry, str(path))
 
 
+def assert_same_tree(kept: ChunkBVH | None, built: ChunkBVH) -> None:
+    """The culling tree an entry keeps is the one built over its chunk boxes, array for array."""
+    assert kept is not None, "an entry keeps its culling tree"
+    mine, theirs = bvh_arrays(kept), bvh_arrays(built)
+    assert mine.keys() == theirs.keys()
+    for name, array in theirs.items():
+        assert mine[name].dtype == array.dtype and np.array_equal(mine[name], array), name
+    assert np.array_equal(kept.center, built.center) and np.array_equal(kept.extent, built.extent)
+
+
 def assert_same_scene(cached_scene: SceneData, direct: SceneData) -> None:
     assert cached_scene.triangle_count == direct.triangle_count
     assert np.array_equal(cached_scene.bounds, direct.bounds)
     for name in ("batch", "index_bounds", "batch_bounds", "boxes"):
         assert np.array_equal(getattr(cached_scene.chunks, name), getattr(direct.chunks, name)), name
+    assert_same_tree(cached_scene.chunks.tree, build_chunk_bvh(direct.chunks.boxes))
     assert cached_scene.objects.to_json() == direct.objects.to_json()
     assert [a.keyframes_json() for a in cached_scene.animations] == [a.keyframes_json() for a in direct.animations]
     assert len(cached_scene.batches) == len(direct.batches)
@@ -102,7 +116,29 @@ def garbage_table(entry: Path) -> None:
     (entry / TABLE).write_text("{not json")
 
 
-@pytest.mark.parametrize("damage", [corrupt_vertices, truncate_indices, other_format, garbage_table])
+def corrupt_tree(entry: Path) -> None:
+    path = entry / f"{TREE_PREFIX}center_t.npy"
+    data = bytearray(path.read_bytes())
+    data[-3] ^= 0x40
+    path.write_bytes(bytes(data))
+
+
+def format_1_without_tree(entry: Path) -> None:
+    """The entry as format 1 wrote it: no culling tree."""
+    table = json.loads((entry / TABLE).read_text())
+    for name in [name for name in table["files"] if name.startswith(TREE_PREFIX)]:
+        del table["files"][name]
+        (entry / f"{name}.npy").unlink()
+    table["format"] = 1
+    (entry / TABLE).write_text(json.dumps(table))
+
+
+def tree_missing(entry: Path) -> None:
+    (entry / f"{TREE_PREFIX}cut-0.npy").unlink()
+
+
+@pytest.mark.parametrize("damage", [corrupt_vertices, truncate_indices, other_format, garbage_table, corrupt_tree,
+                                    format_1_without_tree, tree_missing])
 def test_a_damaged_entry_is_built_again_and_never_opened(tmp_path, damage):
     path = scene_path(BUNNY)
     folder = CacheFolder(tmp_path / "cache")
@@ -116,6 +152,43 @@ def test_a_damaged_entry_is_built_again_and_never_opened(tmp_path, damage):
     assert again == first
     assert any(m.startswith("read") for m in messages), "the entry was built again"
     assert_same_scene(open_cached(again, "bunny"), load_scene(str(path)))
+
+
+def test_a_format_1_entry_is_not_the_one_opened(tmp_path):
+    """An entry of format 1 (no culling tree) left in the folder under its own name is never looked
+    at: the scene's entry now has another name, built anew."""
+    path = scene_path(BUNNY)
+    folder = CacheFolder(tmp_path / "cache")
+    entry = read_scene(str(path), "bunny", 192, None, no_progress, folder)
+    assert isinstance(entry, Path) and entry.name.endswith(f"-v{CACHE_FORMAT}") and CACHE_FORMAT == 2
+    format_1_without_tree(entry)
+    old = entry.rename(entry.with_name(entry.name[:-len(f"{CACHE_FORMAT}")] + "1"))
+    messages: list[str] = []
+    again = read_scene(str(path), "bunny", 192, None, lambda f, m: messages.append(m), folder)
+    assert again == entry and any(m.startswith("read") for m in messages), "built anew under its own name"
+    with pytest.raises(CacheError, match="format 1"):
+        open_entry(old, "bunny", verify=False)
+
+
+def test_the_kept_tree_culls_as_the_built_one(tmp_path):
+    """Frustum culls through the tree opened from an entry keep the chunks the tree built over the
+    chunk boxes keeps (a share's entry keeps the tree over its own chunks)."""
+    path = scene_path(LUCY)
+    folder = CacheFolder(tmp_path / "cache")
+    rng = np.random.default_rng(3)
+    for share in (None, ShareSpec(version=1, index=1, weights=(1.0, 2.0))):
+        scene = cached(path, folder, share)
+        assert scene.chunks.tree is not None and scene.chunks.tree.chunk_count == scene.chunks.chunk_count > 100
+        built = build_chunk_bvh(scene.chunks.boxes)
+        bounds = np.asarray(scene.bounds, np.float64)
+        centre, extent = bounds.mean(axis=0), bounds[1] - bounds[0]
+        for _ in range(5):   # orthographic views of parts of the scene, from the side of +z
+            view_proj = np.diag([*(rng.uniform(1.0, 4.0, 2) / extent[:2]), 0.5 / extent[2], 1.0])
+            view_proj[:3, 3] = -view_proj[:3, :3] @ (centre + rng.uniform(-0.2, 0.2, 3) * extent)
+            planes = frustum_planes_from_matrix(view_proj, (200, 100), Rect(20, 10, 90, 60))
+            kept, direct = cull(scene.chunks.tree, planes), cull(built, planes)
+            assert np.array_equal(kept.visible_chunks, direct.visible_chunks)
+            assert 0 < kept.visible_count < scene.chunks.chunk_count
 
 
 def build_in_child(path: str, root: str, log: str) -> None:

@@ -62,5 +62,7 @@ def test_a_sort_last_nodes_memory_follows_its_share(model):
     whole_held, whole_peak = (whole[key] - whole["before_mb"] for key in ("loaded_mb", "loading_peak_mb"))
     for share in shares:
         assert share["gpu_mb"] < 0.45 * whole["gpu_mb"]
-        assert share["loaded_mb"] - share["before_mb"] < 0.5 * whole_held, (share, whole)
+        # A third of the buffers, plus what every node holds whatever it draws (shaders, lighting:
+        # about 35 MB); 0.51 measured since the culling tree is mapped from the entry, 0.49 before.
+        assert share["loaded_mb"] - share["before_mb"] < 0.55 * whole_held, (share, whole)
         assert share["loading_peak_mb"] - share["before_mb"] < 0.55 * whole_peak, (share, whole)

@@ -17,6 +17,7 @@ out.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -211,3 +212,32 @@ def range_members(first: np.ndarray, end: np.ndarray) -> np.ndarray:
     first = np.asarray(first, dtype=np.int64)
     counts = np.asarray(end, dtype=np.int64) - first
     return np.repeat(first - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+
+
+def bvh_arrays(bvh: ChunkBVH) -> dict[str, np.ndarray]:
+    """The arrays that :func:`bvh_from_arrays` makes ``bvh`` again from (a scene cache entry keeps
+    them, so that opening it builds no tree): every field but ``center``/``extent`` (views of the
+    transposed ones), the cuts as ``cut-i`` and their child ranges as ``cut_lo-i``/``cut_hi-i``."""
+    arrays = {name: getattr(bvh, name) for name in ("lo", "hi", "left", "right", "parent", "first_chunk",
+                                                    "end_chunk", "depth", "center_t", "extent_t")}
+    arrays.update({f"cut-{i}": cut for i, cut in enumerate(bvh.cuts)})
+    for i, (lo, hi) in enumerate(bvh.cut_children):
+        arrays[f"cut_lo-{i}"], arrays[f"cut_hi-{i}"] = lo, hi
+    return arrays
+
+
+def bvh_from_arrays(arrays: Mapping[str, np.ndarray]) -> ChunkBVH:
+    """The tree :func:`bvh_arrays` gave ``arrays`` of (they are used as they are: memory maps stay
+    maps). Raises KeyError when one is missing, ValueError when their shapes disagree."""
+    center_t, extent_t = arrays["center_t"], arrays["extent_t"]
+    cut_count = sum(name.startswith("cut-") for name in arrays)
+    bvh = ChunkBVH(arrays["lo"], arrays["hi"], center_t.T, extent_t.T, arrays["left"], arrays["right"],
+                   arrays["parent"], arrays["first_chunk"], arrays["end_chunk"], arrays["depth"], center_t, extent_t,
+                   tuple(arrays[f"cut-{i}"] for i in range(cut_count)),
+                   tuple((arrays[f"cut_lo-{i}"], arrays[f"cut_hi-{i}"]) for i in range(cut_count - 1)))
+    nodes = bvh.node_count
+    if any(a.shape != (nodes, 3) for a in (bvh.lo, bvh.hi, bvh.center, bvh.extent)) or \
+            any(a.shape != (nodes,) for a in (bvh.right, bvh.parent, bvh.first_chunk, bvh.end_chunk, bvh.depth)) or \
+            not bvh.cuts or nodes != 2 * bvh.chunk_count - 1:
+        raise ValueError(f"the tree's arrays disagree on its {nodes} nodes")
+    return bvh

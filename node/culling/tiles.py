@@ -104,7 +104,7 @@ class TileCuller:
             raise CullingUnavailableError(f"--culling gpu needs GL 4.3 compute shaders; this context is GL "
                                           f"{ctx.version_code // 100}.{ctx.version_code % 100 // 10}")
         self.chunks, self.mode, self.params = chunks, mode, params
-        self.bvh = build_chunk_bvh(chunks.boxes)
+        self.bvh = build_chunk_bvh(chunks.boxes) if chunks.tree is None else chunks.tree
         self.groups = ChunkGroups.of(chunks)
         #: Moved objects' batches, culled on the CPU in every mode but off (:mod:`node.culling.objects`).
         self.moved = MovedCuller(chunks)

@@ -198,11 +198,11 @@ class CacheFolder:
 
 def checked_entry(folder: CacheFolder, whole_name: str, build_whole: Callable[[Path], int],
                   share: tuple[str, Callable[[Path, Path], int]] | None, check: Callable[[Path], object],
-                  source: Path, progress: Progress) -> Path:
+                  source: Path, progress: Progress, format_version: int = CACHE_FORMAT) -> Path:
     """Entry ``whole_name`` of ``folder`` built by ``build_whole(directory)`` if need be, or, with
     ``share`` = (name, build(whole, directory)), that share of it; checked by ``check(entry)``
-    (raising CacheError) unless this process just wrote it. An entry that fails is removed with its
-    whole and built again, :data:`REBUILDS` times; then SceneError."""
+    (raising CacheError) unless this process just wrote it; entries of ``format_version``. An entry
+    that fails is removed with its whole and built again, :data:`REBUILDS` times; then SceneError."""
     built: set[str] = set()
 
     def noted(build: Callable[[Path], int]) -> Callable[[Path], int]:
@@ -212,9 +212,9 @@ def checked_entry(folder: CacheFolder, whole_name: str, build_whole: Callable[[P
         return noting
 
     for attempt in range(REBUILDS + 1):
-        whole = folder.ensure(whole_name, noted(build_whole), progress)
+        whole = folder.ensure(whole_name, noted(build_whole), progress, format_version)
         entry = whole if share is None else folder.ensure(
-            share[0], noted(lambda directory, whole=whole: share[1](whole, directory)), progress)
+            share[0], noted(lambda directory, whole=whole: share[1](whole, directory)), progress, format_version)
         if entry.name in built:   # written from the arrays it checksummed just now: nothing to check
             return entry
         try:

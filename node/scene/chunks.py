@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.culling.bvh import ChunkBVH
 from node.scene.mesh import MeshBatch
 from node.scene.normals import smooth_vertex_normals
 from node.scene.octree import DEFAULT_FACE_LIMIT, octree_split
@@ -87,7 +88,8 @@ class SceneChunks:
     is indices [index_bounds[i], index_bounds[i + 1]) of the scene's index buffer; ``batch_bounds``
     (B + 1,) int64: batch b is chunks [batch_bounds[b], batch_bounds[b + 1]); ``boxes`` (C, 2, 3)
     float32 world-space [min, max] of each chunk's faces; ``face_limit`` the limit the batches were
-    split with.
+    split with; ``tree`` the culling tree over ``boxes`` when it was read with them (a scene cache
+    entry keeps it), else None (the culler builds it: :func:`node.culling.bvh.build_chunk_bvh`).
     """
 
     batch: np.ndarray
@@ -95,6 +97,7 @@ class SceneChunks:
     batch_bounds: np.ndarray
     boxes: np.ndarray
     face_limit: int
+    tree: ChunkBVH | None = None
 
     @property
     def chunk_count(self) -> int:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from node.scene.cache import CACHE_FORMAT, CacheError, Progress, read_arrays, read_table, write_arrays
+from node.scene.cache import CacheError, Progress, read_arrays, read_table, write_arrays
 from node.scene.cache_folder import CacheFolder, checked_entry, share_name
 from node.scene.mesh import SceneError
 from node.scene.point_files import read_points
@@ -31,16 +31,20 @@ from tessera.points.budget import PointTree
 from tessera.scene.graph import ObjectGraph
 from tessera.wire.messages import ShareSpec
 
+#: The format of point cloud entries' tables and files (the mesh entries' :data:`node.scene.cache.CACHE_FORMAT`
+#: went on to 2 with nothing a point cloud holds changed).
+POINTS_ENTRY_FORMAT = 1
+
 
 def points_entry_name(sha256: str) -> str:
     """The name of the entry of the point cloud file whose SHA-256 is ``sha256``."""
-    return f"{sha256}-points{POINTS_FORMAT}-v{CACHE_FORMAT}"
+    return f"{sha256}-points{POINTS_FORMAT}-v{POINTS_ENTRY_FORMAT}"
 
 
 def is_points_entry(directory: Path) -> bool:
     """Whether the entry ``directory`` holds a point cloud."""
     try:
-        return read_table(directory).get("kind") == "points"
+        return read_table(directory, POINTS_ENTRY_FORMAT).get("kind") == "points"
     except CacheError:
         return False
 
@@ -53,7 +57,7 @@ def write_points_entry(directory: Path, cloud: PointCloud, source: Mapping[str, 
               "node_depths": tree.depths, "node_octants": tree.octants, "node_boxes": tree.boxes,
               "node_own_boxes": nodes.own_boxes, "node_centres": nodes.centres, "chunk_first": nodes.chunks.first,
               "chunk_node": nodes.chunks.node, "chunk_boxes": nodes.chunks.boxes}
-    table = {"format": CACHE_FORMAT, "kind": "points", "points_format": POINTS_FORMAT, "source": dict(source),
+    table = {"format": POINTS_ENTRY_FORMAT, "kind": "points", "points_format": POINTS_FORMAT, "source": dict(source),
              "share": None if cloud.share is None else {"index": cloud.share[0], "weights": list(cloud.share[1])},
              "centre": cloud.centre.tolist(), "bounds": cloud.bounds.tolist(), "spacing": nodes.spacing,
              "cube": nodes.cube, "points": cloud.point_count, "objects": cloud.objects.to_json(),
@@ -64,7 +68,7 @@ def write_points_entry(directory: Path, cloud: PointCloud, source: Mapping[str, 
 def open_points_entry(directory: Path, name: str, verify: bool = True) -> PointCloud:
     """The point cloud of the entry ``directory``, named ``name``, mapped; ``verify``: check the CRCs
     first. Raises CacheError."""
-    table, arrays = read_arrays(directory, verify)
+    table, arrays = read_arrays(directory, verify, POINTS_ENTRY_FORMAT)
     try:
         if table.get("kind") != "points" or table.get("points_format") != POINTS_FORMAT:
             raise CacheError(f"{directory.name}: not a point cloud entry of format {POINTS_FORMAT}")
@@ -140,5 +144,6 @@ def cached_points(source: Path, share: ShareSpec | None, folder: CacheFolder, pr
 
     return checked_entry(folder, whole_name, build_whole,
                          None if share is None else (share_name(whole_name, share.weights, share.index), build_share),
-                         lambda entry: open_points_entry(entry, source.name, verify=True), source, progress)
+                         lambda entry: open_points_entry(entry, source.name, verify=True), source, progress,
+                         POINTS_ENTRY_FORMAT)
 
