@@ -9,6 +9,7 @@ import asyncio
 import threading
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,10 @@ import pytest
 from node.gl.renderer import TileRenderer
 from node.gl.resident import SceneNotLoadedError, estimated_bytes
 from node.gl.worker import GLWorker
+from node.scene.cache import CacheError, open_entry
+from node.scene.cache_folder import CacheFolder
 from node.scene.fetch import SceneFetcher
+from node.scene.ingest import read_scene
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
 from node.scene.shares import keep_share
@@ -200,3 +204,32 @@ def test_a_big_scan_is_read_while_tiles_of_another_scene_keep_coming():
     load_s, gaps = run_with_worker(body)
     assert len(gaps) >= 5, f"only {len(gaps)} tiles in a load of {load_s:.2f} s"
     assert max(gaps) < load_s / 3, f"a {max(gaps):.2f} s gap between tiles in a load of {load_s:.2f} s"
+
+
+def test_an_entry_found_corrupt_while_it_is_uploaded_is_built_again_before_it_is_held(ctx, tmp_path):
+    """A node uploads an entry found in the cache while another thread checks its CRCs: one whose
+    bytes changed (shapes intact) is released and built again; the scene held and drawn is the file's."""
+    path = str(scene_path("bunny/bun_zipper.ply"))
+    folder = CacheFolder(tmp_path / "cache")
+    entry = read_scene(path, path, 192, None, no_progress, folder)
+    assert isinstance(entry, Path)
+    camera = default_camera(load_scene(path).bounds, aspect=SIZE[0] / SIZE[1])
+
+    async def drawn(worker: GLWorker) -> tuple[np.ndarray, list[str]]:
+        messages: list[str] = []
+        await worker.load(LoadScene(scene=path), lambda fraction, message: messages.append(message))
+        tile = await worker.render(camera, SIZE, Rect(0, 0, *SIZE), 0, scene=path)
+        return tile.pixels, messages
+
+    clean, messages = run_with_worker(drawn, cache=folder)
+    assert not any(m.startswith("read") for m in messages), "the entry in the cache was opened"
+    vertices = np.load(entry / "vertices.npy", mmap_mode="r+")
+    vertices["position"][::40, 0] *= 3.0
+    vertices.flush()
+    del vertices
+    with pytest.raises(CacheError):
+        open_entry(entry, path, verify=True)
+    again, messages = run_with_worker(drawn, cache=folder)
+    assert any(m.startswith("read") for m in messages), "the entry was built again"
+    open_entry(entry, path, verify=True)
+    assert np.array_equal(again, clean)

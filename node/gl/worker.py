@@ -37,7 +37,7 @@ from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
 from node.gl.view_tools import ViewTools
-from node.scene.cache import CacheError
+from node.scene.cache import CacheError, open_entry
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
@@ -137,6 +137,7 @@ class GLWorker:
                  shading: ShadingOptions = ShadingOptions(), cache: CacheFolder | None = None) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
+        self._checker = ThreadPoolExecutor(1, thread_name_prefix="tessera-check")
         self._reader = SceneReaderProcess()
         #: Levels of detail are built in a reader of their own, so a scene's load never waits for them.
         self._levels_loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-levels")
@@ -195,15 +196,29 @@ class GLWorker:
         """Read, upload and hold the scene; levels of detail the cache holds already are attached
         before it is answered (its first frame may use them), others built in the background."""
         loop = asyncio.get_running_loop()
-        scene, entry = await loop.run_in_executor(self._loader, self._read, request, progress)
-        # The levels the cache holds are read and checked in the loader thread while the GL thread uploads.
+        scene, entry, unchecked = await loop.run_in_executor(self._loader, self._read, request, progress, False)
+        # An entry found in the cache is checked (its CRCs) in a thread of its own while the GL thread
+        # uploads it, and the levels the cache holds are read and checked in the loader thread; the
+        # scene is held (drawn) only once its entry passed.
+        check = loop.run_in_executor(self._checker, self._check, entry, scene.name) \
+            if unchecked and entry is not None else None
         levels = loop.run_in_executor(self._loader, self._cached_levels, entry, scene) \
             if request.levels and entry is not None and isinstance(scene, SceneData) else None
         try:
-            loaded: LoadedScene = await self._call(self._upload, key, request, scene, entry, progress)
+            made = await self._call(self._upload, key, request, scene, entry, progress)
+            if check is not None and not await check:
+                await self._call(made.renderer.release)
+                log.warning("scene cache entry %s fails its check; building it again", entry)
+                scene, entry, _ = await loop.run_in_executor(self._loader, self._read, request, progress, True)
+                if levels is not None:
+                    levels = loop.run_in_executor(self._loader, self._cached_levels, entry, scene) \
+                        if entry is not None and isinstance(scene, SceneData) else None
+                made = await self._call(self._upload, key, request, scene, entry, progress)
+            loaded: LoadedScene = await self._call(self._hold, made)
         except BaseException:
-            if levels is not None:
-                levels.add_done_callback(lambda done: done.cancelled() or done.exception())
+            for pending in (check, levels):
+                if pending is not None:
+                    pending.add_done_callback(lambda done: done.cancelled() or done.exception())
             raise
         if request.levels:
             found = None if levels is None else await levels
@@ -214,6 +229,14 @@ class GLWorker:
                 loaded = dataclasses.replace(loaded, nbytes=held.nbytes, held_bytes=self._scenes.total_bytes,
                                              levels=found[0], group_levels=found[1])
         return loaded
+
+    def _check(self, entry: Path, name: str) -> bool:
+        """In the checking thread: whether every array of cache entry ``entry`` passes its CRCs."""
+        try:
+            open_entry(entry, name, verify=True)
+        except CacheError:
+            return False
+        return True
 
     def _cached_levels(self, entry: Path, scene: SceneData) -> tuple[LodTree, GroupLevels] | None:
         """In the loader thread: the levels of detail of cache entry ``entry`` (``scene``) and its
@@ -272,17 +295,21 @@ class GLWorker:
             held.nbytes = estimated_bytes(held.renderer)
         return held
 
-    def _read(self, request: LoadScene, progress: ProgressCallback) -> tuple[SceneData | PointCloud, Path | None]:
+    def _read(self, request: LoadScene, progress: ProgressCallback,
+              verify: bool) -> tuple[SceneData | PointCloud, Path | None, bool]:
         """In the loader thread: fetch (if need be), then ingest or open its cache entry (here, or a
         large file in the scene reader process) and map it; refuse it when it exceeds the budget.
-        The scene, and its cache entry (None: read into memory)."""
+        The scene, its cache entry (None: read into memory), and whether that entry was found in
+        the cache and not checked (``verify`` False: the caller checks it, :meth:`_check`)."""
         spec, share = request.scene, request.share
         if is_mesh(spec):   # issue 33: from memory, no cache entry
             mesh = self.meshes.scene(spec, self.face_limit)
-            return (mesh if share is None else keep_share(mesh, share.weights, share.index)), None
+            return (mesh if share is None else keep_share(mesh, share.weights, share.index)), None, False
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
         known = request.sha256 if source != spec else None
-        made: SceneData | PointCloud | Path | None = ready_entry(source, self.face_limit, share, self.cache, known)
+        made: SceneData | PointCloud | Path | None = ready_entry(source, self.face_limit, share, self.cache, known,
+                                                                 verify)
+        unchecked = made is not None and not verify
         if made is None:
             read = self._reader.read if reads_in_process(source, self.read_in_process_bytes) else read_scene
             made = read(source, spec, self.face_limit, share, progress, self.cache, known)
@@ -293,11 +320,11 @@ class GLWorker:
                 if share is None else "add nodes, so that each share is smaller"
             raise SceneError(f"{spec}: needs {needed / (1 << 20):.0f} MB, more than this node's --scene-memory-mb "
                              f"{budget / (1 << 20):.0f}; {mode}")
-        return scene, made if isinstance(made, Path) else None
+        return scene, made if isinstance(made, Path) else None, unchecked
 
     def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData | PointCloud, entry: Path | None,
-                progress: ProgressCallback) -> LoadedScene:
-        """On the GL thread: upload ``scene``, hold it, release the least recently used others over budget."""
+                progress: ProgressCallback) -> ResidentScene:
+        """On the GL thread: upload ``scene`` (not held yet: :meth:`_hold`)."""
         assert self._ctx is not None
         if is_mesh(key[0]) and not self.meshes.live(key[0]):
             raise SceneError(f"{key[0]}: superseded by a newer mesh while it was read")
@@ -313,14 +340,19 @@ class GLWorker:
                                     shading=self.shading)
             planning = PlanningScene.of(scene, renderer.culler.bvh)
         version = None if share is None else share.version
-        held = ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
+        return ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
+
+    def _hold(self, held: ResidentScene) -> LoadedScene:
+        """On the GL thread: hold the scene uploaded as ``held``, release the least recently used
+        others over budget."""
+        key = held.key
         if is_mesh(key[0]):   # a session's newer mesh: those of its group not kept are drawn no more
             self._scenes.release(lambda other: is_mesh(other[0]) and group_of(other[0]) == group_of(key[0])
                                  and other[0] != key[0] and not self.meshes.live(other[0]))
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))
-        return LoadedScene(scene, version, held.nbytes, self._scenes.total_bytes)
+        return LoadedScene(held.renderer.scene, held.share_version, held.nbytes, self._scenes.total_bytes)
 
     def _reuse(self, key: SceneKey, request: LoadScene) -> LoadedScene | None:
         """The scene of ``key`` if held, with ``request``'s background and share version; else None."""
@@ -430,7 +462,7 @@ class GLWorker:
         stop the loader threads, free GL resources on the GL thread and stop it (waits for a running draw)."""
         for reader in (self._reader, self._levels_reader):
             reader.close()
-        for loader in (self._loader, self._levels_loader):
+        for loader in (self._loader, self._levels_loader, self._checker):
             loader.shutdown(wait=True, cancel_futures=True)
         for reader in (self._reader, self._levels_reader):
             reader.close()

@@ -40,12 +40,14 @@ READER_NICE = 10
 
 
 def ready_entry(source: str, face_limit: int, share: ShareSpec | None, folder: CacheFolder | None,
-                sha256: str | None = None) -> Path | None:
+                sha256: str | None = None, verify: bool = True) -> Path | None:
     """The scene cache entry of the file ``source`` (its ``share`` only, when given), checked, when
     ``folder`` holds it already and the file's digest is known without reading the file (``sha256``,
     or remembered); None otherwise: then :func:`node.scene.ingest.read_scene` builds it (or removes
     and rebuilds one that fails the check) in the reader process. After a restart this opens a
-    scene without starting the reader (a new interpreter: a second or more on a loaded machine)."""
+    scene without starting the reader (a new interpreter: a second or more on a loaded machine).
+    ``verify`` False: only its table and its files' shapes are checked, not their CRCs (the caller
+    checks them before it draws the scene: :meth:`node.gl.worker.GLWorker.load`)."""
     if folder is None or source.startswith(BUILTIN_PREFIX):
         return None
     digest = sha256 or folder.known_hash(Path(source))
@@ -56,7 +58,7 @@ def ready_entry(source: str, face_limit: int, share: ShareSpec | None, folder: C
     if entry is None:
         return None
     try:
-        open_entry(entry, Path(source).name, verify=True)
+        open_entry(entry, Path(source).name, verify=verify)
     except CacheError:
         return None
     return entry
