@@ -177,17 +177,15 @@ class NodeTable:
 
     def drop(self, node: NodeSchedule, frame_id: int, now: float) -> bool:
         """Frame ``frame_id`` was dropped: ``node`` no longer owes its tiles (remembered as
-        dropped); True when it owed any. When it was on one of them, its next tile counts as begun now."""
+        dropped); True when it owed any."""
         keys = [k for k in node.outstanding if k[0] == frame_id]
-        head = next(iter(node.outstanding), None)
         for key in keys:
             del node.outstanding[key]
             node.dropped[key] = None
         while len(node.dropped) > DROPPED_MEMORY:
             del node.dropped[next(iter(node.dropped))]
         if keys:
-            if head in keys:
-                node.head_since = now
+            node.head_since = now
             self.touch(node)
         return bool(keys)
 
