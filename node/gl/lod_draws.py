@@ -44,12 +44,12 @@ class LodDraws:
         self.vertex_arrays = shaders.also_drawing(self.index_buffer)
         self.commands = ctx.buffer(reserve=20 * max(1, tree.node_count))
         #: The last frame's cut, for its other tiles, and what it was made for.
-        self._cut: tuple[tuple[Camera, tuple[int, int], float] | None, LodCut] = (None, LodCut.full())
+        self._cut: tuple[tuple[Camera, int, float] | None, LodCut] = (None, LodCut.full())
 
     def cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
         within ``error_px`` pixels; the last frame's is kept for its other tiles."""
-        key = (camera, size, error_px)
+        key = (camera, size[1], error_px)
         if self._cut[0] != key:
             self._cut = (key, lod_cut(self.tree, camera, size, error_px))
         return self._cut[1]
