@@ -46,9 +46,21 @@ def test_composited_frames_equal_render_once(coordinator_factory, tmp_path, scen
             reference = render_once(scene, camera, SIZE, tmp_path)
             assert_matches_reference(frame, reference, f"{scene_key} x{nodes} camera {index}")
             assert frame.std() > 2.0, "the frame is blank"
+        assert every_node_takes_part(client, camera, nodes)
+
+
+def every_node_takes_part(client: httpx.Client, camera: dict, nodes: int, tries: int = 6) -> bool:
+    """Whether a frame, the latest or one of the next ``tries`` (the camera nudged for each), is
+    split over ``nodes`` tiles that cover it: a node overdue on a tile sits out frames until it
+    answers, so the latest frame alone may be split over fewer."""
+    for attempt in range(tries + 1):
         tiles = [t for n in stats(client)["nodes"] for t in n["tiles"]]
         assert sum(w * h for _, _, w, h in tiles) == SIZE[0] * SIZE[1]
-        assert len({tuple(t) for t in tiles}) >= nodes
+        if len({tuple(t) for t in tiles}) >= nodes:
+            return True
+        nudged = {**camera, "fovy_deg": camera.get("fovy_deg", 45.0) + 0.1 * (attempt + 1)}
+        fetch_frame(client, client.put("/api/camera", json=nudged).raise_for_status().json()["frame"])
+    return False
 
 
 def test_node_killed_mid_stream_frames_continue_untorn(coordinator_factory, node_factory, tmp_path):
