@@ -25,7 +25,7 @@ from node.scene.loading import load_scene
 from node.scene.lod import LodTree, build_lod, group_levels
 from node.scene.mesh import MeshBatch
 from tessera.balancers.projection import level_counts
-from tessera.geometry import Camera, Rect, default_camera
+from tessera.geometry import Camera, Rect, default_camera, view_projection
 from tessera.scheduling.lod_control import DEFAULT_LOD_ERROR_PX
 from tests.conftest import scene_path
 from tests.culling_support import random_cameras
@@ -198,6 +198,25 @@ def test_tiles_at_mixed_levels_join_as_the_whole_frame(ctx, dragon):
             tile = renderer.render_tile(camera, size, Rect(x, y, w, h), lod_error_px=1.5)
             stitched[y:y + h, x:x + w] = tile.pixels
     assert np.array_equal(stitched, whole.pixels)
+    renderer.release()
+
+
+@pytest.mark.gl
+def test_coarse_clusters_are_drawn_nearest_first(ctx, dragon):
+    """As chunks are (node.culling.order): a fragment behind what is drawn is not shaded (before,
+    in cluster order: a far cluster drawn first had its fragments shaded, then covered)."""
+    scene, tree = dragon
+    renderer = TileRenderer(ctx, scene)
+    renderer.attach_lod(tree)
+    size, camera = (200, 150), close_camera(scene)
+    cut = renderer.level_cut(camera, size, 1.5)
+    matrix = view_projection(camera, size, scene.bounds)
+    assert renderer.lod is not None
+    runs = renderer.lod.tile_runs(cut, matrix, size, Rect(0, 0, *size), None, np.zeros(1, bool))
+    nodes = np.searchsorted(tree.index_bounds, runs.first)
+    assert np.array_equal(np.sort(nodes), cut.nodes), "every cluster of the cut in view, once"
+    depth = tree.boxes[nodes].astype(np.float64).mean(axis=1) @ matrix[3, :3]
+    assert nodes.size > 10 and np.all(np.diff(depth) >= 0.0)
     renderer.release()
 
 

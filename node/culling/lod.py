@@ -2,29 +2,30 @@
 :class:`node.scene.lod.LodTree` (a cluster DAG) stand in for its full detail, for one camera and
 frame size.
 
-A group's error (world units) shows on screen as ``error · s / d`` pixels, where ``d`` is the
-distance from the eye to the nearest point of its box (0 inside it: never coarse there) and ``s`` the
-frame's pixels per unit at distance 1 (half its height over the tangent of half the vertical field
-of view). A cluster is drawn when its own group's error fits ``error_px`` and its parent group's does
-not (:func:`lod_cut`); a leaf's chunks are left to the coarse levels when its parent group fits.
+A group's error (world units) shows on screen as at most ``error`` times its box's error scale
+(:func:`tessera.screen_error.error_scales`: ``s · (1 + tan²θ) / d``, ``d`` the distance from the eye
+to the box's nearest point, infinite inside it: never coarse there, ``θ`` the largest angle off the
+view axis its visible part reaches, ``s`` the frame's pixels per unit at depth 1). A cluster is
+drawn when its own group's error fits ``error_px`` and its parent group's does not (:func:`lod_cut`);
+a leaf's chunks are left to the coarse levels when its parent group fits.
 Errors grow up the DAG while boxes only grow, so a group shows at least its inputs' errors from any
 eye: the groups that fit are closed under their inputs, and the clusters drawn and the leaves left at
 full detail cover the model exactly once.
 
-The choice depends on the camera, the frame's height and the bound only — not on the tile — so
+The choice depends on the camera, the frame's size and the bound only — not on the tile — so
 every tile of a frame, on every node, draws every part of the model at the same level, and tiles
 join as the whole frame (they meet on the groups' locked borders, :mod:`node.scene.lod`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from node.scene.lod import LodTree
 from tessera.geometry import Camera
+from tessera.screen_error import error_scales
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -47,25 +48,12 @@ class LodCut:
         return bool(self.nodes.size)
 
 
-def pixels_per_unit(camera: Camera, size: tuple[int, int]) -> float:
-    """Pixels a length of one world unit spans at distance 1 from the eye, across a ``size`` = (w, h) frame."""
-    return size[1] / 2.0 / math.tan(math.radians(camera.fovy_deg) / 2.0)
-
-
-def box_distances(eye: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """(N,) float64 distance from ``eye`` (3,) to the nearest point of each box (N, 2, 3) (0 inside)."""
-    nearest = np.clip(np.asarray(eye, np.float64), boxes[:, 0], boxes[:, 1])
-    return np.linalg.norm(nearest - eye, axis=1)
-
-
 def projected_errors(tree: LodTree, camera: Camera, size: tuple[int, int]) -> np.ndarray:
     """(G,) float64 each group's error on screen in pixels, seen from ``camera`` in a ``size`` frame
     (infinite where the eye is inside its box)."""
-    eye = np.asarray(camera.eye, np.float64)
-    distance = box_distances(eye, tree.group_boxes.astype(np.float64))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = tree.group_error.astype(np.float64) * pixels_per_unit(camera, size) / distance
-    return np.where(distance > 0.0, pixels, np.inf)
+    scales = error_scales(camera, size, tree.group_boxes)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isinf(scales), np.inf, tree.group_error.astype(np.float64) * scales)
 
 
 def lod_cut(tree: LodTree | None, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:

@@ -1,6 +1,7 @@
 """The GL side of a scene's levels of detail (issue 32): their index buffer and vertex arrays, and
 per tile the indirect draw commands of the coarse clusters a frame's cut (:mod:`node.culling.lod`)
-chose that touch the tile. Use it on the GL thread only."""
+chose that touch the tile, nearest first (as :func:`node.culling.order.front_to_back` orders chunks:
+a fragment behind what is drawn is not shaded). Use it on the GL thread only."""
 
 from __future__ import annotations
 
@@ -44,12 +45,12 @@ class LodDraws:
         self.vertex_arrays = shaders.also_drawing(self.index_buffer)
         self.commands = ctx.buffer(reserve=20 * max(1, tree.node_count))
         #: The last frame's cut, for its other tiles, and what it was made for.
-        self._cut: tuple[tuple[Camera, int, float] | None, LodCut] = (None, LodCut.full())
+        self._cut: tuple[tuple[Camera, tuple[int, int], float] | None, LodCut] = (None, LodCut.full())
 
     def cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
         within ``error_px`` pixels; the last frame's is kept for its other tiles."""
-        key = (camera, size[1], error_px)
+        key = (camera, size, error_px)
         if self._cut[0] != key:
             self._cut = (key, lod_cut(self.tree, camera, size, error_px))
         return self._cut[1]
@@ -57,25 +58,32 @@ class LodDraws:
     def tile_runs(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
                   clip: np.ndarray | None, skip: np.ndarray) -> DrawRuns:
         """:meth:`runs` of the tile ``rect`` of the (4, 4) full-frame ``matrix`` of a ``size`` frame, less
-        the clusters wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks."""
+        the clusters wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks;
+        nearest first by ``matrix``'s view depth (the same order in every tile of the frame)."""
         planes = frustum_planes_from_matrix(matrix, size, rect)
         if clip is not None:
             planes = np.vstack((planes, clip))
-        return self.runs(cut, planes, skip if skip.any() else None)
+        return self.runs(cut, planes, skip if skip.any() else None, matrix)
 
     @property
     def nbytes(self) -> int:
         return int(self.index_buffer.size + self.commands.size)
 
-    def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None) -> DrawRuns:
+    def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None,
+             view_proj: np.ndarray | None = None) -> DrawRuns:
         """The cut's clusters touching the tile of ``planes`` (None: all of them), but those of the
-        batches ``skip`` (B,) marks, as index runs of this buffer (one per cluster, batch by batch),
-        written to :attr:`commands`."""
+        batches ``skip`` (B,) marks, as index runs of this buffer (one per cluster, batch by batch;
+        within a batch nearest first by the clip w of their boxes' centres under the (4, 4)
+        ``view_proj``, ties by cluster; None: in cluster order), written to :attr:`commands`."""
         nodes = cut.nodes
         if skip is not None and nodes.size:
             nodes = nodes[~skip[self.tree.batch[nodes]]]
         if planes is not None and nodes.size:
             nodes = nodes[boxes_in_frustum(self.tree.boxes[nodes], planes)]
+        if view_proj is not None and nodes.size:
+            w_row = np.asarray(view_proj, np.float64)[3]
+            depth = (self.tree.boxes[nodes].astype(np.float64).sum(axis=1) * 0.5) @ w_row[:3]
+            nodes = nodes[np.lexsort((nodes, depth, self.tree.batch[nodes]))]
         bounds = self.tree.index_bounds
         runs = DrawRuns(self.tree.batch[nodes], bounds[nodes], bounds[nodes + 1] - bounds[nodes], 0)
         if nodes.size:

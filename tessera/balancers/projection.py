@@ -10,6 +10,7 @@ from tessera.balancers.base import ProjectedGroups
 from tessera.geometry import Camera, view_projection
 from tessera.scene.graph import ObjectGraph, transform_boxes
 from tessera.scene.state import SceneState
+from tessera.screen_error import error_scales
 
 _CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
 
@@ -71,15 +72,12 @@ def level_counts(errors: np.ndarray, triangles: np.ndarray, boxes: np.ndarray, c
                  size: tuple[int, int], error_px: float) -> np.ndarray:
     """(K,) float64 triangles each group draws at the levels of detail within ``error_px``: of
     groups whose levels (0: full detail … L) have ``errors`` and ``triangles`` (K, L + 1) over
-    ``boxes`` (K, L + 1, 6), the coarsest level whose error, seen from ``camera``'s eye at its box's
-    nearest point in a ``size`` frame, is at most ``error_px`` pixels (as nodes choose:
-    :func:`node.culling.lod.lod_cut`, here per group)."""
-    boxes = np.asarray(boxes, np.float64)
-    eye = np.asarray(camera.eye, np.float64)
-    distance = np.linalg.norm(np.clip(eye, boxes[..., :3], boxes[..., 3:]) - eye, axis=-1)
-    scale = size[1] / 2.0 / np.tan(np.radians(camera.fovy_deg) / 2.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fits = (errors * scale / distance <= error_px) & (distance > 0.0)
+    ``boxes`` (K, L + 1, 6), the coarsest level whose error, seen from ``camera`` in a ``size`` frame
+    (:func:`tessera.screen_error.error_scales` of its box), is at most ``error_px`` pixels (as
+    nodes choose: :func:`node.culling.lod.lod_cut`, here per group)."""
+    scales = error_scales(camera, size, np.asarray(boxes, np.float64).reshape(*np.shape(errors), 2, 3))
+    with np.errstate(invalid="ignore"):
+        fits = errors * scales <= error_px
     fits[:, 0] = True
     coarsest = errors.shape[1] - 1 - np.argmax(fits[:, ::-1], axis=1)
     return triangles[np.arange(len(errors)), coarsest]
