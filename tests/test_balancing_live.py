@@ -6,7 +6,9 @@ The static split hands out equal strips by node id, and nodes join in any order,
 the slow node draws is chance; ``builtin:cluster``'s load is uneven by design. The camera is turned
 so that the dense cluster lies in the slow node's strip: the static split is then unbalanced by
 the slow node in every run (measured 1.5 to 2.6 from run to run before, as the slow node drew a
-light or the heavy strip)."""
+light or the heavy strip). The slow node's tiles are also no longer copied to others frame after
+frame when its strip gets heavier (its late tiles teach the scheduler its pace), which made the
+static split look balanced by backup copies."""
 
 from __future__ import annotations
 

@@ -53,13 +53,15 @@ def cancels(actions) -> dict[int, tuple[int, ...]]:
     return {a.node_id: a.frames for a in actions if isinstance(a, CancelFrames)}
 
 
-def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: float, rect: Rect | None = None):
-    """Node ``node_id`` returns the tile it was sent (or ``rect``), with its send time; returns the actions."""
+def deliver(s: FrameScheduler, node_id: int, frame_id: int, tile_id: int, now: float, rect: Rect | None = None,
+            render_ms: float = 5.0):
+    """Node ``node_id`` returns the tile it was sent (or ``rect``), drawn in ``render_ms``, with its
+    send time; returns the actions."""
     job = s.in_flight.get(frame_id)
     asked = (job.codec, [t.rect for t in job.tiles]) if job else s.retired.get(frame_id, (Codec.JPEG, []))
     codec, rects = asked
     tile_rect = rect or (rects[tile_id] if tile_id < len(rects) else Rect(0, 0, 1, 1))
-    s.tile_arrived(node_id, TileHeader(frame_id, tile_id, tile_rect, codec, 5.0, 1.0, 1.0), b"tile", now)
+    s.tile_arrived(node_id, TileHeader(frame_id, tile_id, tile_rect, codec, render_ms, 1.0, 1.0), b"tile", now)
     s.tile_sent(node_id, frame_id, tile_id, 0.5)
     return s.drain()
 
@@ -661,6 +663,20 @@ def test_a_straggler_s_tiles_are_copied_to_the_others_and_it_gets_no_new_work():
     assert sum(w * h for n in s.nodes.values() for _, _, w, h in n.last_tiles) == SIZE[0] * SIZE[1]
     s.set_camera(camera(3), 0.8)
     assert {t.node_id for t in s.in_flight[max(s.in_flight)].tiles} == {1, 2, 3}
+
+
+def test_a_straggler_s_late_copy_teaches_its_pace_and_its_heavier_share_is_not_backed_up_again():
+    s = frozen_node_scheduler()
+    s.tick(0.4)
+    s.drain()
+    deliver(s, 1, 2, 1, 0.45)
+    area = s.retired[2][1][1].area
+    deliver(s, 2, 2, 1, 0.9, render_ms=2000.0)      # its own copy, late: its share got 400x heavier
+    assert s.nodes[2].ms_per_px == pytest.approx(2002.0 / area)
+    s.set_camera(camera(2), 1.0)
+    assert 2 in renders(s.drain())
+    s.tick(1.6)
+    assert not s.nodes[2].suspect, "0.6 s is within 4x the pace its late tile showed"
 
 
 def test_a_node_that_freezes_before_finishing_a_frame_is_backed_up_at_the_slowest_known_rate():

@@ -16,7 +16,7 @@ from typing import Any
 
 from tessera.geometry import Rect
 from tessera.scheduling.frame_jobs import FrameJob
-from tessera.wire.protocol import ProtocolError
+from tessera.wire.protocol import ProtocolError, TileHeader
 
 #: Weight of a new round-trip sample in a node's smoothed lead time.
 LEAD_SMOOTHING = 0.2
@@ -41,7 +41,8 @@ class NodeSchedule:
     """One node as the scheduler sees it. ``outstanding``: (frame id, tile id) → dispatch time, in
     the order the node works through them (its head is the tile it is on, since ``head_since``);
     ``slot``: the small index viewers see the node by; ``suspect``: overdue, given no work until it
-    answers; ``ms_per_px``: its busy ms per pixel in its last complete frame; ``failures``: tiles
+    answers; ``ms_per_px``: its busy ms per pixel in its last complete frame, or in its last tile
+    that came too late to count (:meth:`learn_pace`); ``failures``: tiles
     failed in a row; ``dropped``: (frame id, tile id) it owed when their frame was dropped (the
     newest :data:`DROPPED_MEMORY`), so its late answers about them are told from tiles it never
     owed; ``state_sent``: the session and scene state version its last render message brought it
@@ -89,6 +90,14 @@ class NodeSchedule:
     @property
     def idle(self) -> bool:
         return self.schedulable and not self.outstanding
+
+    def learn_pace(self, header: TileHeader) -> None:
+        """``ms_per_px`` from one tile's busy time (render + read-back + encode, ms, as the node
+        measured it): a tile that came too late to count still tells how fast the node draws what
+        it is given now, so a node whose share got heavier is not taken for a straggler frame after
+        frame (its late tiles never join a complete frame that would teach it)."""
+        if header.rect.area > 0:
+            self.ms_per_px = (header.render_ms + header.readback_ms + header.encode_ms) / header.rect.area
 
 
 class NodeTable:

@@ -330,11 +330,13 @@ class FrameScheduler(FrameDispatch):
             self.table.check_owed(node, key, "tile")
             check_late_tile(header, self.retired.get(header.frame_id))
             self.table.answered(node, key, now)
+            node.learn_pace(header)
             self._advance(now)
             return None
         tile = job.accept(node_id, header, payload, depth_tile)
         self.table.answered(node, key, now, job.busy_ms(header.tile_id, header))
-        if tile is None:
+        if tile is None:    # a copy that lost the race: the node was slower than expected, not idle
+            node.learn_pace(header)
             self._advance(now)
             return None
         node.tiles_rendered += 1
