@@ -131,8 +131,9 @@ def test_a_cut_covers_the_model_once_and_depends_on_the_camera_alone(dragon):
 def test_a_cut_of_a_flat_model_covers_it_exactly_once():
     """A flat square keeps its area exactly at any level (its border is locked): a cut covers it
     exactly once, from any camera, at any bound (its errors are 0: an eye in its plane, inside the
-    boxes of the groups around it, keeps those at full detail)."""
-    scene = grid_plane(200)
+    boxes of the groups around it, keeps those at full detail). 400 cells a side: enough groups that
+    an eye in its plane lies outside some coarse ones (at 200 both level-2 groups span the square)."""
+    scene = grid_plane(400)
     tree = build_lod(scene, lambda fraction, message: None)
     assert tree.group_level.max() >= 3
     cameras = [Camera(eye=(x, y, z), target=(0.5, 0.5, 0.0), up=(0.0, 0.0, 1.0), fovy_deg=60.0)

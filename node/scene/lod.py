@@ -9,8 +9,8 @@ the level below that share the most border (a greedy merge of neighbours up to a
 group's border locked (meshoptimizer's ``simplify``), and **splits** the result into clusters of
 about :data:`CLUSTER_FACES` faces (runs of its triangles in Morton order). The next level regroups
 those with other neighbours, so a border locked at one level lies inside a group at the next and is
-simplified there: the coarse levels halve and halve again, down to a few clusters a batch (a level
-stops where no group could be simplified to at most :data:`MAX_KEPT` of its faces).
+simplified there: each coarse level keeps about :data:`KEEP` of the one below, down to a few clusters
+a batch (a level stops where no group could be simplified to at most :data:`MAX_KEPT` of its faces).
 
 A **group** is replaced whole: its clusters all carry its ``group_error`` (meshoptimizer's absolute
 deviation of the positions and, weighted by :data:`NORMAL_WEIGHT`, of the normals, plus its inputs'
@@ -19,8 +19,8 @@ and its inputs all carry it as their ``parent``. Errors and boxes only grow up t
 shows on screen at least its inputs' errors from any eye, and drawing every cluster whose own group
 fits a bound and whose parent does not (:func:`node.culling.lod.lod_cut`) covers the model exactly
 once; the clusters of groups drawn side by side meet on locked borders: no cracks where the model has
-none. The coarse levels index the scene's own vertices: they add indices only (about a third of the
-full level's when each level keeps a quarter).
+none. The coarse levels index the scene's own vertices: they add indices only (about two thirds of
+the full level's when each level keeps 40 %).
 
 The simplifier is meshoptimizer because it locks a submesh's border. Its calls release the GIL:
 a level's groups are simplified on :data:`WORKERS` threads.
@@ -49,12 +49,17 @@ from node.scene.octree import morton_codes
 CLUSTER_FACES = 2048
 #: Faces a group gathers (neighbouring clusters of a level, about this many in all).
 GROUP_FACES = 8 * CLUSTER_FACES
-#: The fraction of its faces a group's simplification aims at.
-KEEP = 0.25
+#: The fraction of its faces a group's simplification aims at. Finer steps than a quarter: a bound
+#: falls between two levels' errors and the finer of them is drawn, so with coarser steps a frame
+#: draws more than its bound needs. The 24.8M model from three orbit cameras at 1280x720: 0.25 drew
+#: 1.19-1.29M triangles at 2 px (39.2-42.3 dB from full detail) and 0.58-0.81M at 3 px (34.9-38.6 dB),
+#: 0.4 drew 0.61-0.66M at 2 px (38.3-40.5 dB); 0.5 did no better than 0.4 and costs the full level's
+#: indices again (over the +40 % memory bound).
+KEEP = 0.4
 #: A group's error is at most this many times its inputs' largest (it keeps more faces instead).
 GROWTH = 8.0
 #: A group is made only when its simplification keeps at most this fraction of its faces.
-MAX_KEPT = 0.5
+MAX_KEPT = 0.7
 #: Batches of fewer faces than this get no levels (nothing to gain).
 MIN_FACES = GROUP_FACES
 #: Levels at most (each keeps at most :data:`MAX_KEPT`: far more than a batch needs).
@@ -65,7 +70,7 @@ MAX_LEVELS = 48
 #: coarse levels with the fine level's noisy vertex normals: shading, not outlines, cost the PSNR.
 NORMAL_WEIGHT = 0.5
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 3
+LOD_FORMAT = 4
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 #: Corners whose clusters' adjacency is found at a time.
 BLOCK_CORNERS = 1 << 23
@@ -323,7 +328,7 @@ class _Builder:
             pairs, weights = _adjacency(below, weld, first_vertex.size)
             groups = _partition(np.array([c.size // 3 for c in below]), pairs, weights)
             inputs = [np.concatenate([below[m] for m in group]) for group in groups]
-            # A group stops short of a quarter rather than pass GROWTH times its inputs' error (one
+            # A group stops short of KEEP rather than pass GROWTH times its inputs' error (one
             # straddling separate pieces of a model would otherwise collapse them far).
             limits = [GROWTH * max(errors[m] for m in group) or float(np.finfo(np.float32).max) for group in groups]
             results = list(pool.map(partial(_simplify, positions=positions, normals=normals), inputs, limits))
