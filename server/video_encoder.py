@@ -67,11 +67,12 @@ def default_crf(size: tuple[int, int]) -> float:
 class VideoEncoder:
     """Encodes pictures of ``size`` (w, h px; the coded size is even) with ``codec`` at a target
     ``bitrate`` (bit/s at ``fps`` pictures per second; H.264: at most, at constant quality ``crf``,
-    None: :func:`default_crf`); ``options``: the encoder's options as opened (H.264: the fuller
-    analysis up to 1280×720, :mod:`tessera.video.budget`)."""
+    None: :func:`default_crf`); ``extra_params``: x264 options appended to the H.264 ones (``:``-separated,
+    for measurements: ``bench.video_rd``); ``options``: the encoder's options as opened (H.264: the
+    fuller analysis up to 1280×720, :mod:`tessera.video.budget`)."""
 
     def __init__(self, codec: VideoCodec, size: tuple[int, int], bitrate: float, fps: float,
-                 crf: float | None = None) -> None:
+                 crf: float | None = None, extra_params: str = "") -> None:
         self.codec = codec
         self.size = size
         self.crf = (default_crf(size) if crf is None else float(crf)) if codec is VideoCodec.H264 else None
@@ -91,6 +92,8 @@ class VideoEncoder:
             options["crf"] = f"{self.crf:g}"
             if not full_analysis(size):
                 options["x264-params"] = X264_LIGHT_PARAMS
+            if extra_params:
+                options["x264-params"] += ":" + extra_params
         context.options = self.options = {**options, "maxrate": str(int(bitrate)),
                            "bufsize": str(int(bitrate * BUFFER_FRAMES / fps))}
         context.open()
