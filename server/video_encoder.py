@@ -31,9 +31,10 @@ from tessera.wire.video import VideoCodec
 _ENCODERS = {VideoCodec.H264: "libx264", VideoCodec.VP9: "libvpx-vp9"}
 #: What x264 does beyond ``ultrafast`` (and so the Main profile: CABAC): 4×4 intra and 8×8 inter
 #: partitions, deblocking at 1:1, CABAC, sub-pixel refinement 2, a hexagon search, trellis and a
-#: chroma QP offset of −2 (chroma costs PSNR more than bits). Each option chosen by its PSNR per
-#: byte and per millisecond at 720p: see the design notes.
-X264_PARAMS = "partitions=i4x4,p8x8:deblock=1,1:cabac=1:subme=2:me=hex:trellis=1:chroma-qp-offset=-2"
+#: chroma QP offset of −4 (chroma costs PSNR more than bits). Each option chosen by its PSNR per
+#: byte and per millisecond at 720p, the offset by the bytes at the tiles' PSNR over random
+#: cameras (``bench.video_rd``): see the design notes.
+X264_PARAMS = "partitions=i4x4,p8x8:deblock=1,1:cabac=1:subme=2:me=hex:trellis=1:chroma-qp-offset=-4"
 #: x264's constant rate factor a stream starts at, the target a cap over it (capped CRF): a picture
 #: gets the bits its quality needs up to its share of the target, where the target alone (constant
 #: bitrate) would spend every frame's share. 28.5: the fewest bits that stay above the JPEG q60
