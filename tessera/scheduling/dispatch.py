@@ -135,6 +135,8 @@ class FrameDispatch:
         self._pump_pull(now)
         while free := self._wanting_work(now):
             wanting = [s for s in self.sessions.values() if s.may_start(now, self._free_for(s, free))]
+            if self._stills_held():
+                wanting = [s for s in wanting if s.owed(now) != STILL]
             if len(wanting) > 1 or (wanting and len(self.sessions) > 1):
                 busy = [s.id for s in self.sessions.values() if s.frames]
                 order = self.fair.order([s.id for s in wanting], busy, now)
@@ -146,6 +148,12 @@ class FrameDispatch:
             assert kind is not None
             self._start_frame(session, now, still=kind == STILL)
             self._pump_pull(now)
+
+    def _stills_held(self) -> bool:
+        """A session awaits its first frame: no still sample of another starts meanwhile (measured:
+        the coordinator's own scene's 64 samples, nobody watching, drew on the node's one GL thread
+        while it uploaded a new session's scene, then between the pieces of its first frame)."""
+        return any(s.awaits_first_frame for s in self.sessions.values())
 
     @staticmethod
     def _goes_ahead(session: SessionFrames) -> bool:

@@ -112,6 +112,11 @@ class RenderDemand:
         """A published frame showed the current version."""
         return self._published >= self.version
 
+    @property
+    def published_any(self) -> bool:
+        """A frame of any version was published."""
+        return self._published > 0
+
     def published(self, version: int) -> bool:
         """A frame of ``version`` was published; True when it is the first to show that version."""
         first = version > self._published

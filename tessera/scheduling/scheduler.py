@@ -57,6 +57,7 @@ from tessera.scheduling.dispatch import STRAGGLER_CHECK_S, FrameDispatch
 from tessera.scheduling.fair_share import FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob, check_late_tile
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
+from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
 from tessera.wire.codec import Codec
 from tessera.wire.depth_tiles import DecodedDepthTile
@@ -102,13 +103,15 @@ class FrameScheduler(FrameDispatch):
         """The earliest time a :meth:`tick` could do something (a start the frame-rate cap holds
         back, the still frame's quiet period, a tile timeout); None: only an event can."""
         free = self._wanting_work(now)
+        held = self._stills_held()
         if len(self.sessions) == 1:   # one session is always in turn
             times = [at] if (at := self.default.start_due(now, self._free_for(self.default, free))) is not None else []
         else:
             backlogged = [s.id for s in self.sessions.values() if s.frames or s.owed(now) is not None]
             times = [at for s in self.sessions.values()
                      if (at := s.start_due(now, self._free_for(s, free))) is not None
-                     and self.fair.in_turn(s.id, backlogged)]
+                     and self.fair.in_turn(s.id, backlogged)
+                     and not (held and s.owed(now, ignore_quiet=True) == STILL)]
         if self._expected is not None:
             times.append(self._expected[1])
         if self.in_flight:

@@ -90,9 +90,21 @@ class SessionFrames:
         """"interactive", "still" or None: the kind of frame the session's state asks for at ``now``."""
         if self.camera is None:
             return None
-        moving = self.demand.settling and self.mode.tiles.moving
+        # A frame cut into pieces teaches the balancer nothing: a settle frame beside it would draw
+        # the same picture again on the same few nodes (a session's first frame took twice as long).
+        moving = self.demand.settling and self.mode.tiles.moving and not self.pieces_in_flight
         return self.demand.owed(now, self.scene is not None and self.scene.animating, moving,
                                 self.interactive_in_flight, ignore_quiet)
+
+    @property
+    def pieces_in_flight(self) -> bool:
+        """A frame of the session cut into pieces (:attr:`FrameJob.one_by_one`) is in flight."""
+        return any(job.one_by_one for job in self.frames.values())
+
+    @property
+    def awaits_first_frame(self) -> bool:
+        """A node holds or loads its scene, and no frame of it was published yet."""
+        return bool(self.ready or self.loading) and not self.demand.published_any
 
     @property
     def interactive_in_flight(self) -> bool:

@@ -1,0 +1,124 @@
+"""A session's first frame goes first (issue 31: the first frame of a 24.8M-triangle model after a
+restart): no settle frame beside a first frame cut into pieces, no still sample of another session
+on the nodes while a session's scene loads and its first frame is drawn. Pure scheduler, no I/O."""
+
+from __future__ import annotations
+
+from server.node_calibration import NodeCalibration
+from server.nodes import NodeLink
+from tessera.balancers.static import StaticBalancer
+from tessera.geometry import Camera
+from tessera.scheduling.actions import LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.dispatch import FIRST_FRAME_PIECES
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION
+from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.wire.protocol import TileHeader, state_tag
+
+CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
+
+
+def camera(i: int = 0) -> Camera:
+    return Camera(eye=(0.0, 0.0, 5.0 + i), target=(0.0, 0.0, 0.0))
+
+
+def answer(s: FrameScheduler, action: RenderTiles, now: float) -> list:
+    """Every tile of ``action`` comes back at ``now``; the actions that follow."""
+    job = s.in_flight[action.message.frame]
+    tag = state_tag(None if job.state is None else job.state.version)
+    for tile in action.message.tiles:
+        header = TileHeader(action.message.frame, tile.tile, tile.rect, job.codec, 1.0, 0.0, 0.0, tag)
+        s.tile_arrived(action.node_id, header, b"", now)
+        s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
+    return s.drain()
+
+
+def renders(actions: list) -> list[RenderTiles]:
+    return [a for a in actions if isinstance(a, RenderTiles)]
+
+
+def test_a_first_frame_in_pieces_has_no_settle_frame_beside_it():
+    """Node 1 alone holds p's scene while session a draws: p's first frame goes in pieces, and with
+    settle frames on no second frame of p (the same picture again) starts until it is published."""
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("a", CONFIG, StaticBalancer(), "builtin:a", 0.0)
+    s.add_session("p", SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=2, still_codec=None),
+                  StaticBalancer(), "library/scan.ply", 0.0)
+    for node_id in (1, 2):
+        s.add_node(node_id, 0.0)
+        s.node_ready(node_id, 0.0, session_id="a")
+    s.node_ready(1, 0.0, session_id="p")
+    s.drain()
+    s.set_camera(camera(), 0.0, session_id="a")
+    queued = {a.node_id: a for a in renders(s.drain())}
+    actions = answer(s, queued[2], 0.005)
+    s.set_camera(camera(), 0.01, session_id="p")
+    (pending,) = renders(s.drain())
+    assert s.in_flight[pending.message.frame].one_by_one
+    actions += answer(s, queued[1], 0.03)
+    pieces = 0
+    while pending is not None:
+        assert len(s.sessions["p"].frames) == 1, "no settle frame beside the pieces"
+        more = answer(s, pending, 0.05 + 0.01 * pieces)
+        actions += more
+        pending = next((a for a in renders(more) if s.in_flight[a.message.frame].session == "p"
+                        and s.in_flight[a.message.frame].one_by_one), None)
+        pieces += 1
+    assert pieces == FIRST_FRAME_PIECES
+    assert "p" in [a.job.session for a in actions if isinstance(a, PublishFrame)]
+
+
+def test_no_still_sample_of_another_session_starts_while_a_session_awaits_its_first_frame():
+    """The default session refines a still on node 1; session p's scene loads there: no sample
+    starts (and no deadline asks for one) until p's first frame is published, then they go on."""
+    config = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_delay_ms=0.0, still_samples=8)
+    s = FrameScheduler(config, StaticBalancer(), scene="builtin:spheres")
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    s.drain()
+    s.set_camera(camera(), 0.0)
+    (first,) = renders(s.drain())
+    (sample,) = renders(answer(s, first, 0.01))
+    assert s.in_flight[sample.message.frame].still, "the default session refines its still"
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.02)
+    assert s.drain() == [LoadScene(1, None, "library/scan.ply")]
+    assert renders(answer(s, sample, 0.03)) == [], "no sample while p's scene loads"
+    assert s.next_deadline(0.04) is None
+    s.set_camera(camera(1), 0.05, session_id="p")
+    s.node_ready(1, 0.5, session_id="p")
+    (p_first,) = renders(s.drain())
+    assert s.in_flight[p_first.message.frame].session == "p"
+    after = answer(s, p_first, 0.6)
+    assert [a.job.session for a in after if isinstance(a, PublishFrame)] == ["p"]
+    assert any(s.in_flight[a.message.frame].session == DEFAULT_SESSION and s.in_flight[a.message.frame].still
+               for a in renders(after)), "the default session's still goes on"
+
+
+class Host:
+    """What :class:`NodeCalibration` needs: a real scheduler and one node's link."""
+
+    def __init__(self, scheduler: FrameScheduler) -> None:
+        self.scheduler = scheduler
+        self.nodes = {1: NodeLink(1, "n1", "llvmpipe", lambda code, reason: None, can_calibrate=True)}
+        self.size = (64, 32)
+        self.settings = type("Settings", (), {"scene": "builtin:spheres"})()
+
+
+def test_a_node_is_not_calibrated_while_a_session_awaits_its_first_frame():
+    """Calibration renders on the node's one GL thread: it waits while session p's scene loads and
+    its first frame is drawn (at most QUIET_WAIT_S), and is asked for once p's frame is out."""
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    s.set_camera(camera(), 0.0)
+    answer(s, renders(s.drain())[0], 0.01)
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.02)
+    s.drain()
+    host = Host(s)
+    calibration = NodeCalibration(host)
+    calibration.request([1])
+    assert host.nodes[1].outbox.empty(), "p's scene loads on node 1"
+    s.set_camera(camera(1), 0.05, session_id="p")
+    s.node_ready(1, 0.5, session_id="p")
+    answer(s, renders(s.drain())[0], 0.6)
+    calibration.advance()
+    assert '"calibrate"' in host.nodes[1].outbox.get_nowait()
