@@ -103,8 +103,8 @@ class SessionFrames:
 
     @property
     def awaits_first_frame(self) -> bool:
-        """A node holds or loads its scene, and no frame of it was published yet."""
-        return bool(self.ready or self.loading) and not self.demand.published_any
+        """A node loads its scene, or holds it and it has a camera, and no frame of it was published yet."""
+        return bool(self.loading or (self.ready and self.camera is not None)) and not self.demand.published_any
 
     @property
     def interactive_in_flight(self) -> bool:
