@@ -95,5 +95,6 @@ class NodeLink:
             "tiles_dropped": self.tiles_dropped,
             "outstanding": len(schedule.outstanding),
             "suspect": schedule.suspect,
+            "backups": schedule.backups,
             **schedule.counters,
         }

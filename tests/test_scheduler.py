@@ -679,6 +679,32 @@ def test_a_straggler_s_late_copy_teaches_its_pace_and_its_heavier_share_is_not_b
     assert not s.nodes[2].suspect, "0.6 s is within 4x the pace its late tile showed"
 
 
+def test_a_backup_never_goes_to_a_node_that_still_owes_the_tile():
+    """Node 2 lags on frame 2's tile with frame 3's queued behind: both are copied to node 1; it
+    answers the first (trusted again) while node 1 lags on the copy of the second: that copy may
+    not go back to node 2, which still owes the tile (it would draw it twice and be closed for
+    answering a tile it no longer owed: seen under load in bench.tools film, 'tile 0 of frame 126,
+    which this node does not owe')."""
+    s = scheduler(nodes=2, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
+    s.set_camera(camera(0), 0.0)
+    finish(s, 1, 0.01)
+    s.set_camera(camera(1), 0.02)
+    s.drain()
+    deliver(s, 1, 2, 0, 0.03)
+    s.set_camera(camera(2), 0.04)
+    s.drain()
+    deliver(s, 1, 3, 0, 0.05)
+    assert list(s.nodes[2].outstanding) == [(2, 1), (3, 1)], "frame 3's tile queued behind node 2's late one"
+    s.tick(0.4)
+    assert s.nodes[2].suspect and renders(s.drain()) == {1: [(2, 1), (3, 1)]}
+    deliver(s, 2, 2, 1, 0.41)
+    deliver(s, 1, 2, 1, 0.42)
+    assert not s.nodes[2].suspect and list(s.nodes[2].outstanding) == [(3, 1)]
+    s.tick(2.0)
+    assert s.nodes[1].suspect and renders(s.drain()) == {}, "node 2 owes it still: no copy goes there"
+    assert published(deliver(s, 2, 3, 1, 2.01)) == [3] and not s.nodes[2].outstanding
+
+
 def test_a_node_that_freezes_before_finishing_a_frame_is_backed_up_at_the_slowest_known_rate():
     s = scheduler(nodes=3, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
     s.set_camera(camera(0), 0.0)

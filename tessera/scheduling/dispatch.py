@@ -75,8 +75,12 @@ class FrameDispatch:
             node.suspect = True
             self.table.touch(node, state_changed=True)
             self.backups += 1
+            node.backups += 1
             for job, tile_id in movable:
-                others = [n for n in self.table.holding(self.sessions[job.session].ready) if n is not node]
+                # not to a node that still owes the tile (an earlier owner trusted again): it would
+                # draw it twice, and its second answer is one it no longer owes
+                others = [n for n in self.table.holding(self.sessions[job.session].ready)
+                          if n is not node and (job.frame_id, tile_id) not in n.outstanding]
                 if not others or job.tiles[tile_id].done or job.tiles[tile_id].node_id != node.node_id:
                     continue
                 job.tiles[tile_id].earlier.add(node.node_id)

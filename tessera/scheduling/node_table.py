@@ -81,6 +81,8 @@ class NodeSchedule:
     tiles_rendered: int = 0
     #: Its longest recent tile, dispatch to answer (s), decayed by :data:`TILE_TIME_DECAY` a tile.
     tile_s: float = 0.0
+    #: Times it lagged on a tile (:meth:`NodeTable.overdue`) and its tiles went to other nodes.
+    backups: int = 0
 
     @property
     def schedulable(self) -> bool:
