@@ -12,7 +12,7 @@ import pytest
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.actions import CancelFrames, PublishFrame, RenderTiles
-from tessera.scheduling.job_scheduler import JobScheduler
+from tessera.scheduling.job_scheduler import JOB_QUEUE, JobScheduler
 from tessera.scheduling.refinement import StillPlan
 from tessera.scheduling.render_jobs import (
     DONE,
@@ -193,7 +193,7 @@ def test_a_job_runs_to_its_end_on_the_scheduler() -> None:
 def test_a_dropped_job_tile_that_comes_late_is_ignored_not_refused() -> None:
     s = job_scheduler(nodes=1)
     s.add_job(RenderWork("j", spec(size=(2000, 1000), samples=1), side=512), 0.0)
-    (frame_id,) = job_tiles(s.drain())[1]
+    frame_id = job_tiles(s.drain())[1][0]
     rect = s.in_flight[frame_id].tiles[0].rect
     assert rect.x1 > 64, "the piece lies outside the session's 64x32 frame"
     s.end_job("j", 0.1)
@@ -204,10 +204,89 @@ def test_a_dropped_job_tile_that_comes_late_is_ignored_not_refused() -> None:
         s.receive_tile(1, TileHeader(frame_id, 0, Rect(1990, 0, 20, 10), Codec.RAW, 5.0, 1.0, 1.0), b"", 0.3)
 
 
+def test_nodes_hold_a_bounded_queue_of_job_tiles_that_makes_way_for_a_session_s_frame() -> None:
+    """While no session draws, each node holds up to JOB_QUEUE job tiles (never idle between them);
+    when the session moves, those no node has begun go back to the job, in order, its frame goes
+    to the first node freed, and the film is still drawn whole."""
+    s = job_scheduler(nodes=2)
+    work = RenderWork("j", spec(pictures=6, samples=1, kind="film"), side=50)   # 4 pieces a picture
+    s.add_job(work, 0.0)
+    started = job_tiles(s.drain())
+    assert {node: len(frames) for node, frames in started.items()} == {1: JOB_QUEUE, 2: JOB_QUEUE}
+    heads = {frames[0] for frames in started.values()}
+    queued = sorted(f for frames in started.values() for f in frames[1:])
+    queued_items = [s.in_flight[f].item for f in queued]
+    s.set_camera(CAMERA, 0.01)
+    actions = s.drain()
+    assert not job_tiles(actions), "the nodes are on their job tiles: the session's frame waits"
+    assert set(s.in_flight) == heads, "only the job tiles begun are still out"
+    assert {f for a in actions if isinstance(a, CancelFrames) for f in a.frames} == set(queued)
+    assert list(work.again) == queued_items, "handed back in order"
+    head_of_1 = started[1][0]
+    actions = deliver(s, 1, head_of_1, 0.02)
+    frame = [f for fs in job_tiles(actions).values() for f in fs]
+    assert frame and all(s.in_flight[f].job is None for f in frame), "node 1, freed, draws the session's frame"
+    now, drawn, taken = 0.02, [], []
+    for _ in range(400):
+        for job in [a.job for a in actions if isinstance(a, PublishFrame) and a.job.job == "j"]:
+            drawn.append(job.item)
+            while len(work.pieces_done.get(len(taken), ())) == len(work.pieces):
+                taken.append(len(taken))
+                s.picture_taken("j", taken[-1], now)
+        assert all(len(node.outstanding) <= JOB_QUEUE for node in s.nodes.values())
+        assert len({job.item.picture for job in s.in_flight.values() if job.job}) <= LOOKAHEAD + 1
+        if not s.in_flight:
+            break
+        now += 0.01
+        frame_id = next(iter(s.in_flight))
+        node = s.in_flight[frame_id].tiles[0].node_id
+        actions = deliver(s, node, frame_id, now) + s.drain() if len(s.in_flight[frame_id].tiles) == 1 else \
+            [a for t in range(len(s.in_flight[frame_id].tiles)) for a in deliver_tile(s, frame_id, t, now)]
+    assert sorted(drawn, key=lambda i: (i.picture, i.piece, i.sample)) == list(items_of(work))
+    assert taken == list(range(6)) and work.done == work.total == 6
+
+
+def test_a_lagging_node_s_job_tile_is_expected_to_take_what_its_piece_took_and_its_queue_goes_back() -> None:
+    """A job tile is late by what its piece took in the picture before (not the node's rate in its
+    last tile: a film's pieces of background and of the model differ a hundredfold); a node that
+    lags has the tile it is on copied to another node and those queued behind it handed back to
+    the job (the node skips them), not copied."""
+    s = job_scheduler(nodes=2)
+    work = RenderWork("j", spec(pictures=4, samples=1, kind="film"), side=50)   # 4 pieces a picture
+    s.add_job(work, 0.0)
+    started = job_tiles(s.drain())
+    costs = {0: 100.0, 1: 2.0, 2: 2.0, 3: 2.0}   # piece 0 is dear, the others cheap
+    for now, index in ((0.1, 0), (0.2, 1)):
+        for node_id in (1, 2):
+            frame_id = started[node_id][index]
+            deliver(s, node_id, frame_id, now, render_ms=costs[s.in_flight[frame_id].item.piece])
+    queues = {n: [(f, s.in_flight[f].item) for f, _ in s.nodes[n].outstanding] for n in (1, 2)}
+    assert [item for _, item in queues[1]] == [JobItem(1, 0, 0), JobItem(1, 2, 0)]
+    assert [item for _, item in queues[2]] == [JobItem(1, 1, 0), JobItem(1, 3, 0)]
+    assert s.in_flight[queues[1][0][0]].expected_ms == pytest.approx(102.0), "piece 0's time, not the node's rate"
+    s.drain()
+    s.tick(0.5)   # 0.3 s on their tiles: node 1's piece is expected to take 0.1 s, node 2's 4 ms
+    actions = s.drain()
+    assert not s.nodes[1].suspect and s.nodes[1].backups == 0, "node 1 is within 4x its piece's time"
+    assert s.nodes[2].suspect and s.nodes[2].backups == 1
+    (head, _), (queued, queued_item) = queues[2]
+    assert job_tiles(actions) == {1: [head]}, "the tile node 2 is on is copied to node 1"
+    assert CancelFrames(2, (queued,)) in actions and queued not in s.in_flight, "the one queued is not copied"
+    assert list(work.again) == [queued_item], "it goes back to the job"
+
+
+def deliver_tile(s: JobScheduler, frame_id: int, tile_id: int, now: float) -> list:
+    job = s.in_flight[frame_id]
+    tile = job.tiles[tile_id]
+    s.tile_arrived(tile.node_id, TileHeader(frame_id, tile_id, tile.rect, job.codec, 5.0, 1.0, 1.0), b"px", now)
+    return s.drain()
+
+
 def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_back() -> None:
-    """Sort-last: a job tile is one depth tile per share over the same piece, started when a holder
-    is free and the others at most on their last tile, published once all are in; a node joining
-    (a new data partition) hands it back."""
+    """Sort-last: a job tile is one depth tile per share over the same piece, started when every
+    holder has room for it (each holds up to JOB_QUEUE: a holder ahead does not wait for the others
+    at every piece), published once all are in; a node joining (a new data partition) hands the
+    tiles in flight back, in order."""
     s = JobScheduler(SchedulerConfig(size=(64, 32), mode="sort-last", max_fps=1e6, settle_frames=0, still_codec=None),
                      StaticBalancer())
     for node_id in (1, 2):
@@ -219,28 +298,34 @@ def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_ba
     work = RenderWork("j", spec(samples=2), side=50)
     s.add_job(work, 0.0)
     renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
-    assert sorted(r.node_id for r in renders) == [1, 2] and len({r.message.frame for r in renders}) == 1
-    frame_id = renders[0].message.frame
-    job = s.in_flight[frame_id]
+    frames = [r.message.frame for r in renders if r.node_id == 1]
+    assert len(frames) == JOB_QUEUE and [r.message.frame for r in renders if r.node_id == 2] == frames
+    job = s.in_flight[frames[0]]
     assert [t.rect for t in job.tiles] == [work.pieces[0][0]] * 2 and job.item == JobItem(0, 0, 0)
     assert all(r.message.depth is not None and r.message.depth.share == version for r in renders)
-    s.tile_arrived(1, TileHeader(frame_id, 0, job.tiles[0].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
-                   DecodedDepthTile(version, None, ()))
-    actions = s.drain()
-    assert not [a for a in actions if isinstance(a, PublishFrame)], "node 2's share is not in"
-    renders = [a for a in actions if isinstance(a, RenderTiles)]
-    assert sorted(r.node_id for r in renders) == [1, 2], "node 1 is free, node 2 on its last tile: the next goes"
-    (following,) = {r.message.frame for r in renders}
-    s.tile_arrived(2, TileHeader(frame_id, 1, job.tiles[1].rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1,
+    for k, frame_id in enumerate(frames):   # node 1 runs ahead through its queue
+        tile = s.in_flight[frame_id].tiles[0]
+        s.tile_arrived(1, TileHeader(frame_id, 0, tile.rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 0.1 + k,
+                       DecodedDepthTile(version, None, ()))
+        actions = s.drain()
+        assert not [a for a in actions if isinstance(a, PublishFrame)], "node 2's share is not in"
+        assert not [a for a in actions if isinstance(a, RenderTiles)], "node 2 has no room"
+    tile = s.in_flight[frames[0]].tiles[1]
+    s.tile_arrived(2, TileHeader(frames[0], 1, tile.rect, job.codec, 5.0, 1.0, 1.0, depth=True), b"", 5.0,
                    DecodedDepthTile(version, None, ()))
     actions = s.drain()
     assert [a.job.item for a in actions if isinstance(a, PublishFrame)] == [JobItem(0, 0, 0)]
-    assert all(len(node.outstanding) <= 2 for node in s.nodes.values()), "at most one queued behind the last"
-    item = s.in_flight[following].item
-    s.add_node(3, 0.2)
-    assert following not in s.in_flight and item in work.again, "drawn from the old shares: handed back"
+    renders = [a for a in actions if isinstance(a, RenderTiles)]
+    assert sorted(r.node_id for r in renders) == [1, 2] and len({r.message.frame for r in renders}) == 1
+    assert all(len(node.outstanding) <= JOB_QUEUE for node in s.nodes.values())
+    following = sorted(f for f, j in s.in_flight.items() if j.job == "j")
+    items = [s.in_flight[f].item for f in following]
+    s.add_node(3, 5.1)
+    assert not set(following) & set(s.in_flight) and list(work.again) == items, "drawn from the old shares"
     assert not [a for a in s.drain() if isinstance(a, RenderTiles)], "the new shares are not loaded yet"
     for node_id in (1, 2, 3):
-        s.node_ready(node_id, 0.3, s.default.mode.shares.plan.version)
+        s.node_ready(node_id, 5.2, s.default.mode.shares.plan.version)
     renders = [a for a in s.drain() if isinstance(a, RenderTiles) and s.in_flight[a.message.frame].job == "j"]
-    assert sorted(r.node_id for r in renders) == [1, 2, 3] and s.in_flight[renders[0].message.frame].item == item
+    by_node = {n: [r.message.frame for r in renders if r.node_id == n] for n in (1, 2, 3)}
+    assert by_node[1] == by_node[2] == by_node[3] and len(by_node[1]) == JOB_QUEUE
+    assert [s.in_flight[f].item for f in by_node[1]][:len(items)] == items, "the handed-back items first, in order"

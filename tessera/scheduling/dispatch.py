@@ -76,6 +76,7 @@ class FrameDispatch:
             self.table.touch(node, state_changed=True)
             self.backups += 1
             node.backups += 1
+            head = next(iter(node.outstanding))
             for job, tile_id in movable:
                 # not to a node that still owes the tile (an earlier owner trusted again): it would
                 # draw it twice, and its second answer is one it no longer owes
@@ -83,8 +84,14 @@ class FrameDispatch:
                           if n is not node and (job.frame_id, tile_id) not in n.outstanding]
                 if not others or job.tiles[tile_id].done or job.tiles[tile_id].node_id != node.node_id:
                     continue
-                job.tiles[tile_id].earlier.add(node.node_id)
-                self._redispatch(job, [tile_id], others, now, pull=False)
+                self._back_up(job, tile_id, node, others, now, begun=(job.frame_id, tile_id) == head)
+
+    def _back_up(self, job: FrameJob, tile_id: int, node: NodeSchedule, others: list[NodeSchedule], now: float,
+                 begun: bool) -> None:
+        """Tile ``tile_id`` of ``job``, owed by overdue ``node`` (``begun``: the one it is on), goes
+        to one of ``others`` too: the first copy back wins."""
+        job.tiles[tile_id].earlier.add(node.node_id)
+        self._redispatch(job, [tile_id], others, now, pull=False)
 
     def _redispatch(self, job: FrameJob, tile_ids: list[int], candidates: list[NodeSchedule], now: float,
                     pull: bool | None = None) -> None:

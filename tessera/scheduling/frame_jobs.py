@@ -119,6 +119,8 @@ class FrameJob:
     job: str | None = None
     item: JobItem | None = None
     window: Rect | None = None
+    #: A job tile's expected node time (ms): what its piece took last (None: not known).
+    expected_ms: float | None = None
 
     @classmethod
     def create(cls, frame_id: int, camera: Camera, size: tuple[int, int], codec: Codec, jpeg_quality: int,

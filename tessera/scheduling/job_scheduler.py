@@ -8,9 +8,11 @@ actions out, the clock passed in) that also hands out render jobs' work:
   sessions' frames go first (the frame scheduler's own order: fair shares, render on demand);
   job tiles then go to the nodes still free. A job tile is one sample of one piece of a picture,
   about :data:`tessera.scheduling.render_jobs.PIECE_MS` of node time, so a session's next frame
-  waits at most that behind one on a node. While no session has a frame in flight or owed, job
-  tiles also go to nodes ending their last tile (dispatch ahead), so the nodes never idle between
-  them; otherwise only to idle nodes.
+  waits at most that behind one on a node. While no session has a frame in flight or owed, each
+  node holds up to :data:`JOB_QUEUE` job tiles (the one it draws and the next, queued behind), so
+  it never idles between them whatever each one takes; otherwise job tiles go only to idle nodes,
+  and those queued that no node has begun go back to their jobs (the session's frame then waits
+  for one job tile per node at most).
 * **A session's work like any other.** A job tile's node time counts as its session's in the fair
   shares (:meth:`tessera.scheduling.fair_share.FairShare.spent`): the session's own frames then
   wait for the others' as if it had drawn them. Of several jobs, the least served session's first,
@@ -20,13 +22,14 @@ actions out, the clock passed in) that also hands out render jobs' work:
   lossless (raw from the coordinator's machine, else PNG; the coordinator sizes pieces to fit a
   node's messages), in a still's sample's jitter. In sort-last (each node holds a share) it is
   a tile per share over the same piece, each drawn by the share's holder with depth, started when
-  one holder is free and the others too (while no session draws: at most on their last tile), and
-  merged by depth on the coordinator as a progressive still's sample is;
+  every holder has room for it, and merged by depth on the coordinator as a progressive still's
+  sample is;
   a new data partition hands the session's job tiles in flight back to their jobs. A job tile is
   never the session's frame (it neither supersedes nor is superseded by them). A tile that fails
-  or whose node lags goes to another node as any tile does; one whose node leaves is handed back
-  to its job and drawn again; a complete one is published (:class:`PublishFrame`) for the
-  coordinator to accumulate.
+  or whose node lags goes to another node as any tile does (a lagging node's tile is expected to
+  take what the same piece took in the picture before, and the job tiles queued behind it are
+  handed back, not copied); one whose node leaves is handed back to its job and drawn again; a
+  complete one is published (:class:`PublishFrame`) for the coordinator to accumulate.
 """
 
 from __future__ import annotations
@@ -46,6 +49,9 @@ from tessera.wire.protocol import ProtocolError, TileHeader
 
 #: Dropped job tiles whose picture size is remembered (a node may still send the one it was on).
 DROPPED_SIZES = 4096
+#: Job tiles a node holds at most while no session draws: the one it draws and the next, queued
+#: behind it (there when the node finishes the one before, however long either takes).
+JOB_QUEUE = 2
 
 
 class JobScheduler(FrameScheduler):
@@ -124,25 +130,28 @@ class JobScheduler(FrameScheduler):
             raise ProtocolError(f"tile rect {header.rect.as_list()} lies outside the {size[0]}x{size[1]} picture")
         return self.tile_arrived(node_id, header, payload, now)
 
-    def next_deadline(self, now: float) -> float | None:
-        """As the frame scheduler's, and when a busy node will want a job tile (dispatch ahead)."""
-        deadline = super().next_deadline(now)
-        if self._quiet(now) and any(work.waiting for work in self.jobs.values()):
-            ahead = self.table.next_wanting_at(self.in_flight, now)
-            if ahead is not None:
-                deadline = ahead if deadline is None else min(deadline, ahead)
-        return deadline
-
     # ----------------------------------------------------------------- the frame scheduler's hooks
     def _advance(self, now: float) -> None:
-        """The sessions' frames first, then job tiles to the nodes still free."""
+        """The sessions' frames first (job tiles queued that no node has begun make way for them),
+        then job tiles to the nodes with room."""
+        if self.jobs and not self._quiet(now):
+            self._make_way(now)
         super()._advance(now)
         if self.jobs:
-            self._start_job_tiles(now)
+            self._start_job_tiles(now, self._quiet(now))
 
     def _cancel(self, job: FrameJob, now: float) -> None:
         if job.job is None:
             super()._cancel(job, now)
+        else:
+            self._drop(job, now, hand_back=True)
+
+    def _back_up(self, job: FrameJob, tile_id: int, node: NodeSchedule, others: list[NodeSchedule], now: float,
+                 begun: bool) -> None:
+        """As the frame scheduler does, but a job tile the lagging node has not begun goes back to
+        its job (the node skips it, the nodes with room take it), not copied."""
+        if job.job is None or begun:
+            super()._back_up(job, tile_id, node, others, now, begun)
         else:
             self._drop(job, now, hand_back=True)
 
@@ -168,39 +177,44 @@ class JobScheduler(FrameScheduler):
         """No session has a frame in flight or owed: job tiles may go to nodes ending their last tile."""
         return not any(s.frames or s.owed(now, ignore_quiet=True) is not None for s in self.sessions.values())
 
-    def _start_job_tiles(self, now: float) -> None:
-        waiting = [work for work in self.jobs.values() if work.waiting]
-        if not waiting:
-            return
-        quiet = self._quiet(now)
-        free = set(self.table.wanting_work(self.in_flight, now) if quiet else self.table.idle)
-        # sort-last: the other holders may be on their last tile still (while quiet), so that one
-        # slower share does not leave the others idle at every piece
-        behind = {n.node_id for n in self.nodes.values() if n.schedulable and len(n.outstanding) <= 1} if quiet \
-            else set(free)
-        for node in sorted((self.nodes[i] for i in free), key=lambda n: (-n.speed, n.node_id)):
-            holding = [work for work in waiting if self._may_draw(work, node.node_id, free, behind)]
-            if not holding:
-                continue
-            work = min(holding, key=lambda w: self.fair.served.get(w.spec.session, 0.0))   # then the oldest
-            item = work.take()
-            if item is not None:
-                started = self._start_job_tile(work, item, node, now)
-                free -= started
-                behind -= started
-            waiting = [work for work in waiting if work.waiting]
-            if not waiting:
-                return
+    def _make_way(self, now: float) -> None:
+        """A session draws: the job tiles in flight that head no node's queue (none has begun them)
+        go back to their jobs, in order, and the nodes skip them."""
+        queued = [job for job in self.in_flight.values() if job.job is not None and not self.table.heads(job.frame_id)]
+        for job in sorted(queued, key=lambda j: j.frame_id):
+            self._drop(job, now, hand_back=True)
 
-    def _may_draw(self, work: RenderWork, node_id: int, free: set[int], behind: set[int]) -> bool:
-        """Node ``node_id`` (of the ``free`` ones) may start a tile of ``work``: it holds its
-        session's scene; in sort-last it holds a share and every other holder is free or, while no
-        session draws, on its last tile (``behind``): each draws the tile."""
+    def _start_job_tiles(self, now: float, quiet: bool) -> None:
+        """Job tiles to the nodes with room: while ``quiet`` (no session draws) those holding fewer
+        than :data:`JOB_QUEUE` tiles, else the idle ones; the node holding fewest first, then the fastest."""
+        waiting = [work for work in self.jobs.values() if work.waiting]
+        depth = JOB_QUEUE if quiet else 1
+        room = {n.node_id: depth - len(n.outstanding) for n in self.nodes.values()
+                if n.schedulable and len(n.outstanding) < depth}
+        while waiting and room:
+            node = min((self.nodes[i] for i in room), key=lambda n: (len(n.outstanding), -n.speed, n.node_id))
+            holding = [work for work in waiting if self._may_draw(work, node.node_id, room)]
+            item = None
+            if holding:
+                work = min(holding, key=lambda w: self.fair.served.get(w.spec.session, 0.0))   # then the oldest
+                item = work.take()
+            if item is None:
+                del room[node.node_id]
+                continue
+            for node_id in self._start_job_tile(work, item, node, now):
+                room[node_id] -= 1
+                if not room[node_id]:
+                    del room[node_id]
+            waiting = [work for work in waiting if work.waiting]
+
+    def _may_draw(self, work: RenderWork, node_id: int, room: dict[int, int]) -> bool:
+        """Node ``node_id`` (one with ``room``) may start a tile of ``work``: it holds its session's
+        scene; in sort-last it holds a share and every other holder has room too: each draws the tile."""
         session = self.sessions[work.spec.session]
         shares = session.mode.job_nodes()
         if shares is None:
-            return node_id in free and node_id in session.ready
-        return node_id in shares and behind.issuperset(shares) and session.ready.issuperset(shares)
+            return node_id in session.ready
+        return node_id in shares and room.keys() >= set(shares) and session.ready.issuperset(shares)
 
     def _start_job_tile(self, work: RenderWork, item: JobItem, node: NodeSchedule, now: float) -> set[int]:
         """Start ``item`` on ``node`` (sort-last: on every share's holder, as a frame's depth tiles
@@ -218,6 +232,7 @@ class JobScheduler(FrameScheduler):
                               depth=None if shares is None else mode.depth_request(partition), sample=item.sample,
                               plan=spec.plan, clip=spec.clip, highlight=spec.highlight)
         job.job, job.item, job.window = work.job_id, item, window
+        job.expected_ms = work.piece_ms.get(item.piece) if shares is None else None
         self.next_frame_id += 1
         self.in_flight[job.frame_id] = job
         for index, drawer in enumerate(drawers):

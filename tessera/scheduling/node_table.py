@@ -188,24 +188,26 @@ class NodeTable:
 
     def drop(self, node: NodeSchedule, frame_id: int, now: float) -> bool:
         """Frame ``frame_id`` was dropped: ``node`` no longer owes its tiles (remembered as
-        dropped); True when it owed any."""
+        dropped); True when it owed any. When it was on one of them, its next tile counts as begun now."""
         keys = [k for k in node.outstanding if k[0] == frame_id]
+        head = next(iter(node.outstanding), None)
         for key in keys:
             del node.outstanding[key]
             node.dropped[key] = None
         while len(node.dropped) > DROPPED_MEMORY:
             del node.dropped[next(iter(node.dropped))]
         if keys:
-            node.head_since = now
+            if head in keys:
+                node.head_since = now
             self.touch(node)
         return bool(keys)
 
     def overdue(self, in_flight: Mapping[int, FrameJob], factor: float, floor_s: float,
                 now: float) -> list[NodeSchedule]:
-        """Nodes not yet suspect whose current tile is ``factor`` times later than expected (their
-        last frame's busy ms per pixel × the pixels it draws, a wall's piece drawn with its whole
-        tile; or for a node that has not finished a frame, the slowest rate any node has shown),
-        at least ``floor_s`` late."""
+        """Nodes not yet suspect whose current tile is ``factor`` times later than expected (its
+        frame's ``expected_ms`` where known, else their last frame's busy ms per pixel × the pixels
+        it draws, a wall's piece drawn with its whole tile; or for a node that has not finished a
+        frame, the slowest rate any node has shown), at least ``floor_s`` late."""
         slowest_known = max((n.ms_per_px for n in self.nodes.values() if n.ms_per_px is not None), default=None)
         out = []
         for node in self.nodes.values():
@@ -215,7 +217,9 @@ class NodeTable:
             head = next(((in_flight[f], t) for f, t in node.outstanding if f in in_flight), None)
             if head is None:
                 continue
-            expected_s = rate * head[0].tiles[head[1]].drawn.area / 1000.0
+            job, tile_id = head
+            expected_s = job.expected_ms / 1000.0 if job.expected_ms is not None \
+                else rate * job.tiles[tile_id].drawn.area / 1000.0
             if now - node.head_since > max(floor_s, factor * expected_s):
                 out.append(node)
         return out

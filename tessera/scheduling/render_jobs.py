@@ -165,6 +165,9 @@ class RenderWork:
     #: Items drawn so far, and the node time (busy ms: render, read-back, encode) they took.
     items_drawn: int = 0
     node_ms: float = 0.0
+    #: The node time (ms) of each piece's latest sample drawn, by piece (a film's next picture
+    #: costs about what the one before did, piece by piece).
+    piece_ms: dict[int, float] = field(default_factory=dict)
     #: The next picture to start and, in it, the next piece and sample.
     _cursor: tuple[int, int, int] = (0, 0, 0)
     _samples_done: dict[tuple[int, int], int] = field(default_factory=dict)
@@ -237,6 +240,7 @@ class RenderWork:
         self.out.discard(item)
         self.items_drawn += 1
         self.node_ms += busy_ms
+        self.piece_ms[item.piece] = busy_ms
         key = (item.picture, item.piece)
         self._samples_done[key] = self._samples_done.get(key, 0) + 1
         if self._samples_done[key] < self.samples:
