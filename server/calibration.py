@@ -8,7 +8,11 @@ one measurement each, the first taken while the others still loaded their scene 
 * nodes are measured one at a time (nodes sharing a machine do not blur each other's times), in
   rounds of one measurement of each node, so that every node's measurements spread over the same
   stretch of time and count as many; and while the cluster draws frames (start-up's first frames and their
-  still), a measurement waits up to :data:`QUIET_WAIT_S` for it to finish;
+  still), a measurement waits up to :data:`QUIET_WAIT_S` for it to finish; while it draws nothing
+  but render jobs (posters, films: the lowest priority work, which keeps every node busy for
+  minutes), it waits for them to end: a time taken beside them is disturbed anyway, and the
+  measured node's job tiles would wait for its renders of the region (about a second each on
+  this machine while a film of the 990k scan drew);
 * a node joining, or a calibration asked for, measures every node again: the others' times were
   taken while it loaded;
 * rounds go on until every node's last :data:`AGREEING` times agree within :data:`AGREEMENT`
@@ -177,9 +181,10 @@ class CalibrationRounds:
         rounds = counts.pop() if counts else MAX_MEASUREMENTS
         return rounds >= MAX_MEASUREMENTS or all(self.agrees(node) or self.left_out(node) for node in self.times)
 
-    def next_to_start(self, now: float, busy: bool = False) -> int | None:
+    def next_to_start(self, now: float, busy: bool = False, jobs_only: bool = False) -> int | None:
         """The node to measure now, if none is being measured (or the one being measured timed out);
-        ``busy``: nodes are drawing frames, so it waits (at most :data:`QUIET_WAIT_S`)."""
+        ``busy``: nodes are drawing frames, so it waits (at most :data:`QUIET_WAIT_S`; with
+        ``jobs_only``, nothing but render jobs' tiles: as long as they draw)."""
         if self.current is not None:
             if now - self.started_at < CALIBRATION_TIMEOUT_S:
                 return None
@@ -192,7 +197,7 @@ class CalibrationRounds:
         waiting = [node for node in self.times if not self.left_out(node)]
         if busy:
             self.waiting_since = now if self.waiting_since is None else self.waiting_since
-            if now - self.waiting_since < QUIET_WAIT_S:
+            if jobs_only or now - self.waiting_since < QUIET_WAIT_S:
                 return None
         self.waiting_since = None
         self.current = min(waiting, key=lambda node: len(self.times[node]) + self.failures[node])

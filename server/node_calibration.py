@@ -13,7 +13,7 @@ from typing import Protocol
 
 from server.calibration import CalibrationRounds, calibrate_message
 from server.nodes import NodeLink
-from tessera.scheduling.scheduler import FrameScheduler
+from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.wire.protocol import ProtocolError
 
 log = logging.getLogger("tessera.server")
@@ -23,7 +23,7 @@ class CalibrationHost(Protocol):
     """What calibration needs of the service."""
 
     nodes: dict[int, NodeLink]
-    scheduler: FrameScheduler
+    scheduler: JobScheduler
     size: tuple[int, int]
 
     @property
@@ -65,11 +65,13 @@ class NodeCalibration:
         camera = host.scheduler.default.camera
         if camera is None:
             return
+        scheduler = host.scheduler
         # A session's first frame goes first: a measurement on a node's one GL thread held up the
         # first frame of a 24.8M-triangle model by 0.5 s after a restart.
-        busy = (any(schedule.outstanding for schedule in host.scheduler.nodes.values())
-                or any(session.awaits_first_frame for session in host.scheduler.sessions.values()))
-        node_id = self.rounds.next_to_start(time.monotonic(), busy)
+        busy = (any(schedule.outstanding for schedule in scheduler.nodes.values())
+                or any(session.awaits_first_frame for session in scheduler.sessions.values()))
+        jobs_only = busy and bool(scheduler.jobs) and all(job.job is not None for job in scheduler.in_flight.values())
+        node_id = self.rounds.next_to_start(time.monotonic(), busy, jobs_only)
         if node_id is not None and node_id in host.nodes:
             host.nodes[node_id].send(calibrate_message(camera, host.size, host.settings.scene))
         calibrated = self.rounds.take_speeds()

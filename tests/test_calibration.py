@@ -133,3 +133,17 @@ def test_a_measurement_waits_for_the_frames_being_drawn_but_not_for_ever():
     rounds.measured(1, 5.0)
     assert rounds.next_to_start(10.0, busy=True) is None
     assert rounds.next_to_start(10.0 + QUIET_WAIT_S, busy=True) == 1, "a cluster that never rests is measured too"
+
+
+def test_a_measurement_waits_for_render_jobs_as_long_as_they_alone_draw():
+    """Posters and films keep every node busy for minutes: a measurement beside them would be
+    disturbed and hold up the measured node's job tiles, so it waits for them to end."""
+    rounds = CalibrationRounds()
+    rounds.request(1)
+    assert rounds.next_to_start(0.0, busy=True, jobs_only=True) is None
+    assert rounds.next_to_start(10 * QUIET_WAIT_S, busy=True, jobs_only=True) is None, "render jobs alone: it waits"
+    assert rounds.next_to_start(10 * QUIET_WAIT_S + 0.1, busy=True) == 1, "a session's frames too: not for ever"
+    rounds.measured(1, 5.0)
+    rounds.request(1)
+    assert rounds.next_to_start(20 * QUIET_WAIT_S, busy=True, jobs_only=True) is None
+    assert rounds.next_to_start(20 * QUIET_WAIT_S + 0.1) == 1, "the job ended: at once"
