@@ -12,7 +12,7 @@ import pytest
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.actions import CancelFrames, PublishFrame, RenderTiles
-from tessera.scheduling.job_scheduler import JOB_QUEUE, JobScheduler
+from tessera.scheduling.job_scheduler import JOB_QUEUE, SHARES_JOB_QUEUE, JobScheduler
 from tessera.scheduling.refinement import StillPlan
 from tessera.scheduling.render_jobs import (
     DONE,
@@ -284,7 +284,7 @@ def deliver_tile(s: JobScheduler, frame_id: int, tile_id: int, now: float) -> li
 
 def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_back() -> None:
     """Sort-last: a job tile is one depth tile per share over the same piece, started when every
-    holder has room for it (each holds up to JOB_QUEUE: a holder ahead does not wait for the others
+    holder has room for it (each holds up to SHARES_JOB_QUEUE: a holder ahead does not wait for the others
     at every piece), published once all are in; a node joining (a new data partition) hands the
     tiles in flight back, in order."""
     s = JobScheduler(SchedulerConfig(size=(64, 32), mode="sort-last", max_fps=1e6, settle_frames=0, still_codec=None),
@@ -299,7 +299,7 @@ def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_ba
     s.add_job(work, 0.0)
     renders = [a for a in s.drain() if isinstance(a, RenderTiles)]
     frames = [r.message.frame for r in renders if r.node_id == 1]
-    assert len(frames) == JOB_QUEUE and [r.message.frame for r in renders if r.node_id == 2] == frames
+    assert len(frames) == SHARES_JOB_QUEUE and [r.message.frame for r in renders if r.node_id == 2] == frames
     job = s.in_flight[frames[0]]
     assert [t.rect for t in job.tiles] == [work.pieces[0][0]] * 2 and job.item == JobItem(0, 0, 0)
     assert all(r.message.depth is not None and r.message.depth.share == version for r in renders)
@@ -317,7 +317,7 @@ def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_ba
     assert [a.job.item for a in actions if isinstance(a, PublishFrame)] == [JobItem(0, 0, 0)]
     renders = [a for a in actions if isinstance(a, RenderTiles)]
     assert sorted(r.node_id for r in renders) == [1, 2] and len({r.message.frame for r in renders}) == 1
-    assert all(len(node.outstanding) <= JOB_QUEUE for node in s.nodes.values())
+    assert all(len(node.outstanding) <= SHARES_JOB_QUEUE for node in s.nodes.values())
     following = sorted(f for f, j in s.in_flight.items() if j.job == "j")
     items = [s.in_flight[f].item for f in following]
     s.add_node(3, 5.1)
@@ -327,5 +327,5 @@ def test_sort_last_job_tiles_go_to_every_share_and_a_new_partition_hands_them_ba
         s.node_ready(node_id, 5.2, s.default.mode.shares.plan.version)
     renders = [a for a in s.drain() if isinstance(a, RenderTiles) and s.in_flight[a.message.frame].job == "j"]
     by_node = {n: [r.message.frame for r in renders if r.node_id == n] for n in (1, 2, 3)}
-    assert by_node[1] == by_node[2] == by_node[3] and len(by_node[1]) == JOB_QUEUE
+    assert by_node[1] == by_node[2] == by_node[3] and len(by_node[1]) == SHARES_JOB_QUEUE
     assert [s.in_flight[f].item for f in by_node[1]][:len(items)] == items, "the handed-back items first, in order"

@@ -9,7 +9,8 @@ actions out, the clock passed in) that also hands out render jobs' work:
   job tiles then go to the nodes still free. A job tile is one sample of one piece of a picture,
   about :data:`tessera.scheduling.render_jobs.PIECE_MS` of node time, so a session's next frame
   waits at most that behind one on a node. While no session has a frame in flight or owed, each
-  node holds up to :data:`JOB_QUEUE` job tiles (the one it draws and the next, queued behind), so
+  node holds up to :data:`JOB_QUEUE` job tiles (the one it draws and the next, queued behind;
+  sort-last: :data:`SHARES_JOB_QUEUE`), so
   it never idles between them whatever each one takes; otherwise job tiles go only to idle nodes,
   and those queued that no node has begun go back to their jobs (the session's frame then waits
   for one job tile per node at most).
@@ -52,6 +53,9 @@ DROPPED_SIZES = 4096
 #: Job tiles a node holds at most while no session draws: the one it draws and the next, queued
 #: behind it (there when the node finishes the one before, however long either takes).
 JOB_QUEUE = 2
+#: The same in sort-last, where every holder draws each piece over its share: a share dear in one
+#: piece and cheap in the next lets the other holders run this far ahead instead of waiting.
+SHARES_JOB_QUEUE = 4
 
 
 class JobScheduler(FrameScheduler):
@@ -185,36 +189,37 @@ class JobScheduler(FrameScheduler):
             self._drop(job, now, hand_back=True)
 
     def _start_job_tiles(self, now: float, quiet: bool) -> None:
-        """Job tiles to the nodes with room: while ``quiet`` (no session draws) those holding fewer
-        than :data:`JOB_QUEUE` tiles, else the idle ones; the node holding fewest first, then the fastest."""
+        """Job tiles to the nodes with room (:meth:`_may_draw`), the node holding fewest first, then
+        the fastest."""
         waiting = [work for work in self.jobs.values() if work.waiting]
-        depth = JOB_QUEUE if quiet else 1
-        room = {n.node_id: depth - len(n.outstanding) for n in self.nodes.values()
-                if n.schedulable and len(n.outstanding) < depth}
-        while waiting and room:
-            node = min((self.nodes[i] for i in room), key=lambda n: (len(n.outstanding), -n.speed, n.node_id))
-            holding = [work for work in waiting if self._may_draw(work, node.node_id, room)]
+        full: set[int] = set()
+        while waiting:
+            open_nodes = [n for n in self.nodes.values() if n.schedulable and n.node_id not in full]
+            if not open_nodes:
+                return
+            node = min(open_nodes, key=lambda n: (len(n.outstanding), -n.speed, n.node_id))
+            holding = [work for work in waiting if self._may_draw(work, node, quiet)]
             item = None
             if holding:
                 work = min(holding, key=lambda w: self.fair.served.get(w.spec.session, 0.0))   # then the oldest
                 item = work.take()
             if item is None:
-                del room[node.node_id]
+                full.add(node.node_id)
                 continue
-            for node_id in self._start_job_tile(work, item, node, now):
-                room[node_id] -= 1
-                if not room[node_id]:
-                    del room[node_id]
+            self._start_job_tile(work, item, node, now)
             waiting = [work for work in waiting if work.waiting]
 
-    def _may_draw(self, work: RenderWork, node_id: int, room: dict[int, int]) -> bool:
-        """Node ``node_id`` (one with ``room``) may start a tile of ``work``: it holds its session's
-        scene; in sort-last it holds a share and every other holder has room too: each draws the tile."""
+    def _may_draw(self, work: RenderWork, node: NodeSchedule, quiet: bool) -> bool:
+        """``node`` may start a tile of ``work``: it holds its session's scene and has room (while
+        ``quiet``, no session drawing, fewer than :data:`JOB_QUEUE` tiles owed, else none); in
+        sort-last it holds a share and every holder has room (:data:`SHARES_JOB_QUEUE`): each draws the tile."""
         session = self.sessions[work.spec.session]
         shares = session.mode.job_nodes()
+        depth = 1 if not quiet else JOB_QUEUE if shares is None else SHARES_JOB_QUEUE
         if shares is None:
-            return node_id in session.ready
-        return node_id in shares and room.keys() >= set(shares) and session.ready.issuperset(shares)
+            return node.node_id in session.ready and len(node.outstanding) < depth
+        return (node.node_id in shares and session.ready.issuperset(shares)
+                and all(self.nodes[i].schedulable and len(self.nodes[i].outstanding) < depth for i in shares))
 
     def _start_job_tile(self, work: RenderWork, item: JobItem, node: NodeSchedule, now: float) -> set[int]:
         """Start ``item`` on ``node`` (sort-last: on every share's holder, as a frame's depth tiles
