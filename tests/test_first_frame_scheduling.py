@@ -11,6 +11,7 @@ from tessera.geometry import Camera
 from tessera.scheduling.actions import LoadScene, PublishFrame, RenderTiles
 from tessera.scheduling.dispatch import FIRST_FRAME_PIECES
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
+from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.protocol import TileHeader, state_tag
 
@@ -96,7 +97,7 @@ def test_no_still_sample_of_another_session_starts_while_a_session_awaits_its_fi
 class Host:
     """What :class:`NodeCalibration` needs: a real scheduler and one node's link."""
 
-    def __init__(self, scheduler: FrameScheduler) -> None:
+    def __init__(self, scheduler: JobScheduler) -> None:
         self.scheduler = scheduler
         self.nodes = {1: NodeLink(1, "n1", "llvmpipe", lambda code, reason: None, can_calibrate=True)}
         self.size = (64, 32)
@@ -106,7 +107,7 @@ class Host:
 def test_a_node_is_not_calibrated_while_a_session_awaits_its_first_frame():
     """Calibration renders on the node's one GL thread: it waits while session p's scene loads and
     its first frame is drawn (at most QUIET_WAIT_S), and is asked for once p's frame is out."""
-    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s = JobScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
     s.add_node(1, 0.0)
     s.node_ready(1, 0.0)
     s.set_camera(camera(), 0.0)
