@@ -13,24 +13,13 @@ from tessera.scheduling.dispatch import FIRST_FRAME_PIECES
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
-from tessera.wire.protocol import TileHeader, state_tag
+from tests.scheduling_support import answer
 
 CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
 
 
 def camera(i: int = 0) -> Camera:
     return Camera(eye=(0.0, 0.0, 5.0 + i), target=(0.0, 0.0, 0.0))
-
-
-def answer(s: FrameScheduler, action: RenderTiles, now: float) -> list:
-    """Every tile of ``action`` comes back at ``now``; the actions that follow."""
-    job = s.in_flight[action.message.frame]
-    tag = state_tag(None if job.state is None else job.state.version)
-    for tile in action.message.tiles:
-        header = TileHeader(action.message.frame, tile.tile, tile.rect, job.codec, 1.0, 0.0, 0.0, tag)
-        s.tile_arrived(action.node_id, header, b"", now)
-        s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
-    return s.drain()
 
 
 def renders(actions: list) -> list[RenderTiles]:

@@ -21,7 +21,8 @@ from tessera.scheduling.fair_share import FIRST_FRAME_MS, FairShare
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
-from tessera.wire.protocol import TileHeader, state_tag
+from tessera.wire.protocol import TileHeader
+from tests.scheduling_support import answer
 
 CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
 
@@ -42,16 +43,6 @@ def cluster(nodes: int, sessions: dict[str, tuple[int, int]]) -> FrameScheduler:
             s.node_ready(node_id, 0.0, session_id=session_id)
     s.drain()
     return s
-
-
-def answer(s: FrameScheduler, action: RenderTiles, now: float) -> list:
-    job = s.in_flight[action.message.frame]
-    tag = state_tag(None if job.state is None else job.state.version)
-    for tile in action.message.tiles:
-        header = TileHeader(action.message.frame, tile.tile, tile.rect, Codec.JPEG, 1.0, 0.0, 0.0, tag)
-        s.tile_arrived(action.node_id, header, b"", now)
-        s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
-    return s.drain()
 
 
 def test_a_new_session_has_every_node_load_its_scene_and_a_node_joining_loads_every_scene():
