@@ -12,15 +12,21 @@ from tessera.wire.protocol import ProtocolError
 from tests.test_scheduler import SIZE, camera, deliver, finish, published, renders, scheduler
 
 
-def frozen_node_scheduler() -> FrameScheduler:
-    """3 nodes that rendered frame 1 (5 + 1 + 1 ms a tile, so each knows its rate); frame 2 is out and
-    node 2 has not answered."""
-    s = scheduler(nodes=3, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
+def second_frame_out(nodes: int) -> FrameScheduler:
+    """``nodes`` nodes that rendered frame 1 (5 + 1 + 1 ms a tile, so each knows its rate); frame 2
+    is out and node 1 has answered its tile."""
+    s = scheduler(nodes=nodes, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
     s.set_camera(camera(0), 0.0)
     finish(s, 1, 0.01)
     s.set_camera(camera(1), 0.02)
     s.drain()
     deliver(s, 1, 2, 0, 0.03)
+    return s
+
+
+def frozen_node_scheduler() -> FrameScheduler:
+    """3 nodes as :func:`second_frame_out`, node 3 answered frame 2 too and node 2 has not."""
+    s = second_frame_out(3)
     deliver(s, 3, 2, 2, 0.03)
     return s
 
@@ -66,12 +72,7 @@ def test_a_backup_never_goes_to_a_node_that_still_owes_the_tile():
     not go back to node 2, which still owes the tile (it would draw it twice and be closed for
     answering a tile it no longer owed: seen under load in bench.tools film, 'tile 0 of frame 126,
     which this node does not owe')."""
-    s = scheduler(nodes=2, backup_floor_s=0.25, backup_factor=4.0, still_codec=None)
-    s.set_camera(camera(0), 0.0)
-    finish(s, 1, 0.01)
-    s.set_camera(camera(1), 0.02)
-    s.drain()
-    deliver(s, 1, 2, 0, 0.03)
+    s = second_frame_out(2)
     s.set_camera(camera(2), 0.04)
     s.drain()
     deliver(s, 1, 3, 0, 0.05)
