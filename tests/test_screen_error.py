@@ -69,7 +69,8 @@ def one_group(box: np.ndarray, error: float) -> LodTree:
     return LodTree(leaf_first_chunk=ints(0), leaf_end_chunk=ints(1), leaf_group=ints(0), group_level=ints(1),
                    group_error=np.array([error], np.float32), group_boxes=box[None].astype(np.float32),
                    batch=ints(0), own=ints(0), parent=ints(-1), boxes=box[None].astype(np.float32),
-                   index_bounds=ints(0, 3), indices=np.arange(3, dtype=np.uint32), share_cluster=empty,
+                   index_bounds=ints(0, 3), indices=np.arange(3, dtype=np.uint32), cluster_parts=ints(0, 1),
+                   part_bounds=ints(0, 3), part_boxes=box[None].astype(np.float32), share_cluster=empty,
                    share_chunk=empty, share_triangles=empty)
 
 

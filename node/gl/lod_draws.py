@@ -1,7 +1,9 @@
 """The GL side of a scene's levels of detail (issue 32): their index buffer and vertex arrays, and
 per tile the indirect draw commands of the coarse clusters a frame's cut (:mod:`node.culling.lod`)
 chose that touch the tile, nearest first (as :func:`node.culling.order.front_to_back` orders chunks:
-a fragment behind what is drawn is not shaded). Use it on the GL thread only."""
+a fragment behind what is drawn is not shaded), of each only the parts (runs of its triangles with
+boxes of their own, :data:`node.scene.lod.PART_FACES`) that touch the tile. Use it on the GL thread
+only."""
 
 from __future__ import annotations
 
@@ -43,7 +45,9 @@ class LodDraws:
                                     offset=4 * first)
             release_pages(indices, first, end)
         self.vertex_arrays = shaders.also_drawing(self.index_buffer)
-        self.commands = ctx.buffer(reserve=20 * max(1, tree.node_count))
+        #: (Q,) int64 the batch of each part.
+        self.part_batch = np.repeat(tree.batch, np.diff(tree.cluster_parts))
+        self.commands = ctx.buffer(reserve=20 * max(1, tree.part_boxes.shape[0]))
         #: The last frame's cut, for its other tiles, and what it was made for.
         self._cut: tuple[tuple[Camera, tuple[int, int], float] | None, LodCut] = (None, LodCut.full())
 
@@ -58,7 +62,7 @@ class LodDraws:
     def tile_runs(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
                   clip: np.ndarray | None, skip: np.ndarray) -> DrawRuns:
         """:meth:`runs` of the tile ``rect`` of the (4, 4) full-frame ``matrix`` of a ``size`` frame, less
-        the clusters wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks;
+        the parts wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks;
         nearest first by ``matrix``'s view depth (the same order in every tile of the frame)."""
         planes = frustum_planes_from_matrix(matrix, size, rect)
         if clip is not None:
@@ -72,21 +76,31 @@ class LodDraws:
     def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None,
              view_proj: np.ndarray | None = None) -> DrawRuns:
         """The cut's clusters touching the tile of ``planes`` (None: all of them), but those of the
-        batches ``skip`` (B,) marks, as index runs of this buffer (one per cluster, batch by batch;
-        within a batch nearest first by the clip w of their boxes' centres under the (4, 4)
-        ``view_proj``, ties by cluster; None: in cluster order), written to :attr:`commands`."""
-        nodes = cut.nodes
+        batches ``skip`` (B,) marks, as index runs of this buffer (batch by batch; within a batch nearest
+        first by the clip w of their boxes' centres under the (4, 4) ``view_proj``, ties by cluster;
+        None: in cluster order), of each cluster its parts touching the tile, consecutive ones in one
+        run; written to :attr:`commands`."""
+        tree, nodes = self.tree, cut.nodes
         if skip is not None and nodes.size:
-            nodes = nodes[~skip[self.tree.batch[nodes]]]
+            nodes = nodes[~skip[tree.batch[nodes]]]
         if planes is not None and nodes.size:
-            nodes = nodes[boxes_in_frustum(self.tree.boxes[nodes], planes)]
+            nodes = nodes[boxes_in_frustum(tree.boxes[nodes], planes)]
         if view_proj is not None and nodes.size:
             w_row = np.asarray(view_proj, np.float64)[3]
-            depth = (self.tree.boxes[nodes].astype(np.float64).sum(axis=1) * 0.5) @ w_row[:3]
-            nodes = nodes[np.lexsort((nodes, depth, self.tree.batch[nodes]))]
-        bounds = self.tree.index_bounds
-        runs = DrawRuns(self.tree.batch[nodes], bounds[nodes], bounds[nodes + 1] - bounds[nodes], 0)
-        if nodes.size:
+            depth = (tree.boxes[nodes].astype(np.float64).sum(axis=1) * 0.5) @ w_row[:3]
+            nodes = nodes[np.lexsort((nodes, depth, tree.batch[nodes]))]
+        counts = tree.cluster_parts[nodes + 1] - tree.cluster_parts[nodes]
+        parts = np.repeat(tree.cluster_parts[nodes] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+        if planes is not None and parts.size:
+            parts = parts[boxes_in_frustum(tree.part_boxes[parts], planes)]
+        # A run starts at a part that does not follow the one before it in the buffer (the first of a
+        # cluster drawn after another, or after a part left out) or in its batch.
+        batch = self.part_batch[parts]
+        heads = np.flatnonzero((np.diff(parts, prepend=-2) != 1) | (np.diff(batch, prepend=-1) != 0))
+        first = tree.part_bounds[parts[heads]]
+        end = tree.part_bounds[np.append(parts[heads[1:] - 1], parts[-1:]) + 1]
+        runs = DrawRuns(batch[heads], first, end - first, 0)
+        if parts.size:
             self.commands.write(indirect_commands(np.stack([runs.first, runs.count], axis=1)).tobytes())
         return runs
 
