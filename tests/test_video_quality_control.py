@@ -128,14 +128,21 @@ def test_a_match_out_of_reach_parks_the_crf_at_the_bound_it_heads_for(slope, ide
     assert loop.changes == history[settled].changes   # parked: no more changes (and keyframes)
 
 
-@settings(max_examples=60, deadline=None)
+# Scatter (0.1 dB) makes this statistical too: fixed examples (derandomize), as above.
+@settings(max_examples=60, deadline=None, derandomize=True)
 @given(slopes, inside, inside, starts, seeds)
+# the match 0.05 CRF units from where the loop held, its surplus at the threshold: a late scatter
+# may still take it one quantum on, which it then holds
+@example(0.484375, 26.25, 26.4453125, 18.0, 285)
 def test_when_the_match_moves_the_loop_follows(slope, ideal, moved, start, seed) -> None:
-    """A camera that turns to other content: the CRF that matches moves, and the loop settles again."""
+    """A camera that turns to other content: the CRF that matches moves, and the loop settles again
+    near it (a hold near the band's edge may still take one more step: it holds again after it)."""
     loop, _ = run(CrfLoop(start), Plant(slope, ideal, noise=0.1), 250, seed)
-    loop, _ = run(loop, Plant(slope, moved, noise=0.1), 400, seed + 1)
+    loop, history = run(loop, Plant(slope, moved, noise=0.1), 400 + MIN_SAMPLES, seed + 1)
+    settled = first_settled(history)
+    assert settled <= 2 * SETTLE_WITHIN, (settled, [s.crf for s in history[::DECIDE_EVERY]])
     assert QUIET_HOLD[0] - 0.2 <= Plant(slope, moved).surplus(loop.crf) <= QUIET_HOLD[1] + 0.2, (loop, moved)
-    assert loop.settled
+    assert any(s.settled for s in history[-MIN_SAMPLES - DECIDE_EVERY:]), [s.crf for s in history[::DECIDE_EVERY]]
 
 
 def test_a_slope_off_the_first_guess_is_learnt_from_a_large_change() -> None:
