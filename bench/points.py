@@ -20,7 +20,11 @@ file of your own. Then, in a fresh scene cache folder:
   ``--paths`` (:data:`PATHS`: oblique, overhead, near the ground looking across, close to the
   middle), a scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s`` at ``--size``:
   frames per second, input → frame latency, the points the busiest node drew per frame, the nodes'
-  busy time; then one camera's moving frame against the still of the same camera (PSNR) and the
+  busy time, and the seconds from its first input to the first frame that answers one
+  (``first_answer_s``: right after the first frame, on the warm-up, a still's samples under way);
+  ``--rests`` times, the camera rests for ``--rest-s`` (a still begins) and moves again:
+  ``resume_s``, the seconds from the first input after the rest to the first frame that answers
+  one; then one camera's moving frame against the still of the same camera (PSNR) and the
   still's seconds; and the peak memory of the coordinator and its nodes together (PSS: the pages
   they share, the mapped cache, counted once; and their RSS summed).
 
@@ -59,6 +63,8 @@ from tessera.cli_values import parse_point_budget, size_parser
 #: Points written to a LAZ file at a time.
 WRITE_CHUNK = 5_000_000
 DEFAULT_SCAN = REPO.parent / "shared" / "scenes" / "large_scan" / "threedscans_pan_990k.ply"
+#: Seconds a viewer that moved again after a rest waits at most for the first frame that answers.
+RESUME_WAIT_S = 120.0
 
 
 def terrain_chunk(first: int, count: int, side: int, seed: int) -> np.ndarray:
@@ -225,6 +231,7 @@ def move(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: lis
             busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
 
     sampler = threading.Thread(target=sample, daemon=True)
+    first_input = viewer.seq + 1
     moving_started = next_send = time.perf_counter()
     sampler.start()
     tree = process_tree(pid)
@@ -241,10 +248,36 @@ def move(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: lis
     with viewer.lock:
         frames = sum(1 for f in viewer.frames if moving_started <= f["at"] <= ended and not f["still"])
     cpu_ms = cpu_used * 1e3 / max(frames, 1)
-    return {"path": path, **{k: round(v, 2) for k, v in figures.items()}, "cpu_ms_per_frame": round(cpu_ms, 1),
+    answer = first_answer(viewer, first_input)
+    return {"path": path, "first_answer_s": None if answer is None else round(answer, 2),
+            **{k: round(v, 2) for k, v in figures.items()}, "cpu_ms_per_frame": round(cpu_ms, 1),
             "fps_two_idle_cores": round(2000.0 / cpu_ms, 1) if cpu_ms > 0 else None,
             "points_per_frame": round(float(np.median(points)), 0) if points else None,
             "busy_ms": round(float(np.median(busy)), 1) if busy else None, "load": round(os.getloadavg()[0], 1)}
+
+
+def first_answer(viewer: ScriptedViewer, first_input: int) -> float | None:
+    """Seconds from input ``first_input`` to the first frame that answers it or a later input (None: none came)."""
+    with viewer.lock:
+        at = next((f["at"] for f in viewer.frames if f["input"] >= first_input and not f["still"]), None)
+    return None if at is None else at - viewer.sent[first_input]
+
+
+def resume_after_rests(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: list[list[float]],
+                       args: argparse.Namespace, pid: int) -> list[float | None]:
+    """``--rests`` times: the camera rests ``--rest-s`` (a still begins), then moves along the first
+    of ``--paths`` for 2 s; the seconds from its first input to the first frame that answers
+    (waited for up to :data:`RESUME_WAIT_S`; None: none came)."""
+    delays: list[float | None] = []
+    for _ in range(args.rests):
+        time.sleep(args.rest_s)
+        first_input = viewer.seq + 1
+        move(client, viewer, session, bounds, args.paths[0], 2.0, args, pid)
+        deadline = time.perf_counter() + RESUME_WAIT_S
+        while (answer := first_answer(viewer, first_input)) is None and time.perf_counter() < deadline:
+            time.sleep(0.05)
+        delays.append(None if answer is None else round(answer, 2))
+    return delays
 
 
 def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> dict[str, Any]:
@@ -268,6 +301,7 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
                 warmup = move(client, viewer, session, bounds, args.paths[0], args.warmup_s, args, coordinator.pid)
                 paths = [move(client, viewer, session, bounds, path, args.moving_s, args, coordinator.pid)
                          for path in args.paths]
+                resume = resume_after_rests(client, viewer, session, bounds, args, coordinator.pid)
                 viewer.stop()
             camera = oblique(bounds, 1.0)
             first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
@@ -284,7 +318,8 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
         coordinator.stop(timeout=60.0)
     moving_image = np.asarray(Image.open(io.BytesIO(moving)).convert("RGB"))
     similar = None if still is None else psnr(moving_image, np.asarray(Image.open(io.BytesIO(still)).convert("RGB")))
-    return {"budget": budget, "first_frame_s": round(first_s, 2), "warmup": warmup, "paths": paths, **peaks,
+    return {"budget": budget, "first_frame_s": round(first_s, 2), "warmup": warmup, "paths": paths,
+            "rest_s": args.rest_s, "resume_s": resume, **peaks,
             "psnr_moving_vs_still": None if similar is None else round(similar, 2),
             "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}",
             "load": round(os.getloadavg()[0], 1)}
@@ -333,8 +368,9 @@ def report(result: dict[str, Any]) -> str:
             lines.append(f"{run['budget']:>10} {row['path']:>9} {row['fps']:>6} {row['latency_p50_ms']:>7} "
                          f"{row['points_per_frame']!s:>9} {row['busy_ms']!s:>8} {row['cpu_ms_per_frame']:>7} "
                          f"{row['fps_two_idle_cores']!s:>6} {row['load']:>5}")
-        lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; warm-up fps {run['warmup']['fps']}; "
-                     f"worst fps "
+        lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; warm-up fps {run['warmup']['fps']} "
+                     f"(first answered in {run['warmup']['first_answer_s']} s); moving again after a rest of "
+                     f"{run['rest_s']:g} s: first frame in {run['resume_s']} s; worst fps "
                      f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
                      f"dB (still {run['still_s']} s); peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
                      f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed); load {run['load']}")
@@ -365,6 +401,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup-s", type=float, default=15.0,
                         help="seconds moved before the paths are measured (the first still's samples drain)")
     parser.add_argument("--input-hz", type=float, default=30.0)
+    parser.add_argument("--rests", type=int, default=3,
+                        help="times the camera rests and moves again after the paths (default 3)")
+    parser.add_argument("--rest-s", type=float, default=3.0,
+                        help="seconds of each rest: a still begins (default 3)")
     parser.add_argument("--work", default=str(Path(tempfile.gettempdir()) / "tessera-bench-points"))
     parser.add_argument("--cache", help="a scene cache folder kept between runs (default: a fresh one, "
                         "removed after); ingest figures are of a build only when it holds no entry of the cloud")

@@ -11,7 +11,10 @@ thread), encoding (an encoder thread, :mod:`node.tile_messages`) and sending (th
 sender task), so tile i+1 is drawn while tile i is compressed and sent. moderngl keeps the GIL
 inside GL calls, but the draw's longest wait, ``glFinish``, lets it go
 (:func:`node.gl.context.finish`): the event loop, the encoder and a scene read in the background
-run meanwhile. A ``load_scene`` starts on receipt, also while a tile is being drawn.
+run meanwhile. A ``load_scene`` starts on receipt, also while a tile is being drawn, and a
+``cancel`` of the frame whose tile is being drawn stops a point cloud's draw at its next piece
+(:class:`node.gl.point_renderer.DrawStopped`: a still's sample of every point in view is given up
+when the camera moves, not drawn to its end).
 
 Depth modes (issue 10): a tile of a ``render`` with a depth request is drawn as a depth layer
 (:func:`node.gl.depth_layers.live_plan`: a hybrid tile's owned chunks into tile + strip, or the
@@ -26,8 +29,9 @@ import asyncio
 import contextlib
 import logging
 import signal
+import threading
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -36,6 +40,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
 from node.gl.context import GLUnavailableError
+from node.gl.point_renderer import DrawStopped
 from node.gl.view_tools import ViewTools
 from node.gl.worker import GLWorker
 from node.protocol import Draw, Load, Measure, NodeProtocol, PickPixel, Send
@@ -93,6 +98,8 @@ class NodeClient:
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
         self.renderer_name = ""
+        #: The frame whose tile the GL thread draws and the event that stops it (None: no tile drawn).
+        self._drawing: tuple[int, threading.Event] | None = None
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the GL thread, then stay connected (with back-off) until ``stop`` is set."""
@@ -180,6 +187,7 @@ class NodeClient:
                     log.warning("ignoring a binary message from the coordinator: %s", exc)
                 continue
             self.protocol.receive_text(raw)
+            self._stop_if_cancelled()
             while (load := self.protocol.next_load()) is not None:
                 start_load(load)
             work.set()
@@ -232,6 +240,22 @@ class NodeClient:
                                                        "rss_mb": round(resident_mb(), 1)}))
         work.set()
 
+    def _stop_if_cancelled(self) -> None:
+        """Stop the draw under way when its frame was cancelled."""
+        if self._drawing is not None and self.protocol.cancelled(self._drawing[0]):
+            self._drawing[1].set()
+
+    @contextlib.contextmanager
+    def _stoppable(self, frame: int) -> Iterator[Callable[[], bool]]:
+        """While a tile of ``frame`` is drawn: what tells the GL thread to give it up."""
+        stop = threading.Event()
+        self._drawing = (frame, stop)
+        self._stop_if_cancelled()
+        try:
+            yield stop.is_set
+        finally:
+            self._drawing = None
+
     async def _draw(self, action: Draw, outbox: Outbox) -> None:
         """One tile (or a wall tile's pieces, drawn as one): drawn on the GL thread, encoded in the
         encoder thread (each piece on its own), queued to send in order."""
@@ -240,9 +264,14 @@ class NodeClient:
             await self._draw_depth(action, job.depth, outbox)
             return
         try:
-            rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state, action.scene,
-                                                Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                job.lod_error_px or 0.0, job.window, (job.point_budget, job.point_size))
+            with self._stoppable(job.frame) as stop:
+                rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state,
+                                                    action.scene, Subsample.of(job.jitter, job.lod_bias),
+                                                    ViewTools.of(job), job.lod_error_px or 0.0, job.window,
+                                                    (job.point_budget, job.point_size), stop)
+        except DrawStopped:
+            outbox.put_nowait(self.protocol.draw_stopped(job.frame, [tile.tile for tile in action.sent]))
+            return
         except Exception as exc:  # a bad rect, a scene not held, or a GL failure: report, keep serving
             for tile in action.sent:
                 outbox.put_nowait(self.protocol.tile_failed(job.frame, tile.tile, exc))
@@ -266,10 +295,14 @@ class NodeClient:
         """One tile of a depth ``render``: drawn as a layer, encoded as a depth tile in the encoder thread."""
         job, request, state = action.render, action.tile, action.state
         try:
-            drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
-                                                   Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                   job.lod_error_px or 0.0, (job.point_budget, job.point_size),
-                                                   request.rect, job.window)
+            with self._stoppable(job.frame) as stop:
+                drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
+                                                       Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
+                                                       job.lod_error_px or 0.0, (job.point_budget, job.point_size),
+                                                       request.rect, job.window, stop)
+        except DrawStopped:
+            outbox.put_nowait(self.protocol.draw_stopped(job.frame, [request.tile]))
+            return
         except Exception as exc:  # a bad tile id, a scene or share not held, or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.tile_failed(job.frame, request.tile, exc))
             return

@@ -22,7 +22,9 @@ holds several scenes (issue 19), so the rest is:
   ``render``'s tiles are handed out one at a time (the pieces of a display wall's tile together,
   drawn as one: :class:`Draw`), each once the one before is done, so a
   ``cancel`` received meanwhile drops the tiles not begun, reported together in a
-  ``tiles_dropped`` after the frame's last tile (a cancelled frame waits for no load);
+  ``tiles_dropped`` after the frame's last tile (a cancelled frame waits for no load); a tile
+  being drawn may be given up for it too (a point cloud's, between two pieces:
+  :meth:`NodeProtocol.cancelled`, :meth:`NodeProtocol.draw_stopped`);
 - ``pick`` (issue 35): handed out before the jobs waiting (after the tile being drawn), its state
   whole and not applied to the replica (the renders' deltas stay based on what they were);
 - a message that names one of these kinds but is malformed is refused in its turn, as far as it
@@ -157,7 +159,7 @@ class NodeProtocol:
     Per connection: :meth:`connect`, then :meth:`receive_text` for each text message and
     :meth:`next_action` until it gives None (more comes with the next message or the end of a
     load); the results of the work it hands out go back through :meth:`scene_loaded`,
-    :meth:`scene_failed`, :meth:`tile_failed`, :meth:`encoding_failed` and
+    :meth:`scene_failed`, :meth:`tile_failed`, :meth:`draw_stopped`, :meth:`encoding_failed` and
     :meth:`calibration_failed`, which give the message to send. The cancel memory outlives a
     connection; the scene state and the loads waiting or under way do not.
     """
@@ -368,6 +370,15 @@ class NodeProtocol:
             self._fail_tiles(job.message.frame, [t.tile for t in job.message.tiles], reason)
         else:
             self._ready.append(Send(messages.RenderError(frame=0, tile=0, message=f"calibration failed: {reason}")))
+
+    def cancelled(self, frame: int) -> bool:
+        """Whether frame ``frame`` was cancelled: a tile of it being drawn may be given up."""
+        return frame in self._cancelled
+
+    def draw_stopped(self, frame: int, tiles: list[int]) -> messages.TilesDropped:
+        """The ``tiles_dropped`` of ``tiles`` of the cancelled ``frame``, whose draw was given up."""
+        self.tiles_dropped += len(tiles)
+        return messages.TilesDropped(frame=frame, tiles=tuple(tiles))
 
     @staticmethod
     def tile_failed(frame: int, tile: int, error: Exception) -> messages.RenderError:

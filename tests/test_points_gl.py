@@ -8,6 +8,7 @@ import moderngl
 import numpy as np
 import pytest
 
+from node.gl import point_renderer
 from node.gl.point_renderer import PointRenderer
 from node.scene.point_files import PointArrays
 from node.scene.points import build_octree
@@ -91,3 +92,29 @@ def test_the_still_draws_every_point_and_is_steady(cloud_renderer: PointRenderer
     first = cloud_renderer.render_still(camera, size, 3)
     again = cloud_renderer.render_still(camera, size, 3)
     np.testing.assert_array_equal(first, again)
+
+
+def test_a_draw_in_pieces_equals_one_draw_and_stops_between_pieces(cloud_renderer: PointRenderer,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A still's tile drawn in pieces (so that a cancel can stop it) is the tile drawn at once, bit
+    for bit; ``stop`` is asked between two pieces, and once it says so the draw is given up."""
+    monkeypatch.setattr(point_renderer, "PIECE_POINTS", 20_000)
+    size, rect = (160, 96), Rect(40, 10, 90, 70)
+    camera = oblique(cloud_renderer.scene.bounds)
+    at_once = cloud_renderer.render_tile(camera, size, rect)
+    asked: list[int] = []
+    pieces = cloud_renderer.render_tile(camera, size, rect, stop=lambda: bool(asked.append(1)))
+    np.testing.assert_array_equal(pieces.pixels, at_once.pixels)
+    assert pieces.points == at_once.points > 100_000
+    assert len(asked) >= at_once.points // 20_000 - 1, "stop is asked between every two pieces"
+    with pytest.raises(point_renderer.DrawStopped):
+        cloud_renderer.render_tile(camera, size, rect, stop=lambda: True)
+
+
+def test_pieces_cover_the_commands_in_order_without_cutting_one() -> None:
+    counts = np.array([60_000, 60_000, 10, 140_000, 5, 5, 99_990, 1])
+    starts = point_renderer.draw_pieces(counts)
+    assert starts[0] == 0 and starts[-1] == len(counts) and (np.diff(starts) > 0).all()
+    first_points = (np.cumsum(counts) - counts)[starts[:-1]]
+    assert (np.diff(first_points // point_renderer.PIECE_POINTS) > 0).all(), "each piece in a block of its own"
+    assert point_renderer.draw_pieces(np.array([5])).tolist() == [0, 1]

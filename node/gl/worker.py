@@ -374,27 +374,28 @@ class GLWorker:
                      state: SceneState | None = None, scene: str | None = None,
                      subsample: Subsample | None = None, tools: ViewTools | None = None,
                      lod_error_px: float = 0.0, window: Rect | None = None,
-                     points: PointStyle = (None, None)) -> RenderedTile:
+                     points: PointStyle = (None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
         (None: the base pose), as ``subsample`` of a still (None: a plain frame, at the levels of
         detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none), in
         ``window`` (a poster's; None: the whole frame); ``slot`` (the tile id) keys the tile's hybrid
         culling switch; a point cloud within the ``points`` budget, its splats at least the size
-        given (:data:`PointStyle`). Raises SceneNotLoadedError for a scene not held."""
+        given (:data:`PointStyle`), given up between two pieces once ``stop()`` is true (DrawStopped;
+        a mesh's tile is drawn whole). Raises SceneNotLoadedError for a scene not held."""
         return await self._call(self._render, camera, size, rect, slot, state, scene, subsample, tools, lod_error_px,
-                                window, points)
+                                window, points, stop)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                 state: SceneState | None, scene: str | None, subsample: Subsample | None,
                 tools: ViewTools | None, lod_error_px: float, window: Rect | None,
-                points: PointStyle = (None, None)) -> RenderedTile:
+                points: PointStyle = (None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
         renderer = self._scenes.find(scene).renderer
         renderer.use_tools(tools)
         if isinstance(renderer, PointRenderer):
             if window is not None:
                 raise ValueError("pictures over a window's side are not drawn of point clouds")
             renderer.point_size = points[1] or DEFAULT_POINT_SIZE
-            return renderer.render_tile(camera, size, rect, subsample=subsample, point_budget=points[0])
+            return renderer.render_tile(camera, size, rect, subsample=subsample, point_budget=points[0], stop=stop)
         return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample,
                                     lod_error_px=lod_error_px, window=window)
 
@@ -402,21 +403,24 @@ class GLWorker:
                            state: SceneState | None, scene: str | None = None,
                            subsample: Subsample | None = None, tools: ViewTools | None = None,
                            lod_error_px: float = 0.0, points: PointStyle = (None, None),
-                           area: Rect | None = None, window: Rect | None = None) -> DepthRender:
+                           area: Rect | None = None, window: Rect | None = None,
+                           stop: Callable[[], bool] | None = None) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
         scene ``state`` as a depth layer; sort-last draws the share of the request's partition
         version over the tile's ``area`` (None: the whole frame; a poster's piece, in its
         ``window``); ``subsample`` and ``tools`` as :meth:`render`'s; sort-last layers at the levels of
         detail within ``lod_error_px`` (hybrid layers at full detail: a coarse node spans chunks
         other tiles own); a point cloud's sort-last layer within the ``points`` budget, unshaded (the
-        coordinator shades the merged frame). Raises SceneNotLoadedError for a scene or share not held."""
+        coordinator shades the merged frame; ``stop`` as :meth:`render`'s). Raises SceneNotLoadedError
+        for a scene or share not held."""
         return await self._call(self._render_depth, camera, size, request, tile_id, state, scene, subsample, tools,
-                                lod_error_px, points, area, window)
+                                lod_error_px, points, area, window, stop)
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None, scene: str | None, subsample: Subsample | None,
                       tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None),
-                      area: Rect | None = None, window: Rect | None = None) -> DepthRender:
+                      area: Rect | None = None, window: Rect | None = None,
+                      stop: Callable[[], bool] | None = None) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
         renderer, share = held.renderer, held.share_version or 0
         renderer.use_tools(tools)
@@ -427,7 +431,7 @@ class GLWorker:
             if window is not None or (area is not None and area != Rect(0, 0, *size)):
                 raise ValueError("a point cloud's sort-last layer is drawn over the whole frame")
             renderer.point_size = points[1] or DEFAULT_POINT_SIZE
-            layer = renderer.render_layer(camera, size, points[0], subsample)
+            layer = renderer.render_layer(camera, size, points[0], subsample, stop)
             return DepthRender(layer, None, None, 0.0, share)
         assert held.planning is not None
         plan = live_plan(held.planning, renderer.pose_of(state), camera, size, request, tile_id, area)

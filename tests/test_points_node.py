@@ -1,0 +1,92 @@
+"""A render node gives up a point cloud's tile when its frame is cancelled (issue 36): a still's
+sample of every point in view stops between two pieces of its draw and is answered with
+``tiles_dropped``, and the next frame's tile is drawn at once."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from websockets.asyncio.server import serve
+
+from node.client import NodeClient
+from node.gl import point_renderer
+from node.settings import NodeSettings
+from tessera.wire.protocol import unpack_tile
+from tests.conftest import seconds
+from tests.test_node_client import FakeCoordinator, receive, receive_json, send
+
+pytestmark = pytest.mark.gl
+
+POINTS = 600_000
+CAMERA = {"eye": [-60.0, -140.0, 90.0], "target": [100.0, 100.0, 0.0], "up": [0, 0, 1], "fovy_deg": 50}
+
+
+def write_points(path: Path) -> Path:
+    """A binary PLY of :data:`POINTS` vertices and no faces (a point cloud), 200 m a side."""
+    rng = np.random.default_rng(5)
+    xyz = np.stack([rng.uniform(0.0, 200.0, POINTS), rng.uniform(0.0, 200.0, POINTS),
+                    rng.normal(0.0, 2.0, POINTS)], axis=1).astype("<f4")
+    path.write_bytes(f"ply\nformat binary_little_endian 1.0\nelement vertex {POINTS}\nproperty float x\n"
+                     "property float y\nproperty float z\nend_header\n".encode() + xyz.tobytes())
+    return path
+
+
+def render(frame: int, size: tuple[int, int], budget: int | None) -> dict:
+    return {"type": "render", "frame": frame, "camera": CAMERA, "size": list(size), "codec": "png",
+            "point_budget": budget, "tiles": [{"tile": 0, "rect": [0, 0, *size]}]}
+
+
+async def cancel_a_still_sample(coordinator: FakeCoordinator, cloud: Path) -> list:
+    """Frame 1 (a small budget) then frame 2 (every point); frame 2 is cancelled once frame 1's
+    tile is back (the node draws frame 2 by then) and frame 3 asked for: what the node sent after
+    frame 1's tile, in order."""
+    ws = await coordinator.accept()
+    assert (await receive_json(ws))["type"] == "hello"
+    await send(ws, type="welcome", node_id=1)
+    await send(ws, type="load_scene", scene=str(cloud))
+    while (message := await receive_json(ws))["type"] != "scene_ready":
+        assert message["type"] in ("scene_progress", "levels_ready"), message
+    await ws.send(json.dumps(render(1, (64, 48), 2_000)))
+    await ws.send(json.dumps(render(2, (1280, 720), None)))
+    assert unpack_tile(await receive(ws))[0].frame_id == 1
+    await send(ws, type="cancel", frames=[2])
+    await ws.send(json.dumps(render(3, (64, 48), 2_000)))
+    after = []
+    while not after or not isinstance(after[-1], tuple) or after[-1][0] != 3:
+        message = await receive(ws)
+        after.append(unpack_tile(message)[0].frame_id if isinstance(message, bytes) else json.loads(message))
+        if isinstance(after[-1], int):
+            after[-1] = (after[-1], "tile")
+    return after
+
+
+def test_a_cancelled_still_sample_is_given_up_between_pieces(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(point_renderer, "PIECE_POINTS", 5_000)
+    cloud = write_points(tmp_path / "cloud.ply")
+
+    async def run() -> tuple[list, int]:
+        coordinator = FakeCoordinator()
+        async with serve(coordinator.handler, "127.0.0.1", 0) as server:
+            port = server.sockets[0].getsockname()[1]
+            settings = NodeSettings(coordinator=f"ws://127.0.0.1:{port}/ws/node", name="points",
+                                    scene_cache_dir=tmp_path / "cache")
+            node = NodeClient(settings)
+            stop = asyncio.Event()
+            task = asyncio.create_task(node.run(stop))
+            try:
+                after = await asyncio.wait_for(cancel_a_still_sample(coordinator, cloud), seconds(120))
+            finally:
+                stop.set()
+                await asyncio.wait_for(task, seconds(30))
+        return after, node.protocol.tiles_dropped
+
+    after, dropped = asyncio.run(run())
+    kinds = [m if isinstance(m, tuple) else (m.get("frame"), m["type"]) for m in after]
+    assert (2, "tile") not in kinds, f"frame 2 was cancelled while it was drawn: no tile of it, got {kinds}"
+    assert kinds.index((2, "tiles_dropped")) < kinds.index((3, "tile")), kinds
+    assert next(m for m in after if isinstance(m, dict) and m["type"] == "tiles_dropped")["tiles"] == [0]
+    assert dropped == 1
