@@ -14,8 +14,10 @@ never show. A step sent meanwhile waits (its request too), one a session: a newe
 place, and both requests answer the frame id from which the newer one shows. While it waits the
 nodes load it beside the step shown (double-buffered, where every node holds the whole scene), and
 the step shown is drawn once, without settle frames or a still; once shown, the step waiting is
-switched in on the nodes that hold it already, all at once, with no round trip. A step not shown
-within :data:`MESH_WAIT_S` (its load failed) is passed over.
+switched in on the nodes that hold it already, all at once, with no round trip. Meanwhile no other
+session's still sample starts (:meth:`FrameScheduler.rest`), and a step switched in keeps the
+partition the balancer reached on the steps before. A step not shown within :data:`MESH_WAIT_S`
+(its load failed) is passed over.
 """
 
 from __future__ import annotations
@@ -63,7 +65,8 @@ class MeshHost(Protocol):
     def scheduler(self) -> FrameScheduler: ...
 
     def switch_scene(self, session: Session, name: str, spec: str, fetch: tuple[str, str] | None,
-                     camera: Camera | None = None, held: Mapping[int, SceneReady] | None = None) -> int: ...
+                     camera: Camera | None = None, held: Mapping[int, SceneReady] | None = None,
+                     keep_partition: bool = False) -> int: ...
 
     def load_message(self, scene: str | None) -> LoadScene: ...
 
@@ -225,7 +228,7 @@ class MeshUpdates:
     def _switch(self, session: Session, state: SessionMeshes, step: MeshStep) -> int:
         state.step, state.shown = step, False
         held = {n: ready for n, ready in step.held.items() if n in self.service.nodes}
-        state.first = self.service.switch_scene(session, MESH_NAME, step.spec, None, held=held)
+        state.first = self.service.switch_scene(session, MESH_NAME, step.spec, None, held=held, keep_partition=True)
         self.service.scheduler.load_now(session.id)   # from memory: every other node at once
         self.service.apply()
         return state.first

@@ -69,7 +69,7 @@ class NodeCalibration:
         # A session's first frame goes first: a measurement on a node's one GL thread held up the
         # first frame of a 24.8M-triangle model by 0.5 s after a restart.
         busy = (any(schedule.outstanding for schedule in scheduler.nodes.values())
-                or any(session.awaits_first_frame for session in scheduler.sessions.values()))
+                or any(session.goes_first for session in scheduler.sessions.values()))
         jobs_only = busy and bool(scheduler.jobs) and all(job.job is not None for job in scheduler.in_flight.values())
         node_id = self.rounds.next_to_start(time.monotonic(), busy, jobs_only)
         if node_id is not None and node_id in host.nodes:

@@ -179,27 +179,29 @@ class RenderService(SessionPersistence, ServiceReport):
         return session
 
     def switch_scene(self, session: Session, name: str, spec: str, fetch: tuple[str, str] | None,
-                     camera: Camera | None = None, held: Mapping[int, SceneReady] | None = None) -> int:
+                     camera: Camera | None = None, held: Mapping[int, SceneReady] | None = None,
+                     keep_partition: bool = False) -> int:
         """``session`` shows library scene ``name`` (``spec``: what nodes load; ``fetch`` as in
         :meth:`create_session`) from now on, with its size, balancer, viewers and frame store, its
         camera kept unless ``camera`` is given. Its frames in flight are dropped, so the next frame
         published is the new scene's, whole; until then viewers keep the old scene's last frame.
         ``held``: the nodes that hold it already (a mesh loaded ahead) and their ``scene_ready``:
-        ready at once, together, sent no load. Returns the first frame id that can show the new scene."""
+        ready at once, together, sent no load. ``keep_partition``: the balancer goes on from the old
+        scene's partition (a mesh step, drawn much as the one before). Returns the first frame id
+        that can show the new scene."""
         now = time.monotonic()
         if fetch is not None:
             self._fetch[spec] = fetch
         balancer, size = session.balancer, session.size
         camera = camera or session.camera
         self.jobs.session_closed(session.id)
-        self.scheduler.remove_session(session.id, now)
         for node in self.scheduler.nodes.values():   # the new scene's state versions start afresh: send them whole
             if node.state_sent is not None and node.state_sent[0] == session.id:
                 node.state_sent = None
         session.scene, session.name, session.bounds, session.state, session.error = spec, name, None, "loading", None
         config = dataclasses.replace(self.settings.scheduler_config(), size=size)
-        self.scheduler.add_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now,
-                                   held=held or {})
+        self.scheduler.replace_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now,
+                                       held=held or {}, keep_partition=keep_partition)
         session.frames.wall = session.wall
         first = self.scheduler.next_frame_id
         if camera is not None:

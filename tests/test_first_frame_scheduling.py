@@ -1,11 +1,13 @@
 """A session's first frame goes first (issue 31: the first frame of a 24.8M-triangle model after a
 restart): no settle frame beside a first frame cut into pieces, no still sample of another session
-on the nodes while a session's scene loads and its first frame is drawn. Pure scheduler, no I/O."""
+on the nodes while a session's scene loads and its first frame is drawn; nor between a simulation's
+mesh steps, whose partition goes on from step to step (issue 33). Pure scheduler, no I/O."""
 
 from __future__ import annotations
 
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
+from tessera.balancers import create_balancer
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera
 from tessera.scheduling.actions import LoadScene, PublishFrame, RenderTiles
@@ -13,6 +15,7 @@ from tessera.scheduling.dispatch import FIRST_FRAME_PIECES
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
 from tessera.scheduling.job_scheduler import JobScheduler
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.wire.protocol import TileHeader, state_tag
 from tests.scheduling_support import answer
 
 CONFIG = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
@@ -112,3 +115,78 @@ def test_a_node_is_not_calibrated_while_a_session_awaits_its_first_frame():
     answer(s, renders(s.drain())[0], 0.6)
     calibration.advance()
     assert '"calibrate"' in host.nodes[1].outbox.get_nowait()
+
+
+def test_no_still_sample_of_another_session_starts_between_a_simulations_steps():
+    """Issue 33: the default session owes still samples on node 1 while session m shows mesh steps.
+    Once step 2 is on its way (loaded ahead: ``rest``), neither step 1's frame publishing nor the
+    switch to step 2 starts a sample; step 2's frame goes first, then the samples go on."""
+    config = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_delay_ms=0.0, still_samples=8)
+    s = FrameScheduler(config, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("m", CONFIG, StaticBalancer(), "mesh:g:1", 0.0)
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    s.node_ready(1, 0.0, session_id="m")
+    s.drain()
+    s.set_camera(camera(1), 0.0, session_id="m")
+    (shown,) = renders(s.drain())
+    answer(s, shown, 0.01)   # step 1 is on screen
+    s.set_camera(camera(), 0.02)
+    (first,) = renders(s.drain())
+    (sample,) = renders(answer(s, first, 0.03))
+    assert s.in_flight[sample.message.frame].still, "the default session refines its still"
+    s.set_camera(camera(2), 0.04, session_id="m")   # step 1 drawn again (its camera moved)
+    step_1 = next(a for a in renders(s.drain()) + renders(answer(s, sample, 0.05))
+                  if s.in_flight[a.message.frame].session == "m")
+    s.rest("m")   # step 2 loads ahead on node 1 while step 1 is drawn
+    assert renders(answer(s, step_1, 0.06)) == [], "no sample between the steps"
+    s.replace_session("m", CONFIG, StaticBalancer(), "mesh:g:2", 0.08, held=[1], keep_partition=True)
+    s.set_camera(camera(2), 0.08, session_id="m")
+    assert renders(s.drain()) == [], "none while step 2's nodes are told"
+    s.nodes_ready([1], 0.08, session_id="m")
+    (step_2,) = renders(s.drain())
+    assert s.in_flight[step_2.message.frame].session == "m" and step_2.message.scene == "mesh:g:2"
+    (after,) = renders(answer(s, step_2, 0.09))
+    assert s.in_flight[after.message.frame].session == DEFAULT_SESSION, "then the samples go on"
+
+
+def test_a_simulations_next_step_keeps_the_partition_the_balancer_learnt():
+    """Issue 33: node 2 draws its half of each frame 3x as long as node 1; after a few frames the
+    adaptive balancer gives node 1 more of the frame. The next mesh step (``keep_partition``) starts
+    from that partition; a switch to another scene starts from an equal split."""
+    config = SchedulerConfig(size=(64, 32), max_fps=1e6, settle_frames=0, still_codec=None)
+    s = FrameScheduler(config, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("m", config, create_balancer("adaptive"), "mesh:g:1", 0.0)
+    for node_id in (1, 2):
+        s.add_node(node_id, 0.0)
+        s.node_ready(node_id, 0.0, session_id="m")
+    s.drain()
+
+    def frame(now: float) -> dict[int, int]:
+        """One frame of m at ``now``, node 2 three times as slow: each node's pixels."""
+        s.set_camera(camera(int(now * 100)), now, session_id="m")
+        pixels = {}
+        for action in renders(s.drain()):
+            job = s.in_flight[action.message.frame]
+            for tile in action.message.tiles:
+                ms = (3.0 if action.node_id == 2 else 1.0) * tile.rect.area / 1000
+                header = TileHeader(job.frame_id, tile.tile, tile.rect, job.codec, ms, 0.0, 0.0, state_tag(None))
+                s.tile_arrived(action.node_id, header, b"", now + 0.001)
+                s.tile_sent(action.node_id, job.frame_id, tile.tile, 0.0)
+                pixels[action.node_id] = pixels.get(action.node_id, 0) + tile.rect.area
+        s.drain()
+        return pixels
+
+    first = frame(0.0)
+    assert first[1] == first[2], "the first frame is an equal split"
+    for step in range(1, 12):
+        learnt = frame(0.2 * step)
+    assert learnt[1] > 1.5 * learnt[2]
+    s.replace_session("m", config, create_balancer("adaptive"), "mesh:g:2", 3.0, held=[1, 2], keep_partition=True)
+    s.nodes_ready([1, 2], 3.0, session_id="m")
+    kept = frame(3.1)
+    assert kept[1] > 1.5 * kept[2], "the next step goes on from the learnt partition"
+    s.replace_session("m", config, create_balancer("adaptive"), "library/other.ply", 4.0, held=[1, 2])
+    s.nodes_ready([1, 2], 4.0, session_id="m")
+    fresh = frame(4.1)
+    assert fresh[1] == fresh[2], "another scene starts from an equal split"

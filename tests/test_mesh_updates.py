@@ -132,7 +132,8 @@ class FakeService:
         self.settings = SimpleNamespace(mode="sort-first")
         self.switched: list[tuple[str, dict]] = []
 
-    def switch_scene(self, session, name, spec, fetch, camera=None, held=None) -> int:
+    def switch_scene(self, session, name, spec, fetch, camera=None, held=None, keep_partition=False) -> int:
+        assert keep_partition, "a mesh step keeps the partition of the step before"
         session.scene = spec
         self.switched.append((spec, dict(held or {})))
         return 10 * len(self.switched)

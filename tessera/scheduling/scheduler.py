@@ -152,20 +152,42 @@ class FrameScheduler(FrameDispatch):
 
     def rest(self, session_id: str) -> None:
         """The session's state is drawn once more at most (a frame owed or in flight), with no
-        settle frames and no still: a new scene is on its way (issue 33: a mesh loaded ahead)."""
+        settle frames and no still: a new scene is on its way (issue 33: a mesh loaded ahead), and
+        other sessions' still samples wait for it (:attr:`SessionFrames.goes_first`)."""
         session = self.sessions.get(session_id)
         if session is not None:
             session.demand.rest()
+            session.scene_coming = True
 
     def remove_session(self, session_id: str, now: float) -> None:
         """The session is closed: its frames are dropped (nodes skip their tiles)."""
+        if self._drop_session(session_id, now) is not None:
+            self._advance(now)
+
+    def replace_session(self, session_id: str, config: SchedulerConfig, balancer: Balancer, scene_key: str | None,
+                        now: float, held: Collection[int] = (), keep_partition: bool = False) -> SessionFrames:
+        """Session ``session_id`` shows ``scene_key`` from now on: :meth:`remove_session`, then
+        :meth:`add_session`, no frame of another session started between them (its first frame goes
+        first: :attr:`SessionFrames.awaits_first_frame`, while its nodes are not told yet to draw
+        it). ``keep_partition``: the
+        partition goes on from the old session's, with its balancer (issue 33: a simulation's next
+        step is drawn much as the one before, so the balancer learns across steps instead of
+        starting from an equal split each step); else ``balancer`` starts afresh."""
+        old = self._drop_session(session_id, now)
+        session = self.add_session(session_id, config, balancer, scene_key, now, held=held)
+        session.replaced = True
+        if keep_partition and old is not None and old.config.mode == config.mode and old.size == config.size:
+            session.mode.tiles = old.mode.tiles
+        return session
+
+    def _drop_session(self, session_id: str, now: float) -> SessionFrames | None:
+        """Drop the session and its frames (nodes skip their tiles); None: there was none."""
         session = self.sessions.pop(session_id, None)
-        if session is None:
-            return
-        for job in list(session.frames.values()):
-            self._cancel(job, now)
-        self.fair.remove(session_id)
-        self._advance(now)
+        if session is not None:
+            for job in list(session.frames.values()):
+                self._cancel(job, now)
+            self.fair.remove(session_id)
+        return session
 
     def resize(self, size: tuple[int, int], now: float, session_id: str = DEFAULT_SESSION) -> int:
         """The session's frames are ``size`` (w, h) from now on; returns the first frame id of that size."""

@@ -81,6 +81,11 @@ class SessionFrames:
         self.highlight: str | None = None
         #: A point cloud's bounds (issue 36: :meth:`set_points`); None: a mesh.
         self.point_bounds: np.ndarray | None = None
+        #: A new scene is on its way (issue 33: a mesh step loaded ahead on the nodes, which the
+        #: session switches to next): its frame goes first, as a first frame does (:attr:`goes_first`).
+        self.scene_coming = False
+        #: It took the place of the session of the same id showing another scene (a switch of scene).
+        self.replaced = False
 
     @property
     def size(self) -> tuple[int, int]:
@@ -103,8 +108,16 @@ class SessionFrames:
 
     @property
     def awaits_first_frame(self) -> bool:
-        """A node loads its scene, or holds it and it has a camera, and no frame of it was published yet."""
-        return bool(self.loading or (self.ready and self.camera is not None)) and not self.demand.published_any
+        """A node loads its scene, or holds it (or it took another session's place: its nodes are
+        told next) and it has a camera, and no frame of it was published yet."""
+        return (bool(self.loading or ((self.ready or self.replaced) and self.camera is not None))
+                and not self.demand.published_any)
+
+    @property
+    def goes_first(self) -> bool:
+        """Its first frame, or its next scene's, is awaited: no other session's still sample and
+        no calibration starts meanwhile."""
+        return self.scene_coming or self.awaits_first_frame
 
     @property
     def interactive_in_flight(self) -> bool:
