@@ -1,7 +1,8 @@
 """Several scenes on one node (issue 19), on the real GL thread (node/gl/worker.py GLWorker, Mesa
 llvmpipe): tiles of two scenes drawn alternately, each equal to that scene drawn alone; a whole
 scene beside another's sort-last share; least-recently-used scenes released over the memory
-budget; and a scene read in the loader thread while tiles of another keep coming."""
+budget; and a scene read in the loader thread while tiles of another keep coming, a mesh step
+(issue 33) while the GL thread draws."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from bench.mesh_steps import height_field, wave
 from node.gl.renderer import TileRenderer
 from node.gl.resident import SceneNotLoadedError, estimated_bytes
 from node.gl.worker import GLWorker
@@ -26,6 +28,7 @@ from node.scene.loading import load_scene
 from node.scene.mesh import SceneError
 from node.scene.shares import keep_share
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, default_camera
+from tessera.wire.mesh_update import checked_mesh, pack_mesh
 from tessera.wire.messages import DepthRequest, LoadScene, ShareSpec
 from tests.conftest import scene_path, seconds
 
@@ -182,6 +185,30 @@ def test_tiles_of_a_scene_held_are_drawn_while_another_is_read():
     assert all(count > 0 for count in triangles), "drawn while the loader thread was busy"
     assert first.scene is second.scene, "a second load of a scene being read waits for it, then reuses it"
     assert held == [(SPHERES, None), (TRAFFIC, None)]
+
+
+def test_a_mesh_step_is_read_while_the_gl_thread_draws():
+    """Issue 33: a mesh step loaded ahead is read (split into chunks, smooth normals) in the loader
+    thread while the GL thread is busy with a tile, not after it; only its upload waits."""
+    grid, faces = height_field(20_000)
+    gate, read = threading.Event(), threading.Event()
+
+    async def body(worker: GLWorker) -> tuple[bool, bool, int]:
+        worker.meshes.receive(pack_mesh(checked_mesh(wave(grid, 0.0), faces), scene="mesh:g:1"))
+        scene_of = worker.meshes.scene
+        worker.meshes.scene = lambda *args: (scene_of(*args), read.set())[0]   # type: ignore[method-assign]
+        drawing = asyncio.create_task(worker._call(gate.wait, seconds(30)))   # the GL thread draws a tile
+        loading = asyncio.create_task(worker.load(LoadScene(scene="mesh:g:1"), no_progress))
+        was_read = await asyncio.to_thread(read.wait, seconds(30))
+        held_early = loading.done()
+        gate.set()
+        loaded = await loading
+        await drawing
+        return was_read, held_early, loaded.scene.triangle_count
+
+    was_read, held_early, triangles = run_with_worker(body)
+    assert was_read, "read while the GL thread was busy"
+    assert not held_early and triangles == len(faces), "uploaded once the GL thread was free"
 
 
 def test_a_big_scan_is_read_while_tiles_of_another_scene_keep_coming():

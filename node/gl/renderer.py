@@ -81,13 +81,13 @@ from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.buffers import upload_geometry
 from node.gl.context import draw_indirect, finish
-from node.gl.framebuffers import FramebufferCache
 from node.gl.id_pass import IdPass
-from node.gl.image_lighting import ImageLighting, prefiltered_environment
+from node.gl.image_lighting import prefiltered_environment
 from node.gl.lod_draws import LodDraws
 from node.gl.materials import SAMPLER_UNITS, UNIT_CEIL, UNIT_FLOOR, UNIT_LUT, UNIT_SPECULAR, SceneMaterials
 from node.gl.programs import ShaderPrograms
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
+from node.gl.shared import SharedGL
 from node.gl.view_tools import ViewTools, ViewToolsGL
 from node.scene.chunks import DrawRuns
 from node.scene.data import SceneData
@@ -191,7 +191,8 @@ class TileRenderer:
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: the scene's batches as
     :func:`node.scene.packing.pack` packs them, when already done or mapped from a scene cache
     (None: packed here). :attr:`antialiasing`: how plain tiles and whole frames of each size are
-    drawn (as :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). Raises
+    drawn (as :func:`node.gl.shading.resolve_antialiasing` resolves ``--msaa``). ``shared``: the
+    framebuffers and lighting of the renderers on ``ctx`` (None: its own, released with it). Raises
     CullingUnavailableError for gpu culling without GL 4.3, EnvironmentError for an unreadable
     environment file."""
 
@@ -199,7 +200,7 @@ class TileRenderer:
                  background: Sequence[float] = DEFAULT_BACKGROUND, culling: CullMode = CullMode.AUTO,
                  switch_params: SwitchParams = SwitchParams(),
                  packed: PackedGeometry | None = None,
-                 shading: ShadingOptions = ShadingOptions()) -> None:
+                 shading: ShadingOptions = ShadingOptions(), shared: SharedGL | None = None) -> None:
         self.ctx = ctx
         self.scene = scene
         self.background = background
@@ -207,9 +208,11 @@ class TileRenderer:
         #: What frames of each size are drawn with (``--msaa``: :func:`resolve_antialiasing`).
         self.antialiasing = resolve_antialiasing(shading.msaa, ctx.info["GL_RENDERER"], ctx.max_samples)
         # First: they raise before any GL object of the scene exists to leak.
-        lighting = prefiltered_environment(shading.environment)
+        prefiltered_environment(shading.environment)
         self.culler = TileCuller(ctx, scene.chunks, culling, switch_params)
-        self.lighting = ImageLighting(ctx, lighting)
+        self._owns_shared = shared is None
+        self.shared = SharedGL(ctx) if shared is None else shared
+        self.lighting = self.shared.lighting(shading.environment)
         packed = pack(scene.batches) if packed is None else packed
         self.vertex_bounds = packed.vertex_bounds
         chunks = scene.chunks
@@ -228,7 +231,7 @@ class TileRenderer:
         self._id_pass: IdPass | None = None
         #: Draw by glMultiDrawElementsIndirect (GL 4.3); otherwise one draw call per index run.
         self.multi_draw = ctx.version_code >= 430
-        self.framebuffers = FramebufferCache(ctx)
+        self.framebuffers = self.shared.framebuffers
         self._blending = False
         #: Whether blended fragments are being peeled (:meth:`render_blend`: drawn with discards).
         self._peeling = False
@@ -617,11 +620,11 @@ class TileRenderer:
 
     def release(self) -> None:
         """Free the GL objects (the context stays the caller's)."""
-        self.framebuffers.release()
+        if self._owns_shared:
+            self.shared.release()
         if self._id_pass is not None:
             self._id_pass.release()
         self.culler.release()
-        self.lighting.release()
         self.materials.release()
         self.shaders.release()
         for resource in (self.index_buffer, self.vertex_buffer):

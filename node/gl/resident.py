@@ -2,7 +2,8 @@
 several scenes and draws a tile of any of them, frame by frame): :class:`ResidentScenes`, each
 loaded scene (:class:`ResidentScene`: its renderer with GL buffers of its own and what depth layers
 are planned from) keyed by its spec and sort-last share, in least-recently-used order within a
-memory budget. Used on the GL thread only (releasing a scene frees its GL objects).
+memory budget. Used on the GL thread only (releasing a scene frees its GL objects), but
+:meth:`ResidentScenes.holds`.
 
 The memory a scene is counted for (:func:`estimated_bytes`) is what grows with its geometry: the
 renderer's vertex and index buffers on the GPU plus the scene's arrays kept in host memory
@@ -107,6 +108,12 @@ class ResidentScenes:
             victim.renderer.release()
             evicted.append(key)
         return evicted
+
+    def holds(self, key: SceneKey) -> bool:
+        """Whether the scene of ``key`` is held: one membership test, which any thread may make
+        (scenes are added by the loads of :class:`node.gl.worker.GLWorker`, which asks while none of
+        that key is under way)."""
+        return key in self._scenes
 
     def held(self, key: SceneKey) -> ResidentScene | None:
         """The scene of ``key`` if held (its place in the order unchanged)."""

@@ -36,6 +36,7 @@ from node.gl.point_renderer import PointRenderer
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
+from node.gl.shared import SharedGL
 from node.gl.view_tools import ViewTools
 from node.scene.cache import CacheError, open_entry
 from node.scene.cache_folder import CacheFolder
@@ -149,6 +150,8 @@ class GLWorker:
         self.levels_listener: Callable[[str, int | None, LodTree, SceneData], None] | None = None
         self.read_in_process_bytes = read_in_process_bytes
         self._ctx: moderngl.Context | None = None
+        #: The framebuffers and lighting every scene's renderer shares (:class:`node.gl.shared.SharedGL`).
+        self._shared: SharedGL | None = None
         self._scenes = ResidentScenes(memory_bytes)
         self._reading: dict[SceneKey, asyncio.Task[LoadedScene]] = {}
         self.culling, self.face_limit, self.fetcher = culling, face_limit, fetcher
@@ -165,15 +168,17 @@ class GLWorker:
 
     def _start(self) -> str:
         self._ctx = create_gl_context()
+        self._shared = SharedGL(self._ctx)
         return renderer_string(self._ctx)
 
     async def load(self, request: LoadScene, progress: ProgressCallback) -> LoadedScene:
         """Load ``request``'s scene (only its share, if any) beside those held, or reuse it when
         held (a load of it under way, asked for on an earlier connection, is waited for); raises
-        SceneError, or the upload's GL error."""
+        SceneError, or the upload's GL error. A scene not held starts reading at once, also while the
+        GL thread draws a tile (a mesh step loaded ahead: issue 33)."""
         key = scene_key(request.scene, request.share)
         while True:
-            loaded = await self._call(self._reuse, key, request)
+            loaded = await self._call(self._reuse, key, request) if self._scenes.holds(key) else None
             if loaded is not None:
                 if request.levels and loaded.levels is None:
                     self._build_levels(key)
@@ -337,7 +342,7 @@ class GLWorker:
         else:
             progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
             renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=scene.geometry,
-                                    shading=self.shading)
+                                    shading=self.shading, shared=self._shared)
             planning = PlanningScene.of(scene, renderer.culler.bvh)
         version = None if share is None else share.version
         return ResidentScene(key, renderer, planning, version, estimated_bytes(renderer), entry=entry)
@@ -457,6 +462,9 @@ class GLWorker:
 
     def _close(self) -> None:
         self._scenes.release_all()
+        if self._shared is not None:
+            self._shared.release()
+            self._shared = None
         if self._ctx is not None:
             self._ctx.release()
             self._ctx = None
