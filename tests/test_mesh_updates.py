@@ -19,6 +19,8 @@ import trimesh
 from bench.mesh_steps import height_field, wave
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
+from node.scene.normals import smooth_vertex_normals
+from node.scene.octree import chunk_boxes
 from server.mesh_updates import MeshUpdates
 from tessera.client import Tessera, TesseraError
 from tessera.scheduling.refinement import DEFAULT_STILL_SAMPLES
@@ -108,6 +110,32 @@ def test_the_node_keeps_the_step_shown_while_the_next_loads():
     assert store.scene("mesh:g:1", 1000).triangle_count == store.scene("mesh:g:3", 1000).triangle_count == 8
     store.receive(pack_mesh(mesh, scene="mesh:g:4", keep="mesh:g:3"))
     assert not store.live("mesh:g:1") and store.live("mesh:g:3") and store.live("mesh:g:4")
+
+
+def test_a_step_of_the_same_faces_keeps_the_chunks_of_the_step_before():
+    """A simulation's next step (the same faces, the vertices moved) keeps the step before's chunks
+    and orders, with the boxes and smooth normals of its own positions; a step whose vertices moved
+    far (every chunk would span the mesh), or with other faces, is split afresh."""
+    store = MeshStore()
+    grid, faces = height_field(20_000)
+
+    def step(name: str, vertices: np.ndarray, faces: np.ndarray = faces):
+        store.receive(pack_mesh(checked_mesh(vertices, faces), scene=f"mesh:g:{name}"))
+        scene = store.scene(f"mesh:g:{name}", 192)
+        return scene, scene.batches[0]
+
+    first, first_batch = step("1", wave(grid, 0.0))
+    second, batch = step("2", wave(grid, 0.5))
+    assert np.array_equal(batch.faces, first_batch.faces), "the chunks and orders of the step before"
+    assert np.array_equal(second.chunks.index_bounds, first.chunks.index_bounds)
+    assert not np.array_equal(batch.positions, first_batch.positions)
+    starts = second.chunks.index_bounds[:-1] // 3
+    assert np.array_equal(second.chunks.boxes, chunk_boxes(batch.positions, batch.faces, starts))
+    assert np.array_equal(batch.normals, smooth_vertex_normals(batch.positions, batch.faces))
+    _, scrambled = step("3", np.random.default_rng(1).permutation(wave(grid, 1.0)))
+    assert not np.array_equal(scrambled.faces, first_batch.faces), "split afresh: far from the old chunks"
+    _, other = step("4", wave(grid, 1.5), faces[::-1].copy())
+    assert not np.array_equal(other.faces, scrambled.faces), "other faces: split afresh"
 
 
 def test_a_message_with_a_new_header_keeps_its_arrays():

@@ -19,7 +19,7 @@ one chunk each (they are still culled as a whole).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 from node.culling.bvh import ChunkBVH
 from node.scene.mesh import MeshBatch
 from node.scene.normals import smooth_vertex_normals
-from node.scene.octree import DEFAULT_FACE_LIMIT, octree_split
+from node.scene.octree import DEFAULT_FACE_LIMIT, ChunkSplit, octree_split
 
 #: Most primitive groups sent to the coordinator (seed 003's DPBP). The coordinator projects them
 #: and its ``*-predict`` balancers sweep a box per group (and per group–tile overlap) every frame, so
@@ -145,10 +145,20 @@ class SceneChunks:
                                owner[starts].astype(np.int64), starts.astype(np.int64))
 
 
-def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT) -> tuple[
-        list[MeshBatch], SceneChunks]:
-    """Split every non-blended batch over ``face_limit`` faces by octree; returns the batches (faces
-    and vertices re-ordered where split, smooth normals computed where missing) and their
+#: How a batch over the face limit is split: (batch, face limit) → its chunks, with its smooth
+#: normals when it has none.
+Splitter = Callable[[MeshBatch, int], ChunkSplit]
+
+
+def octree_chunks(batch: MeshBatch, face_limit: int) -> ChunkSplit:
+    """The default :data:`Splitter`: ``batch`` split by octree (:func:`node.scene.octree.octree_split`)."""
+    return octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None)
+
+
+def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT,
+                  splitter: Splitter = octree_chunks) -> tuple[list[MeshBatch], SceneChunks]:
+    """Split every non-blended batch over ``face_limit`` faces with ``splitter``; returns the batches
+    (faces and vertices re-ordered where split, smooth normals computed where missing) and their
     :class:`SceneChunks`."""
     if face_limit < 1:
         raise ValueError(f"face limit must be ≥ 1, got {face_limit}")
@@ -157,7 +167,7 @@ def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_L
         if batch.alpha_mode == "BLEND" or batch.triangle_count <= face_limit:
             counts, batch_boxes = np.array([batch.triangle_count]), batch.bounds()[None].astype(np.float32)
         else:
-            split = octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None)
+            split = splitter(batch, face_limit)
             batch = batch.with_vertices(split.vertex_order, split.faces, split.positions)
             if split.normals is not None:
                 batch = dataclasses.replace(batch, normals=split.normals)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.scene.chunks import PrimitiveGroups, SceneChunks, split_batches
+from node.scene.chunks import PrimitiveGroups, SceneChunks, Splitter, octree_chunks, split_batches
 from node.scene.mesh import MeshBatch, SceneError
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.packing import PackedGeometry, VertexLayout
@@ -43,10 +43,11 @@ class SceneData:
 
     @classmethod
     def from_batches(cls, name: str, batches: list[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT,
-                     objects: Sequence[SceneObject] | None = None, animations: Sequence[Animation] = ()) -> SceneData:
-        """Drop empty batches, order blended ones last, split by octree, compute bounds and groups.
-        ``objects`` (their bounds and triangles are filled in here) default to one per batch, named
-        after it, each batch its owner."""
+                     objects: Sequence[SceneObject] | None = None, animations: Sequence[Animation] = (),
+                     splitter: Splitter = octree_chunks) -> SceneData:
+        """Drop empty batches, order blended ones last, split (by octree: ``splitter``), compute
+        bounds and groups. ``objects`` (their bounds and triangles are filled in here) default to one
+        per batch, named after it, each batch its owner."""
         if objects is None:
             objects = _one_object_per_batch(batches)
             batches = [dataclasses.replace(b, owner=number) for number, b in enumerate(batches)]
@@ -56,7 +57,7 @@ class SceneData:
         if not kept:
             raise SceneError(f"{name}: no triangles")
         kept.sort(key=lambda b: b.alpha_mode == "BLEND")
-        split, chunks = split_batches(kept, face_limit)
+        split, chunks = split_batches(kept, face_limit, splitter)
         # A batch's box is its chunks' (each tight over its faces' corners).
         lo = np.minimum.reduceat(chunks.boxes[:, 0], chunks.batch_bounds[:-1], axis=0)
         hi = np.maximum.reduceat(chunks.boxes[:, 1], chunks.batch_bounds[:-1], axis=0)
