@@ -13,6 +13,7 @@ sorts each into the step it shows (its frame id at or after that step's first fr
 next step's). Figures: steps per second pushed, the share of steps that reached a published frame,
 each update's time, or the upload's (the GLB written in memory, sent, checked by the coordinator)
 and the switch's.
+The steps start once the coordinator is at rest (its default session's still is done).
 Steps per second: the steps after the first over the time from the first one's start until the
 last one was on screen. Then the camera turns about the last step for ``--turn-s`` seconds: the
 frames per second published meanwhile are the most steps a second could reach on this machine (a
@@ -156,6 +157,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     modes = ["update", "upload"] if args.via == "both" else [args.via]
     try:
         with Tessera(url) as tessera, Tessera(url) as reader:
+            tessera.session("default").snapshot(still=True)   # at rest: the default session's still is done
             runs = [push_steps(tessera, reader, args, via, grid, faces) for via in modes]
     finally:
         coordinator.stop()
