@@ -152,3 +152,17 @@ def test_a_failed_tile_goes_back_to_its_holder_and_stragglers_are_not_backed_up(
         node.ms_per_px = 1e-6
     s.tick(100.0)
     assert s.backups == 0 and not [a for a in s.drain() if isinstance(a, RenderTiles)]
+
+
+def test_a_share_of_an_older_partition_reported_late_does_not_undo_the_newer_one():
+    """Nodes joining one after another make partitions in a row; a node's loads end in any order
+    (each share is a load of its own): its late report of an older share leaves the newest complete."""
+    book = ShareBook()
+    book.repartition({1: 1.0})
+    book.repartition({1: 1.0, 2: 1.0})
+    plan = book.repartition({1: 1.0, 2: 1.0, 3: 1.0})
+    assert plan is not None and plan.version == 3
+    assert not book.share_loaded(1, 3) and not book.share_loaded(2, 3)
+    assert book.share_loaded(3, 3) and book.complete
+    assert not book.share_loaded(1, 1) and not book.share_loaded(2, 2)
+    assert book.complete, book.loaded

@@ -6,10 +6,11 @@ themselves from the same file (:mod:`tessera.decomposition.data_partition`, :mod
 partition travels as its version, each node's share index and the weights.
 
 Every node joining or leaving makes a new partition, with the next version; each node is told
-to load its share of it. A node that loads a share drops the one it had, so frames use only a
-partition every share of which is loaded (:attr:`ShareBook.complete`); until then no frame starts
-(a frame started earlier was dropped when the partition changed), and a frame is drawn from one
-partition's shares only: it is never torn.
+to load its share of it. Frames use only a partition every share of which is loaded
+(:attr:`ShareBook.complete`); until then no frame starts (a frame started earlier was dropped when
+the partition changed), and a frame is drawn from one partition's shares only: it is never torn.
+Nodes that join or leave one after another make several partitions in a row, whose loads may end
+in any order: a node's newest share counts.
 """
 
 from __future__ import annotations
@@ -49,9 +50,10 @@ class ShareBook:
 
     def share_loaded(self, node_id: int, version: int) -> bool:
         """Node ``node_id`` holds its share of partition ``version`` now; True when that makes the
-        newest partition complete."""
+        newest partition complete. A share of an older partition than one it reported already (its
+        loads end in any order) changes nothing: the newer share is still held."""
         was = self.complete
-        self.loaded[node_id] = version
+        self.loaded[node_id] = max(version, self.loaded.get(node_id, version))
         return self.complete and not was
 
     def forget(self, node_id: int) -> None:
