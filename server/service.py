@@ -306,8 +306,9 @@ class RenderService(SessionPersistence, ServiceReport):
         """The node's connection ended: what it owed goes to the others."""
         if self.nodes.get(link.node_id) is not link:
             return
+        schedule = self.scheduler.nodes.get(link.node_id)
         log.info("node %d (%s) left; %d tiles owed are re-dispatched", link.node_id, link.name,
-                 len(self.scheduler.nodes[link.node_id].outstanding))
+                 len(schedule.outstanding) if schedule is not None else 0)
         self._forget_node(link)
         self.scheduler.remove_node(link.node_id, time.monotonic())
         self.apply()
@@ -405,6 +406,7 @@ class RenderService(SessionPersistence, ServiceReport):
         link.held_mb = message.held_mb if message.held_mb is not None else link.held_mb
         link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
         now = time.monotonic()
+        self.scheduler.node_holds(link.node_id, message.triangles)
         showing = self._showing(message.scene)
         if not showing and self.meshes.loaded_ahead(link.node_id, message):
             return

@@ -87,6 +87,7 @@ class ServiceReport:
             "jobs": self.jobs.describe_session(session.id),
             "sessions": [s.summary(now, public) for s in self.sessions.values()],
             "share_window_s": SHARE_WINDOW_S,
-            "nodes": [link.describe(scheduler.nodes[link.node_id])
-                      for link in sorted(self.nodes.values(), key=lambda n: n.node_id)],
+            "nodes": [link.describe(scheduler.nodes[link.node_id])   # not one the scheduler let go (closing)
+                      for link in sorted(self.nodes.values(), key=lambda n: n.node_id)
+                      if link.node_id in scheduler.nodes],
         }

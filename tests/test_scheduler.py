@@ -12,6 +12,7 @@ from tessera.balancers.base import BalanceInput, Balancer, Partition, Tile
 from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.actions import BalancerFailed, CancelFrames, CloseNode, LoadScene, PublishFrame, RenderTiles
+from tessera.scheduling.node_table import SLOWEST_TRIANGLES_PER_S
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError, TileHeader
@@ -556,6 +557,23 @@ def test_the_tile_timeout_follows_the_tile_times_measured():
             for key in [k for k in node.outstanding if k[0] == frame_id]:
                 deliver(s, 1, *key, now + 0.1)
     assert node.tiles_rendered > 30 and s.table.allowed_s(node, 5.0) == 5.0
+
+
+def test_a_node_holding_a_huge_scene_may_owe_its_first_tile_for_its_triangles():
+    """No tile of the scene timed yet: a node that holds 30M triangles is allowed them at the
+    slowest rate a node is taken to draw (60 s), not the 5 s floor; a node of a small scene is not."""
+    s = scheduler(tile_timeout_s=5.0, max_in_flight=1, still_codec=None)
+    s.node_holds(1, 30_000_000)
+    s.node_holds(2, 100_000)
+    s.node_holds(1, 1_000)   # a smaller scene loaded later does not shrink it
+    assert s.table.allowed_s(s.nodes[1], 5.0) == 30_000_000 / SLOWEST_TRIANGLES_PER_S
+    s.set_camera(camera(), 0.0)
+    assert renders(s.drain()) == {1: [(1, 0)], 2: [(1, 1)]}
+    s.tick(30.0)
+    assert [a for a in s.drain() if isinstance(a, CloseNode)] == [CloseNode(2, 1011, "tile timeout")]
+    assert 1 in s.nodes, "owing for 30 s of the 60 s its triangles allow"
+    s.tick(61.0)
+    assert CloseNode(1, 1011, "tile timeout") in s.drain()
 
 
 def test_slots_are_small_and_reused():

@@ -28,6 +28,11 @@ MAX_LEAD_S = 0.05
 TILE_TIMEOUT_FACTOR = 3.0
 #: Each tile answered shrinks the longest recent tile time by this factor before it is compared.
 TILE_TIME_DECAY = 0.9
+#: The slowest a node is taken to draw the scene it holds, triangles a second: before its tiles of a
+#: big scene were timed, a node may owe one for its triangles at this rate (a 33M-triangle share of
+#: the 100M-triangle model: 66 s) before it counts as silent. The first frame of that model in
+#: sort-last took three llvmpipe nodes sharing 2 loaded cores over 20 s (issue 31).
+SLOWEST_TRIANGLES_PER_S = 500_000.0
 
 #: Slots for node indices in viewer frames (u16 on the wire).
 MAX_NODE_SLOTS = 1 << 16
@@ -83,6 +88,8 @@ class NodeSchedule:
     tile_s: float = 0.0
     #: Times it lagged on a tile (:meth:`NodeTable.overdue`) and its tiles went to other nodes.
     backups: int = 0
+    #: The most triangles of a scene (or share) it reported loaded.
+    triangles: int = 0
 
     @property
     def schedulable(self) -> bool:
@@ -237,9 +244,10 @@ class NodeTable:
     @staticmethod
     def allowed_s(node: NodeSchedule, floor_s: float) -> float:
         """How long ``node`` may owe a tile: :data:`TILE_TIMEOUT_FACTOR` times its longest recent
-        tile, at least ``floor_s`` (``tile_timeout_s``): a node drawing a share of a huge model
-        in tens of seconds is not taken for a silent one."""
-        return max(floor_s, TILE_TIMEOUT_FACTOR * node.tile_s)
+        tile, at least ``floor_s`` (``tile_timeout_s``) and its triangles at
+        :data:`SLOWEST_TRIANGLES_PER_S`: a node drawing a share of a huge model in tens of seconds
+        is not taken for a silent one, its first tile of it included."""
+        return max(floor_s, TILE_TIMEOUT_FACTOR * node.tile_s, node.triangles / SLOWEST_TRIANGLES_PER_S)
 
     def heads(self, frame_id: int) -> bool:
         """A tile of frame ``frame_id`` heads a node's queue (the node is on it)."""
