@@ -76,8 +76,15 @@ def read_parsed(path: Path, what: str, error: type[E], parse: Callable[[Any], T]
 
 
 def read_camera(path: Path) -> Camera:
-    """Parse a camera JSON file; raises CameraError whose message names the file and the reason."""
-    return read_parsed(path, "camera", CameraError, Camera.from_json)
+    """Parse a camera JSON file: a camera, or the coordinator's answer to ``GET /api/camera``
+    (``{"camera": …, "frame": …}``) as saved; raises CameraError whose message names the file and
+    the reason."""
+
+    def camera(data: Any) -> Camera:
+        answer = isinstance(data, dict) and isinstance(data.get("camera"), dict) and "eye" not in data
+        return Camera.from_json(data["camera"] if answer else data)
+
+    return read_parsed(path, "camera", CameraError, camera)
 
 
 def read_objects(path: Path) -> dict[str, ObjectPatch]:

@@ -193,7 +193,8 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--render-once", None, "render one full frame to this PNG and exit (no coordinator)", type=Path,
         metavar="OUT.png")
     add("--scene", DEFAULT_SCENE, "scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME, for --render-once")
-    add("--camera", None, "camera JSON file for --render-once (default: frame the whole scene)", type=Path)
+    add("--camera", None, "camera JSON file for --render-once (a camera, or a saved GET /api/camera answer; "
+        "default: frame the whole scene)", type=Path)
     add("--size", DEFAULT_SIZE, "frame size WxH for --render-once", type=parse_size)
     add("--background", DEFAULT_BACKGROUND, "clear colour '#rrggbb' or 'r,g,b' in 0..1 for --render-once",
         type=parse_background)
