@@ -100,7 +100,9 @@ def test_click_selects_esc_clears_measure_note_and_cut(coordinator, tmp_path) ->
         wait_until(lambda: call(base, "/api/selection")["object"] == "sphere1", seconds(20), "the selection")
         page.wait_for_function("() => document.getElementById('selection-name').textContent === 'sphere1'",
                                timeout=wait_ms)
-        assert "triangles" in page.locator("#selection-props").text_content()
+        # the name shows at once, the properties once the page has the scene's objects (GET …/objects)
+        page.wait_for_function("() => document.getElementById('selection-props').textContent.includes('triangles')",
+                               timeout=wait_ms)
         page.keyboard.press("Escape")
         wait_until(lambda: call(base, "/api/selection")["object"] is None, seconds(20), "Esc clearing the selection")
         assert page.locator("#selection").is_hidden()
