@@ -330,8 +330,9 @@ class NodeClient:
         report the best time (× slowdown, after sleeping the emulated extra, like a tile)."""
         job = action.request
         try:
-            times = [(await self.worker.render(job.camera, job.size, job.rect, CALIBRATION_SLOT, None,
-                                               action.scene)).render_ms for _ in range(job.repeats)]
+            times = [(await self.worker.render(job.camera, job.size, job.rect, CALIBRATION_SLOT, None, action.scene,
+                                               lod_error_px=job.lod_error_px or 0.0)).render_ms
+                     for _ in range(job.repeats)]
         except Exception as exc:  # a scene not held, a bad rect or a GL failure: report, keep serving
             outbox.put_nowait(self.protocol.calibration_failed(exc))
             return

@@ -50,10 +50,12 @@ MAX_FAILURES = 2
 QUIET_WAIT_S = 5.0
 
 
-def calibrate_message(camera: Camera, size: tuple[int, int], scene: str | None = None) -> Calibrate:
-    """Calibrate on ``scene`` (the default session's: every node loads it) at ``size``."""
+def calibrate_message(camera: Camera, size: tuple[int, int], scene: str | None = None,
+                      lod_error_px: float | None = None) -> Calibrate:
+    """Calibrate on ``scene`` (the default session's: every node loads it) at ``size``, at the levels
+    of detail within ``lod_error_px`` pixels (None: full detail)."""
     return Calibrate(camera=camera, size=size, rect=calibration_region(size), repeats=CALIBRATION_REPEATS,
-                     scene=scene)
+                     scene=scene, lod_error_px=lod_error_px)
 
 
 @dataclass(frozen=True)

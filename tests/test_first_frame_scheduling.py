@@ -5,6 +5,8 @@ mesh steps, whose partition goes on from step to step (issue 33). Pure scheduler
 
 from __future__ import annotations
 
+import json
+
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
 from tessera.balancers import create_balancer
@@ -115,6 +117,26 @@ def test_a_node_is_not_calibrated_while_a_session_awaits_its_first_frame():
     answer(s, renders(s.drain())[0], 0.6)
     calibration.advance()
     assert '"calibrate"' in host.nodes[1].outbox.get_nowait()
+
+
+def test_a_node_holding_the_levels_of_detail_is_calibrated_at_the_moving_frames_ceiling():
+    """Issue 32: a calibration at full detail of the 24.8M-triangle model took a node 3 x 17 s away
+    from the moving frames; once every node holds the levels, the region is drawn at the ceiling
+    bound (``lod_max_error_px``) as a moving frame is; before, at full detail."""
+    s = JobScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    s.set_camera(camera(), 0.0)
+    answer(s, renders(s.drain())[0], 0.01)
+    host = Host(s)
+    calibration = NodeCalibration(host)
+    calibration.request([1])
+    before = json.loads(host.nodes[1].outbox.get_nowait())
+    assert before["type"] == "calibrate" and "lod_error_px" not in before
+    s.levels_ready(1)
+    calibration.measured(host.nodes[1], 5.0)
+    after = json.loads(host.nodes[1].outbox.get_nowait())
+    assert after["type"] == "calibrate" and after["lod_error_px"] == CONFIG.lod_max_error_px > CONFIG.lod_error_px
 
 
 def test_no_still_sample_of_another_session_starts_between_a_simulations_steps():

@@ -105,6 +105,7 @@ BIG_MODELS: list[Message] = [
                 group_triangles=[[1000.0, 250.0]], group_boxes=[[[0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1.5]]]),
     Render(frame=3, camera=CAMERA, size=(64, 48), codec=Codec.JPEG,
            tiles=(RenderTile(tile=0, rect=Rect(0, 0, 64, 48)),), lod_error_px=0.5),
+    Calibrate(camera=CAMERA, size=(64, 48), rect=Rect(16, 12, 32, 24), lod_error_px=1.0),
 ]
 
 

@@ -544,7 +544,8 @@ class Render(Message):
 
 
 class Calibrate(Message):
-    """Time ``rect`` of scene spec ``scene`` (None: the scene the node loaded last)."""
+    """Time ``rect`` of scene spec ``scene`` (None: the scene the node loaded last), at the levels of
+    detail within ``lod_error_px`` pixels (None: full detail), as a moving frame draws it."""
 
     kind = "calibrate"
     camera: CameraJson
@@ -552,10 +553,11 @@ class Calibrate(Message):
     rect: RectJson
     repeats: Annotated[StrictInt, Field(ge=1, le=MAX_CALIBRATION_REPEATS)] = 3
     scene: Text | None = None
+    lod_error_px: Annotated[StrictFloat, Field(gt=0.0, le=MAX_LOD_ERROR_PX)] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Without ``scene`` when None."""
-        return self._without_none(super().to_json(), "scene")
+        """Without ``scene`` and ``lod_error_px`` when None."""
+        return self._without_none(super().to_json(), "scene", "lod_error_px")
 
 
 class Cancel(Message):
