@@ -9,7 +9,9 @@ frame's critical path, what the nodes need whatever the viewer's input rate (fra
 demand, so the interval between frames says how fast the user moves, not how costly a frame is).
 The bound moves by a factor of :data:`STEP` at most every :data:`HOLD` frames, and only outside a
 band around the target (frames over :data:`SLOW` of the target interval raise it, under
-:data:`QUICK` lower it): a picture that does not pump between two levels. Stills are always full
+:data:`QUICK` lower it): a picture that does not pump between two levels. Frames over :data:`FAR`
+times the interval raise it by ``STEP²``: a model whose frames take seconds reaches the ceiling in
+two steps rather than three or more. Stills are always full
 detail; the bound is kept for the next motion.
 """
 
@@ -25,7 +27,11 @@ from dataclasses import dataclass
 #: (llvmpipe's pair); 39.5 and 36.9 dB with 4x MSAA, a GPU's (docs: benchmarks, Big models).
 DEFAULT_LOD_ERROR_PX = 0.5
 #: The most it is raised to, px (``--lod-max-error-px``): frame rate bought with at most a dB or two.
-DEFAULT_LOD_MAX_ERROR_PX = 1.0
+#: The 24.8M-triangle model, a whole 1280x720 frame from three cameras (docs: benchmarks, Big
+#: models): 1.5 px draws 0.66-1.77M triangles against 1.33-2.43M at 1 px, 38.3-42.2 dB from full
+#: detail against 40.8-44.4 dB (39.7 / 36.0 / 35.8 dB against 40.5 / 37.3 / 36.5 dB after the
+#: interactive JPEG, which alone costs 42.0 / 38.6 / 37.8 dB); 2 px falls to 37.7 dB from near.
+DEFAULT_LOD_MAX_ERROR_PX = 1.5
 #: The moving frame rate it aims at (``--target-fps``).
 DEFAULT_TARGET_FPS = 15.0
 #: Factor the bound moves by in one step.
@@ -34,6 +40,8 @@ STEP = 1.5
 HOLD = 3
 #: Above this fraction of the target interval a frame is slow; below :data:`QUICK`, quick.
 SLOW, QUICK = 1.1, 0.6
+#: Above this many target intervals a frame is far too slow: the bound steps by ``STEP²``.
+FAR = 3.0
 #: Weight of a new frame in the smoothed frame time.
 SMOOTHING = 0.35
 
@@ -73,7 +81,8 @@ class LodControl:
             return
         interval = 1.0 / self.target_fps
         if self.smoothed_s > SLOW * interval and self.bound_px < self.ceiling_px:
-            self.bound_px = min(self.ceiling_px, self.bound_px * STEP)
+            step = STEP * STEP if self.smoothed_s > FAR * interval else STEP
+            self.bound_px = min(self.ceiling_px, self.bound_px * step)
         elif self.smoothed_s < QUICK * interval and self.bound_px > self.floor_px:
             self.bound_px = max(self.floor_px, self.bound_px / STEP)
         else:
