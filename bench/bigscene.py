@@ -14,12 +14,14 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
   it holds for the scene (``/api/stats``); with levels of detail on, then the seconds until every
   node holds the levels (built and written to the cache, as while a user moves the model);
 - ``warm``: the same after stopping and starting coordinator and nodes again, the cache kept;
-- for each ``--lod`` setting (the coordinator's ``--lod-error-px``: its default, or 0), once the
-  nodes hold the levels: the model as the coordinator's own scene (one session, no still), a
-  scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s`` at ``--moving-size``:
-  frames per second, input → frame latency (p50, ms and frame intervals), the triangles the nodes
-  drew per frame, the nodes' busy time per frame, the bound in use; then the moving frame of the
-  last camera against ``--render-once --interactive`` at full detail (PSNR).
+- for each ``--lod`` setting (the coordinator's ``--lod-error-px``: its default, or 0), once every
+  node holds the model (and the levels) and has been calibrated (``settled_s`` after the first
+  frame; ``calibrated`` false: not within :data:`CALIBRATION_WAIT_S`): the model as the
+  coordinator's own scene (one session, no still), a scripted viewer orbits the camera at
+  ``--input-hz`` for ``--moving-s`` at ``--moving-size``: frames per second, input → frame
+  latency (p50, ms and frame intervals), the triangles the nodes drew per frame (summed over the
+  nodes with a tile in it), the nodes' busy time per frame, the bound in use; then the moving
+  frame of the last camera against ``--render-once --interactive`` at full detail (PSNR).
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
@@ -117,10 +119,45 @@ def wait_levels(client: httpx.Client, session: str, timeout: float = 900.0) -> N
         time.sleep(0.5)
 
 
+#: Longest wait for the nodes' calibration before the moving phase begins anyway (s).
+CALIBRATION_WAIT_S = 240.0
+
+
+def wait_settled(client: httpx.Client, session: str, nodes: int, lod: bool,
+                 timeout: float = 900.0) -> tuple[float, bool]:
+    """Until every one of ``nodes`` holds the session's scene (and, with ``lod``, its levels), then
+    until they have been calibrated, at most :data:`CALIBRATION_WAIT_S` (a calibration holds a
+    node's GL thread: before, the moving phase began while the first node alone drew); the seconds
+    it took and whether they were calibrated."""
+    started = time.monotonic()
+    while True:
+        summary = client.get(f"/api/sessions/{session}").json()
+        held = len(summary.get("scene_mb") or {}) >= nodes and summary.get("loading") is None
+        if held and (not lod or summary["lod_error_px"] is not None):
+            break
+        if time.monotonic() - started > timeout:
+            raise RuntimeError(f"the {nodes} nodes did not hold the scene within {timeout:.0f} s")
+        time.sleep(0.5)
+    held_at = time.monotonic()
+    while True:
+        listed = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
+        calibrated = len(listed) >= nodes and all(n.get("calibration_ms") is not None for n in listed)
+        if calibrated or time.monotonic() - held_at > CALIBRATION_WAIT_S:
+            return time.monotonic() - started, calibrated
+        time.sleep(0.5)
+
+
+def drawn_triangles(nodes: list[dict[str, Any]]) -> int:
+    """The triangles the nodes drew in the session's last frame: those of nodes with a tile in it
+    (a node without one reports what it holds, or its last frame's)."""
+    return sum(int(n.get("triangles", 0)) for n in nodes if n.get("tiles"))
+
+
 def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[str, Any]:
     """The moving phase with levels of detail ``lod`` ("on": the coordinator's default, "off": 0):
     the model is the coordinator's own scene (the default session, alone: the nodes' figures are
-    its frames'), at ``--moving-size``, without a still (the frame compared is a moving one)."""
+    its frames'), at ``--moving-size``, without a still (the frame compared is a moving one), once
+    every node holds it and has been calibrated."""
     extra = [] if lod == "on" else ["--lod-error-px", "0"]
     coordinator, url = start(args, mode, cache, "--scene", str(Path(args.scene).resolve()), "--still-codec", "none",
                              *extra, size=args.moving_size)
@@ -128,8 +165,7 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
         with httpx.Client(base_url=url, timeout=600) as client:
             session = "default"
             wait_session_ready(client, session, timeout=1800)
-            if lod == "on":
-                wait_levels(client, session)
+            settled_s, calibrated = wait_settled(client, session, args.nodes, lod == "on")
             ws_url = url.replace("http://", "ws://") + "/ws/view"
             with ws_client.connect(ws_url, max_size=256 << 20) as ws:
                 viewer = ScriptedViewer(ws)
@@ -141,7 +177,7 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
                 def sample() -> None:
                     while not stop.wait(0.5):
                         stats = client.get(f"/api/sessions/{session}/stats").json()
-                        triangles.append(sum(n.get("triangles", 0) for n in stats["nodes"]))
+                        triangles.append(drawn_triangles(stats["nodes"]))
                         busy.append(max((n["busy_ms"] for n in stats["nodes"]), default=0.0))
                         summary = client.get(f"/api/sessions/{session}").json()
                         bounds.append(summary["lod_error_px"] or 0.0)
@@ -170,6 +206,8 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
             "triangles_per_frame": round(float(np.median(triangles)), 0) if triangles else None,
             "busy_ms": round(float(np.median(busy)), 1) if busy else None,
             "bound_px": round(float(np.median(bounds)), 2) if bounds else None,
+            "bound_max_px": round(float(np.max(bounds)), 2) if bounds else None,
+            "settled_s": round(settled_s, 1), "calibrated": calibrated,
             "psnr_vs_full": round(psnr(image, full), 2)}
 
 
