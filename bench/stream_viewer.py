@@ -22,6 +22,7 @@ from PIL import Image
 
 from bench.images import viewer_frame_image
 from bench.live import ScriptedViewer
+from tessera.video.yuv_frame import decoded_planes, rgb_of_yuv420
 from tessera.wire.protocol import unpack_frame
 from tessera.wire.stream_messages import KeyframeRequest, StreamOffer, StreamReport
 from tessera.wire.video import is_video, unpack_video
@@ -181,7 +182,8 @@ class StreamViewer(ScriptedViewer):
                                  "keyframe": keyframe, "decode_ms": decode_ms})
         if now >= self.sample_from:
             self.sample_from += self.sample_every_s
-            pixels = image if isinstance(image, np.ndarray) else image.to_ndarray(format="rgb24")
+            pixels = image if isinstance(image, np.ndarray) else rgb_of_yuv420(decoded_planes(image),
+                                                                                (image.width, image.height))
             with self.lock:
                 self.samples[frame_id] = pixels
                 self.sample_inputs[frame_id] = input_seq

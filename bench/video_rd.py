@@ -43,7 +43,7 @@ from server.video_quality import psnr_db
 from server.video_stream import default_bitrate
 from tessera.geometry import Rect
 from tessera.scheduling.config import SchedulerConfig
-from tessera.video.yuv_frame import compose_yuv420
+from tessera.video.yuv_frame import compose_yuv420, decoded_planes, rgb_of_yuv420
 from tessera.wire.codec import Codec, encode
 from tessera.wire.video import VideoCodec
 
@@ -98,7 +98,7 @@ def video_figures(frames: np.ndarray, crf: float, variant: str) -> tuple[float, 
         for unit, _ in units:
             sizes.append(len(unit))
             for picture in decoder.decode(av.Packet(unit)):
-                dbs.append(psnr_db(picture.to_ndarray(format="rgb24")[:h, :w], frame))
+                dbs.append(psnr_db(rgb_of_yuv420(decoded_planes(picture), (w, h)), frame))
     return float(np.sum(sizes)) / len(frames), float(np.mean(dbs)), cpu_ms / len(frames)
 
 

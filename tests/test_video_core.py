@@ -4,7 +4,9 @@ viewer gets, the link's rate control, and the encoder's YUV picture from tiles."
 from __future__ import annotations
 
 import io
+from fractions import Fraction
 
+import av
 import numpy as np
 import pytest
 from PIL import Image
@@ -13,7 +15,7 @@ from tessera.geometry import Rect
 from tessera.video.feedback import KEYFRAME_BURST, MAX_MALFORMED, FeedbackGuard
 from tessera.video.link_rate import CLEAN_WINDOWS, MIN_BITRATE, MIN_FPS, WINDOW_S, LinkRate, LinkReport
 from tessera.video.transport import choose_transport
-from tessera.video.yuv_frame import coded_size, compose_yuv420, tile_planes
+from tessera.video.yuv_frame import coded_size, compose_yuv420, decoded_planes, rgb_of_yuv420, tile_planes
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import ProtocolError, with_input_seq
 from tessera.wire.stream_messages import StreamReport
@@ -193,6 +195,35 @@ def test_jpeg_tiles_at_odd_columns_and_rows_put_their_chroma_on_the_frames_grid(
     for plane, channel in zip(chroma_planes(planes, (width, height)), (1, 2), strict=True):
         # measured: 0.55 and 0.39; the odd tiles' chroma left unshifted: 0.88 and 1.25, shifted a pixel: 0.97, 1.29
         assert np.abs(plane - block_means(expected[..., channel])).mean() < 0.7, channel
+
+
+def test_a_decoded_picture_back_to_rgb_is_jfif_with_each_chroma_sample_over_its_block() -> None:
+    """rgb_of_yuv420 against the JFIF conversion written out pixel by pixel (each pixel's Cb and Cr
+    its 2×2 block's sample), rounded: equal; a grey frame comes back exactly through
+    compose_yuv420; decoded_planes of a decoded yuvj420p picture are the planes coded losslessly."""
+    rng = np.random.default_rng(7)
+    width, height = 37, 21
+    coded_w, coded_h = coded_size((width, height))
+    planes = rng.integers(0, 256, (coded_h * 3 // 2, coded_w), dtype=np.uint8)
+    cb, cr = (plane.astype(np.float64) - 128.0 for plane in chroma_planes(planes, (coded_w, coded_h)))
+    cb, cr = (np.repeat(np.repeat(c, 2, axis=0), 2, axis=1) for c in (cb, cr))
+    y = planes[:coded_h].astype(np.float64)
+    expected = np.stack([y + 1.402 * cr, y - 0.344136 * cb - 0.714136 * cr, y + 1.772 * cb], axis=-1)
+    expected = np.clip(np.floor(expected + 0.5), 0, 255).astype(np.uint8)[:height, :width]
+    assert np.array_equal(rgb_of_yuv420(planes, (width, height)), expected)
+    grey = np.repeat(rng.integers(0, 256, (height, width, 1), dtype=np.uint8), 3, axis=-1)
+    picture = compose_yuv420((width, height), [(Rect(0, 0, width, height), Codec.RAW, 0, grey.tobytes())])
+    assert np.array_equal(rgb_of_yuv420(picture, (width, height)), grey)
+    encoder = av.CodecContext.create("libx264", "w")
+    encoder.width, encoder.height, encoder.pix_fmt, encoder.color_range = coded_w, coded_h, "yuv420p", 2
+    encoder.time_base, encoder.options = Fraction(1, 25), {"preset": "ultrafast", "qp": "0", "tune": "zerolatency"}
+    encoder.open()
+    frame = av.VideoFrame.from_ndarray(planes, format="yuv420p")
+    frame.pts, frame.color_range = 0, 2
+    decoder = av.CodecContext.create("h264", "r")
+    decoded = [p for packet in [*encoder.encode(frame), *encoder.encode(None)] for p in decoder.decode(packet)]
+    assert len(decoded) == 1 and decoded[0].format.name == "yuvj420p"
+    assert np.array_equal(decoded_planes(decoded[0]), planes)
 
 
 def test_a_tile_that_is_not_what_its_rect_says_is_refused() -> None:

@@ -27,6 +27,7 @@ from bench.throttle import throttled_proxy
 from server.video_encoder import X264_CRF
 from server.video_quality import SETTLE_FRAMES
 from tessera.video.quality_control import CRF_RANGE
+from tessera.video.yuv_frame import decoded_planes, rgb_of_yuv420
 from tessera.wire.codec import Codec, decode, encode
 from tessera.wire.protocol import unpack_frame
 from tessera.wire.video import is_video, unpack_video
@@ -90,7 +91,7 @@ class VideoViewer:
             assert len(pictures) == 1, f"frame {frame.frame_id} did not decode to one picture"
             width, height = frame.size
             self.video.append((frame.frame_id, frame.keyframe, frame.input_seq,
-                               pictures[0].to_ndarray(format="rgb24")[:height, :width]))
+                               rgb_of_yuv420(decoded_planes(pictures[0]), (width, height))))
         else:
             tiles = unpack_frame(message)
             self.tiles.append((tiles.frame_id, tiles.still))

@@ -158,3 +158,35 @@ def _rgb_yuv420(size: tuple[int, int], tiles: list[tuple[Rect, Codec, int, bytes
     flat[:quarter] = chroma[..., 0].reshape(-1)
     flat[quarter:] = chroma[..., 1].reshape(-1)
     return planes
+
+
+#: Full-range BT.601 Cb, Cr (less 128) → the R, G, B each adds to Y (JFIF's inverse).
+_CHROMA_TO_RGB = np.array([[0.0, -0.344136, 1.772],
+                           [1.402, -0.714136, 0.0]], dtype=np.float32)
+
+
+def decoded_planes(picture: av.VideoFrame) -> np.ndarray:
+    """A decoded 4:2:0 ``picture`` (yuv420p, or yuvj420p: the same samples) as (H·3/2, W) uint8
+    planes, as :func:`compose_yuv420` lays them out; other layouts converted by FFmpeg."""
+    if picture.format.name not in _JPEG_HALF or picture.width % 2 or picture.height % 2:
+        return picture.to_ndarray(format="yuv420p")
+    return np.concatenate([_plane(picture, i).reshape(-1) for i in range(3)]).reshape(-1, picture.width)
+
+
+def rgb_of_yuv420(planes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """A decoded yuv420p picture (H·3/2, W) uint8 (full range BT.601, as :func:`compose_yuv420`
+    writes it) as the (h, w, 3) uint8 RGB frame of ``size`` (w, h): each chroma sample over its
+    2×2 block, rounded. FFmpeg's own conversion (swscale, PyAV's ``to_ndarray(format="rgb24")``)
+    truncates and keeps fewer bits: a stream coded losslessly came back 1.5 dB under this on the
+    default scene and 10 dB under it on Lucy (51.8 against 62.1 dB with its chroma interpolated),
+    a loss of the measurement, not of the video a browser shows."""
+    width, height = size
+    rows, cols = planes.shape[0] * 2 // 3, planes.shape[1]
+    quarter = (rows // 2) * (cols // 2)
+    flat = planes[rows:].reshape(-1)
+    chroma = np.stack([flat[:quarter], flat[quarter:2 * quarter]], axis=-1).reshape(rows // 2, cols // 2, 2)
+    # Y is whole, so Y + the offset rounds as Y + the offset rounded: the sums in 16 bits
+    offsets = np.floor((chroma.astype(np.float32) - 128.0) @ _CHROMA_TO_RGB + 0.5).astype(np.int16)
+    luma = planes[:rows].astype(np.int16).reshape(rows // 2, 2, cols // 2, 2, 1)
+    rgb = np.clip(luma + offsets[:, None, :, None, :], 0, 255).astype(np.uint8).reshape(rows, cols, 3)
+    return rgb[:height, :width]
