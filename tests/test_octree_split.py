@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.scene.octree import MAX_DEPTH, ChunkSplit, morton_codes, octree_root, octree_split
+from node.scene import compiled
+from node.scene.octree import MAX_DEPTH, ChunkSplit, moved_split, morton_codes, octree_root, octree_split
 from tests.culling_support import scan_mesh
 
 
@@ -109,3 +110,25 @@ def test_990k_scan_splits_into_chunks_under_the_limit():
     check_split(positions, faces, split, 16384)
     assert split.chunk_count > faces.shape[0] // 16384
     assert np.all(split.bounds[:, 0] >= positions.min(axis=0)) and np.all(split.bounds[:, 1] <= positions.max(axis=0))
+
+
+@pytest.mark.parametrize("mesh", ["random", "990k scan"])
+def test_compiled_passes_split_as_numpy_does(mesh, monkeypatch):
+    """Big meshes take the compiled passes (node.scene.compiled): the very same orders, chunks,
+    boxes and normals as the numpy passes (a mesh's picture does not depend on its size's path)."""
+    if mesh == "random":
+        positions, faces = random_mesh(30_000, seed=4)
+        faces = np.concatenate([faces, np.tile(np.array([[5, 6, 7]], np.uint32), (300, 1))])   # one cell over the limit
+    else:
+        positions, faces = scan_mesh("large_scan/threedscans_pan_990k.ply")
+    splits = []
+    for threshold in (1 << 62, 1):
+        monkeypatch.setattr(compiled, "COMPILED_FACES", threshold)
+        split = octree_split(positions, faces, face_limit=192, normals=True)
+        splits.append((split, moved_split(split, positions * np.float32(1.5), normals=True)))
+    assert compiled.available(len(faces))
+    for numpy_split, compiled_split in zip(*splits, strict=True):
+        for field in ("vertex_order", "face_order", "faces", "starts", "ends", "bounds", "depths", "normals",
+                      "positions"):
+            assert np.array_equal(getattr(numpy_split, field), getattr(compiled_split, field)), field
+    check_split(positions, faces, splits[1][0], 192)

@@ -7,7 +7,8 @@ draws a tile of whichever a ``render`` names. A scene is made ready — fetched 
 open it (:mod:`node.scene.fetch`), then ingested once into the scene cache (issue 31: read, split
 into chunks, packed, written; a sort-last share written as an entry of its own,
 :mod:`node.scene.ingest`) and mapped — off the GL thread, so the seconds a big scan takes never hold
-back tiles of the scenes already held: a loader thread fetches and opens it, a large file ingested
+back tiles of the scenes already held: a loader thread fetches and opens it (a file in a thread of
+its own, so that a built-in scene never waits behind one), a large file ingested
 in a child process of lower CPU priority (:mod:`node.scene.read_process`: a thread would hold the
 GIL the GL thread needs). Only its upload runs on the GL thread, between two tiles.
 
@@ -43,7 +44,7 @@ from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import open_cached, read_scene
-from node.scene.loading import ProgressCallback
+from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
 from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, group_levels, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore, group_of, is_mesh
@@ -138,6 +139,10 @@ class GLWorker:
                  shading: ShadingOptions = ShadingOptions(), cache: CacheFolder | None = None) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tessera-gl")
         self._loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load")
+        #: Files are fetched and ingested in a thread of their own: a built-in scene or a mesh sent as
+        #: arrays (read from memory) never waits behind the seconds a big file takes (issue 31: the
+        #: default scene queued behind a 100M-triangle ingest was ready 45-86 s after the node started).
+        self._file_loader = ThreadPoolExecutor(1, thread_name_prefix="tessera-load-file")
         self._checker = ThreadPoolExecutor(1, thread_name_prefix="tessera-check")
         self._reader = SceneReaderProcess()
         #: Levels of detail are built in a reader of their own, so a scene's load never waits for them.
@@ -201,7 +206,9 @@ class GLWorker:
         """Read, upload and hold the scene; levels of detail the cache holds already are attached
         before it is answered (its first frame may use them), others built in the background."""
         loop = asyncio.get_running_loop()
-        scene, entry, unchecked = await loop.run_in_executor(self._loader, self._read, request, progress, False)
+        reader = self._loader if is_mesh(request.scene) or request.scene.startswith(BUILTIN_PREFIX) \
+            else self._file_loader
+        scene, entry, unchecked = await loop.run_in_executor(reader, self._read, request, progress, False)
         # An entry found in the cache is checked (its CRCs) in a thread of its own while the GL thread
         # uploads it, and the levels the cache holds are read and checked in the loader thread; the
         # scene is held (drawn) only once its entry passed.
@@ -214,7 +221,7 @@ class GLWorker:
             if check is not None and not await check:
                 await self._call(made.renderer.release)
                 log.warning("scene cache entry %s fails its check; building it again", entry)
-                scene, entry, _ = await loop.run_in_executor(self._loader, self._read, request, progress, True)
+                scene, entry, _ = await loop.run_in_executor(reader, self._read, request, progress, True)
                 if levels is not None:
                     levels = loop.run_in_executor(self._loader, self._cached_levels, entry, scene) \
                         if entry is not None and isinstance(scene, SceneData) else None
@@ -474,7 +481,7 @@ class GLWorker:
         stop the loader threads, free GL resources on the GL thread and stop it (waits for a running draw)."""
         for reader in (self._reader, self._levels_reader):
             reader.close()
-        for loader in (self._loader, self._levels_loader, self._checker):
+        for loader in (self._loader, self._file_loader, self._levels_loader, self._checker):
             loader.shutdown(wait=True, cancel_futures=True)
         for reader in (self._reader, self._levels_reader):
             reader.close()

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene import compiled
+
 #: Faces a block holds at least (blocks end at a chunk's end).
 BLOCK_FACES = 1 << 18
 #: Vertices past a block's last face's first vertex whose sums the block adds up in its window.
@@ -72,6 +74,8 @@ def _blocks(starts: np.ndarray, face_total: int) -> Iterator[tuple[int, int, int
 def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, normals: bool = True) -> FacePass:
     """Chunk boxes (chunk i is faces [starts[i], starts[i + 1]) of ``faces`` (F, 3) over
     ``positions`` (V, 3) float32) and, with ``normals``, the smooth vertex normals."""
+    if compiled.available(len(faces)):
+        return FacePass(*compiled.face_pass(positions, faces, starts, normals))
     # Imported here: a node that opens scene cache entries never needs it (0.2 s of its start-up).
     import scipy.sparse
 

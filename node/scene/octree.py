@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene import compiled
 from node.scene.face_pass import face_pass, for_blocks
 
 #: Default most faces per chunk: about the largest limit that keeps sort-first redundancy
@@ -145,7 +146,8 @@ def sorted_by_code(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a stable sort by code, by one ``numpy.sort`` of keys holding the code above the item's number."""
     count = codes.size
     item_bits = max(1, int(count - 1).bit_length())
-    if count and int(codes.max()) >= 1 << (64 - item_bits):
+    code_bits = int(codes.max()).bit_length() if count else 0
+    if code_bits > 64 - item_bits:
         order = np.argsort(codes, kind="stable")
         return order, codes[order]
     keys = np.empty(count, np.uint64)
@@ -155,7 +157,10 @@ def sorted_by_code(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         keys[first:end] |= np.arange(first, end, dtype=np.uint64)
 
     for_blocks(count, pack)
-    keys.sort()
+    if compiled.available(count):
+        keys = compiled.radix_sort(keys, item_bits, max(code_bits, 1))
+    else:
+        keys.sort()
     order = np.empty(count, np.int64)
 
     def unpack(first: int, end: int) -> None:
@@ -196,6 +201,12 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
 
     for_blocks(vertex_total, move)
     del move
+    if compiled.available(face_total):   # the same arrays in two compiled passes
+        new_faces, face_order, groups, lowest = compiled.sorted_faces(faces, rank)
+        del rank
+        starts, ends, depths = _cells(vertex_codes.take(lowest), groups, face_total, face_limit, max_depth)
+        swept = face_pass(moved, new_faces, starts, normals)
+        return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
     # Faces sorted by their first vertex in the new order, then by number: one sort of keys that hold both.
     item_bits = max(1, int(face_total - 1).bit_length())
     renumbered = np.empty((face_total, 3), np.uint32)

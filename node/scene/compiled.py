@@ -1,0 +1,202 @@
+"""The octree split's face passes compiled (issue 31: cold ingest of tens of millions of triangles a
+second), with numba when it is installed: one loop over the faces where numpy takes several passes
+and temporary arrays. Used for meshes of at least :data:`COMPILED_FACES` faces; smaller ones, and
+every mesh where numba is missing, take the numpy passes (:mod:`node.scene.octree`,
+:mod:`node.scene.face_pass`), which give the same arrays. No GL here.
+
+- :func:`sorted_faces`: the faces renumbered to the new vertex order and sorted by their lowest
+  vertex, then by number, as one counting sort (two linear passes, no 64-bit keys sorted);
+- :func:`face_pass`: each chunk's box and the smooth vertex normals in one pass: a face's normal is
+  the cross product of two edges in float32 (twice its area), summed at its corners in float64 (as
+  the numpy pass does), so a vertex's normal does not depend on the order of its faces.
+
+The functions are compiled on first use and kept by numba (``cache=True``: next to this file, or in
+the user's cache folder when this one is read-only); a process loads them in tens of milliseconds.
+Importing numba costs a node 0.4 s of CPU, so only the ingest (in the scene reader process) and
+big meshes import it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+#: Faces from which a mesh is split by the compiled passes.
+COMPILED_FACES = 1 << 21
+
+_kernels: Any = None
+
+
+def available(face_total: int) -> bool:
+    """Whether a mesh of ``face_total`` faces takes the compiled passes (big enough, numba installed)."""
+    return face_total >= COMPILED_FACES and _compiled() is not None
+
+
+def _compiled() -> Any:
+    """The compiled kernels (a namespace), or None without numba."""
+    global _kernels
+    if _kernels is None:
+        try:
+            import numba
+        except ImportError:
+            _kernels = False
+        else:
+            try:
+                _kernels = _build(numba.njit(cache=True, nogil=True))
+            except RuntimeError:   # no folder to cache them in (a read-only install, no home): compiled each time
+                _kernels = _build(numba.njit(nogil=True))
+    return _kernels or None
+
+
+def _build(jit: Any) -> Any:
+
+    @jit
+    def lowest_counts(faces: np.ndarray, rank: np.ndarray, lowest: np.ndarray, counts: np.ndarray) -> None:
+        last = np.uint32(rank.size - 1)
+        for face in range(faces.shape[0]):
+            a = rank[min(faces[face, 0], last)]
+            b = rank[min(faces[face, 1], last)]
+            c = rank[min(faces[face, 2], last)]
+            low = min(a, min(b, c))
+            lowest[face] = low
+            counts[low] += 1
+
+    @jit
+    def scatter(faces: np.ndarray, rank: np.ndarray, lowest: np.ndarray, next_slot: np.ndarray,
+                new_faces: np.ndarray, face_order: np.ndarray) -> None:
+        last = np.uint32(rank.size - 1)
+        for face in range(faces.shape[0]):
+            low = lowest[face]
+            slot = next_slot[low]
+            next_slot[low] = slot + 1
+            new_faces[slot, 0] = rank[min(faces[face, 0], last)]
+            new_faces[slot, 1] = rank[min(faces[face, 1], last)]
+            new_faces[slot, 2] = rank[min(faces[face, 2], last)]
+            face_order[slot] = face
+
+    @jit
+    def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, boxes: np.ndarray,
+              summed: np.ndarray, normals: bool) -> None:
+        chunks, face_total = starts.size, faces.shape[0]
+        for chunk in range(chunks):
+            end = starts[chunk + 1] if chunk + 1 < chunks else face_total
+            lo0 = lo1 = lo2 = np.float32(np.inf)
+            hi0 = hi1 = hi2 = np.float32(-np.inf)
+            for face in range(starts[chunk], end):
+                ia, ib, ic = faces[face, 0], faces[face, 1], faces[face, 2]
+                ax, ay, az = positions[ia, 0], positions[ia, 1], positions[ia, 2]
+                bx, by, bz = positions[ib, 0], positions[ib, 1], positions[ib, 2]
+                cx, cy, cz = positions[ic, 0], positions[ic, 1], positions[ic, 2]
+                lo0 = min(lo0, min(ax, min(bx, cx)))
+                lo1 = min(lo1, min(ay, min(by, cy)))
+                lo2 = min(lo2, min(az, min(bz, cz)))
+                hi0 = max(hi0, max(ax, max(bx, cx)))
+                hi1 = max(hi1, max(ay, max(by, cy)))
+                hi2 = max(hi2, max(az, max(bz, cz)))
+                if normals:
+                    ux, uy, uz = bx - ax, by - ay, bz - az
+                    vx, vy, vz = cx - ax, cy - ay, cz - az
+                    nx = np.float64(uy * vz - uz * vy)
+                    ny = np.float64(uz * vx - ux * vz)
+                    nz = np.float64(ux * vy - uy * vx)
+                    for corner in (ia, ib, ic):
+                        summed[corner, 0] += nx
+                        summed[corner, 1] += ny
+                        summed[corner, 2] += nz
+            boxes[chunk, 0, 0], boxes[chunk, 0, 1], boxes[chunk, 0, 2] = lo0, lo1, lo2
+            boxes[chunk, 1, 0], boxes[chunk, 1, 1], boxes[chunk, 1, 2] = hi0, hi1, hi2
+
+    @jit
+    def unit(summed: np.ndarray, out: np.ndarray) -> None:
+        for vertex in range(summed.shape[0]):
+            x, y, z = summed[vertex, 0], summed[vertex, 1], summed[vertex, 2]
+            length = np.sqrt(x * x + y * y + z * z)
+            inverse = 1.0 / length if length > 0.0 else 0.0
+            out[vertex, 0] = x * inverse
+            out[vertex, 1] = y * inverse
+            out[vertex, 2] = z * inverse
+
+    @jit
+    def radix_pass(keys: np.ndarray, out: np.ndarray, shift: int, bits: int) -> None:
+        buckets = 1 << bits
+        mask = np.uint64(buckets - 1)
+        shift64 = np.uint64(shift)
+        slots = np.zeros(buckets, np.int64)
+        for i in range(keys.size):
+            slots[(keys[i] >> shift64) & mask] += 1
+        total = 0
+        for bucket in range(buckets):
+            count = slots[bucket]
+            slots[bucket] = total
+            total += count
+        for i in range(keys.size):
+            key = keys[i]
+            bucket = (key >> shift64) & mask
+            out[slots[bucket]] = key
+            slots[bucket] += 1
+
+    class Kernels:
+        pass
+
+    kernels = Kernels()
+    kernels.lowest_counts, kernels.scatter, kernels.sweep, kernels.unit = lowest_counts, scatter, sweep, unit
+    kernels.radix_pass = radix_pass
+    return kernels
+
+
+def sorted_faces(faces: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``faces`` (F, 3) uint32 numbering old vertices, renumbered by ``rank`` (V,) uint32 (old vertex
+    → new) and sorted by their lowest new vertex, then by number: (new faces (F, 3) uint32, face
+    order (F,) int64: new face k is old face ``order[k]``, the first new face of each group of one
+    lowest vertex (G,) int64, and those vertices (G,) int64). Indices past the last vertex are taken
+    as the last (as ``take(mode="clip")``)."""
+    kernels = _compiled()
+    faces = np.ascontiguousarray(faces, np.uint32)
+    face_total = faces.shape[0]
+    lowest = np.empty(face_total, np.uint32)
+    counts = np.zeros(rank.size, np.int64)
+    kernels.lowest_counts(faces, rank, lowest, counts)
+    next_slot = np.empty(rank.size, np.int64)
+    next_slot[0] = 0
+    np.cumsum(counts[:-1], out=next_slot[1:])
+    vertices = np.flatnonzero(counts)
+    groups = next_slot.take(vertices)
+    del counts
+    new_faces = np.empty((face_total, 3), np.uint32)
+    face_order = np.empty(face_total, np.int64)
+    kernels.scatter(faces, rank, lowest, next_slot, new_faces, face_order)
+    return new_faces, face_order, groups, vertices
+
+
+def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray,
+              normals: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """(boxes (C, 2, 3) float32, smooth unit normals (V, 3) float32 or None) of the chunks starting
+    at faces ``starts`` (C,) of ``faces`` (F, 3) uint32 (indices in range) over ``positions`` (V, 3)
+    float32, as :func:`node.scene.face_pass.face_pass` gives them."""
+    kernels = _compiled()
+    positions = np.ascontiguousarray(positions, np.float32)
+    faces = np.ascontiguousarray(faces, np.uint32)
+    starts = np.ascontiguousarray(starts, np.int64)
+    boxes = np.empty((starts.size, 2, 3), np.float32)
+    summed = np.zeros((len(positions) if normals else 0, 3), np.float64)
+    kernels.sweep(positions, faces, starts, boxes, summed, normals)
+    if not normals:
+        return boxes, None
+    unit = np.empty((len(positions), 3), np.float32)
+    kernels.unit(summed, unit)
+    return boxes, unit
+
+
+def radix_sort(keys: np.ndarray, shift: int, bits: int) -> np.ndarray:
+    """``keys`` (N,) uint64 sorted (stably) by their bits [shift, shift + bits), in passes of at most
+    12 bits (4096 buckets, each pass's writes stay in cache); the sorted array (``keys`` reused as
+    scratch). Equal to ``numpy.sort`` when the bits below ``shift`` already ascend."""
+    kernels = _compiled()
+    passes = max(1, -(-bits // 12))
+    step = -(-bits // passes)
+    source, target = keys, np.empty_like(keys)
+    for first in range(shift, shift + bits, step):
+        kernels.radix_pass(source, target, first, min(step, shift + bits - first))
+        source, target = target, source
+    return source
