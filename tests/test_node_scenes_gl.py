@@ -2,7 +2,7 @@
 llvmpipe): tiles of two scenes drawn alternately, each equal to that scene drawn alone; a whole
 scene beside another's sort-last share; least-recently-used scenes released over the memory
 budget; and a scene read in the loader thread while tiles of another keep coming, a mesh step
-(issue 33) while the GL thread draws."""
+(issue 33) while the GL thread draws, a built-in scene while a file is fetched."""
 
 from __future__ import annotations
 
@@ -185,6 +185,32 @@ def test_tiles_of_a_scene_held_are_drawn_while_another_is_read():
     assert all(count > 0 for count in triangles), "drawn while the loader thread was busy"
     assert first.scene is second.scene, "a second load of a scene being read waits for it, then reuses it"
     assert held == [(SPHERES, None), (TRAFFIC, None)]
+
+
+class FileHeldFetcher(HeldFetcher):
+    """A fetcher whose download of a file lasts until the test lets it go (built-in scenes pass)."""
+
+    def source(self, spec: str, sha256: str | None, url: str | None, progress: Callable[[float, str], None]) -> str:
+        return spec if spec.startswith("builtin:") else super().source(spec, sha256, url, progress)
+
+
+def test_a_built_in_scene_loads_while_a_file_is_still_fetched():
+    """Issue 31: a built-in scene told after a file (the coordinator's default scene after a
+    session's big model) loads while the file is still fetched (or ingested), not after it."""
+    fetcher = FileHeldFetcher()
+    bunny = str(scene_path("bunny/bun_zipper.ply"))
+
+    async def body(worker: GLWorker) -> tuple:
+        reading = asyncio.create_task(worker.load(LoadScene(scene=bunny), no_progress))
+        assert await asyncio.to_thread(fetcher.started.wait, seconds(30))
+        built_in = await asyncio.wait_for(worker.load(LoadScene(scene=SPHERES), no_progress), seconds(20))
+        early = reading.done()
+        fetcher.finish.set()
+        return built_in, early, await reading
+
+    built_in, early, file = run_with_worker(body, fetcher=fetcher)
+    assert built_in.scene.name == SPHERES and not early, "the built-in scene was held while the file was fetched"
+    assert file.scene.triangle_count > 0
 
 
 def test_a_mesh_step_is_read_while_the_gl_thread_draws():
