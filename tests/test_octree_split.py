@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from node.scene import compiled
-from node.scene.octree import MAX_DEPTH, ChunkSplit, moved_split, morton_codes, octree_root, octree_split
+from node.scene.octree import MAX_DEPTH, ChunkSplit, morton_codes, moved_split, octree_root, octree_split
 from tests.culling_support import scan_mesh
 
 
