@@ -83,12 +83,13 @@ def _build(jit: Any) -> Any:
     def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, boxes: np.ndarray,
               summed: np.ndarray, normals: bool) -> None:
         chunks, face_total = starts.size, faces.shape[0]
+        last = np.uint32(positions.shape[0] - 1)
         for chunk in range(chunks):
             end = starts[chunk + 1] if chunk + 1 < chunks else face_total
             lo0 = lo1 = lo2 = np.float32(np.inf)
             hi0 = hi1 = hi2 = np.float32(-np.inf)
             for face in range(starts[chunk], end):
-                ia, ib, ic = faces[face, 0], faces[face, 1], faces[face, 2]
+                ia, ib, ic = min(faces[face, 0], last), min(faces[face, 1], last), min(faces[face, 2], last)
                 ax, ay, az = positions[ia, 0], positions[ia, 1], positions[ia, 2]
                 bx, by, bz = positions[ib, 0], positions[ib, 1], positions[ib, 2]
                 cx, cy, cz = positions[ic, 0], positions[ic, 1], positions[ic, 2]
@@ -194,8 +195,8 @@ def _on_threads(works: list[Callable[[], None]]) -> None:
 def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray,
               normals: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """(boxes (C, 2, 3) float32, smooth unit normals (V, 3) float32 or None) of the chunks starting
-    at faces ``starts`` (C,) of ``faces`` (F, 3) uint32 (indices in range) over ``positions`` (V, 3)
-    float32, as :func:`node.scene.face_pass.face_pass` gives them."""
+    at faces ``starts`` (C,) of ``faces`` (F, 3) uint32 over ``positions`` (V, 3) float32, as
+    :func:`node.scene.face_pass.face_pass` gives them (an index past the last vertex taken as the last)."""
     kernels = _compiled()
     positions = np.ascontiguousarray(positions, np.float32)
     faces = np.ascontiguousarray(faces, np.uint32)
