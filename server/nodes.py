@@ -46,6 +46,8 @@ class NodeLink:
     rss_mb: float | None = None
     held_mb: float | None = None
     scene_mb: dict[str, float] = field(default_factory=dict)
+    #: The triangles it holds of each scene it reported ready, by spec (sort-last: its share's).
+    scene_triangles: dict[str, int] = field(default_factory=dict)
     #: Scenes whose levels of detail it holds: spec → their triangles (issue 32).
     levels: dict[str, int] = field(default_factory=dict)
     #: Their primitive groups' levels (errors, triangles, boxes) by spec, as it last said.

@@ -21,7 +21,7 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 
 import numpy as np
@@ -203,6 +203,7 @@ class RenderService(SessionPersistence, ServiceReport):
         self.scheduler.replace_session(session.id, config, create_balancer(balancer.name, balancer.params), spec, now,
                                        held=held or {}, keep_partition=keep_partition)
         session.frames.wall = session.wall
+        self.allow_for_shown_scenes()
         first = self.scheduler.next_frame_id
         if camera is not None:
             first = self.scheduler.set_camera(camera, now, session_id=session.id)
@@ -389,6 +390,15 @@ class RenderService(SessionPersistence, ServiceReport):
         spec = scene or self.settings.scene
         return [s for s in self.sessions.values() if s.scene == spec]
 
+    def allow_for_shown_scenes(self, links: Iterable[NodeLink] | None = None) -> None:
+        """Each node's tiles may take as long as the largest scene a session shows on it takes to
+        draw (:meth:`FrameScheduler.node_holds`): a huge scene closed no longer stretches the time
+        after which the node counts as silent."""
+        shown = {session.scene for session in self.sessions.values()}
+        for link in self.nodes.values() if links is None else links:
+            self.scheduler.node_holds(link.node_id, max(
+                (n for spec, n in link.scene_triangles.items() if spec in shown), default=0))
+
     def _on_scene_ready(self, link: NodeLink, message: SceneReady) -> None:
         """A node holds ``message``'s scene: the sessions showing it may draw on it. It is calibrated
         (on the default session's scene) when that is the scene it reports, not again for another
@@ -406,7 +416,8 @@ class RenderService(SessionPersistence, ServiceReport):
         link.held_mb = message.held_mb if message.held_mb is not None else link.held_mb
         link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
         now = time.monotonic()
-        self.scheduler.node_holds(link.node_id, message.triangles)
+        link.scene_triangles[spec] = message.triangles
+        self.allow_for_shown_scenes([link])
         showing = self._showing(message.scene)
         if not showing and self.meshes.loaded_ahead(link.node_id, message):
             return

@@ -55,6 +55,8 @@ class SessionPersistence:
 
         def apply(self) -> None: ...
 
+        def allow_for_shown_scenes(self) -> None: ...
+
     def save_sessions(self) -> Future[None] | None:
         """Write every session to ``--data-dir`` (nothing without one) on the writer thread, off the
         event loop (the file is fsynced); writes happen in the order asked."""
@@ -135,6 +137,7 @@ class SessionPersistence:
         self.changed_sessions = True
         self.jobs.session_closed(session.id)
         self.scheduler.remove_session(session.id, time.monotonic())
+        self.allow_for_shown_scenes()
         for slot in list(session.viewers.slots):
             slot.close(4404, reason)
         self.apply()

@@ -32,8 +32,9 @@ class SceneNode:
     """A fake node over ``/ws/node`` that holds every scene it is told to load and answers each
     render with flat tiles whose grey level says which scene they are of."""
 
-    def __init__(self, ws, hello: dict[str, Any] = HELLO) -> None:
+    def __init__(self, ws, hello: dict[str, Any] = HELLO, triangles: dict[str, int] | None = None) -> None:
         self.ws = ws
+        self.triangles = triangles or {}   # what it says it holds of a scene (12 unless named)
         self.scenes: list[str] = []
         self.calibrations = 0
         ws.send_json(hello)
@@ -58,7 +59,8 @@ class SceneNode:
         """Answer ``message``; the render it was, if one."""
         if message["type"] == "load_scene":
             self.scenes.append(message["scene"])
-            self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "triangles": 12,
+            self.ws.send_json({"type": "scene_ready", "scene": message["scene"],
+                               "triangles": self.triangles.get(message["scene"], 12),
                                "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}]})
         elif message["type"] == "calibrate":
             self.calibrations += 1
@@ -133,6 +135,21 @@ def test_a_node_is_calibrated_on_the_default_scene_and_not_again_for_another_ses
         assert node.calibrations == AGREEING, "another session's scene is not measured"
         assert wait_until(lambda: [n["calibration_ms"] for n in client.get("/api/stats").json()["nodes"]] == [5.0],
                           seconds(10), "the calibration in the stats")
+
+
+def test_a_node_may_owe_a_tile_for_the_largest_scene_a_session_shows_on_it_not_one_closed(client):
+    """A node that holds 30M triangles of a session's scene may take a minute over a tile; once
+    that session is closed, its tiles are timed for the scenes still shown (12 triangles)."""
+    session_id = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()["id"]
+    with client.websocket_connect("/ws/node") as ws:
+        node = SceneNode(ws, triangles={"builtin:cluster": 30_000_000})
+        first = client.put(f"/api/sessions/{session_id}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
+        service = client.app.state.service
+        (held,) = service.scheduler.nodes.values()
+        assert service.scheduler.table.allowed_s(held, 5.0) == 60.0
+        assert client.delete(f"/api/sessions/{session_id}").status_code == 204
+        assert held.triangles == 12 and service.scheduler.table.allowed_s(held, 5.0) == 5.0
 
 
 def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):

@@ -564,8 +564,8 @@ def test_a_node_holding_a_huge_scene_may_owe_its_first_tile_for_its_triangles():
     slowest rate a node is taken to draw (60 s), not the 5 s floor; a node of a small scene is not."""
     s = scheduler(tile_timeout_s=5.0, max_in_flight=1, still_codec=None)
     s.node_holds(1, 30_000_000)
-    s.node_holds(2, 100_000)
-    s.node_holds(1, 1_000)   # a smaller scene loaded later does not shrink it
+    s.node_holds(2, 30_000_000)
+    s.node_holds(2, 100_000)   # its huge scene closed: what it shows now counts
     assert s.table.allowed_s(s.nodes[1], 5.0) == 30_000_000 / SLOWEST_TRIANGLES_PER_S
     s.set_camera(camera(), 0.0)
     assert renders(s.drain()) == {1: [(1, 0)], 2: [(1, 1)]}

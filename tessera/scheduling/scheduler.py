@@ -257,11 +257,11 @@ class FrameScheduler(FrameDispatch):
         return node
 
     def node_holds(self, node_id: int, triangles: int) -> None:
-        """The node loaded a scene (or share) of ``triangles``: its tiles may take as long as that
-        many triangles take (:meth:`NodeTable.allowed_s`)."""
+        """The largest scene (or share) a session shows on the node has ``triangles``: its tiles may
+        take as long as that many triangles take (:meth:`NodeTable.allowed_s`)."""
         node = self.nodes.get(node_id)
         if node is not None:
-            node.triangles = max(node.triangles, int(triangles))
+            node.triangles = int(triangles)
 
     def node_ready(self, node_id: int, now: float, share: int | None = None,
                    session_id: str = DEFAULT_SESSION) -> None:
