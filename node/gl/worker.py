@@ -150,6 +150,7 @@ class GLWorker:
         self._levels_reader = SceneReaderProcess()
         self._levels_tasks: set[asyncio.Task[None]] = set()
         self._levels_building: set[SceneKey] = set()
+        self._closing = False   # close() kills the readers: a read they fail then is the stop, not a fault
         #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
         #: share version (None: whole) and levels.
         self.levels_listener: Callable[[str, int | None, LodTree, SceneData], None] | None = None
@@ -289,7 +290,10 @@ class GLWorker:
                 self._levels_loader, self._levels_reader.levels, entry, self.cache, lambda fraction, message: None)
             tree = None if path is None else read_lod(path, verify=False)
         except (SceneError, CacheError) as exc:
-            log.warning("levels of detail of %s failed: %s", key[0], exc)
+            if self._closing:
+                log.info("levels of detail of %s: not built, the node is stopping", key[0])
+            else:
+                log.warning("levels of detail of %s failed: %s", key[0], exc)
             return
         if tree is not None:
             held = await self._call(self._attach_levels, key, tree)
@@ -479,6 +483,7 @@ class GLWorker:
     def close(self) -> None:
         """Kill the scene reader processes (a scene or levels they build are not needed any more),
         stop the loader threads, free GL resources on the GL thread and stop it (waits for a running draw)."""
+        self._closing = True
         for reader in (self._reader, self._levels_reader):
             reader.close()
         for loader in (self._loader, self._file_loader, self._levels_loader, self._checker):
