@@ -40,7 +40,26 @@ def render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workd
     (``--interactive``, at the levels of detail within ``lod_error_px``, a point cloud within
     ``point_budget`` points), or with ``still_samples``
     the progressive still of that many samples (``--samples N``; 0, ``ADAPTIVE``: ``--samples auto``);
-    (h, w, 3) uint8."""
+    (h, w, 3) uint8. The same reference asked again (same arguments, the scene file unchanged) is
+    rendered once per test run: render-once is exact, and parametrised tests share cameras."""
+    scene_file = Path(scene)
+    key = json.dumps([scene, [scene_file.stat().st_mtime_ns, scene_file.stat().st_size] if scene_file.is_file()
+                      else None, camera, size, scene_time, objects, msaa, still_samples, clip, highlight,
+                      lod_error_px, point_budget], sort_keys=True, default=lambda value: np.asarray(value).tolist())
+    if key not in _REFERENCES:
+        _REFERENCES[key] = _render_once(scene, camera, size, workdir, scene_time, objects, msaa, still_samples,
+                                        clip, highlight, lod_error_px, point_budget)
+    return _REFERENCES[key].copy()
+
+
+#: References rendered in this test run, by their arguments (:func:`render_once`).
+_REFERENCES: dict[str, np.ndarray] = {}
+
+
+def _render_once(scene: str, camera: dict[str, Any], size: tuple[int, int], workdir: Path,
+                 scene_time: float | None, objects: dict[str, Any] | None, msaa: int | None,
+                 still_samples: int | None, clip: dict[str, Any] | None, highlight: str | None,
+                 lod_error_px: float | None, point_budget: int | None) -> np.ndarray:
     index = len(list(workdir.glob("camera-*.json")))
     camera_file = workdir / f"camera-{index}.json"
     camera_file.write_text(json.dumps(camera))

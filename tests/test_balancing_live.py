@@ -34,8 +34,8 @@ pytestmark = [pytest.mark.integration, pytest.mark.gl]
 
 SIZE = (320, 240)
 SCENE = "builtin:cluster"
-SETTLE_FRAMES = 30
-MEASURE_FRAMES = 30
+SETTLE_FRAMES = 20
+MEASURE_FRAMES = 24
 
 
 def imbalance_after_switch(client: httpx.Client, name: str) -> float:

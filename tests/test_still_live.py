@@ -108,7 +108,7 @@ def test_input_during_the_refinement_cancels_it_and_the_interactive_frame_comes_
     frame that answers the move is the interactive one, and the still that follows is the new
     camera's, refined from its first sample. (Its target out of reach, the adaptive still takes its
     most samples: a refinement long enough to be seen under way on a loaded machine.)"""
-    most = 24
+    most = 12
     _, client = start("--node-slowdowns", "6,6", "--still-samples-max", str(most), "--still-target-db", "99")
     cameras = orbit_cameras(client.get("/api/camera").json()["bounds"], 3)
     client.put("/api/camera", json=cameras[1])
