@@ -60,6 +60,18 @@ def test_the_relay_keeps_to_its_window_and_forwards_the_pages_input(coordinator_
             assert controls[-1]["type"] == "hello"
         finally:
             relay.stop()
+        view = session.show()
+        try:
+            view._from_page(view, {"type": "ready"}, [])   # the page opened: the kernel joins as a viewer
+            camera = session.camera.to_json()
+            moved = {**camera, "eye": [camera["eye"][0] + 0.5, *camera["eye"][1:]]}
+            ack = {"type": "ack", "frame": None, "messages": [{"type": "camera", "camera": moved, "seq": 1}],
+                   "sent_ms": time.time() * 1000.0}
+            view._from_page(view, ack, [])   # the camera the page held rides with a frame's acknowledgement
+            assert wait_until(lambda: session.camera.eye[0] != camera["eye"][0], seconds(30), "the ack's camera")
+            assert len(view.input_hops) == 1   # the ack's own hop: the comm's cost, page → kernel
+        finally:
+            view.close()
 
 
 def test_the_view_is_an_anywidget_of_the_viewers_modules(coordinator_factory):

@@ -90,30 +90,75 @@ export class LatencyTracker {
  * Camera input as a viewer sends it: the newest camera, at most one `camera` message per
  * `schedule` tick (an animation frame), each with the next input sequence number and its send
  * time (`now()`, ms) given to `tracker`. `send(message)` says whether the message went out.
+ *
+ * `window` ({inFlight, timeoutMs}; null: none): at most `inFlight` inputs sent and not yet
+ * answered (the caller says `answered(seq)` when a frame answering `seq` comes; an input unanswered
+ * for `timeoutMs` no longer counts); the newest camera waits meanwhile and goes out as soon as one
+ * is answered. For a link where each message costs more than a frame's worth of pixels: the
+ * notebook's comm, where every message is a kernel request whose busy and idle the page is told.
+ * A camera that waits is timed from when it would have been sent without the window (the first
+ * tick after it was set), so the latency counts the wait.
  */
 export class CameraInput {
-  constructor(send, tracker, schedule, now) {
+  constructor(send, tracker, schedule, now, window = null) {
     this.send = send;
     this.tracker = tracker;
     this.schedule = schedule;
     this.now = now;
+    this.window = window;
     this.seq = 0;
     this.camera = null;
-    /** A camera waits for the next tick: a camera the coordinator echoes meanwhile is older. */
+    /** A camera waits (for the next tick, or for the window): a camera the coordinator echoes meanwhile is older. */
     this.pending = false;
+    /** Inputs sent and not answered yet, oldest first: [seq, time sent]. */
+    this.unanswered = [];
+    this.scheduled = false;
+    this.changed = false;
+    this.dueAt = null;
   }
 
   set(camera) {
     this.camera = camera;
-    if (this.pending) return;
+    this.changed = true;
     this.pending = true;
-    this.schedule(() => {
-      this.pending = false;
-      const seq = nextSeq(this.seq);
-      if (this.send({ type: "camera", camera: this.camera, seq })) {
-        this.seq = seq;
-        this.tracker.sent(seq, this.now());
-      }
-    });
+    if (!this.scheduled) {
+      this.scheduled = true;
+      this.schedule(() => this.tick());
+    }
+  }
+
+  /** A frame answering input `seq` (and every one before it) came: room in the window. */
+  answered(seq) {
+    while (this.unanswered.length && !seqAfter(this.unanswered[0][0], seq)) this.unanswered.shift();
+    this.flush();
+  }
+
+  tick() {
+    this.scheduled = false;
+    this.flush();
+    if (this.pending) {   // the window is full: look again next tick (an input may time out)
+      this.scheduled = true;
+      this.schedule(() => this.tick());
+    }
+  }
+
+  flush() {
+    if (!this.pending) return;
+    const now = this.now();
+    if (this.changed) {
+      this.changed = false;
+      this.dueAt = now;
+    }
+    if (this.window) {
+      this.unanswered = this.unanswered.filter(([, at]) => now - at < this.window.timeoutMs);
+      if (this.unanswered.length >= this.window.inFlight) return;
+    }
+    this.pending = false;
+    const seq = nextSeq(this.seq);
+    if (this.send({ type: "camera", camera: this.camera, seq })) {
+      this.seq = seq;
+      this.tracker.sent(seq, this.dueAt);
+      if (this.window) this.unanswered.push([seq, now]);
+    }
   }
 }

@@ -214,7 +214,10 @@ class TesseraView(anywidget.AnyWidget):
                 self.relay.start()
             except TesseraError as exc:   # the coordinator refused or is gone: the view's stats line says why
                 self.send({"type": "control", "message": {"type": "error", "message": exc.reason}})
-        elif kind == "ack":
+        elif kind == "ack":   # with the page's messages sent while it took the frame (the camera it held)
+            for message in content.get("messages") or ():
+                if isinstance(message, dict):
+                    self.relay.forward(message)
             self.relay.acknowledged()
         elif kind == "viewer" and isinstance(content.get("message"), dict):
             self.relay.forward(content["message"])

@@ -3,6 +3,12 @@
 // size rule). Frames and input travel through the kernel's comm by default: binary TFRM messages
 // as buffers, each acknowledged once drawn so the kernel sends the next (jupyter_rfb's throttle);
 // with transport "direct" the page opens the coordinator's viewer socket itself.
+// Through the comm every message from the page is a kernel request, and the kernel tells the page
+// it went busy and idle for each, which JupyterLab shows (toolbar, status bar, tab icon): at 60
+// camera messages a second that work took the page's main thread and the CPU the render nodes
+// need. So the comm view sends at most COMM_INPUT_WINDOW.inFlight cameras not yet answered by a
+// frame, the newest camera waiting meanwhile, and what the page sends while taking a frame rides
+// with that frame's acknowledgement: about one message a frame.
 
 import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
@@ -17,6 +23,9 @@ import { frameSizeFor } from "./session.js";
 const RESIZE_DEBOUNCE_MS = 300;
 /** How often the stats line is refreshed (ms). */
 const STATS_MS = 500;
+/** Camera inputs in flight through the comm, at most (the coordinator works on two frames of a
+ * session at once), and how long one may go unanswered before it no longer counts (ms). */
+const COMM_INPUT_WINDOW = { inFlight: 2, timeoutMs: 1000 };
 
 function element(tag, className, parent) {
   const node = document.createElement(tag);
@@ -66,7 +75,7 @@ function render({ model, el }) {
   const compositor = new Compositor(canvas, painted, (error) => console.warn("tessera: frame dropped:", error));
 
   const cameraInput = new CameraInput(send, tracker, (callback) => requestAnimationFrame(callback),
-    () => performance.now());
+    () => performance.now(), state.transport === "direct" ? null : COMM_INPUT_WINDOW);
   function setCamera(camera) {
     state.camera = camera;
     cameraInput.set(camera);
@@ -111,24 +120,35 @@ function render({ model, el }) {
       state.error = message.message;
     }
   }
-  function onBinary(buffer, acknowledge) {
+  /** A frame came: drawn, its input answered; returns its id (null: not a frame). */
+  function onBinary(buffer) {
     try {
       const frame = parseFrame(buffer);
       compositor.submit(frame);
-      if (acknowledge) acknowledge(frame.frameId);
+      cameraInput.answered(frame.inputSeq);
+      return frame.frameId;
     } catch (error) {
       console.warn("tessera: bad frame:", error);
+      return null;
     }
   }
 
   let connection = null;
   if (state.transport === "direct") {
-    connection = new Connection(model.get("direct_url"), { onText, onBinary: (buffer) => onBinary(buffer, null),
+    connection = new Connection(model.get("direct_url"), { onText, onBinary,
       onState: ({ state: s, detail }) => { state.connection = detail ? `${s} · ${detail}` : s; } });
     transport = connection;
     connection.start();
   } else {
-    transport = { send: (message) => { model.send({ type: "viewer", message, sent_ms: Date.now() }); return true; } };
+    // Messages sent while a frame is taken (the camera the window held): they go with its acknowledgement.
+    let riding = null;
+    transport = {
+      send: (message) => {
+        if (riding) riding.push(message);
+        else model.send({ type: "viewer", message, sent_ms: Date.now() });
+        return true;
+      },
+    };
     model.on("msg:custom", (message, buffers) => {
       if (message.type === "frame" && buffers.length) {
         // What the comm costs: the kernel → page hop of each frame, the page → kernel hop of input.
@@ -139,8 +159,13 @@ function render({ model, el }) {
         if (state.relayWaits.length > 60) state.relayWaits.shift();
         const view = buffers[0];
         const buffer = view.buffer.slice(view.byteOffset, view.byteOffset + view.byteLength);
-        // Acknowledged once handed to the compositor: the kernel then sends the newest frame it holds.
-        onBinary(buffer, (frameId) => model.send({ type: "ack", frame: frameId }));
+        // Acknowledged once handed to the compositor (or refused): the kernel then sends the newest
+        // frame it holds, after passing on the messages riding with the acknowledgement.
+        riding = [];
+        const frameId = onBinary(buffer);
+        const messages = riding;
+        riding = null;
+        model.send({ type: "ack", frame: frameId, messages, sent_ms: Date.now() });
       } else if (message.type === "control") {
         onText(message.message);
       } else if (message.type === "closed") {

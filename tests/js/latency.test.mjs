@@ -120,3 +120,52 @@ test("camera input sends the newest camera once per tick, numbered, its time tra
   ticks.shift()();
   assert.deepEqual(sent.at(-1), { type: "camera", camera: { eye: [4, 0, 0] }, seq: 2 });
 });
+
+test("camera input with a window holds the newest camera while as many inputs are unanswered, timed from its tick", () => {
+  const sent = [];
+  const ticks = [];
+  let clock = 0;
+  const tracker = new LatencyTracker();
+  const input = new CameraInput((message) => sent.push(message) > 0, tracker, (tick) => ticks.push(tick), () => clock,
+    { inFlight: 2, timeoutMs: 1000 });
+  for (const eye of [1, 2, 3]) {
+    input.set({ eye: [eye, 0, 0] });
+    ticks.shift()();
+    clock += 16;
+  }
+  assert.deepEqual(sent.map((m) => m.seq), [1, 2], "two in flight, the third waits");
+  assert.equal(input.pending, true, "a camera the coordinator echoes meanwhile is older");
+  assert.equal(ticks.length, 1, "a held camera is looked at again next tick");
+  input.set({ eye: [4, 0, 0] });
+  clock = 100;
+  ticks.shift()();   // camera 4 is due from this tick on
+  clock = 150;
+  input.answered(1);
+  assert.deepEqual(sent.at(-1), { type: "camera", camera: { eye: [4, 0, 0] }, seq: 3 });
+  assert.equal(tracker.pending.get(3), 100, "timed from when it would have gone without the window");
+  assert.equal(input.pending, false);
+  input.answered(3);   // answers 2 too
+  input.set({ eye: [5, 0, 0] });
+  ticks.shift()();
+  assert.equal(sent.at(-1).seq, 4);
+});
+
+test("camera input with a window stops counting an input unanswered for its timeout", () => {
+  const sent = [];
+  const ticks = [];
+  let clock = 0;
+  const input = new CameraInput((message) => sent.push(message) > 0, new LatencyTracker(), (tick) => ticks.push(tick),
+    () => clock, { inFlight: 1, timeoutMs: 500 });
+  input.set({ eye: [1, 0, 0] });
+  ticks.shift()();
+  input.set({ eye: [2, 0, 0] });
+  clock = 499;
+  ticks.shift()();
+  assert.equal(sent.length, 1);
+  clock = 500;
+  ticks.shift()();
+  assert.deepEqual(sent.map((m) => m.seq), [1, 2]);
+  assert.equal(ticks.length, 0, "nothing waits: no more ticks");
+  input.answered(0);   // a frame that answers no input frees nothing
+  assert.equal(input.unanswered.length, 1);
+});
