@@ -13,6 +13,7 @@ from tessera.balancers.static import StaticBalancer
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.actions import BalancerFailed, CancelFrames, CloseNode, LoadScene, PublishFrame, RenderTiles
 from tessera.scheduling.node_table import SLOWEST_TRIANGLES_PER_S
+from tessera.scheduling.render_demand import SETTLE_GRACE_S
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError, TileHeader
@@ -135,20 +136,29 @@ def test_no_still_frame_when_still_codec_is_none():
 def test_settling_frames_are_bounded_and_only_while_the_partition_moves():
     s = scheduler(balancer=Drifting(), settle_frames=3, still_codec=None)
     s.set_camera(camera(), 0.0)
-    frames = 0
-    for step in range(10):
+    frames, now = 0, 0.0
+    for _ in range(10):
+        if not s.in_flight and (due := s.next_deadline(now)) is not None:
+            assert due >= SETTLE_GRACE_S, "a settle frame waits for the next input a while"
+            now = due
+            s.tick(now)
         if not s.in_flight:
             break
-        frames += len(published(finish(s, min(s.in_flight), 0.01 * (step + 1))))
+        now += 0.01
+        frames += len(published(finish(s, min(s.in_flight), now)))
     assert frames == 1 + 3, "one frame for the change, then at most settle_frames more"
     steady = scheduler(settle_frames=3, still_codec=None)
     steady.set_camera(camera(0), 0.0)
     finish(steady, 1, 0.01)
+    assert not steady.in_flight
+    steady.tick(SETTLE_GRACE_S)
     assert list(steady.in_flight) == [2], "a balancer's first partition is compared with its second"
-    finish(steady, 2, 0.02)
+    finish(steady, 2, 0.06)
+    steady.tick(0.07)
     assert not steady.in_flight, "the static split does not move: no more settling frames"
-    steady.set_camera(camera(1), 0.03)
-    finish(steady, 3, 0.04)
+    steady.set_camera(camera(1), 0.08)
+    finish(steady, 3, 0.09)
+    steady.tick(0.08 + SETTLE_GRACE_S)
     assert not steady.in_flight
 
 
@@ -164,6 +174,7 @@ def test_a_frame_on_one_node_has_no_settling_frame():
     s.node_ready(2, 0.02)
     s.set_camera(camera(1), 0.03)
     finish(s, 2, 0.04)
+    s.tick(0.03 + SETTLE_GRACE_S)
     assert list(s.in_flight) == [3], "two nodes: the first partition of two tiles is compared with the next"
 
 

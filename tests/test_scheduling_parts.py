@@ -8,7 +8,7 @@ from tessera.balancers.base import Partition, Tile
 from tessera.geometry import Camera, Rect
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.node_table import MAX_NODE_SLOTS, NodeTable
-from tessera.scheduling.render_demand import INTERACTIVE, STILL, RenderDemand
+from tessera.scheduling.render_demand import INTERACTIVE, SETTLE_GRACE_S, STILL, RenderDemand
 from tessera.wire.codec import Codec
 from tessera.wire.protocol import ProtocolError
 
@@ -33,13 +33,17 @@ def test_settle_frames_follow_a_change_while_the_partition_moves():
     demand = RenderDemand(settle_frames=2, still_delay_s=0.2, still_frames=False)
     demand.changed(0.0)
     demand.started(still=False)
+    assert demand.owed(SETTLE_GRACE_S / 2, False, True, False) is None, "the next input may be on its way"
+    assert demand.due(0.0, INTERACTIVE) == SETTLE_GRACE_S
     owed = []
     for _ in range(4):
-        owed.append(demand.owed(0.0, False, True, False))
+        owed.append(demand.owed(SETTLE_GRACE_S, False, True, False))
         if owed[-1]:
             demand.started(still=False)
     assert owed == [INTERACTIVE, INTERACTIVE, None, None]
-    assert demand.owed(0.0, False, False, False) is None, "no still frame when they are off"
+    assert demand.owed(1.0, False, False, False) is None, "no still frame when they are off"
+    demand.changed(2.0)
+    assert demand.due(2.0, INTERACTIVE) == 2.0, "a change's own frame starts at once"
 
 
 def test_the_first_frame_of_a_version_is_its_first_answer():

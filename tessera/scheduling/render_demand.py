@@ -14,6 +14,10 @@ from tessera.scheduling.refinement import RefinementPlan, StillPlan
 
 INTERACTIVE = "interactive"
 STILL = "still"
+#: A settle frame waits this long after the last change (s): input that comes in bursts (the
+#: notebook's comm sends the newest camera as each frame comes back) would otherwise find the
+#: node taken by a settle frame of the camera before it, and wait a whole frame more.
+SETTLE_GRACE_S = 0.05
 
 
 class RenderDemand:
@@ -68,7 +72,7 @@ class RenderDemand:
         ``ignore_quiet``: as if the still frame's quiet time had passed)."""
         if self.version > self._started or animating:
             return INTERACTIVE
-        if self._settle_left > 0 and partition_moving:
+        if self._settle_left > 0 and partition_moving and (ignore_quiet or now >= self.settle_from):
             return INTERACTIVE
         quiet = ignore_quiet or now >= self.quiet_until
         if self.still_frames and self._still < self.version and quiet and not interactive_in_flight:
@@ -79,6 +83,18 @@ class RenderDemand:
     def settling(self) -> bool:
         """Settle frames are left: whether the partition still moves matters."""
         return self._settle_left > 0
+
+    @property
+    def settle_from(self) -> float:
+        """When a settle frame may start if nothing changes (s)."""
+        return self.changed_at + SETTLE_GRACE_S
+
+    def due(self, now: float, owed: str) -> float:
+        """When the frame of kind ``owed`` (:meth:`owed` with ``ignore_quiet``) may start: a still
+        once quiet, a settle frame after its grace, a frame of a change at once."""
+        if owed == STILL:
+            return self.quiet_until
+        return now if self.version > self._started else max(now, self.settle_from)
 
     @property
     def quiet_until(self) -> float:

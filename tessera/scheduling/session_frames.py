@@ -25,7 +25,7 @@ from tessera.scheduling.frame_stats import FrameStats
 from tessera.scheduling.lod_control import LodControl
 from tessera.scheduling.node_table import NodeSchedule
 from tessera.scheduling.refinement import ONE_FRAME
-from tessera.scheduling.render_demand import STILL, RenderDemand
+from tessera.scheduling.render_demand import RenderDemand
 from tessera.tools.clipping import ClipState
 from tessera.wire.codec import Codec
 
@@ -139,7 +139,7 @@ class SessionFrames:
         owed = self.owed(now, ignore_quiet=True)
         if owed is None:
             return None
-        return max(self.next_start_at, self.demand.quiet_until if owed == STILL else now)
+        return max(self.next_start_at, self.demand.due(now, owed))
 
     def start_frame(self, frame_id: int, ready: Sequence[NodeSchedule], now: float,
                     still: bool, raw_tiles: bool = False, pieces: int = 1) -> tuple[FrameJob, str | None]:
