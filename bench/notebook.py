@@ -10,9 +10,10 @@ default session (the same scene and size): a drag orbits the camera with pointer
 Each page measures its own input → frame latency with the viewer's tracker (web/latency.js: from
 a camera input sent to the first frame drawn that answers it), p50 and p90 over the newest 60
 answers, and the mean interval between answering frames. The three take turns, the order rotating
-every round; the table gives each one's median over the rounds, and the comm's and the direct
-socket's p50 over the page's. The comm's own cost is measured apart, on this machine's clock: a
-frame's time from the kernel's relay to the page, and an input's from the page to the kernel.
+every round, each drag once the one before shows its still; the table gives each one's median
+over the rounds, and the comm's and the direct socket's p50 over the page's. The comm's own cost
+is measured apart, on this machine's clock: a frame's time from the kernel's relay to the page,
+and an input's from the page to the kernel.
 """
 
 from __future__ import annotations
@@ -35,8 +36,12 @@ from tessera.cli_values import size_parser
 TRANSPORTS = ("page", "comm", "direct")
 #: The viewer page's own latency summary.
 PAGE_LATENCY_JS = "() => window.tessera && window.tessera.framesDrawn ? window.tessera.inputLatency : null"
+#: Whether the viewer page shows its still (its session rests).
+PAGE_STILL_JS = "() => Boolean(window.tessera && window.tessera.still)"
 #: Pointer moves per second while dragging.
 MOVE_HZ = 60.0
+#: How long a view may take to show its still after a drag, ms.
+REST_TIMEOUT_MS = 120_000
 
 
 def view_latency_js(index: int) -> str:
@@ -45,6 +50,15 @@ def view_latency_js(index: int) -> str:
   const box = document.querySelectorAll(".tessera-view")[{index}];
   const state = box && box.parentElement.tesseraView;
   return state && state.framesDrawn ? state.inputLatency : null;
+}}"""
+
+
+def view_still_js(index: int) -> str:
+    """Whether the notebook's ``index``-th view shows its still."""
+    return f"""() => {{
+  const box = document.querySelectorAll(".tessera-view")[{index}];
+  const state = box && box.parentElement.tesseraView;
+  return Boolean(state && state.still);
 }}"""
 
 
@@ -95,20 +109,25 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             run_first_cells(notebook, 1, 120_000)
             viewer = browser.new_page(viewport={"width": width + 360, "height": height + 200})
             viewer.goto(f"{url}/")
-            targets = {"page": (viewer, viewer.locator("#frame"), PAGE_LATENCY_JS),
-                       "comm": (notebook, notebook.locator(".tessera-frame").nth(0), view_latency_js(0)),
-                       "direct": (notebook, notebook.locator(".tessera-frame").nth(1), view_latency_js(1))}
-            for name, (page, canvas, latency_js) in targets.items():
+            targets = {"page": (viewer, viewer.locator("#frame"), PAGE_LATENCY_JS, PAGE_STILL_JS),
+                       "comm": (notebook, notebook.locator(".tessera-frame").nth(0), view_latency_js(0),
+                                view_still_js(0)),
+                       "direct": (notebook, notebook.locator(".tessera-frame").nth(1), view_latency_js(1),
+                                  view_still_js(1))}
+            for name, (page, canvas, latency_js, still_js) in targets.items():
                 print(f"warming up {name}", flush=True)
                 canvas.wait_for(timeout=120_000)
                 drag(page, canvas, 1.0)   # warm up: the first answers are the slowest
                 page.wait_for_function(f"() => ({latency_js})() !== null", timeout=120_000)
+                page.wait_for_function(still_js, timeout=REST_TIMEOUT_MS)
             for index in range(args.rounds):
                 order = TRANSPORTS[index % 3:] + TRANSPORTS[:index % 3]
                 for name in order:
-                    page, canvas, latency_js = targets[name]
+                    page, canvas, latency_js, still_js = targets[name]
                     drag(page, canvas, args.drag_s)
-                    time.sleep(1.0)
+                    # The next drag starts once this session's still is shown: its samples would
+                    # otherwise share the nodes with the next one's frames.
+                    page.wait_for_function(still_js, timeout=REST_TIMEOUT_MS)
                     rounds[name].append(page.evaluate(latency_js))
                     if name == "comm":
                         view = notebook.evaluate(VIEW_STATE_JS)
