@@ -215,6 +215,7 @@ class VideoStream:
             return
         encoded = task.result()
         self.frames_encoded += 1
+        self.rate.picture()
         self.encoders_made += encoded.new_encoder
         self.keyframes += sum(key for _, key in encoded.units)
         self.bytes += sum(len(unit) for unit, _ in encoded.units)

@@ -96,6 +96,22 @@ def test_congestion_cuts_the_bitrate_then_the_frame_rate_and_clean_windows_resto
     assert (rate.bitrate, rate.fps) == (4e6, 60.0)
 
 
+def test_congestion_at_a_few_pictures_a_second_cuts_the_cap_to_what_a_picture_got_through() -> None:
+    """The cap is a rate at the nominal frame rate: a stream of 2 pictures a second, 5 KB each
+    (80 kbit/s), congested for a window, keeps 0.7 of those bits a picture (1.68 Mbit/s at 60 fps),
+    not 0.7 x 80 kbit/s (the 200 kbit/s floor: 420 bytes a 720p picture, about 10 dB)."""
+    rate = LinkRate(4.7e6, 60.0)
+    rate.update([clean()], 0.0)
+    for _ in range(2):
+        rate.picture()
+    assert rate.update([LinkReport(delivered_bps=80e3, dropped=1, decode_queue=0.0, backlog=0)], WINDOW_S)
+    assert rate.bitrate == pytest.approx(0.7 * 80e3 * 60.0 / 2.0)
+    for _ in range(60):                                  # at the nominal rate, what got through is the rate
+        rate.picture()
+    assert rate.update([LinkReport(delivered_bps=1e6, dropped=1, decode_queue=0.0, backlog=0)], 2 * WINDOW_S)
+    assert rate.bitrate == pytest.approx(0.7e6)
+
+
 def test_a_clean_link_raises_nothing_for_a_few_windows_and_a_new_size_keeps_a_lowered_cap() -> None:
     rate = LinkRate(4e6, 30.0)
     rate.update([LinkReport(delivered_bps=1e6, dropped=1, decode_queue=0.0, backlog=0)], 0.0)

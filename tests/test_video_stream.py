@@ -17,9 +17,10 @@ from node.gl.renderer import TileRenderer
 from node.scene.loading import load_scene
 from server.frame_store import PublishedFrame
 from server.video_encoder import X264_LIGHT_PARAMS, X264_PARAMS, VideoEncoder
-from server.video_stream import VIDEO_SOURCE_QUALITY, default_bitrate
+from server.video_stream import VIDEO_SOURCE_QUALITY, VideoStream, default_bitrate
 from server.viewers import MAX_UNACKNOWLEDGED, MAX_VIDEO_QUEUED, ViewerHub, ViewerSlot
 from tessera.geometry import Camera, Rect, default_camera
+from tessera.video.link_rate import DECREASE, LinkReport
 from tessera.video.yuv_frame import compose_yuv420
 from tessera.wire.codec import Codec, encode
 from tessera.wire.protocol import unpack_frame
@@ -170,6 +171,29 @@ def test_viewers_of_one_stream_keyframes_skips_and_stills(renders) -> None:
         assert VideoCodec.H264 in hub.streams
         hub.leave(second)
         assert not hub.streams
+
+    asyncio.run(scenario())
+
+
+def test_a_congested_window_of_few_pictures_keeps_the_bits_a_picture_got_through(renders) -> None:
+    """The stream counts the pictures it encodes for its rate control: three in a window of 1.5 s
+    (2 a second) that delivered 20 kbit/s leave a cap of 0.7 x 10 kbit a picture at the nominal
+    60 fps, not 0.7 x 20 kbit/s (before, the 200 kbit/s floor; at 720p a picture decoded to ~10 dB)."""
+    async def scenario() -> None:
+        delivered: list[int] = []
+        stream = VideoStream(VideoCodec.H264, SIZE, 8e6, 60.0,
+                             lambda _, encoded: delivered.append(encoded.frame.frame_id))
+        stream.rate.update([LinkReport(delivered_bps=1e6, dropped=0, decode_queue=0.0, backlog=0)], 0.0)
+        for index in range(3):
+            stream.submit(frame(index + 1, renders[index]))
+            for _ in range(400):
+                if len(delivered) > index:
+                    break
+                await asyncio.sleep(0.01)
+        assert delivered == [1, 2, 3]
+        assert stream.rate.update([LinkReport(delivered_bps=20e3, dropped=1, decode_queue=0.0, backlog=0)], 1.5)
+        assert stream.rate.bitrate == pytest.approx(DECREASE * 20e3 / 2.0 * 60.0)
+        stream.close()
 
     asyncio.run(scenario())
 

@@ -8,6 +8,12 @@ socket held frames back so long the coordinator dropped them), when frames wait 
 frames waited to be written to its socket, or when a frame written but not yet received had been
 on its way more than :data:`MAX_IN_FLIGHT_S` (the viewer says which frame it received last: the
 buffers of a slow link fill, and delay every frame, long before the coordinator's socket does).
+The cap is a rate at the stream's nominal frame rate (the encoder gives each picture ``cap / max_fps``
+bits, :mod:`server.video_encoder`), so what got through a congested window is taken at that rate
+too: the bits a picture delivered times ``max_fps``. A stream whose nodes drew fewer pictures (a
+large scene, a loaded machine) delivers fewer bits at the same bits a picture; taken as they came,
+one congested window of 720p frames at 2 a second (5 KB each, 80 kbit/s) brought the cap from
+4.7 Mbit/s to the 200 kbit/s floor, 420 bytes a picture, which decodes to about 10 dB.
 Pure: the clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
@@ -18,7 +24,8 @@ from dataclasses import dataclass
 MIN_BITRATE = 200_000
 #: Lowest frame rate cap (fps).
 MIN_FPS = 4.0
-#: On congestion the cap becomes this share of the smaller of the cap and the rate delivered.
+#: On congestion the cap becomes this share of the smaller of the cap and the rate delivered (at
+#: the nominal frame rate: the bits a picture delivered times ``max_fps``).
 DECREASE = 0.7
 #: :data:`CLEAN_WINDOWS` clean windows in a row raise the cap by this factor (the frame rate first,
 #: up to the session's cap). Each new bitrate takes a new encoder and a keyframe, so steps are few.
@@ -65,6 +72,12 @@ class LinkRate:
         self.window_start = float("-inf")
         self.decreases = 0
         self.clean = 0
+        #: Pictures the stream encoded since the window began (:meth:`picture`).
+        self.pictures = 0
+
+    def picture(self) -> None:
+        """The stream encoded a picture (counted for the window's picture rate)."""
+        self.pictures += 1
 
     def due(self, now: float) -> bool:
         """A report window ended at ``now``: the viewers' reports are wanted."""
@@ -80,6 +93,9 @@ class LinkRate:
         self.clean = 0 if congested else self.clean + 1
         if congested:
             delivered = min((r.delivered_bps for r in congested if r.delivered_bps > 0), default=self.bitrate)
+            pictures_per_s = self.pictures / (now - self.window_start) if now > self.window_start else 0.0
+            if pictures_per_s > 0.0:   # at the nominal rate: the bits a picture delivered times max_fps
+                delivered *= max(1.0, self.max_fps / pictures_per_s)
             if self.bitrate > MIN_BITRATE:
                 self.bitrate = max(MIN_BITRATE, DECREASE * min(self.bitrate, delivered))
             else:
@@ -89,7 +105,7 @@ class LinkRate:
             self.fps, self.clean = min(self.max_fps, INCREASE * self.fps), 0
         elif self.clean >= CLEAN_WINDOWS:
             self.bitrate, self.clean = min(self.max_bitrate, INCREASE * self.bitrate), 0
-        self.window_start = now
+        self.window_start, self.pictures = now, 0
         return (self.bitrate, self.fps) != before
 
     def set_ceiling(self, max_bitrate: float) -> None:
