@@ -365,7 +365,7 @@ def test_an_upload_reaches_a_node_without_the_scenes_and_survives_a_new_coordina
         assert run(["docker", "exec", outsider, "sh", "-c", "test -e /scenes || echo absent"]).strip() == "absent"
         wait_until(lambda: holds_file(outsider, f"/tmp/tessera-scenes/{sha256}.glb"), seconds(120),
                    "the node without /scenes to fetch the upload by its SHA-256")
-        wait_until(lambda: "no-scenes" in {node["name"] for node in ready_nodes(client)}, seconds(60),
+        wait_until(lambda: "no-scenes" in {node["name"] for node in ready_nodes(client)}, seconds(120),
                    "the node without /scenes ready")
         turns = iter(range(1_000_000))
 

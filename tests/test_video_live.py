@@ -229,9 +229,8 @@ def test_the_h264_crf_moves_until_the_video_matches_the_tiles_jpeg(coordinator_f
 def test_stream_tiles_keeps_tiles_and_says_why(coordinator_factory):
     with started(coordinator_factory, "--stream", "tiles") as (coordinator, client):
         with video_viewer(f"{coordinator.ws_url}/ws/view", ["h264"]) as viewer:
-            for _ in range(5):
-                viewer.move(0.05)
-                viewer.read(0.2)
+            wait_until(lambda: viewer.move(0.05) or viewer.read(0.2) or len(viewer.tiles) >= 3, seconds(60),
+                       "tile frames while the camera moves")
         assert viewer.choices == [{"type": "stream", "transport": "tiles", "codec": None,
                                    "reason": "the coordinator sends tiles (--stream tiles)"}]
         assert not viewer.video and len(viewer.tiles) >= 3
