@@ -5,6 +5,7 @@ Python running this; notebooks written with nbformat; the page's cells run as a 
 from __future__ import annotations
 
 import contextlib
+import os
 import secrets
 import socket
 import time
@@ -16,7 +17,7 @@ from typing import Any
 import httpx
 import nbformat
 
-from bench.processes import PYTHON, LoggedProcess
+from bench.processes import PYTHON, REPO, LoggedProcess
 
 
 @dataclass
@@ -41,11 +42,14 @@ def free_port() -> int:
 @contextlib.contextmanager
 def jupyter_lab(root: Path, timeout: float, port: int | None = None) -> Iterator[JupyterLab]:
     """``jupyter lab`` serving ``root`` on 127.0.0.1 (``port``: default a free one), ready to take
-    requests (``timeout`` s at most)."""
+    requests (``timeout`` s at most). Its kernels import this checkout's packages: they start in
+    ``root``, where a relative ``PYTHONPATH`` (``PYTHONPATH=.``) would name another folder."""
     token, port = secrets.token_hex(16), port or free_port()
     profile = root / ".jupyter-profile"
+    paths = [str(REPO), *(os.path.abspath(p) for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)]
     env = {"JUPYTER_CONFIG_DIR": str(profile / "config"), "JUPYTER_RUNTIME_DIR": str(profile / "runtime"),
-           "IPYTHONDIR": str(profile / "ipython"), "JUPYTER_PLATFORM_DIRS": "1", "JUPYTER_NO_CONFIG": "1"}
+           "IPYTHONDIR": str(profile / "ipython"), "JUPYTER_PLATFORM_DIRS": "1", "JUPYTER_NO_CONFIG": "1",
+           "PYTHONPATH": os.pathsep.join(paths)}
     command = [PYTHON, "-m", "jupyterlab", "--no-browser", f"--ServerApp.port={port}", "--ServerApp.ip=127.0.0.1",
                f"--IdentityProvider.token={token}", "--allow-root", f"--ServerApp.root_dir={root}",
                "--ServerApp.port_retries=0",
