@@ -393,9 +393,13 @@ class RenderService(SessionPersistence, ServiceReport):
     def allow_for_shown_scenes(self, links: Iterable[NodeLink] | None = None) -> None:
         """Each node's tiles may take as long as the largest scene a session shows on it takes to
         draw (:meth:`FrameScheduler.node_holds`): a huge scene closed no longer stretches the time
-        after which the node counts as silent."""
+        after which the node counts as silent. Over every node (``links`` None: a session closed or
+        switched scene) the scenes no session shows are forgotten: each mesh step is a scene of its
+        own, and a simulation sends thousands."""
         shown = {session.scene for session in self.sessions.values()}
         for link in self.nodes.values() if links is None else links:
+            if links is None:
+                link.scene_triangles = {spec: n for spec, n in link.scene_triangles.items() if spec in shown}
             self.scheduler.node_holds(link.node_id, max(
                 (n for spec, n in link.scene_triangles.items() if spec in shown), default=0))
 

@@ -150,6 +150,8 @@ def test_a_node_may_owe_a_tile_for_the_largest_scene_a_session_shows_on_it_not_o
         assert service.scheduler.table.allowed_s(held, 5.0) == 60.0
         assert client.delete(f"/api/sessions/{session_id}").status_code == 204
         assert held.triangles == 12 and service.scheduler.table.allowed_s(held, 5.0) == 5.0
+        (link,) = service.nodes.values()
+        assert set(link.scene_triangles) == {"builtin:spheres"}, "a scene no session shows is forgotten"
 
 
 def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):
