@@ -48,10 +48,6 @@ class NodeLink:
     scene_mb: dict[str, float] = field(default_factory=dict)
     #: The triangles it holds of each scene it reported ready, by spec (sort-last: its share's).
     scene_triangles: dict[str, int] = field(default_factory=dict)
-    #: Scenes whose levels of detail it holds: spec → their triangles (issue 32).
-    levels: dict[str, int] = field(default_factory=dict)
-    #: Their primitive groups' levels (errors, triangles, boxes) by spec, as it last said.
-    level_tables: dict[str, tuple[Any, Any, Any]] = field(default_factory=dict)
     loading: dict[str, tuple[float, str]] = field(default_factory=dict)
     #: Control messages (text) and meshes (binary, issue 33), sent in order.
     outbox: asyncio.Queue[str | bytes] = field(default_factory=asyncio.Queue)

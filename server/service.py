@@ -28,7 +28,7 @@ import numpy as np
 
 from server.frame_store import FrameStore, PublishedFrame
 from server.local_nodes import LOCAL_NODES_JOIN_S
-from server.mesh_updates import MeshUpdates
+from server.mesh_updates import MESH_PREFIX, MeshUpdates
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
@@ -336,12 +336,9 @@ class RenderService(SessionPersistence, ServiceReport):
             case SceneReady():
                 self._on_scene_ready(link, message)
             case LevelsReady():
-                link.levels[message.scene] = message.triangles
                 tables = None if None in (message.group_errors, message.group_triangles, message.group_boxes) else \
                     (np.asarray(message.group_errors), np.asarray(message.group_triangles),
                      np.asarray(message.group_boxes))
-                if tables is not None:
-                    link.level_tables[message.scene] = tables
                 for session in self._showing(message.scene):
                     self.scheduler.levels_ready(link.node_id, session.id, tables)
                 self.apply()
@@ -394,12 +391,15 @@ class RenderService(SessionPersistence, ServiceReport):
         """Each node's tiles may take as long as the largest scene a session shows on it takes to
         draw (:meth:`FrameScheduler.node_holds`): a huge scene closed no longer stretches the time
         after which the node counts as silent. Over every node (``links`` None: a session closed or
-        switched scene) the scenes no session shows are forgotten: each mesh step is a scene of its
-        own, and a simulation sends thousands."""
+        switched scene) the scenes no session shows are forgotten, and the MB held of mesh steps no
+        session shows (nodes keep only a group's newest steps): each mesh step is a scene of its own,
+        and a simulation sends thousands."""
         shown = {session.scene for session in self.sessions.values()}
         for link in self.nodes.values() if links is None else links:
             if links is None:
                 link.scene_triangles = {spec: n for spec, n in link.scene_triangles.items() if spec in shown}
+                link.scene_mb = {spec: mb for spec, mb in link.scene_mb.items()
+                                 if spec in shown or not spec.startswith(MESH_PREFIX)}
             self.scheduler.node_holds(link.node_id, max(
                 (n for spec, n in link.scene_triangles.items() if spec in shown), default=0))
 

@@ -59,7 +59,7 @@ class SceneNode:
         """Answer ``message``; the render it was, if one."""
         if message["type"] == "load_scene":
             self.scenes.append(message["scene"])
-            self.ws.send_json({"type": "scene_ready", "scene": message["scene"],
+            self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "scene_mb": 1.0,
                                "triangles": self.triangles.get(message["scene"], 12),
                                "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}]})
         elif message["type"] == "calibrate":
@@ -147,11 +147,14 @@ def test_a_node_may_owe_a_tile_for_the_largest_scene_a_session_shows_on_it_not_o
         node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
         service = client.app.state.service
         (held,) = service.scheduler.nodes.values()
+        (link,) = service.nodes.values()
         assert service.scheduler.table.allowed_s(held, 5.0) == 60.0
+        link.scene_mb["mesh:g:0001"] = 3.0   # a simulation's step the node held, superseded since
         assert client.delete(f"/api/sessions/{session_id}").status_code == 204
         assert held.triangles == 12 and service.scheduler.table.allowed_s(held, 5.0) == 5.0
-        (link,) = service.nodes.values()
         assert set(link.scene_triangles) == {"builtin:spheres"}, "a scene no session shows is forgotten"
+        assert set(link.scene_mb) == {"builtin:spheres", "builtin:cluster"}, \
+            "a mesh step no session shows is forgotten; a library scene the node still holds is not"
 
 
 def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):
