@@ -33,11 +33,9 @@ from server.sessions import Session
 from server.settings import Settings
 from tessera.geometry import Camera
 from tessera.scheduling.scheduler import FrameScheduler
-from tessera.wire.mesh_update import with_header
+from tessera.wire.mesh_update import MESH_PREFIX, is_mesh_spec, mesh_group, with_header
 from tessera.wire.messages import LoadScene, SceneReady
 
-#: Spec prefix of a mesh sent as arrays; the node reads it from memory (:mod:`node.scene.mesh_store`).
-MESH_PREFIX = "mesh:"
 #: What a session showing a mesh is called in ``/api/sessions``.
 MESH_NAME = "mesh"
 #: Longest wait of a step for the one before it to be shown before it is switched in anyway (s).
@@ -139,7 +137,7 @@ class MeshUpdates:
     def restore(self, session_id: str, spec: str, data: bytes) -> None:
         """Session ``session_id`` shows mesh ``spec`` (its message ``data``), as before a restart:
         nodes get its bytes before they load it."""
-        group = spec[len(MESH_PREFIX):].rsplit(":", 1)[0]
+        group = mesh_group(spec)
         self._sessions[session_id] = SessionMeshes(group, MeshStep(spec, data))
 
     def published(self, session_id: str, frame_id: int) -> None:
@@ -155,7 +153,7 @@ class MeshUpdates:
         """A ``load_scene`` of ``spec`` goes to node ``node_id``: a mesh's bytes go first, unless
         the node has them."""
         link = self.service.nodes.get(node_id)
-        if spec is None or not spec.startswith(MESH_PREFIX) or link is None:
+        if not is_mesh_spec(spec) or link is None:
             return
         for state in self._sessions.values():
             if state.step is not None and state.step.spec == spec and node_id not in state.step.sent:
@@ -171,7 +169,7 @@ class MeshUpdates:
         """Node ``node_id`` could not load mesh ``spec``: True when no session shows it (a step
         waiting, which the node then loads when it is switched in, or one passed over: no fault)."""
         sessions = self.service.sessions.values()
-        if spec is None or not spec.startswith(MESH_PREFIX) or any(s.scene == spec for s in sessions):
+        if not is_mesh_spec(spec) or any(s.scene == spec for s in sessions):
             return False
         self._answered(node_id, spec, None)
         return True

@@ -4,13 +4,14 @@ What it owes and its timings live in the scheduler's :class:`tessera.scheduling.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from tessera.scheduling.node_table import NodeSchedule
+from tessera.wire.mesh_update import is_mesh_spec
 from tessera.wire.messages import Message
 from tessera.wire.protocol import NODE_PHASES
 
@@ -55,6 +56,13 @@ class NodeLink:
     @property
     def ready(self) -> bool:
         return self.state == "ready"
+
+    def forget_scenes_not_shown(self, shown: Collection[str]) -> None:
+        """Forget the triangles of the scenes not in ``shown`` and the MB of the mesh steps not in
+        it (a node keeps only a group's newest steps; each step is a scene of its own, and a
+        simulation sends thousands)."""
+        self.scene_triangles = {spec: n for spec, n in self.scene_triangles.items() if spec in shown}
+        self.scene_mb = {spec: mb for spec, mb in self.scene_mb.items() if spec in shown or not is_mesh_spec(spec)}
 
     def send(self, message: Message) -> None:
         """Queue a control message; the connection's writer task sends it in order."""

@@ -28,7 +28,7 @@ import numpy as np
 
 from server.frame_store import FrameStore, PublishedFrame
 from server.local_nodes import LOCAL_NODES_JOIN_S
-from server.mesh_updates import MESH_PREFIX, MeshUpdates
+from server.mesh_updates import MeshUpdates
 from server.metrics import CoordinatorMetrics, ObservedFrameStats
 from server.node_calibration import NodeCalibration
 from server.nodes import NodeLink
@@ -391,15 +391,12 @@ class RenderService(SessionPersistence, ServiceReport):
         """Each node's tiles may take as long as the largest scene a session shows on it takes to
         draw (:meth:`FrameScheduler.node_holds`): a huge scene closed no longer stretches the time
         after which the node counts as silent. Over every node (``links`` None: a session closed or
-        switched scene) the scenes no session shows are forgotten, and the MB held of mesh steps no
-        session shows (nodes keep only a group's newest steps): each mesh step is a scene of its own,
-        and a simulation sends thousands."""
+        switched scene) what it held of scenes no session shows is forgotten
+        (:meth:`NodeLink.forget_scenes_not_shown`)."""
         shown = {session.scene for session in self.sessions.values()}
         for link in self.nodes.values() if links is None else links:
             if links is None:
-                link.scene_triangles = {spec: n for spec, n in link.scene_triangles.items() if spec in shown}
-                link.scene_mb = {spec: mb for spec, mb in link.scene_mb.items()
-                                 if spec in shown or not spec.startswith(MESH_PREFIX)}
+                link.forget_scenes_not_shown(shown)
             self.scheduler.node_holds(link.node_id, max(
                 (n for spec, n in link.scene_triangles.items() if spec in shown), default=0))
 

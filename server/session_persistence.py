@@ -11,13 +11,13 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
-from server.mesh_updates import MESH_PREFIX, MeshUpdates
+from server.mesh_updates import MeshUpdates
 from server.sessions import Session
 from tessera.balancers import create_balancer
 from tessera.decomposition.wall_cells import WallLayout
 from tessera.geometry import Camera
 from tessera.scheduling.frame_jobs import DEFAULT_SESSION
-from tessera.wire.mesh_update import MeshError, mesh_header
+from tessera.wire.mesh_update import MeshError, is_mesh_spec, mesh_header
 
 if TYPE_CHECKING:
     from server.render_jobs import RenderJobs
@@ -98,7 +98,7 @@ class SessionPersistence:
             if camera is not None:
                 self.scheduler.set_camera(camera, time.monotonic())
         else:
-            if str(record["scene"]).startswith(MESH_PREFIX):
+            if is_mesh_spec(str(record["scene"])):
                 self._restore_mesh(str(record["id"]), str(record["scene"]))
             wall = None if record.get("wall") is None else WallLayout.from_json(record["wall"])
             session = Session(self, str(record["id"]), str(record["scene"]), str(record["name"]),

@@ -47,7 +47,7 @@ from node.scene.ingest import open_cached, read_scene
 from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
 from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, group_levels, lod_name, read_lod
 from node.scene.mesh import SceneError
-from node.scene.mesh_store import MeshStore, group_of, is_mesh
+from node.scene.mesh_store import MeshStore
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from node.scene.points import PointCloud
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process, ready_entry
@@ -59,6 +59,7 @@ from tessera.points.budget import DEFAULT_POINT_SIZE
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
 from tessera.tools.picking import PickHit
+from tessera.wire.mesh_update import is_mesh_spec, mesh_group
 from tessera.wire.messages import DepthRequest, LoadScene
 from tessera.wire.pick_messages import Pick
 
@@ -207,7 +208,7 @@ class GLWorker:
         """Read, upload and hold the scene; levels of detail the cache holds already are attached
         before it is answered (its first frame may use them), others built in the background."""
         loop = asyncio.get_running_loop()
-        reader = self._loader if is_mesh(request.scene) or request.scene.startswith(BUILTIN_PREFIX) \
+        reader = self._loader if is_mesh_spec(request.scene) or request.scene.startswith(BUILTIN_PREFIX) \
             else self._file_loader
         scene, entry, unchecked = await loop.run_in_executor(reader, self._read, request, progress, False)
         # An entry found in the cache is checked (its CRCs) in a thread of its own while the GL thread
@@ -318,7 +319,7 @@ class GLWorker:
         The scene, its cache entry (None: read into memory), and whether that entry was found in
         the cache and not checked (``verify`` False: the caller checks it, :meth:`_check`)."""
         spec, share = request.scene, request.share
-        if is_mesh(spec):   # issue 33: from memory, no cache entry
+        if is_mesh_spec(spec):   # issue 33: from memory, no cache entry
             mesh = self.meshes.scene(spec, self.face_limit)
             return (mesh if share is None else keep_share(mesh, share.weights, share.index)), None, False
         source = spec if self.fetcher is None else self.fetcher.source(spec, request.sha256, request.url, progress)
@@ -342,7 +343,7 @@ class GLWorker:
                 progress: ProgressCallback) -> ResidentScene:
         """On the GL thread: upload ``scene`` (not held yet: :meth:`_hold`)."""
         assert self._ctx is not None
-        if is_mesh(key[0]) and not self.meshes.live(key[0]):
+        if is_mesh_spec(key[0]) and not self.meshes.live(key[0]):
             raise SceneError(f"{key[0]}: superseded by a newer mesh while it was read")
         share = request.share
         background = DEFAULT_BACKGROUND if request.background is None else request.background
@@ -362,8 +363,8 @@ class GLWorker:
         """On the GL thread: hold the scene uploaded as ``held``, release the least recently used
         others over budget."""
         key = held.key
-        if is_mesh(key[0]):   # a session's newer mesh: those of its group not kept are drawn no more
-            self._scenes.release(lambda other: is_mesh(other[0]) and group_of(other[0]) == group_of(key[0])
+        if is_mesh_spec(key[0]):   # a session's newer mesh: those of its group not kept are drawn no more
+            self._scenes.release(lambda other: is_mesh_spec(other[0]) and mesh_group(other[0]) == mesh_group(key[0])
                                  and other[0] != key[0] and not self.meshes.live(other[0]))
         for spec, _ in self._scenes.add(held):
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,

@@ -30,10 +30,8 @@ from node.scene.mesh import MeshBatch, SceneError
 from node.scene.normals import normalized
 from node.scene.octree import ChunkSplit, moved_split
 from tessera.scene.graph import SceneObject
-from tessera.wire.mesh_update import MeshError, mesh_header, unpack_mesh
+from tessera.wire.mesh_update import MeshError, is_mesh_spec, mesh_group, mesh_header, unpack_mesh
 
-#: Spec prefix of a mesh sent as arrays.
-MESH_PREFIX = "mesh:"
 #: The one object of a mesh scene.
 MESH_OBJECT = "mesh"
 #: Most groups whose meshes are kept (the oldest is dropped past it: a closed session's).
@@ -41,15 +39,6 @@ MAX_GROUPS = 16
 #: A step keeps the chunks of the step before while their boxes' diagonals, summed over the mesh's
 #: diagonal, stay within this many times those of the last fresh split.
 RESPLIT_SPREAD = 1.5
-
-
-def is_mesh(spec: str | None) -> bool:
-    return spec is not None and spec.startswith(MESH_PREFIX)
-
-
-def group_of(spec: str) -> str:
-    """``mesh:GROUP:STEP`` → ``GROUP``."""
-    return spec[len(MESH_PREFIX):].rsplit(":", 1)[0]
 
 
 def spread(split: ChunkSplit) -> float:
@@ -85,9 +74,9 @@ class MeshStore:
         ``mesh:`` spec (only its header is read here)."""
         header, _ = mesh_header(data)
         spec, keep = header.get("scene"), header.get("keep")
-        if not isinstance(spec, str) or not is_mesh(spec):
+        if not isinstance(spec, str) or not is_mesh_spec(spec):
             raise MeshError(f"a mesh message names its scene mesh:GROUP:STEP, got {spec!r}")
-        group = group_of(spec)
+        group = mesh_group(spec)
         with self._lock:
             held = self._groups.pop(group, {})
             self._groups[group] = {**({keep: held[keep]} if keep in held else {}), spec: data}
@@ -99,13 +88,13 @@ class MeshStore:
     def live(self, spec: str) -> bool:
         """Whether mesh ``spec`` is one its group keeps (else it was superseded, or never came)."""
         with self._lock:
-            return spec in self._groups.get(group_of(spec), {})
+            return spec in self._groups.get(mesh_group(spec), {})
 
     def scene(self, spec: str, face_limit: int) -> SceneData:
         """The scene of mesh ``spec``, split into chunks of at most ``face_limit`` faces. SceneError
         when it never came (or was dropped) or newer ones of its group took its place."""
         with self._lock:
-            held = self._groups.get(group_of(spec))
+            held = self._groups.get(mesh_group(spec))
             data = None if held is None else held.get(spec)
         if data is None:
             raise SceneError(f"{spec}: no such mesh here (meshes sent as arrays are not kept across restarts: "
@@ -120,7 +109,7 @@ class MeshStore:
         batch = MeshBatch(name=MESH_OBJECT, positions=mesh.positions.copy(), normals=normals,
                           faces=mesh.faces.copy(), colors=colors)
         return SceneData.from_batches(spec, [batch], face_limit, [SceneObject(MESH_OBJECT)],
-                                      splitter=lambda batch, limit: self._split(group_of(spec), batch, limit))
+                                      splitter=lambda batch, limit: self._split(mesh_group(spec), batch, limit))
 
     def _split(self, group: str, batch: MeshBatch, face_limit: int) -> ChunkSplit:
         """``batch``'s chunks: the group's last split moved to its vertices when it has the same

@@ -13,11 +13,13 @@ from __future__ import annotations
 import json
 import struct
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
 MESH_MAGIC = b"TMSH"
+#: Spec prefix of a mesh sent as arrays: ``mesh:GROUP:STEP`` (:mod:`server.mesh_updates`).
+MESH_PREFIX = "mesh:"
 _PREFIX = struct.Struct("<4sI")
 #: Longest header (bytes).
 MAX_HEADER_BYTES = 4096
@@ -163,3 +165,13 @@ def unpack_mesh(data: bytes | memoryview, checked: bool = True) -> tuple[dict[st
     if mesh.normals is not None and not np.isfinite(mesh.normals).all():
         raise MeshError("normals must be finite (a NaN or an infinity was found)")
     return header, mesh
+
+
+def is_mesh_spec(spec: str | None) -> TypeGuard[str]:
+    """Whether scene ``spec`` is a mesh sent as arrays."""
+    return spec is not None and spec.startswith(MESH_PREFIX)
+
+
+def mesh_group(spec: str) -> str:
+    """``mesh:GROUP:STEP`` → ``GROUP``."""
+    return spec[len(MESH_PREFIX):].rsplit(":", 1)[0]
