@@ -290,6 +290,18 @@ class FrameDispatch:
             session.loading.add(node_id)
             self._actions.append(LoadScene(node_id, None, session.scene_key))
 
+    def _load_next_free(self, session: SessionFrames) -> None:
+        """:meth:`_load_next` unless a node loads the session's scene now, or a node holding it and
+        its levels of detail draws its first frame (a few hundred ms): the others load once that
+        frame is out (on shared cores a second node's upload took the first node's cores while it
+        drew). A first frame at full detail (no levels yet) is drawn in pieces that the next node
+        takes its share of once it holds the scene: that node loads at once."""
+        if session.loading & self.nodes.keys():
+            return
+        if session.ready & session.levels and session.camera is not None and not session.demand.published_any:
+            return
+        self._load_next(session)
+
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
         for tile_id in tile_ids:
             job.tiles[tile_id].node_id = node.node_id
@@ -328,6 +340,7 @@ class FrameDispatch:
             self._cancel(older, now)
         self.last_published_id = job.frame_id
         first_answer = session.demand.published(job.version)
+        self._load_next_free(session)
         session.stats.record_publish(now, now - job.changed_at if first_answer and not job.still else None)
         self._actions.append(PublishFrame(job))
         session.awaiting_send[job.frame_id] = job

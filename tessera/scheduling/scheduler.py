@@ -286,7 +286,7 @@ class FrameScheduler(FrameDispatch):
             session.ready.add(node.node_id)
             session.loading.discard(node.node_id)
             session.mode.share_loaded(node.node_id, share)
-        self._load_next(session)
+        self._load_next_free(session)
         if session.mode.needs_depth or not (session.demand.shown or session.interactive_in_flight):
             self._changed(session, now, supersede=False)
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
@@ -319,8 +319,8 @@ class FrameScheduler(FrameDispatch):
             session.loading.discard(node_id)
             if node_id in session.loads_waiting:
                 session.loads_waiting.remove(node_id)
-            elif not held and not session.loading & self.nodes.keys():   # it was loading the scene (or had
-                self._load_next(session)                                     # failed to): the next loads it
+            elif not held or not session.ready:   # it was loading the scene (or had failed to, or drew its
+                self._load_next_free(session)       # first frame alone): the next loads it
             if self._repartition(session, now):
                 self._changed(session, now, supersede=False)
                 continue
