@@ -150,8 +150,8 @@ class NodeClient:
     async def _session(self, ws: ClientConnection) -> None:
         work = asyncio.Event()
         outbox: Outbox = asyncio.Queue()
-        self.worker.levels_listener = lambda spec, share, tree, scene: outbox.put_nowait(
-            levels_ready(spec, share, tree, scene))
+        self.worker.levels_listener = lambda spec, share, tree, scene, groups: outbox.put_nowait(
+            levels_ready(spec, share, tree, scene, groups))
         loads: set[asyncio.Task[None]] = set()
 
         def start_load(action: Load) -> None:

@@ -43,9 +43,9 @@ from node.scene.cache import CacheError, open_entry
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
-from node.scene.ingest import open_cached, read_scene
+from node.scene.ingest import kept_group_levels, open_cached, read_scene
 from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
-from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, group_levels, lod_name, read_lod
+from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
 from node.scene.octree import DEFAULT_FACE_LIMIT
@@ -153,8 +153,8 @@ class GLWorker:
         self._levels_building: set[SceneKey] = set()
         self._closing = False   # close() kills the readers: a read they fail then is the stop, not a fault
         #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
-        #: share version (None: whole) and levels.
-        self.levels_listener: Callable[[str, int | None, LodTree, SceneData], None] | None = None
+        #: share version (None: whole), levels, scene and its primitive groups' levels (None: not worked out).
+        self.levels_listener: Callable[[str, int | None, LodTree, SceneData, GroupLevels | None], None] | None = None
         self.read_in_process_bytes = read_in_process_bytes
         self._ctx: moderngl.Context | None = None
         #: The framebuffers and lighting every scene's renderer shares (:class:`node.gl.shared.SharedGL`).
@@ -256,8 +256,9 @@ class GLWorker:
         """In the loader thread: the levels of detail of cache entry ``entry`` (``scene``) and its
         primitive groups' levels when the cache holds them and they pass their check; None
         otherwise (then they are built, or rebuilt, apart)."""
-        found = None if self.cache is None else self.cache.existing(lod_name(entry.name), LOD_FORMAT)
-        if found is None:
+        cache = self.cache
+        found = None if cache is None else cache.existing(lod_name(entry.name), LOD_FORMAT)
+        if cache is None or found is None:
             return None
         try:
             tree = read_lod(found, verify=True)
@@ -265,7 +266,7 @@ class GLWorker:
             return None
         if not tree.node_count:
             return None
-        return tree, group_levels(tree, scene.groups.chunk_starts, scene.chunks.face_counts, scene.chunks.boxes)
+        return tree, kept_group_levels(cache, found, tree, scene)
 
     def _build_levels(self, key: SceneKey) -> None:
         """Start building the levels of detail of the scene held as ``key`` (from its cache entry;
@@ -290,6 +291,11 @@ class GLWorker:
             path = await asyncio.get_running_loop().run_in_executor(
                 self._levels_loader, self._levels_reader.levels, entry, self.cache, lambda fraction, message: None)
             tree = None if path is None else read_lod(path, verify=False)
+            shown = self._scenes.held(key)
+            scene = None if shown is None else shown.renderer.scene
+            groups = None if tree is None or path is None or not isinstance(scene, SceneData) else \
+                await asyncio.get_running_loop().run_in_executor(self._levels_loader, kept_group_levels, self.cache,
+                                                                 path, tree, scene)
         except (SceneError, CacheError) as exc:
             if self._closing:
                 log.info("levels of detail of %s: not built, the node is stopping", key[0])
@@ -302,7 +308,7 @@ class GLWorker:
                 log.info("levels of detail of %s: %d nodes in %.1f s", key[0], tree.node_count,
                          time.perf_counter() - started)
                 if self.levels_listener is not None:
-                    self.levels_listener(key[0], held.share_version, tree, held.renderer.scene)
+                    self.levels_listener(key[0], held.share_version, tree, held.renderer.scene, groups)
 
     def _attach_levels(self, key: SceneKey, tree: LodTree) -> ResidentScene | None:
         """On the GL thread: give the scene held as ``key`` its levels (None: no longer held)."""
