@@ -62,53 +62,66 @@ def test_a_first_frame_in_pieces_has_no_settle_frame_beside_it():
     assert "p" in [a.job.session for a in actions if isinstance(a, PublishFrame)]
 
 
-def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_at_the_levels_is_out():
-    """After a restart node 1 holds the session's scene and its levels of detail and draws its
-    first frame alone; nodes 2 and 3, which joined meanwhile, are told to load it (one after the
-    other) once that frame is published, not while it is drawn (their uploads took its cores); a
-    node that leaves before it drew the frame hands the load on. Without levels (a first frame at
-    full detail, in pieces the next node takes a share of) the next node loads at once."""
-    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
-    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
-    s.set_camera(camera(), 0.0, session_id="p")
-    for node_id in (1, 2, 3):
-        s.add_node(node_id, 0.0)
-    assert [a for a in s.drain() if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
-        LoadScene(1, None, "library/scan.ply")]
-    s.levels_ready(1, session_id="p")
-    s.node_ready(1, 1.0, session_id="p")
-    actions = s.drain()
-    assert not [a for a in actions if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
-    pending = renders(actions)
-    published, now = [], 1.0
-    while pending and not published:
-        now += 0.01
-        more = answer(s, pending.pop(0), now)
-        published = [a for a in more if isinstance(a, PublishFrame) and a.job.session == "p"]
-        if not published:
-            assert not [a for a in more if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
-        pending += renders(more)
-    assert published and [a for a in more if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
-        LoadScene(2, None, "library/scan.ply")]
+def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_is_out():
+    """After a restart node 1 holds the session's scene (with its levels of detail or without) and
+    draws its first frame whole; nodes 2 and 3, which joined meanwhile, are told to load it (one
+    after the other) once that frame is published, not while it is drawn (their uploads took its
+    cores); a node that leaves before it drew the frame hands the load on."""
+    for levels in (True, False):
+        s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+        s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+        s.set_camera(camera(), 0.0, session_id="p")
+        for node_id in (1, 2, 3):
+            s.add_node(node_id, 0.0)
+        assert [a for a in s.drain() if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
+            LoadScene(1, None, "library/scan.ply")]
+        if levels:
+            s.levels_ready(1, session_id="p")
+        s.node_ready(1, 1.0, session_id="p")
+        actions = s.drain()
+        assert not [a for a in actions if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
+        pending = renders(actions)
+        published, now = [], 1.0
+        while pending and not published:
+            now += 0.01
+            more = answer(s, pending.pop(0), now)
+            published = [a for a in more if isinstance(a, PublishFrame) and a.job.session == "p"]
+            if not published:
+                assert not [a for a in more if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
+            pending += renders(more)
+        assert published and [a for a in more if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
+            LoadScene(2, None, "library/scan.ply")]
 
     s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
     s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
     s.set_camera(camera(), 0.0, session_id="p")
     for node_id in (1, 2):
         s.add_node(node_id, 0.0)
-    s.levels_ready(1, session_id="p")
     s.node_ready(1, 1.0, session_id="p")
     assert LoadScene(2, None, "library/scan.ply") not in s.drain()
     s.remove_node(1, 2.0)
     assert LoadScene(2, None, "library/scan.ply") in s.drain()
 
+
+def test_a_first_frame_in_pieces_is_shared_by_the_next_node_to_load_the_scene():
+    """While another session keeps the nodes busy a first frame goes in pieces: the next node loads
+    the scene at once and takes its share of them."""
     s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
-    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
-    s.set_camera(camera(), 0.0, session_id="p")
+    s.add_session("a", CONFIG, StaticBalancer(), "builtin:a", 0.0)
     for node_id in (1, 2):
         s.add_node(node_id, 0.0)
-    s.node_ready(1, 1.0, session_id="p")
-    assert LoadScene(2, None, "library/scan.ply") in s.drain()
+        s.node_ready(node_id, 0.0, session_id="a")
+    s.drain()
+    s.set_camera(camera(), 0.0, session_id="a")
+    queued = {a.node_id: a for a in renders(s.drain())}
+    answer(s, queued[2], 0.005)
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.01)
+    s.set_camera(camera(), 0.01, session_id="p")
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(1, None, "library/scan.ply")]
+    s.node_ready(1, 0.02, session_id="p")
+    actions = s.drain()
+    assert s.sessions["p"].pieces_in_flight
+    assert LoadScene(2, None, "library/scan.ply") in actions
 
 
 def test_no_still_sample_of_another_session_starts_while_a_session_awaits_its_first_frame():

@@ -291,14 +291,15 @@ class FrameDispatch:
             self._actions.append(LoadScene(node_id, None, session.scene_key))
 
     def _load_next_free(self, session: SessionFrames) -> None:
-        """:meth:`_load_next` unless a node loads the session's scene now, or a node holding it and
-        its levels of detail draws its first frame (a few hundred ms): the others load once that
-        frame is out (on shared cores a second node's upload took the first node's cores while it
-        drew). A first frame at full detail (no levels yet) is drawn in pieces that the next node
-        takes its share of once it holds the scene: that node loads at once."""
+        """:meth:`_load_next` unless a node loads the session's scene now, or a node holding it draws
+        its first frame whole: the others load once that frame is out (on shared cores a second
+        node's upload took the first node's cores while it drew). A first frame cut into pieces
+        (:meth:`_pieces`: other sessions keep the nodes busy) is shared by the next node once it
+        holds the scene: that node loads at once."""
         if session.loading & self.nodes.keys():
             return
-        if session.ready & session.levels and session.camera is not None and not session.demand.published_any:
+        if (session.ready and session.camera is not None and not session.demand.published_any
+                and not session.pieces_in_flight):
             return
         self._load_next(session)
 

@@ -286,11 +286,11 @@ class FrameScheduler(FrameDispatch):
             session.ready.add(node.node_id)
             session.loading.discard(node.node_id)
             session.mode.share_loaded(node.node_id, share)
-        self._load_next_free(session)
         if session.mode.needs_depth or not (session.demand.shown or session.interactive_in_flight):
             self._changed(session, now, supersede=False)
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
             self._advance(now)
+        self._load_next_free(session)   # once its frame started: a first frame drawn whole goes out first
 
     def levels_ready(self, node_id: int, session_id: str = DEFAULT_SESSION,
                      group_levels: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
