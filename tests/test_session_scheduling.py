@@ -54,28 +54,33 @@ def test_a_new_session_has_every_node_load_its_scene_and_a_node_joining_loads_ev
     s.node_ready(1, 0.5)
     s.node_ready(1, 0.5, session_id="b")
     s.drain()
-    s.add_node(2, 1.0)
-    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "builtin:cluster"),
-                                                                  LoadScene(2, None, "builtin:spheres")]
+    s.add_node(2, 1.0)   # the coordinator's own scene once the session's is loaded (issue 31)
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "builtin:cluster")]
+    s.node_ready(2, 1.5, session_id="b")
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "builtin:spheres")]
     with pytest.raises(ValueError, match="exists already"):
         s.add_session("b", CONFIG, StaticBalancer(), None, 0.0)
 
 
 def test_nodes_joining_while_one_loads_a_sessions_scene_load_it_after_it_one_by_one():
+    """The coordinator's own scene is loaded by no node while a session's scene loads before its
+    first frame (issue 31: every node reading the built-in scene took the first node's cores)."""
     s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
     s.add_session("big", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
     s.add_node(1, 0.0)   # the session's scene first, the coordinator's own after it
-    assert s.drain() == [LoadScene(1, None, "library/scan.ply"), LoadScene(1, None, "builtin:spheres")]
+    assert s.drain() == [LoadScene(1, None, "library/scan.ply")]
     s.add_node(2, 0.1)
     s.add_node(3, 0.2)
     assert s.drain() == [], "they wait while node 1 loads (on shared cores it is ready sooner alone)"
     s.node_ready(1, 1.0, session_id="big")
-    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "library/scan.ply")]
+    assert {a for a in s.drain() if isinstance(a, LoadScene)} == {LoadScene(2, None, "library/scan.ply"),
+                                                                  LoadScene(1, None, "builtin:spheres")}
     s.node_ready(1, 2.0)
-    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "builtin:spheres")]
+    assert not [a for a in s.drain() if isinstance(a, LoadScene)], "node 2 loads the session's scene first"
     s.remove_node(2, 3.0)                                              # it was loading: the next one loads
-    assert {a for a in s.drain() if isinstance(a, LoadScene)} == {LoadScene(3, None, "library/scan.ply"),
-                                                                  LoadScene(3, None, "builtin:spheres")}
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(3, None, "library/scan.ply")]
+    s.node_ready(3, 4.0, session_id="big")
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(3, None, "builtin:spheres")]
 
 
 def test_a_new_sessions_scene_is_loaded_by_one_node_after_the_other_fastest_first():

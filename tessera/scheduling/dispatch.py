@@ -21,7 +21,7 @@ from tessera.scheduling.actions import (
 )
 from tessera.scheduling.config import SchedulerConfig
 from tessera.scheduling.fair_share import FairShare
-from tessera.scheduling.frame_jobs import FrameJob
+from tessera.scheduling.frame_jobs import DEFAULT_SESSION, FrameJob
 from tessera.scheduling.node_table import NodeSchedule, NodeTable
 from tessera.scheduling.render_demand import STILL
 from tessera.scheduling.session_frames import SessionFrames
@@ -263,8 +263,7 @@ class FrameDispatch:
                 self._load_next(session)
             elif joined is not None:   # after the node loading it, if one is: it gets the cores first
                 session.loads_waiting.append(joined)
-                if not session.loading & self.nodes.keys():
-                    self._load_next(session)
+                self._load_next_free(session)
             return False
         for job in list(session.frames.values()):
             self._cancel(job, now)
@@ -291,9 +290,11 @@ class FrameDispatch:
             self._actions.append(LoadScene(node_id, None, session.scene_key))
 
     def _load_next_free(self, session: SessionFrames) -> None:
-        """:meth:`_load_next` unless a node loads the session's scene now, or a node holding it draws
-        its first frame whole: the others load once that frame is out (on shared cores a second
-        node's upload took the first node's cores while it drew). A first frame cut into pieces
+        """:meth:`_load_next` unless a node loads the session's scene now, a node holding it draws
+        its first frame whole, or (the coordinator's own session) another session awaits its first
+        frame: those loads wait until that frame is out (on shared cores a second node's upload of
+        the scene, or every node's read of the coordinator's built-in scene, took the first node's
+        cores while it loaded and drew a 24.8M-triangle model). A first frame cut into pieces
         (:meth:`_pieces`: other sessions keep the nodes busy) is shared by the next node once it
         holds the scene: that node loads at once."""
         if session.loading & self.nodes.keys():
@@ -301,7 +302,15 @@ class FrameDispatch:
         if (session.ready and session.camera is not None and not session.demand.published_any
                 and not session.pieces_in_flight):
             return
+        if session.id == DEFAULT_SESSION and any(other is not session and other.awaits_first_frame
+                                                 for other in self.sessions.values()):
+            return
         self._load_next(session)
+
+    def _load_waiting(self) -> None:
+        """:meth:`_load_next_free` of every session (a first frame went out, or will not come)."""
+        for session in list(self.sessions.values()):
+            self._load_next_free(session)
 
     def _push(self, job: FrameJob, node: NodeSchedule, tile_ids: list[int], now: float) -> None:
         for tile_id in tile_ids:
@@ -341,7 +350,7 @@ class FrameDispatch:
             self._cancel(older, now)
         self.last_published_id = job.frame_id
         first_answer = session.demand.published(job.version)
-        self._load_next_free(session)
+        self._load_waiting()
         session.stats.record_publish(now, now - job.changed_at if first_answer and not job.still else None)
         self._actions.append(PublishFrame(job))
         session.awaiting_send[job.frame_id] = job

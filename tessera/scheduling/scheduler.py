@@ -187,6 +187,7 @@ class FrameScheduler(FrameDispatch):
             for job in list(session.frames.values()):
                 self._cancel(job, now)
             self.fair.remove(session_id)
+            self._load_waiting()   # the loads that waited for its first frame
         return session
 
     def resize(self, size: tuple[int, int], now: float, session_id: str = DEFAULT_SESSION) -> int:
@@ -290,7 +291,7 @@ class FrameScheduler(FrameDispatch):
             self._changed(session, now, supersede=False)
         else:   # the picture shown is the same with one more node: it draws from the next frame owed on
             self._advance(now)
-        self._load_next_free(session)   # once its frame started: a first frame drawn whole goes out first
+        self._load_waiting()   # once its frame started: a first frame drawn whole goes out first
 
     def levels_ready(self, node_id: int, session_id: str = DEFAULT_SESSION,
                      group_levels: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
@@ -467,3 +468,4 @@ class FrameScheduler(FrameDispatch):
         if session is not None:
             session.loading.discard(node_id)
             self._load_next(session)
+            self._load_waiting()   # others' loads that waited for its first frame, when none will come
