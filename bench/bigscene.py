@@ -79,10 +79,17 @@ def node_peaks(coordinator_pid: int) -> list[dict[str, float]]:
 
 def start(args: argparse.Namespace, mode: str, cache: Path, *extra: str,
           size: tuple[int, int] | None = None) -> tuple[Any, str]:
+    """The coordinator and its local nodes; with ``--logs DIR`` their log (level info: when each
+    node joined, held each scene) goes to a new file there."""
     scene = Path(args.scene).resolve()
     flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(scene.parent), "--mode", mode,
              "--frame-wait-s", "600", "--size", SIZE_TEXT.format(*(size or args.size)), *extra]
-    return start_coordinator(flags, log_level="warning", timeout=120,
+    log_path = None
+    if args.logs is not None:
+        args.logs.mkdir(parents=True, exist_ok=True)
+        log_path = args.logs / f"{mode}-{time.strftime('%H%M%S')}-{len(list(args.logs.iterdir()))}.log"
+    return start_coordinator(flags, log_level="warning" if log_path is None else "info", timeout=120,
+                             log_path=log_path,
                              env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
 
 
@@ -304,6 +311,7 @@ def main(argv: list[str] | None = None) -> int:
                              "already skips the cold run (only warm first frames are measured)")
     parser.add_argument("--warm-runs", type=int, default=1, help="warm first frames measured in turn")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--logs", type=Path, help="keep each run's coordinator and node log (level info) here")
     args = parser.parse_args(argv)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     result = measure(args)
