@@ -302,8 +302,9 @@ class FrameDispatch:
         if (session.ready and session.camera is not None and not session.demand.published_any
                 and not session.pieces_in_flight):
             return
-        if session.id == DEFAULT_SESSION and any(other is not session and other.awaits_first_frame
-                                                 for other in self.sessions.values()):
+        if session.id == DEFAULT_SESSION and any(   # (not a scene switch, a simulation's next step: no starving)
+                other is not session and other.awaits_first_frame and not other.replaced
+                for other in self.sessions.values()):
             return
         self._load_next(session)
 
