@@ -408,3 +408,20 @@ def test_a_new_sessions_first_frame_is_charged_as_the_costliest_others_frame():
     fair.add("p")
     assert fair.started("p", scarcity=3.0) == pytest.approx(270.0)
     assert fair.frame_cost("p") is None and fair.frame_cost("a") == 90.0
+
+
+def test_a_session_switching_scene_does_not_hold_the_coordinators_own_scene_back():
+    """A simulation's session switches scene at every mesh step, each awaiting its first frame: a
+    node joining meanwhile still loads the coordinator's own scene."""
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("sim", CONFIG, StaticBalancer(), "mesh:sim/1", 0.0)
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.5, session_id="sim")
+    s.node_ready(1, 0.5)
+    s.drain()
+    s.replace_session("sim", CONFIG, StaticBalancer(), "mesh:sim/2", 1.0)
+    s.load_now("sim")
+    assert s.sessions["sim"].awaits_first_frame
+    s.drain()
+    s.add_node(2, 1.1)
+    assert LoadScene(2, None, "builtin:spheres") in s.drain()
