@@ -63,10 +63,11 @@ def test_a_first_frame_in_pieces_has_no_settle_frame_beside_it():
 
 
 def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_is_out():
-    """After a restart node 1 holds the session's scene (with its levels of detail or without) and
-    draws its first frame whole; nodes 2 and 3, which joined meanwhile, are told to load it (one
+    """After a restart node 1 holds the session's big scene (with its levels of detail or without)
+    and draws its first frame whole; nodes 2 and 3, which joined meanwhile, are told to load it (one
     after the other) once that frame is published, not while it is drawn (their uploads took its
-    cores); a node that leaves before it drew the frame hands the load on."""
+    cores); a node that leaves before it drew the frame hands the load on. A small scene's next
+    node loads at once."""
     for levels in (True, False):
         s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
         s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
@@ -77,6 +78,7 @@ def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_is_out()
             LoadScene(1, None, "library/scan.ply")]
         if levels:
             s.levels_ready(1, session_id="p")
+        s.node_holds(1, 24_769_300)
         s.node_ready(1, 1.0, session_id="p")
         actions = s.drain()
         assert not [a for a in actions if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
@@ -97,9 +99,19 @@ def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_is_out()
     s.set_camera(camera(), 0.0, session_id="p")
     for node_id in (1, 2):
         s.add_node(node_id, 0.0)
+    s.node_holds(1, 24_769_300)
     s.node_ready(1, 1.0, session_id="p")
     assert LoadScene(2, None, "library/scan.ply") not in s.drain()
     s.remove_node(1, 2.0)
+    assert LoadScene(2, None, "library/scan.ply") in s.drain()
+
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")   # a small scene: at once
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    s.set_camera(camera(), 0.0, session_id="p")
+    for node_id in (1, 2):
+        s.add_node(node_id, 0.0)
+    s.node_holds(1, 990_000)
+    s.node_ready(1, 1.0, session_id="p")
     assert LoadScene(2, None, "library/scan.ply") in s.drain()
 
 
@@ -118,6 +130,7 @@ def test_a_first_frame_in_pieces_is_shared_by_the_next_node_to_load_the_scene():
     s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.01)
     s.set_camera(camera(), 0.01, session_id="p")
     assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(1, None, "library/scan.ply")]
+    s.node_holds(1, 24_769_300)
     s.node_ready(1, 0.02, session_id="p")
     actions = s.drain()
     assert s.sessions["p"].pieces_in_flight

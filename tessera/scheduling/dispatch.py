@@ -41,6 +41,10 @@ STRAGGLER_CHECK_S = 0.1
 PIECE_MS = 40.0
 MAX_PIECES = 8
 FIRST_FRAME_PIECES = 4
+#: A session's first frame drawn whole holds the next node's load of its scene back only when a node
+#: holding it holds this many triangles or more: a big scene's upload takes seconds of the cores the
+#: frame is drawn on; a small one's is quick, and a node may want the next one at once (a tile it failed).
+HOLD_LOADS_TRIANGLES = 1_000_000
 
 
 class FrameDispatch:
@@ -290,17 +294,18 @@ class FrameDispatch:
             self._actions.append(LoadScene(node_id, None, session.scene_key))
 
     def _load_next_free(self, session: SessionFrames) -> None:
-        """:meth:`_load_next` unless a node loads the session's scene now, a node holding it draws
-        its first frame whole, or (the coordinator's own session) another session awaits its first
-        frame: those loads wait until that frame is out (on shared cores a second node's upload of
-        the scene, or every node's read of the coordinator's built-in scene, took the first node's
-        cores while it loaded and drew a 24.8M-triangle model). A first frame cut into pieces
-        (:meth:`_pieces`: other sessions keep the nodes busy) is shared by the next node once it
-        holds the scene: that node loads at once."""
+        """:meth:`_load_next` unless a node loads the session's scene now, a node holding it (a big
+        scene: :data:`HOLD_LOADS_TRIANGLES`) draws its first frame whole, or (the coordinator's own
+        session) another session awaits its first frame: those loads wait until that frame is out
+        (on shared cores a second node's upload of the scene, or every node's read of the
+        coordinator's built-in scene, took the first node's cores while it loaded and drew a
+        24.8M-triangle model). A first frame cut into pieces (:meth:`_pieces`: other sessions keep
+        the nodes busy) is shared by the next node once it holds the scene: that node loads at once."""
         if session.loading & self.nodes.keys():
             return
         if (session.ready and session.camera is not None and not session.demand.published_any
-                and not session.pieces_in_flight):
+                and not session.pieces_in_flight
+                and any(self.nodes[i].triangles >= HOLD_LOADS_TRIANGLES for i in session.ready if i in self.nodes)):
             return
         if session.id == DEFAULT_SESSION and any(   # (not a scene switch, a simulation's next step: no starving)
                 other is not session and other.awaits_first_frame and not other.replaced
