@@ -94,25 +94,21 @@ def test_the_other_nodes_load_a_new_sessions_scene_once_its_first_frame_is_out()
         assert published and [a for a in more if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
             LoadScene(2, None, "library/scan.ply")]
 
-    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
-    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
-    s.set_camera(camera(), 0.0, session_id="p")
-    for node_id in (1, 2):
-        s.add_node(node_id, 0.0)
-    s.node_holds(1, 24_769_300)
-    s.node_ready(1, 1.0, session_id="p")
-    assert LoadScene(2, None, "library/scan.ply") not in s.drain()
+    def first_node_ready(triangles: int) -> tuple[FrameScheduler, list]:
+        s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+        s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+        s.set_camera(camera(), 0.0, session_id="p")
+        for node_id in (1, 2):
+            s.add_node(node_id, 0.0)
+        s.node_holds(1, triangles)
+        s.node_ready(1, 1.0, session_id="p")
+        return s, s.drain()
+
+    s, actions = first_node_ready(24_769_300)
+    assert LoadScene(2, None, "library/scan.ply") not in actions
     s.remove_node(1, 2.0)
     assert LoadScene(2, None, "library/scan.ply") in s.drain()
-
-    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")   # a small scene: at once
-    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
-    s.set_camera(camera(), 0.0, session_id="p")
-    for node_id in (1, 2):
-        s.add_node(node_id, 0.0)
-    s.node_holds(1, 990_000)
-    s.node_ready(1, 1.0, session_id="p")
-    assert LoadScene(2, None, "library/scan.ply") in s.drain()
+    assert LoadScene(2, None, "library/scan.ply") in first_node_ready(990_000)[1], "a small scene: at once"
 
 
 def test_a_first_frame_in_pieces_is_shared_by_the_next_node_to_load_the_scene():
