@@ -14,10 +14,12 @@ next step's). Figures: steps per second pushed, the share of steps that reached 
 each update's time, or the upload's (the GLB written in memory, sent, checked by the coordinator)
 and the switch's.
 The steps start once the coordinator is at rest (its default session's still is done).
-Steps per second: the steps after the first over the time from the first one's start until the
-last one was on screen. Then the camera turns about the last step for ``--turn-s`` seconds: the
-frames per second published meanwhile are the most steps a second could reach on this machine (a
-frame each), and ``of_frame_rate`` the share of it the steps reached.
+Steps per second: the steps shown after the first over the time from the first one on screen (its
+first frame read) to the last one; ``steps_per_s_from_start`` counts from the first step's start
+instead, which adds one step's latency (``latency_s``: from its call to its first frame read). Then
+the camera turns about the last step for ``--turn-s`` seconds: the frames per second published
+meanwhile are the most steps a second could reach on this machine (a frame each), and
+``of_frame_rate`` the share of it the steps reached.
 """
 
 from __future__ import annotations
@@ -59,10 +61,12 @@ def wave(grid: np.ndarray, t: float) -> np.ndarray:
 
 
 class FrameLog:
-    """Frame ids the session publishes, read on a thread of its own until stopped."""
+    """Frame ids the session publishes, and when each was read (monotonic s), on a thread of its own
+    until stopped."""
 
     def __init__(self, session: Any) -> None:
         self.ids: list[int] = []
+        self.times: list[float] = []
         self.error: str | None = None
         self._frames = session.frames(timeout=60.0)
         self.thread = threading.Thread(target=self._read, daemon=True)
@@ -71,6 +75,7 @@ class FrameLog:
     def _read(self) -> None:
         try:
             for frame_id, _ in self._frames:
+                self.times.append(time.monotonic())
                 self.ids.append(frame_id)
         except TesseraError as exc:
             self.error = exc.reason
@@ -112,23 +117,31 @@ def push_steps(tessera: Any, reader: Any, args: argparse.Namespace, via: str, gr
             if time.monotonic() - shown_at > 30.0:
                 break
             time.sleep(0.05)
-        ids, reader_error = sorted(log.ids), log.error
+        read = sorted(zip(log.ids, log.times, strict=False))   # the reader may be a frame ahead in one
+        ids, reader_error = [frame_id for frame_id, _ in read], log.error
         frame_rate = turning_rate(session, log, args.turn_s)
     firsts = [int(s["first"]) for s in steps]
-    shown = 0
+    on_screen_at: list[float] = []   # when each step shown was first on screen (its first frame read)
     for index, first in enumerate(firsts):
         end = firsts[index + 1] if index + 1 < len(firsts) else math.inf
         at = bisect.bisect_left(ids, first)
-        shown += at < len(ids) and ids[at] < end
+        if at < len(ids) and ids[at] < end:
+            on_screen_at.append(read[at][1])
+            steps[index]["latency_s"] = read[at][1] - steps[index]["begin"]
+    shown = len(on_screen_at)
+    on_screen = on_screen_at[-1] - on_screen_at[0] if shown > 1 else 0.0
 
     def quantiles(values: list[float]) -> dict[str, float]:
         ordered = sorted(values)
         return {"p50": statistics.median(ordered), "p90": ordered[min(len(ordered) - 1, int(0.9 * len(ordered)))]}
 
-    times = {key: quantiles([s[key] for s in steps]) for key in ("update_s", "upload_s", "switch_s") if key in steps[0]}
+    times = {key: quantiles([s[key] for s in steps if key in s])
+             for key in ("update_s", "upload_s", "switch_s", "latency_s") if any(key in s for s in steps)}
+    rate = (shown - 1) / on_screen if on_screen > 0 else None
     return {"via": via, "triangles": len(faces), "rate": args.rate, "steps": args.steps, "size": list(args.size),
-            "nodes": args.nodes, "steps_per_s": (args.steps - 1) / elapsed, "frames_per_s_turning": frame_rate,
-            "of_frame_rate": (args.steps - 1) / elapsed / frame_rate if frame_rate else None, "steps_shown": shown,
+            "nodes": args.nodes, "steps_per_s": rate, "steps_per_s_from_start": (args.steps - 1) / elapsed,
+            "frames_per_s_turning": frame_rate,
+            "of_frame_rate": rate / frame_rate if frame_rate and rate else None, "steps_shown": shown,
             "shown_share": shown / len(steps), "frames_seen": len(ids), **times, "reader_error": reader_error}
 
 
@@ -174,13 +187,17 @@ def report(result: dict[str, Any]) -> str:
                  f"p90 {run['update_s']['p90']:.3f} s" if run["via"] == "update" else
                  f"upload (GLB in memory, send, the coordinator's check) p50 {run['upload_s']['p50']:.3f} s, "
                  f"p90 {run['upload_s']['p90']:.3f} s; set_scene p50 {run['switch_s']['p50']:.3f} s")
+        latency = run.get("latency_s")
         lines += [
             f"via {run['via']}: {run['triangles']} triangles a step, asked {run['rate']:g} steps/s, {run['steps']} "
             f"steps, {run['size'][0]}x{run['size'][1]}, {run['nodes']} local nodes",
-            f"  steps/s reached: {run['steps_per_s']:.2f}; steps shown: {run['steps_shown']} of {run['steps']} "
+            f"  steps/s reached: {run['steps_per_s'] or 0:.2f} ({run['steps_per_s_from_start']:.2f} from the first "
+            f"step's start)" + (f"; a step's latency p50 {latency['p50']:.3f} s, p90 {latency['p90']:.3f} s"
+                                if latency else "") + f"; steps shown: {run['steps_shown']} of {run['steps']} "
             f"({100 * run['shown_share']:.0f} %); frames published: {run['frames_seen']}",
             *([f"  frames/s while the camera turns about the last step: {run['frames_per_s_turning']:.2f} "
-               f"(the steps reached {100 * run['of_frame_rate']:.0f} % of it)"] if run["frames_per_s_turning"] else []),
+               f"(the steps reached {100 * (run['of_frame_rate'] or 0):.0f} % of it)"]
+              if run["frames_per_s_turning"] else []),
             f"  {times}"]
     lines.append("load average (1, 5, 15 min) at the end: " + ", ".join(f"{v:.2f}" for v in result["load_average"]))
     return "\n".join(lines)
