@@ -3,7 +3,7 @@ scheduler on a virtual clock, every tile rendered for real.
 
 ``python -m bench.balance --scene PATH --path PATH.json --nodes N --size WxH --balancers a,b,…
 [--speeds s1,s2,…] [--in-flight 2] [--pace free|path] [--repeats 3] [--frames F]
-[--time-per-frame S [--start-time T]] [--json OUT]``
+[--time-per-frame S [--start-time T]] [--json OUT] [--trace OUT]``
 
 Frames are scheduled by the live coordinator's :class:`tessera.scheduling.scheduler.FrameScheduler`, driven on
 a virtual clock by :func:`bench.virtual_cluster.run_path`: at most ``--in-flight`` frames in flight
@@ -44,10 +44,15 @@ culled where they are (:mod:`node.culling.objects`). Without it every frame show
 
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
 ``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms,
-efficiency_pipelined, frame_ms_pipelined, latency_ms, frames_cancelled, t1_ms, speedup,
+efficiency_pipelined, frame_ms_pipelined, latency_ms, efficiency_worst, efficiency_together,
+efficiency_together_worst, efficiency_best, stagger_ms, frames_cancelled, t1_ms, speedup,
 parallel_efficiency}, "meta": {...}}`` over the published frames after the first ``--skip`` (10)
 (:func:`bench.virtual_cluster.summarize`). ``efficiency`` scores each frame alone: its ideal time
-(its work spread by node speed) over its slowest node's busy time on it. ``efficiency_pipelined``
+(its work spread by node speed) over its slowest node's busy time on it; ``efficiency_worst`` is
+its worst frame's. ``efficiency_together``, ``efficiency_best`` and ``stagger_ms`` say where a
+frame's loss goes (:mod:`bench.rotation_loss`): the same tiles pulled in the same order with every
+node starting the frame at once, the best split of those tiles, and how far after the first node
+the others began the frame; ``--trace OUT`` writes each frame's tiles per node. ``efficiency_pipelined``
 is the work done between the last left-out frame's publication and the last but one's, as ideal
 time, over that elapsed time: where a node done with its part of a frame starts on the next, it
 is above ``efficiency``. ``frame_ms_pipelined`` is the mean interval between publications,
@@ -77,6 +82,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.rotation_loss import frame_trace, rotation_loss
 from bench.virtual_cluster import Phases, run_path, summarize
 from node.culling.switch import CullMode
 from tessera.balancers import BALANCERS, create_balancer
@@ -251,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="play the scene's animation along the path: camera i at --start-time + i*S s")
     parser.add_argument("--start-time", type=float, default=0.0, metavar="T", help="scene time of camera 0 (s)")
     parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--trace", type=Path,
+                        help="write every frame here, a JSON line each: per node when it began and ended its tiles "
+                             "of the frame, its busy time and each tile's")
     return parser
 
 
@@ -303,6 +312,8 @@ def ideal_speedup(slowdowns: Iterable[float]) -> float:
 
 #: table columns: JSON key → heading
 TABLE_COLUMNS = {"imbalance_mean": "imbalance_mean", "imbalance_p95": "imbalance_p95", "efficiency": "efficiency",
+                 "efficiency_worst": "eff_worst", "efficiency_together": "eff_together", "efficiency_best": "eff_best",
+                 "stagger_ms": "stagger_ms",
                  "efficiency_pipelined": "efficiency_pipe", "repartitions": "repartitions", "frames": "frames",
                  "frames_cancelled": "cancelled", "frame_ms": "frame_ms", "frame_ms_pipelined": "frame_ms_pipe",
                  "work_ms": "work_ms", "latency_ms": "latency_ms", "t1_ms": "t1_ms", "speedup": "speedup",
@@ -404,14 +415,18 @@ def main(argv: list[str] | None = None) -> int:
                                  renderer_name)), flush=True)
 
     results: dict[str, dict[str, float | int]] = {}
+    traces: list[dict[str, object]] = []
     for name in names:
         balancer_started, renders_before = time.perf_counter(), timer.renders
         records, cluster = run_path(create_balancer(name), timer, cameras, size, slowdowns, weights, args.in_flight,
                                     groups.__getitem__, pace_fps(args.pace, dt_ms))
         summary = summarize(records, args.skip)
         t1_ms = single_node_ms(timer, [r.camera for r in records[args.skip:]])
-        row = results[name] = {**summary, "frames_cancelled": cluster.scheduler.frames_cancelled,
+        row = results[name] = {**summary, **rotation_loss(records, slowdowns, args.skip),
+                               "frames_cancelled": cluster.scheduler.frames_cancelled,
                                **speedup_figures(t1_ms, summary["frame_ms_pipelined"], args.nodes)}
+        if args.trace:
+            traces.extend({"balancer": name, **frame_trace(r)} for r in records)
         print(f"  [{name}] {len(records)} frames in {time.perf_counter() - balancer_started:.1f} s, "
               f"{timer.renders - renders_before} renders (memo {len(timer.cache)} tiles, {timer.hits} hits); "
               f"imbalance_mean {row['imbalance_mean']:.3f}, efficiency {row['efficiency']:.3f}, "
@@ -430,6 +445,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{noise['imbalance_change_mean']:.3f} on average (max {noise['imbalance_change_max']:.3f}); "
               f"median tile change {noise['tile_change_median']:.1%}")
     print(f"{total_s:.1f} s in all, {timer.renders} tile renders")
+    if args.trace:
+        args.trace.parent.mkdir(parents=True, exist_ok=True)
+        args.trace.write_text("".join(json.dumps(t) + "\n" for t in traces))
+        print(f"wrote {args.trace}")
     if args.json:
         meta = {"scene": args.scene, "path": str(args.path), "frames": len(cameras), "dt_ms": dt_ms,
                 "skip": args.skip, "nodes": args.nodes, "size": list(size), "speeds": list(slowdowns.values()),

@@ -58,7 +58,7 @@ class FrameRecord:
     (ms, slowdowns applied), frame time (its slowest node, ms), work (ms at speed 1), ideal frame
     time (work spread by node speed, ms), max/mean imbalance, efficiency = ideal / frame time,
     when it started and was published (ms of virtual time), the latency from its camera's input
-    to publishing (ms), and each tile's (begin, end, speed-1 cost) in ms."""
+    to publishing (ms), each tile's (begin, end, speed-1 cost) in ms and the node that drew it."""
 
     frame_id: int
     camera: int
@@ -73,6 +73,7 @@ class FrameRecord:
     done_ms: float
     latency_ms: float
     spans: tuple[tuple[float, float, float], ...] = ()
+    nodes: tuple[int, ...] = ()
 
 
 @dataclass
@@ -263,8 +264,10 @@ class VirtualCluster:
     def _record(self, job: FrameJob) -> None:
         phases = self._frame_phases[job.frame_id]
         node_ms: dict[int, float] = dict.fromkeys(self.nodes, 0.0)
+        drawn_by: list[int] = []
         for tile in job.tiles:
             assert tile.header is not None and tile.rendered_by is not None
+            drawn_by.append(tile.rendered_by)
             busy = tile.header.render_ms + tile.header.readback_ms + tile.header.encode_ms
             node_ms[tile.rendered_by] = node_ms.get(tile.rendered_by, 0.0) + busy
         work = sum(p.busy_ms for p in phases.values())
@@ -276,7 +279,8 @@ class VirtualCluster:
         self.records.append(FrameRecord(
             job.frame_id, camera, job.partition, node_ms, frame_ms, work, ideal, imbalance(node_ms),
             ideal / frame_ms if frame_ms > 0.0 else 1.0, self._frame_started[job.frame_id], self.now_ms,
-            self.now_ms - self._input_ms[camera], tuple(spans[t.tile_id] for t in job.tiles)))
+            self.now_ms - self._input_ms[camera], tuple(spans[t.tile_id] for t in job.tiles),
+            tuple(drawn_by)))
 
 
 def run_path(balancer, measure: Measure, cameras: Sequence[Camera], size: tuple[int, int],

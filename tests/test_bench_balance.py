@@ -382,16 +382,23 @@ def test_benchmark_runs_end_to_end(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("LP_NUM_THREADS", "0")  # main() sets it; restored after the test
     path = tmp_path / "orbit.json"
     path.write_text(json.dumps(make_path("orbit", load_scene("builtin:spheres").bounds, frames=14)))
-    out = tmp_path / "figures.json"
+    out, trace = tmp_path / "figures.json", tmp_path / "trace.jsonl"
     assert main(["--scene", "builtin:spheres", "--path", str(path), "--nodes", "2", "--size", "160x120",
-                 "--balancers", "adaptive,rotate", "--speeds", "1,2", "--repeats", "1", "--json", str(out)]) == 0
+                 "--balancers", "adaptive,rotate", "--speeds", "1,2", "--repeats", "1", "--json", str(out),
+                 "--trace", str(trace)]) == 0
     figures = json.loads(out.read_text())
+    frames = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert [f["balancer"] for f in frames] == ["adaptive"] * 14 + ["rotate"] * 14
+    assert all(set(f["nodes"]) <= {"1", "2"} and f["nodes"] for f in frames)
     assert set(figures) == {"adaptive", "rotate", "meta"}
     for name in ("adaptive", "rotate"):
         row = figures[name]
         assert {"imbalance_mean", "imbalance_p95", "efficiency", "repartitions", "frames", "frame_ms", "work_ms",
                 "efficiency_pipelined", "frame_ms_pipelined", "latency_ms", "frames_cancelled", "t1_ms", "speedup",
-                "parallel_efficiency"} <= set(row)
+                "parallel_efficiency", "efficiency_worst", "efficiency_together", "efficiency_together_worst",
+                "efficiency_best", "stagger_ms"} <= set(row)
+        assert row["efficiency_worst"] <= row["efficiency"] <= row["efficiency_best"] + 1e-9
+        assert row["efficiency_together"] <= row["efficiency_best"] + 1e-9 and row["stagger_ms"] >= 0.0
         assert row["frames"] == 4 and row["frames_cancelled"] == 0
         assert 1.0 <= row["imbalance_mean"] <= row["imbalance_p95"]
         assert 0.0 < row["efficiency"] <= 1.0001 and 0.0 < row["efficiency_pipelined"] <= 1.0001
