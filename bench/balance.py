@@ -45,16 +45,17 @@ culled where they are (:mod:`node.culling.objects`). Without it every frame show
 Prints a header, a progress line per balancer and a table; ``--json OUT`` writes
 ``{balancer: {imbalance_mean, imbalance_p95, efficiency, repartitions, frames, frame_ms, work_ms,
 efficiency_pipelined, frame_ms_pipelined, latency_ms, efficiency_worst, efficiency_together,
-efficiency_together_worst, efficiency_best, stagger_ms, frames_cancelled, t1_ms, speedup,
-parallel_efficiency}, "meta": {...}}`` over the published frames after the first ``--skip`` (10)
-(:func:`bench.virtual_cluster.summarize`). ``efficiency`` scores each frame alone: its ideal time
-(its work spread by node speed) over its slowest node's busy time on it; ``efficiency_worst`` is
-its worst frame's. ``efficiency_together``, ``efficiency_best`` and ``stagger_ms`` say where a
-frame's loss goes (:mod:`bench.rotation_loss`): the same tiles pulled in the same order with every
-node starting the frame at once, the best split of those tiles, and how far after the first node
-the others began the frame; ``--trace OUT`` writes each frame's tiles per node. ``efficiency_pipelined``
-is the work done between the last left-out frame's publication and the last but one's, as ideal
-time, over that elapsed time: where a node done with its part of a frame starts on the next, it
+efficiency_together_worst, efficiency_sorted, efficiency_best, stagger_ms, frames_cancelled, t1_ms,
+speedup, parallel_efficiency}, "meta": {...}}`` over the published frames after the first
+``--skip`` (10) (:func:`bench.virtual_cluster.summarize`). ``efficiency`` scores each frame alone:
+its ideal time (its work spread by node speed) over its slowest node's busy time on it;
+``efficiency_worst`` is its worst frame's. ``efficiency_together``, ``efficiency_sorted``,
+``efficiency_best`` and ``stagger_ms`` say where a frame's loss goes (:mod:`bench.rotation_loss`):
+the same tiles pulled in the same order with every node starting the frame at once, the same sorted
+by measured cost, the best split of those tiles, and how far after the first node the others began
+the frame; ``--trace OUT`` writes each frame's tiles per node. ``efficiency_pipelined`` is the work
+done between the last left-out frame's publication and the last but one's, as ideal time, over that
+elapsed time: where a node done with its part of a frame starts on the next, it
 is above ``efficiency``. ``frame_ms_pipelined`` is the mean interval between publications,
 ``latency_ms`` the mean time from a camera's input (the moment the frame before started) to its
 frame's publication, ``frames_cancelled`` the frames the scheduler dropped. T1 (``t1_ms``) is one
@@ -312,8 +313,8 @@ def ideal_speedup(slowdowns: Iterable[float]) -> float:
 
 #: table columns: JSON key → heading
 TABLE_COLUMNS = {"imbalance_mean": "imbalance_mean", "imbalance_p95": "imbalance_p95", "efficiency": "efficiency",
-                 "efficiency_worst": "eff_worst", "efficiency_together": "eff_together", "efficiency_best": "eff_best",
-                 "stagger_ms": "stagger_ms",
+                 "efficiency_worst": "eff_worst", "efficiency_together": "eff_together",
+                 "efficiency_sorted": "eff_sorted", "efficiency_best": "eff_best", "stagger_ms": "stagger_ms",
                  "efficiency_pipelined": "efficiency_pipe", "repartitions": "repartitions", "frames": "frames",
                  "frames_cancelled": "cancelled", "frame_ms": "frame_ms", "frame_ms_pipelined": "frame_ms_pipe",
                  "work_ms": "work_ms", "latency_ms": "latency_ms", "t1_ms": "t1_ms", "speedup": "speedup",

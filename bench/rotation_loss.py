@@ -5,15 +5,17 @@ costs, scheduled two ways that no live scheduler can, beside what the frame got.
   estimate), each to the node that frees first, every node starting the frame at once — the
   heaviest-first pull without the stagger with which nodes come to a frame while the one before
   still ends (frames in flight);
+* ``efficiency_sorted``: the same with the tiles sorted by their measured costs, heaviest first —
+  the pull with a perfect estimate and no stagger;
 * ``efficiency_best``: the best split of those tiles among the nodes (the least slowest-node busy
   time over every split, searched heaviest tile first; after :data:`SEARCH_STEPS` steps the best
   found): what no order of pulls can beat with this partition's tiles;
 * ``stagger_ms``: the mean over a frame's nodes of when each began its first tile of it, after the
   first did (ms).
 
-``efficiency`` ≤ ``efficiency_best``; the gap to ``efficiency_together`` is what the stagger and
-the estimate's order cost, the gap from there to ``efficiency_best`` what the rounds' granularity
-does (a node cannot take part of a tile)."""
+``efficiency`` ≤ ``efficiency_best``; the gap to ``efficiency_together`` is what the stagger costs,
+from there to ``efficiency_sorted`` what the estimate's order costs, and the rest what pulling
+whole tiles one after the other does against the best split."""
 
 from __future__ import annotations
 
@@ -69,7 +71,7 @@ def best_split_ms(costs: Sequence[float], slowdowns: Sequence[float], steps: int
 
 
 def frame_loss(record: FrameRecord, slowdowns: Mapping[int, float]) -> dict[str, float]:
-    """One frame's ``efficiency_together``, ``efficiency_best`` and ``stagger_ms`` (module
+    """One frame's ``efficiency_together``, ``efficiency_sorted``, ``efficiency_best`` and ``stagger_ms`` (module
     docstring) from its tiles' spans, nodes and speed-1 costs."""
     speeds = [slowdowns[n] for n in sorted(slowdowns)]
     costs = [cost for _, _, cost in record.spans]
@@ -78,8 +80,10 @@ def frame_loss(record: FrameRecord, slowdowns: Mapping[int, float]) -> dict[str,
         firsts[node] = min(begin, firsts.get(node, begin))
     first = min(firsts.values())
     together = list_scheduled_ms(costs, speeds)
-    best = min(best_split_ms(costs, speeds), together, record.frame_ms)   # a search cut short: splits seen
-    return {"efficiency_together": record.ideal_ms / together, "efficiency_best": record.ideal_ms / best,
+    ordered = list_scheduled_ms(sorted(costs, reverse=True), speeds)
+    best = min(best_split_ms(costs, speeds), together, ordered, record.frame_ms)   # a search cut short: splits seen
+    return {"efficiency_together": record.ideal_ms / together, "efficiency_sorted": record.ideal_ms / ordered,
+            "efficiency_best": record.ideal_ms / best,
             "stagger_ms": float(np.mean([begin - first for begin in firsts.values()]))}
 
 

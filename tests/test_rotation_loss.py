@@ -43,7 +43,7 @@ def test_a_staggered_frame_loses_what_a_common_start_does_not() -> None:
                    {1: 8.0, 2: 4.0})
     assert frame.efficiency == 0.75
     loss = frame_loss(frame, {1: 1.0, 2: 1.0})
-    assert loss == {"efficiency_together": 1.0, "efficiency_best": 1.0, "stagger_ms": 1.0}
+    assert loss == {"efficiency_together": 1.0, "efficiency_sorted": 1.0, "efficiency_best": 1.0, "stagger_ms": 1.0}
     trace = frame_trace(frame)
     assert trace["nodes"] == {"1": {"begin_ms": 0.0, "end_ms": 8.0, "tiles_ms": [4.0, 2.0, 2.0], "busy_ms": 8.0},
                               "2": {"begin_ms": 2.0, "end_ms": 6.0, "tiles_ms": [4.0], "busy_ms": 4.0}}
@@ -73,4 +73,5 @@ def test_the_virtual_cluster_records_who_drew_each_tile() -> None:
     assert [frame_loss(r, {1: 1.0, 2: 1.0})["stagger_ms"] for r in records[1:4]] == [2.0, 0.0, 2.0]
     assert loss["stagger_ms"] == pytest.approx(1.0)
     assert loss["efficiency_best"] == pytest.approx(4.0 / 6.0) == loss["efficiency_together"]
+    assert loss["efficiency_sorted"] == pytest.approx(4.0 / 6.0)
     assert loss["efficiency_worst"] == pytest.approx(4.0 / 6.0)
