@@ -26,7 +26,7 @@ file of your own. Then, in a fresh scene cache folder:
   ``resume_s``, the seconds from the first input after the rest to the first frame that answers
   one; then one camera's moving frame against the still of the same camera (PSNR) and the
   still's seconds; and the peak memory of the coordinator and its nodes together (PSS: the pages
-  they share, the mapped cache, counted once; and their RSS summed).
+  they share, the mapped cache, counted once; their RSS summed; and each process's peak RSS).
 
 Figures depend on what else runs: the table prints the load average beside them.
 """
@@ -168,9 +168,11 @@ def oblique(bounds: list[list[float]], angle: float, path: str = "oblique") -> d
     return {"eye": eye.tolist(), "target": centre.tolist(), "up": direction, "fovy_deg": 50.0}
 
 
-def tree_memory(pid: int) -> tuple[float, float]:
-    """(PSS, RSS) MB of process ``pid`` and its descendants (PSS: shared pages counted once over all)."""
+def tree_memory(pid: int) -> tuple[float, float, dict[int, float]]:
+    """(PSS, RSS, {member: RSS}) MB of process ``pid`` and its descendants (PSS: shared pages counted
+    once over all)."""
     pss = rss = 0
+    each: dict[int, float] = {}
     for member in process_tree(pid):
         try:
             with open(f"/proc/{member}/smaps_rollup") as rollup:
@@ -178,32 +180,39 @@ def tree_memory(pid: int) -> tuple[float, float]:
                     if line.startswith(("Pss:", "Rss:")):
                         kb = int(line.split()[1])
                         pss, rss = (pss + kb, rss) if line.startswith("Pss:") else (pss, rss + kb)
+                        if line.startswith("Rss:"):
+                            each[member] = kb / 1024.0
         except (OSError, ValueError):
             continue
-    return pss / 1024.0, rss / 1024.0
+    return pss / 1024.0, rss / 1024.0, each
 
 
 class MemoryPeak:
-    """The peak PSS and RSS of a process tree, sampled every ``every`` s on a thread until :meth:`stop`."""
+    """The peak PSS and RSS of a process tree, and each member's peak RSS, sampled every ``every`` s
+    on a thread until :meth:`stop`."""
 
     def __init__(self, pid: int, every: float = 0.5) -> None:
         self.pid, self.every = pid, every
         self.pss_mb = self.rss_mb = 0.0
+        self.each_mb: dict[int, float] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
         self._thread.start()
 
     def _sample(self) -> None:
         while True:
-            pss, rss = tree_memory(self.pid)
+            pss, rss, each = tree_memory(self.pid)
             self.pss_mb, self.rss_mb = max(self.pss_mb, pss), max(self.rss_mb, rss)
+            for member, mb in each.items():
+                self.each_mb[member] = max(self.each_mb.get(member, 0.0), mb)
             if self._stop.wait(self.every):
                 return
 
     def stop(self) -> dict[str, float]:
         self._stop.set()
         self._thread.join()
-        return {"peak_pss_mb": round(self.pss_mb), "peak_rss_mb": round(self.rss_mb)}
+        return {"peak_pss_mb": round(self.pss_mb), "peak_rss_mb": round(self.rss_mb),
+                "peak_rss_each_mb": sorted((round(mb) for mb in self.each_mb.values()), reverse=True)}
 
 
 def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tuple[Any, str]:
@@ -373,7 +382,8 @@ def report(result: dict[str, Any]) -> str:
                      f"{run['rest_s']:g} s: first frame in {run['resume_s']} s; worst fps "
                      f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
                      f"dB (still {run['still_s']} s); peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
-                     f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed); load {run['load']}")
+                     f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed; each process's peak RSS "
+                         f"{run['peak_rss_each_mb'][:6]} MB); load {run['load']}")
     return "\n".join(lines)
 
 

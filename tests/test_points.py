@@ -101,6 +101,23 @@ def test_the_root_is_an_even_subsample_and_nodes_hold_their_points(cloud: PointC
             assert (np.abs(points - nodes.centres[node]) <= half * 1.001).all()
 
 
+def test_the_budget_chooses_among_the_usable_nodes_only(cloud: PointCloud) -> None:
+    """A prefix of the hierarchy order (the nodes a render node uploaded first) bounds the choice,
+    which stays closed under parents and within the budget; every node usable is no mask."""
+    tree = cloud.world_tree
+    centre = cloud.bounds.mean(axis=0)
+    camera = Camera(tuple(centre + np.array([-150.0, -150.0, 40.0])), tuple(centre), (0.0, 0.0, 1.0), 50.0)
+    usable = np.arange(tree.node_count) < max(tree.node_count // 4, 2)
+    for budget in (20_000, 60_000, None):
+        chosen = select_nodes(tree, camera, (640, 360), cloud.bounds, budget, usable)
+        assert chosen.any() and not (chosen & ~usable).any()
+        assert budget is None or tree.counts[chosen].sum() <= budget
+        assert chosen[tree.parents[chosen & (tree.parents >= 0)]].all()
+        everything = np.ones(tree.node_count, bool)
+        np.testing.assert_array_equal(select_nodes(tree, camera, (640, 360), cloud.bounds, budget, everything),
+                                      select_nodes(tree, camera, (640, 360), cloud.bounds, budget))
+
+
 def test_the_budget_takes_the_nearest_first_and_keeps_parents(cloud: PointCloud) -> None:
     tree = cloud.world_tree
     centre = cloud.bounds.mean(axis=0)

@@ -118,3 +118,48 @@ def test_pieces_cover_the_commands_in_order_without_cutting_one() -> None:
     first_points = (np.cumsum(counts) - counts)[starts[:-1]]
     assert (np.diff(first_points // point_renderer.PIECE_POINTS) > 0).all(), "each piece in a block of its own"
     assert point_renderer.draw_pieces(np.array([5])).tolist() == [0, 1]
+
+
+def test_a_cloud_uploaded_in_steps_draws_the_nodes_it_holds_then_as_if_uploaded_at_once(
+        ctx: moderngl.Context, cloud_renderer: PointRenderer) -> None:
+    """Given its first 20 000 points (the coarse levels), a renderer draws a budget's frame from the
+    nodes wholly among them; once the rest came in steps, the frame uploaded at once, bit for bit."""
+    cloud, size = cloud_renderer.scene, (160, 96)
+    camera = oblique(cloud.bounds)
+    partial = PointRenderer(ctx, cloud, first_points=20_000)
+    try:
+        assert not partial.complete and partial.uploaded == 20_000
+        early = partial.render_frame(camera, size, point_budget=40_000)
+        chosen = partial.choose(camera, size, 40_000)
+        assert chosen.any() and (cloud.nodes.first[1:][chosen] <= 20_000).all()
+        assert 0 < early.points <= 20_000
+        steps = 1
+        while not partial.upload_step(50_000):
+            steps += 1
+        assert steps == -(-(cloud.point_count - 20_000) // 50_000) and partial.uploaded == cloud.point_count
+        np.testing.assert_array_equal(partial.render_frame(camera, size, point_budget=40_000).pixels,
+                                      cloud_renderer.render_frame(camera, size, point_budget=40_000).pixels)
+    finally:
+        partial.release()
+
+
+def test_a_still_sample_uploads_every_point_first_and_stops_between_steps(
+        ctx: moderngl.Context, cloud_renderer: PointRenderer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A still's tile (no budget) of a cloud not all uploaded copies the rest first, a step at a
+    time, and is given up between two steps once ``stop`` says so; drawn, it is the tile of the
+    cloud uploaded at once."""
+    monkeypatch.setattr(point_renderer, "UPLOAD_STEP_POINTS", 30_000)
+    cloud, size, rect = cloud_renderer.scene, (160, 96), Rect(40, 10, 90, 70)
+    camera = oblique(cloud.bounds)
+    partial = PointRenderer(ctx, cloud, first_points=10_000)
+    try:
+        with pytest.raises(point_renderer.DrawStopped):
+            partial.render_tile(camera, size, rect, stop=lambda: True)
+        assert partial.uploaded == 40_000, "one step, then stopped"
+        tile = partial.render_tile(camera, size, rect)
+        assert partial.complete
+        expected = cloud_renderer.render_tile(camera, size, rect)
+        assert tile.points == expected.points
+        np.testing.assert_array_equal(tile.pixels, expected.pixels)
+    finally:
+        partial.release()

@@ -1,11 +1,13 @@
 """A render node gives up a point cloud's tile when its frame is cancelled (issue 36): a still's
 sample of every point in view stops between two pieces of its draw and is answered with
-``tiles_dropped``, and the next frame's tile is drawn at once."""
+``tiles_dropped``, and the next frame's tile is drawn at once. A node holds a cloud (and draws it)
+once its coarse levels are on the GL side; the rest follows between tiles."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +15,12 @@ import pytest
 from websockets.asyncio.server import serve
 
 from node.client import NodeClient
-from node.gl import point_renderer
+from node.gl import point_renderer, worker
+from node.gl.point_renderer import PointRenderer
+from node.gl.worker import GLWorker
 from node.settings import NodeSettings
+from tessera.geometry import Camera, Rect
+from tessera.wire.messages import LoadScene
 from tessera.wire.protocol import unpack_tile
 from tests.conftest import seconds
 from tests.test_node_client import FakeCoordinator, receive, receive_json, send
@@ -90,3 +96,43 @@ def test_a_cancelled_still_sample_is_given_up_between_pieces(tmp_path: Path, mon
     assert kinds.index((2, "tiles_dropped")) < kinds.index((3, "tile")), kinds
     assert next(m for m in after if isinstance(m, dict) and m["type"] == "tiles_dropped")["tiles"] == [0]
     assert dropped == 1
+
+
+def test_a_cloud_is_held_once_its_coarse_levels_are_uploaded_and_the_rest_follows(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The GL worker answers a cloud's load with its first 50 000 points uploaded; the other steps
+    (held back here until the test lets them go) follow on the GL thread, between tiles."""
+    monkeypatch.setattr(worker, "FIRST_UPLOAD_POINTS", 50_000)
+    monkeypatch.setattr(point_renderer, "UPLOAD_STEP_POINTS", 100_000)
+    gate = threading.Event()
+    step = PointRenderer.upload_step
+
+    def gated(renderer: PointRenderer, points: int | None = None) -> bool:
+        assert gate.wait(seconds(60))
+        return step(renderer, points)
+
+    monkeypatch.setattr(PointRenderer, "upload_step", gated)
+    spec = str(write_points(tmp_path / "cloud.ply"))
+    camera = Camera(tuple(CAMERA["eye"]), tuple(CAMERA["target"]), (0.0, 0.0, 1.0), 50.0)
+
+    async def run() -> tuple[int, int, int, bool]:
+        gl = GLWorker()
+        await gl.start()
+        try:
+            loaded = await gl.load(LoadScene(scene=spec), lambda fraction, message: None)
+            held = loaded.scene.point_count
+            renderer = gl._scenes.find(spec).renderer
+            assert isinstance(renderer, PointRenderer)
+            uploaded = renderer.uploaded
+            gate.set()
+            tile = await gl.render(camera, (64, 48), Rect(0, 0, 64, 48), 0, points=(POINTS, None))
+            while gl._uploads:
+                await asyncio.sleep(0.01)
+            return held, uploaded, tile.points, renderer.complete
+        finally:
+            gate.set()
+            await asyncio.to_thread(gl.close)
+
+    held, uploaded, points, complete = asyncio.run(run())
+    assert (held, uploaded) == (POINTS, 50_000), "held with its first points on the GL side"
+    assert points > 0 and complete, "drawn, then the rest uploaded"

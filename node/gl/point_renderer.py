@@ -57,6 +57,11 @@ from tessera.wire.messages import MAX_POINT_SIZE
 MAX_SPLAT_PX = MAX_POINT_SIZE
 #: Points copied to the GL at a time.
 UPLOAD_POINTS = 1 << 19
+#: Points a node copies to the GL before it draws (the GL worker's ``first_points``): the coarse
+#: levels, 64 MB; the rest follows between tiles (:meth:`PointRenderer.upload_step`).
+FIRST_UPLOAD_POINTS = 4_000_000
+#: Points copied by one :meth:`PointRenderer.upload_step`: 32 MB, 20-60 ms of CPU on llvmpipe.
+UPLOAD_STEP_POINTS = 1 << 21
 #: Points drawn between two looks at a draw's ``stop``: 20-40 ms of CPU on llvmpipe (0.2-0.35 µs a point).
 PIECE_POINTS = 100_000
 
@@ -118,12 +123,14 @@ def draw_pieces(counts: np.ndarray) -> np.ndarray:
 
 class PointRenderer:
     """Draws tiles of ``cloud`` on ``ctx`` (the thread that owns it only) over ``background``,
-    splats at least ``point_size`` pixels. Raises SceneError below GL 4.3."""
+    splats at least ``point_size`` pixels. ``first_points``: the points copied to the GL at once
+    (None: all); the others follow by :meth:`upload_step`, and until they are there a frame chooses
+    among the nodes that are (a still's sample copies them all first). Raises SceneError below GL 4.3."""
 
     lod = None
 
     def __init__(self, ctx: moderngl.Context, cloud: PointCloud, background: Sequence[float] = DEFAULT_BACKGROUND,
-                 point_size: float = DEFAULT_POINT_SIZE) -> None:
+                 point_size: float = DEFAULT_POINT_SIZE, first_points: int | None = None) -> None:
         if ctx.version_code < 430:
             raise SceneError(f"{cloud.name}: point clouds need GL 4.3 (multi-draw-indirect), this GL is "
                              f"{ctx.version_code}")
@@ -133,12 +140,9 @@ class PointRenderer:
         count, nodes = cloud.point_count, cloud.nodes
         self.positions = ctx.buffer(reserve=max(count * 12, 12))
         self.colors = ctx.buffer(reserve=max(count * 4, 4))
-        for first in range(0, count, UPLOAD_POINTS):
-            end = min(first + UPLOAD_POINTS, count)
-            self.positions.write(np.ascontiguousarray(cloud.positions[first:end], np.float32), offset=first * 12)
-            self.colors.write(np.ascontiguousarray(cloud.colors[first:end], np.uint8), offset=first * 4)
-            release_pages(cloud.positions, first, end)
-            release_pages(cloud.colors, first, end)
+        self.uploaded = 0
+        self._usable: np.ndarray | None = np.zeros(nodes.count, bool)
+        self._upload_to(count if first_points is None else min(first_points, count))
         self.node_info = ctx.buffer(reserve=max(nodes.count * 20, 20))
         self._node_rows = np.zeros(nodes.count, [("cell", np.float32, 3), ("depth", np.float32), ("refine", np.uint32)])
         self._node_rows["cell"] = nodes.centres
@@ -181,12 +185,53 @@ class PointRenderer:
     def pose_of(self, state: Any) -> None:
         return None
 
-    def choose(self, camera: Camera, size: tuple[int, int], budget: int | None) -> np.ndarray:
-        """(M,) bool the frame's nodes within ``budget`` (None: all in view), their refinement
-        written to the node buffer; the last frame's kept for its other tiles."""
-        key = (camera, size, budget)
+    @property
+    def complete(self) -> bool:
+        """Whether every point is on the GL side."""
+        return self._usable is None
+
+    def _upload_to(self, end: int) -> None:
+        """Copy points up to ``end`` to the GL (the mapped pages handed back), the nodes whose
+        points all arrived made usable."""
+        cloud = self.scene
+        for first in range(self.uploaded, end, UPLOAD_POINTS):
+            last = min(first + UPLOAD_POINTS, end)
+            self.positions.write(np.ascontiguousarray(cloud.positions[first:last], np.float32), offset=first * 12)
+            self.colors.write(np.ascontiguousarray(cloud.colors[first:last], np.uint8), offset=first * 4)
+            release_pages(cloud.positions, first, last)
+            release_pages(cloud.colors, first, last)
+        self.uploaded = max(self.uploaded, end)
+        if self.uploaded >= cloud.point_count:
+            self._usable = None
+        else:
+            self._usable = cloud.nodes.first[1:] <= self.uploaded
+
+    def upload_step(self, points: int | None = None) -> bool:
+        """Copy the next ``points`` points (None: :data:`UPLOAD_STEP_POINTS`) to the GL (nodes are in
+        hierarchy order: the coarse levels went first); whether every point is there now."""
+        step = UPLOAD_STEP_POINTS if points is None else points
+        self._upload_to(min(self.uploaded + step, self.scene.point_count))
+        return self.complete
+
+    def upload_all(self, stop: Callable[[], bool] | None = None) -> None:
+        """Copy the points not on the GL side yet, a step at a time; DrawStopped once ``stop()`` is
+        true between two steps."""
+        while not self.upload_step():
+            if stop is not None and stop():
+                raise DrawStopped(f"stopped uploading at point {self.uploaded} of {self.scene.point_count}")
+
+    def choose(self, camera: Camera, size: tuple[int, int], budget: int | None,
+               stop: Callable[[], bool] | None = None) -> np.ndarray:
+        """(M,) bool the frame's nodes within ``budget`` (None: all in view, every point uploaded
+        first, :meth:`upload_all` with ``stop``) among the nodes on the GL side, their refinement
+        written to the node buffer; the last frame's kept for its other tiles while no more nodes
+        arrived."""
+        if budget is None and not self.complete:
+            self.upload_all(stop)
+        usable = self._usable
+        key = (camera, size, budget, None if usable is None else self.uploaded)
         if key != self._frame_key:
-            self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget)
+            self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget, usable)
             self._node_rows["refine"] = refinement(self._world_tree, self._chosen)
             self.node_info.write(self._node_rows.tobytes())
             self._frame_key = key
@@ -255,7 +300,7 @@ class PointRenderer:
         renderer's and change nothing here."""
         validate_rect(rect, size)
         started = time.perf_counter()
-        chosen = self.choose(camera, size, point_budget)
+        chosen = self.choose(camera, size, point_budget, stop)
         drawn = guarded_rect(rect, size)
         color, depth, points = self._draw(camera, size, drawn, chosen, subsample, stop)
         rendered = time.perf_counter()
@@ -272,7 +317,7 @@ class PointRenderer:
         that this share holds, unshaded, with depth, over the rect they can cover; None when none
         is on screen; ``stop`` as :meth:`render_tile`'s."""
         started = time.perf_counter()
-        chosen = self.choose(camera, size, point_budget)
+        chosen = self.choose(camera, size, point_budget, stop)
         ids = np.flatnonzero(chosen[self._chunk_node])
         boxes = self._chunk_boxes[ids] + self.scene.centre
         bounds = project_boxes(boxes.reshape(-1, 6), camera, size, self.scene.bounds)

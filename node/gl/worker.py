@@ -33,7 +33,7 @@ import moderngl
 from node.culling.switch import CullMode
 from node.gl.context import create_gl_context, renderer_string
 from node.gl.depth_layers import PlanningScene, as_depth_layer, live_plan, render_plan
-from node.gl.point_renderer import PointRenderer
+from node.gl.point_renderer import FIRST_UPLOAD_POINTS, PointRenderer
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_bytes, scene_key
 from node.gl.shading import ShadingOptions
@@ -151,6 +151,7 @@ class GLWorker:
         self._levels_reader = SceneReaderProcess()
         self._levels_tasks: set[asyncio.Task[None]] = set()
         self._levels_building: set[SceneKey] = set()
+        self._uploads: set[asyncio.Task[None]] = set()
         self._closing = False   # close() kills the readers: a read they fail then is the stop, not a fault
         #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
         #: share version (None: whole), levels, scene and its primitive groups' levels (None: not worked out).
@@ -229,6 +230,10 @@ class GLWorker:
                         if entry is not None and isinstance(scene, SceneData) else None
                 made = await self._call(self._upload, key, request, scene, entry, progress)
             loaded: LoadedScene = await self._call(self._hold, made)
+            if isinstance(made.renderer, PointRenderer) and not made.renderer.complete:
+                task = loop.create_task(self._upload_rest(key, made.renderer))
+                self._uploads.add(task)
+                task.add_done_callback(self._uploads.discard)
         except BaseException:
             for pending in (check, levels):
                 if pending is not None:
@@ -243,6 +248,27 @@ class GLWorker:
                 loaded = dataclasses.replace(loaded, nbytes=held.nbytes, held_bytes=self._scenes.total_bytes,
                                              levels=found[0], group_levels=found[1])
         return loaded
+
+    async def _upload_rest(self, key: SceneKey, renderer: PointRenderer) -> None:
+        """Copy the points of the cloud held as ``key`` not on the GL side yet, a step at a time,
+        each a call of its own on the GL thread (tiles are drawn between two); until the scene is
+        released or the worker closes."""
+        started = time.perf_counter()
+        try:
+            while not self._closing and await self._call(self._upload_step, key, renderer):
+                pass
+        except RuntimeError:   # the GL thread stopped (close)
+            if not self._closing:
+                raise
+        if renderer.complete:
+            log.info("%s: %d points on the GL side %.1f s after its first frame could be drawn", key[0],
+                     renderer.scene.point_count, time.perf_counter() - started)
+
+    def _upload_step(self, key: SceneKey, renderer: PointRenderer) -> bool:
+        """On the GL thread: the next step of ``renderer``'s upload; whether more is to come (False
+        also when the scene held as ``key`` is no longer that renderer's)."""
+        held = self._scenes.held(key)
+        return held is not None and held.renderer is renderer and not renderer.upload_step()
 
     def _check(self, entry: Path, name: str) -> bool:
         """In the checking thread: whether every array of cache entry ``entry`` passes its CRCs."""
@@ -356,7 +382,8 @@ class GLWorker:
         renderer: TileRenderer | PointRenderer
         if isinstance(scene, PointCloud):
             progress(0.9, f"uploading {scene.point_count} points in {scene.nodes.count} octree nodes")
-            renderer, planning = PointRenderer(self._ctx, scene, background), None
+            renderer = PointRenderer(self._ctx, scene, background, first_points=FIRST_UPLOAD_POINTS)
+            planning = None
         else:
             progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")
             renderer = TileRenderer(self._ctx, scene, background, culling=self.culling, packed=scene.geometry,

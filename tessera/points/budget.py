@@ -93,10 +93,14 @@ def in_view(tree: PointTree, camera: Camera, size: tuple[int, int], bounds: np.n
 
 
 def select_nodes(tree: PointTree, camera: Camera, size: tuple[int, int], bounds: np.ndarray,
-                 budget: int | None) -> np.ndarray:
+                 budget: int | None, usable: np.ndarray | None = None) -> np.ndarray:
     """(M,) bool: the nodes a ``size`` frame seen by ``camera`` draws within ``budget`` points (None:
-    every node in view), for a scene of ``bounds`` (2, 3) (near/far as every process derives them)."""
+    every node in view), for a scene of ``bounds`` (2, 3) (near/far as every process derives them),
+    among the ``usable`` ones (M,) bool (None: all; closed under parents, as a prefix of the
+    hierarchy order is: a node still uploading is left out with its subtree)."""
     seen = in_view(tree, camera, size, bounds)
+    if usable is not None:
+        seen &= usable
     if budget is None:
         return seen
     priority = priorities(tree, camera, size)
