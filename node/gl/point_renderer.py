@@ -19,6 +19,11 @@
 - **Eye-dome lighting** (:mod:`tessera.compositing.eye_dome`): a tile is drawn with a guard band of
   one pixel, read back with its depth, shaded and cropped: tiles equal the whole frame, bit for bit.
   Sort-last layers are read back unshaded; the coordinator shades the merged frame.
+- **Upload**: the GL worker copies a cloud's first :data:`FIRST_UPLOAD_POINTS` points (its coarse
+  levels: nodes are stored in hierarchy order) and holds it; the rest follows a step at a time
+  between tiles (:meth:`PointRenderer.upload_step`). Until then a frame chooses among the nodes wholly
+  uploaded (for those seconds a node's tiles may choose less than another's); a still's sample
+  copies the rest first.
 - The still draws every node (no budget); its samples are jittered and accumulated as the mesh
   renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`). A tile given a ``stop``
   is drawn in pieces of :data:`PIECE_POINTS` (the same runs in the same order: the same pixels) and

@@ -10,7 +10,9 @@ into chunks, packed, written; a sort-last share written as an entry of its own,
 back tiles of the scenes already held: a loader thread fetches and opens it (a file in a thread of
 its own, so that a built-in scene never waits behind one), a large file ingested
 in a child process of lower CPU priority (:mod:`node.scene.read_process`: a thread would hold the
-GIL the GL thread needs). Only its upload runs on the GL thread, between two tiles.
+GIL the GL thread needs). Only its upload runs on the GL thread, between two tiles; a point cloud
+is held once its coarse levels are uploaded, the rest copied a step at a time between tiles
+(:data:`node.gl.point_renderer.FIRST_UPLOAD_POINTS`).
 
 A scene (or share) whose GPU buffers exceed the memory budget is refused with the reason, naming
 sort-last as the mode that serves it (its buffers are all host memory on llvmpipe).
