@@ -1,7 +1,8 @@
 """A render node gives up a point cloud's tile when its frame is cancelled (issue 36): a still's
 sample of every point in view stops between two pieces of its draw and is answered with
 ``tiles_dropped``, and the next frame's tile is drawn at once. A node holds a cloud (and draws it)
-once its coarse levels are on the GL side; the rest follows between tiles."""
+once its coarse levels are on the GL side; the rest follows between tiles. A cloud's entry in the
+cache is opened by the node itself, checked beside the upload (rebuilt when it fails)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,9 @@ from node.client import NodeClient
 from node.gl import point_renderer, worker
 from node.gl.point_renderer import PointRenderer
 from node.gl.worker import GLWorker
+from node.scene.cache_folder import CacheFolder
+from node.scene.ingest import read_scene
+from node.scene.read_process import ready_entry
 from node.settings import NodeSettings
 from tessera.geometry import Camera, Rect
 from tessera.wire.messages import LoadScene
@@ -136,3 +140,38 @@ def test_a_cloud_is_held_once_its_coarse_levels_are_uploaded_and_the_rest_follow
     held, uploaded, points, complete = asyncio.run(run())
     assert (held, uploaded) == (POINTS, 50_000), "held with its first points on the GL side"
     assert points > 0 and complete, "drawn, then the rest uploaded"
+
+
+def test_a_cloud_in_the_cache_is_opened_by_the_node_and_a_corrupt_one_built_again(tmp_path: Path) -> None:
+    """After a restart (the digest remembered, the entry there) a node opens a cloud's entry itself,
+    no reader process started, its CRCs checked beside the upload; an entry whose bytes changed is
+    built again before it is held, and drawn as the file is."""
+    spec = str(write_points(tmp_path / "cloud.ply"))
+    folder = CacheFolder(tmp_path / "cache")
+    assert ready_entry(spec, 4096, None, folder) is None, "nothing built yet"
+    entry = read_scene(spec, spec, 4096, None, lambda fraction, message: None, folder)
+    assert ready_entry(spec, 4096, None, folder) == entry
+    camera = Camera(tuple(CAMERA["eye"]), tuple(CAMERA["target"]), (0.0, 0.0, 1.0), 50.0)
+
+    async def drawn() -> tuple[np.ndarray, list[str]]:
+        messages: list[str] = []
+        gl = GLWorker(cache=folder)
+        await gl.start()
+        try:
+            await gl.load(LoadScene(scene=spec), lambda fraction, message: messages.append(message))
+            tile = await gl.render(camera, (64, 48), Rect(0, 0, 64, 48), 0, points=(None, None))
+            return tile.pixels, messages
+        finally:
+            await asyncio.to_thread(gl.close)
+
+    clean, messages = asyncio.run(drawn())
+    assert not any(m.startswith("reading") for m in messages), messages
+    positions = np.load(entry / "positions.npy", mmap_mode="r+")
+    positions[::50, 0] += 30.0
+    positions.flush()
+    del positions
+    assert ready_entry(spec, 4096, None, folder) is None, "the entry fails its check"
+    again, messages = asyncio.run(drawn())
+    assert any(m.startswith("reading") for m in messages), "the entry was built again"
+    assert ready_entry(spec, 4096, None, folder) == entry
+    np.testing.assert_array_equal(again, clean)

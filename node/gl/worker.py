@@ -51,6 +51,7 @@ from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
 from node.scene.octree import DEFAULT_FACE_LIMIT
+from node.scene.point_cache import is_points_entry, open_points_entry
 from node.scene.points import PointCloud
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process, ready_entry
 from node.scene.shares import keep_share
@@ -273,9 +274,10 @@ class GLWorker:
         return held is not None and held.renderer is renderer and not renderer.upload_step()
 
     def _check(self, entry: Path, name: str) -> bool:
-        """In the checking thread: whether every array of cache entry ``entry`` passes its CRCs."""
+        """In the checking thread: whether every array of cache entry ``entry`` (a mesh's or a point
+        cloud's) passes its CRCs."""
         try:
-            open_entry(entry, name, verify=True)
+            (open_points_entry if is_points_entry(entry) else open_entry)(entry, name, verify=True)
         except CacheError:
             return False
         return True

@@ -25,12 +25,14 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from node.scene.cache import CacheError, open_entry
+from node.scene.cache import CACHE_FORMAT, CacheError, open_entry
 from node.scene.cache_folder import CacheFolder, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.ingest import cached_levels, read_scene
 from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
 from node.scene.mesh import SceneError
+from node.scene.point_cache import POINTS_ENTRY_FORMAT, open_points_entry, points_entry_name
+from node.scene.point_files import is_point_file
 from tessera.wire.messages import ShareSpec
 
 #: Files at least this large (bytes) are read in the child process.
@@ -41,7 +43,8 @@ READER_NICE = 10
 
 def ready_entry(source: str, face_limit: int, share: ShareSpec | None, folder: CacheFolder | None,
                 sha256: str | None = None, verify: bool = True) -> Path | None:
-    """The scene cache entry of the file ``source`` (its ``share`` only, when given), checked, when
+    """The scene cache entry of the file ``source`` (a mesh's, or a point cloud's: issue 36; its
+    ``share`` only, when given), checked, when
     ``folder`` holds it already and the file's digest is known without reading the file (``sha256``,
     or remembered); None otherwise: then :func:`node.scene.ingest.read_scene` builds it (or removes
     and rebuilds one that fails the check) in the reader process. After a restart this opens a
@@ -53,12 +56,14 @@ def ready_entry(source: str, face_limit: int, share: ShareSpec | None, folder: C
     digest = sha256 or folder.known_hash(Path(source))
     if digest is None:
         return None
-    whole = entry_name(digest, face_limit)
-    entry = folder.existing(whole if share is None else share_name(whole, share.weights, share.index))
+    points = is_point_file(Path(source))
+    whole = points_entry_name(digest) if points else entry_name(digest, face_limit)
+    entry = folder.existing(whole if share is None else share_name(whole, share.weights, share.index),
+                            POINTS_ENTRY_FORMAT if points else CACHE_FORMAT)
     if entry is None:
         return None
     try:
-        open_entry(entry, Path(source).name, verify=verify)
+        (open_points_entry if points else open_entry)(entry, Path(source).name, verify=verify)
     except CacheError:
         return None
     return entry
