@@ -9,6 +9,7 @@ balancers' predictions follow the triangles the levels draw."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -22,7 +23,7 @@ from node.culling.switch import CullMode, SwitchParams
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
-from node.scene.lod import PART_FACES, LodTree, build_lod, group_levels
+from node.scene.lod import PART_FACES, LodTree, _weld, build_lod, closed_surface, group_levels
 from node.scene.mesh import MeshBatch
 from tessera.balancers.projection import level_counts
 from tessera.geometry import Camera, Rect, default_camera, view_projection
@@ -376,3 +377,48 @@ def test_a_groups_error_counts_the_normals_it_turns():
     level_one = tree.group_level == 1
     assert np.all(tree.group_error[level_one] > 100.0 * max(float(flat.group_error.max()), 1e-7)), \
         (tree.group_error[level_one], flat.group_error.max())
+
+
+def test_a_closed_solid_is_marked_and_an_open_or_inverted_one_is_not(dragon):
+    scene, tree = dragon
+    assert tree.batch_closed.tolist() == [True], "the dragon scan bounds a solid"
+    (batch,) = scene.batches
+    positions = np.asarray(batch.positions, np.float32)
+    faces = np.asarray(batch.faces).reshape(-1, 3)
+    weld = _weld(positions)[0]
+    assert closed_surface(faces, weld, positions)
+    assert not closed_surface(faces[:, ::-1], weld, positions), "facing inwards"
+    assert not closed_surface(np.delete(faces, 1000, axis=0), weld, positions), "a hole"
+    assert build_lod(grid_plane(200), lambda fraction, message: None).batch_closed.tolist() == [False], "a sheet"
+
+
+@pytest.mark.gl
+def test_a_moving_frame_leaves_out_the_back_faces_of_closed_solids_only(ctx, dragon):
+    """A sheet seen from behind shows its back faces: drawn in every frame, unless its levels said it
+    were a closed solid (then a moving frame, never a still, leaves them out). The dragon, closed,
+    moves as it did with its back faces drawn but a few silhouette samples."""
+    sheet = grid_plane(200)
+    tree = build_lod(sheet, lambda fraction, message: None)
+    size = (160, 120)
+    behind = Camera(eye=(0.5, 0.5, -1.2), target=(0.5, 0.5, 0.0), up=(0.0, 1.0, 0.0), fovy_deg=50.0)
+    for closed in (False, True):
+        renderer = TileRenderer(ctx, sheet, background=(1.0, 0.0, 1.0))
+        renderer.attach_lod(dataclasses.replace(tree, batch_closed=np.array([closed])))
+        moving = renderer.render_frame(behind, size, lod_error_px=1.0).pixels
+        still = renderer.render_still(behind, size, 1)
+        shown = ~np.all(moving == [255, 0, 255], axis=2)
+        assert np.all(~np.all(still == [255, 0, 255], axis=2)[40:80, 60:100]), "the still draws the sheet"
+        assert shown[40:80, 60:100].all() != closed, (closed, shown.mean())
+        renderer.release()
+    scene, tree = dragon
+    renderer = TileRenderer(ctx, scene)
+    renderer.attach_lod(tree)
+    size = (480, 270)
+    for camera in [default_camera(scene.bounds, aspect=size[0] / size[1]), *random_cameras(scene.bounds, 3, seed=9)]:
+        assert renderer._back_culled(camera, scene.bounds, 1.0).tolist() == [True]
+        culled = renderer.render_frame(camera, size, lod_error_px=1.0).pixels
+        renderer.attach_lod(dataclasses.replace(tree, batch_closed=np.array([False])))
+        drawn = renderer.render_frame(camera, size, lod_error_px=1.0).pixels
+        renderer.attach_lod(tree)
+        assert np.any(culled != drawn, axis=2).mean() < 1e-3
+    renderer.release()

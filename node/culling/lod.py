@@ -27,6 +27,8 @@ from node.scene.lod import LodTree
 from tessera.geometry import Camera
 from tessera.screen_error import error_scales
 
+_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
+
 
 @dataclass(frozen=True, slots=True, eq=False)
 class LodCut:
@@ -86,6 +88,18 @@ def subtract_ranges(first: np.ndarray, end: np.ndarray, cut_first: np.ndarray,
     lo, hi = points[starts], points[stops]
     keep = hi > lo
     return lo[keep], hi[keep]
+
+
+def back_faces_hidden(closed: np.ndarray, boxes: np.ndarray, camera: Camera, near: float) -> np.ndarray:
+    """(B,) bool: the ``closed`` (B,) batches (:func:`node.scene.lod.closed_surface`: solids facing
+    outwards) whose box (B, 2, 3) lies wholly beyond the near plane at depth ``near`` of ``camera``: the
+    eye outside them and nothing of them cut open, their back faces are always behind their front ones,
+    so a frame that leaves them out differs at most where a sample falls on a silhouette edge."""
+    eye = np.asarray(camera.eye, np.float64)
+    forward = np.asarray(camera.target, np.float64) - eye
+    forward /= np.linalg.norm(forward)
+    corners = boxes[:, None, 0] + (boxes[:, None, 1] - boxes[:, None, 0]) * _CORNERS   # (B, 8, 3)
+    return np.asarray(closed, bool) & ((corners.astype(np.float64) - eye) @ forward > near).all(axis=1)
 
 
 def boxes_in_frustum(boxes: np.ndarray, planes: np.ndarray) -> np.ndarray:

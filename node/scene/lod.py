@@ -24,6 +24,11 @@ the full level's when each level keeps 40 %).
 
 The simplifier is meshoptimizer because it locks a submesh's border. Its calls release the GIL:
 a level's groups are simplified on :data:`WORKERS` threads.
+
+A batch is marked **closed** (``batch_closed``) when its faces bound solids, facing outwards: every
+edge (positions welded) is met as often in one direction as in the other, and the signed volume is
+positive (:func:`closed_surface`). From outside such a batch its back faces are always behind its
+front ones, so a moving frame may leave them out (:class:`node.gl.renderer.TileRenderer`).
 """
 
 from __future__ import annotations
@@ -76,10 +81,13 @@ MAX_LEVELS = 48
 #: coarse levels with the fine level's noisy vertex normals: shading, not outlines, cost the PSNR.
 NORMAL_WEIGHT = 0.5
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 5
+LOD_FORMAT = 6
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 #: Corners whose clusters' adjacency is found at a time.
 BLOCK_CORNERS = 1 << 23
+#: Faces whose edges :func:`closed_surface` counts at a time, and the buckets it counts them in.
+BLOCK_FACES = 1 << 22
+EDGE_BITS = 22
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,6 +110,9 @@ class LodTree:
     (Q, 2, 3) float32 around its triangles. ``share_cluster``,
     ``share_chunk``, ``share_triangles`` (P,) int64: how many of a cluster's triangles start at a
     vertex of each chunk (where its triangles lie, for :func:`group_levels`).
+
+    Batches: ``batch_closed`` (B,) bool: its faces bound solids, facing outwards (:func:`closed_surface`;
+    False for a batch without levels).
     """
 
     leaf_first_chunk: np.ndarray
@@ -122,6 +133,7 @@ class LodTree:
     share_cluster: np.ndarray
     share_chunk: np.ndarray
     share_triangles: np.ndarray
+    batch_closed: np.ndarray
 
     @property
     def node_count(self) -> int:
@@ -169,6 +181,26 @@ def _weld(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rows = np.ascontiguousarray(positions, np.float32).view(np.dtype((np.void, 12))).reshape(-1)
         _, first, weld = np.unique(rows, return_index=True, return_inverse=True)
     return weld.reshape(-1).astype(np.int64), first.astype(np.int64)
+
+
+def closed_surface(faces: np.ndarray, weld: np.ndarray, positions: np.ndarray) -> bool:
+    """Whether ``faces`` (F, 3) over ``positions`` (V, 3) bound solids facing outwards (counter-clockwise
+    seen from outside): with positions welded (``weld`` (V,) each vertex's position id), every edge is
+    met as often from a to b as from b to a, and the signed volume is positive. An edge's signed count
+    is summed, weighted by a hash of it, into one of 2^:data:`EDGE_BITS` buckets (exact integers in float64):
+    an unmatched edge leaves its bucket non-zero (another cancelling it exactly is a 1 in 2²⁰ chance)."""
+    sums = np.zeros(1 << EDGE_BITS)
+    volume = 0.0
+    for first in range(0, len(faces), BLOCK_FACES):
+        ids = weld[faces[first:first + BLOCK_FACES]].astype(np.uint64)
+        a, b = ids.reshape(-1), np.roll(ids, -1, axis=1).reshape(-1)
+        key = np.minimum(a, b) * np.uint64(1 << 32) + np.maximum(a, b)
+        bucket = (key * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - EDGE_BITS)
+        weight = ((key * np.uint64(0xC2B2AE3D27D4EB4F)) >> np.uint64(44)).astype(np.float64) + 1.0
+        sums += np.bincount(bucket.astype(np.int64), np.sign(b.astype(np.float64) - a) * weight, 1 << EDGE_BITS)
+        corners = np.asarray(positions, np.float64)[faces[first:first + BLOCK_FACES]]
+        volume += float(np.einsum("ij,ij->", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])))
+    return not sums.any() and volume > 0.0
 
 
 def _simplify(indices: np.ndarray, limit: float, positions: np.ndarray,
@@ -312,6 +344,7 @@ class _Builder:
         self.leaf_group: list[np.ndarray] = []
         self.leaf_bounds: list[np.ndarray] = []
         self.shares: list[np.ndarray] = []
+        self.closed: list[int] = []
 
     def batch_levels(self, number: int, scene: SceneData, pool: ThreadPoolExecutor, progress: Progress) -> None:
         """Build the levels of batch ``number`` of ``scene``."""
@@ -323,6 +356,8 @@ class _Builder:
         weld, first_vertex = _weld(positions)
         canonical = first_vertex[weld].astype(np.uint32)   # each vertex as the first at its position
         faces = np.asarray(batch.faces).reshape(-1)
+        if closed_surface(faces.reshape(-1, 3), weld, positions):
+            self.closed.append(number)
         base = int(chunks.index_bounds[first])
         corner = chunks.index_bounds[bounds] - base
         leaf_group = np.full(bounds.size - 1, -1, np.int64)
@@ -412,7 +447,8 @@ class _Builder:
             batch=batch, own=np.array(self.own, np.int64), parent=np.array(self.parent, np.int64), boxes=boxes,
             index_bounds=index_bounds, indices=indices.astype(np.uint32),
             cluster_parts=cluster_parts, part_bounds=part_bounds, part_boxes=part_boxes,
-            share_cluster=shares[0], share_chunk=shares[1], share_triangles=shares[2])
+            share_cluster=shares[0], share_chunk=shares[1], share_triangles=shares[2],
+            batch_closed=np.isin(np.arange(len(positions_of)), self.closed))
 
 
 def _parts(index_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
