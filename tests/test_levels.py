@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from node.culling.lod import LodCut, lod_cut, projected_errors, subtract_ranges
+from node.culling.lod import LodCut, back_faces_hidden, lod_cut, projected_errors, subtract_ranges
 from node.culling.switch import CullMode, SwitchParams
 from node.gl.renderer import TileRenderer
 from node.scene.data import SceneData
@@ -415,10 +415,22 @@ def test_a_moving_frame_leaves_out_the_back_faces_of_closed_solids_only(ctx, dra
     renderer.attach_lod(tree)
     size = (480, 270)
     for camera in [default_camera(scene.bounds, aspect=size[0] / size[1]), *random_cameras(scene.bounds, 3, seed=9)]:
-        assert renderer._back_culled(camera, scene.bounds, 1.0).tolist() == [True]
+        assert renderer._back_culled(camera, size, scene.bounds, 1.0).tolist() == [True]
         culled = renderer.render_frame(camera, size, lod_error_px=1.0).pixels
         renderer.attach_lod(dataclasses.replace(tree, batch_closed=np.array([False])))
         drawn = renderer.render_frame(camera, size, lod_error_px=1.0).pixels
         renderer.attach_lod(tree)
         assert np.any(culled != drawn, axis=2).mean() < 1e-3
     renderer.release()
+
+
+def test_back_faces_are_hidden_only_from_outside_a_solid_clear_of_the_near_plane():
+    camera = Camera(eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, -1.0), fovy_deg=60.0)
+    size, near = (160, 90), 0.1
+    boxes = np.array([[[-1.0, -1.0, -5.0], [1.0, 1.0, -3.0]],      # ahead
+                      [[0.5, -1.0, -5.0], [2.0, 1.0, 5.0]],        # beside the eye, reaching behind it
+                      [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],       # around the eye
+                      [[0.02, -1.0, -5.0], [2.0, 1.0, 5.0]],       # beside, cut open by the near plane
+                      [[-1.0, -1.0, -5.0], [1.0, 1.0, -3.0]]])     # ahead, but not closed
+    closed = np.array([True, True, True, True, False])
+    assert back_faces_hidden(closed, boxes, camera, size, near).tolist() == [True, True, False, False, False]

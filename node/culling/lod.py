@@ -19,6 +19,7 @@ join as the whole frame (they meet on the groups' locked borders, :mod:`node.sce
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,8 +27,6 @@ import numpy as np
 from node.scene.lod import LodTree
 from tessera.geometry import Camera
 from tessera.screen_error import error_scales
-
-_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -90,16 +89,24 @@ def subtract_ranges(first: np.ndarray, end: np.ndarray, cut_first: np.ndarray,
     return lo[keep], hi[keep]
 
 
-def back_faces_hidden(closed: np.ndarray, boxes: np.ndarray, camera: Camera, near: float) -> np.ndarray:
+def back_faces_hidden(closed: np.ndarray, boxes: np.ndarray, camera: Camera, size: tuple[int, int],
+                      near: float) -> np.ndarray:
     """(B,) bool: the ``closed`` (B,) batches (:func:`node.scene.lod.closed_surface`: solids facing
-    outwards) whose box (B, 2, 3) lies wholly beyond the near plane at depth ``near`` of ``camera``: the
-    eye outside them and nothing of them cut open, their back faces are always behind their front ones,
-    so a frame that leaves them out differs at most where a sample falls on a silhouette edge."""
+    outwards) whose box (B, 2, 3) keeps clear of the near plane's rectangle at depth ``near`` of
+    ``camera`` in a ``size`` frame (wholly beyond that plane, or farther from the eye than the
+    rectangle's corners). Every ray of the frame
+    then starts outside their solids and enters one through a front face before it meets a back
+    face, so a frame that leaves their back faces out differs at most where a sample falls on a
+    silhouette edge. Parts behind the eye do not matter: the near plane cuts them off the frame."""
     eye = np.asarray(camera.eye, np.float64)
+    boxes = np.asarray(boxes, np.float64)
+    distance = np.linalg.norm(np.clip(eye, boxes[:, 0], boxes[:, 1]) - eye, axis=1)
+    half_y = math.tan(math.radians(camera.fovy_deg) / 2.0)
+    corner = near * math.sqrt(1.0 + half_y * half_y * (1.0 + (size[0] / size[1]) ** 2))
     forward = np.asarray(camera.target, np.float64) - eye
     forward /= np.linalg.norm(forward)
-    corners = boxes[:, None, 0] + (boxes[:, None, 1] - boxes[:, None, 0]) * _CORNERS   # (B, 8, 3)
-    return np.asarray(closed, bool) & ((corners.astype(np.float64) - eye) @ forward > near).all(axis=1)
+    nearest = np.minimum(boxes[:, 0] * forward, boxes[:, 1] * forward).sum(axis=1) - eye @ forward
+    return np.asarray(closed, bool) & ((distance > corner) | (nearest > near))
 
 
 def boxes_in_frustum(boxes: np.ndarray, planes: np.ndarray) -> np.ndarray:

@@ -257,14 +257,15 @@ class TileRenderer:
         opaque = np.array([batch.alpha_mode == "OPAQUE" for batch in self.scene.batches], bool)
         self._solids = (tree.batch_closed & opaque & (np.diff(chunks.batch_bounds) > 0), boxes)
 
-    def _back_culled(self, camera: Camera, bounds: np.ndarray, error_px: float) -> np.ndarray | None:
-        """(B,) bool the batches a frame at ``error_px`` (0: full detail) draws without back faces (None:
-        none): a moving frame's closed solids seen from outside (:func:`back_faces_hidden`; llvmpipe
+    def _back_culled(self, camera: Camera, size: tuple[int, int], bounds: np.ndarray,
+                     error_px: float) -> np.ndarray | None:
+        """(B,) bool the batches a ``size`` frame at ``error_px`` (0: full detail) draws without back faces
+        (None: none): a moving frame's closed solids seen from outside (:func:`back_faces_hidden`; llvmpipe
         spends about 0.3 of a frame's CPU on the back half of a closed scan), nothing clipped away."""
         if self.lod is None or error_px <= 0.0 or self.culler.clip is not None or self.view.discards \
                 or not self._solids[0].any():
             return None
-        return back_faces_hidden(*self._solids, camera, near_far_from_bounds(camera, bounds)[0])
+        return back_faces_hidden(*self._solids, camera, size, near_far_from_bounds(camera, bounds)[0])
 
     def level_cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:meth:`LodDraws.cut`) for ``camera`` in a ``size`` frame within
@@ -317,7 +318,7 @@ class TileRenderer:
         coarse = self._coarse(cut, matrix, size, drawn, pose)
         # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
         target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
-        back_culled = self._back_culled(camera, pose.bounds, lod_error_px if subsample is None else 0.0)
+        back_culled = self._back_culled(camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
         tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
                             moved=moved, lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples,
                             back_culled=back_culled)
