@@ -415,7 +415,7 @@ def test_a_moving_frame_leaves_out_the_back_faces_of_closed_solids_only(ctx, dra
     renderer.attach_lod(tree)
     size = (480, 270)
     for camera in [default_camera(scene.bounds, aspect=size[0] / size[1]), *random_cameras(scene.bounds, 3, seed=9)]:
-        assert renderer._back_culled(camera, size, scene.bounds, 1.0).tolist() == [True]
+        assert renderer.lod.back_culled(camera, size, scene.bounds, 1.0).tolist() == [True]
         culled = renderer.render_frame(camera, size, lod_error_px=1.0).pixels
         renderer.attach_lod(dataclasses.replace(tree, batch_closed=np.array([False])))
         drawn = renderer.render_frame(camera, size, lod_error_px=1.0).pixels

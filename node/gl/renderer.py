@@ -76,7 +76,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from node.culling.lod import LodCut, back_faces_hidden
+from node.culling.lod import LodCut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
 from node.gl.buffers import upload_geometry
@@ -95,7 +95,7 @@ from node.scene.lod import LodTree
 from node.scene.packing import PackedGeometry, pack
 from node.scene.pose import ScenePose
 from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_grid
-from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, near_far_from_bounds, view_projection
+from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, grid_subsample, jitter_matrix
 from tessera.tools.picking import PickHit, window_matrix
@@ -186,6 +186,13 @@ def windowed(size: tuple[int, int], rect: Rect, window: Rect | None) -> tuple[tu
     return (window.w, window.h), inside
 
 
+def cull_back_faces(ctx: moderngl.Context, cull: bool, culling: bool) -> bool:
+    """Turn ``ctx``'s culling of back faces to ``cull`` when it is not (``culling``: whether it is); ``cull``."""
+    if cull != culling:
+        (ctx.enable if cull else ctx.disable)(moderngl.CULL_FACE)
+    return cull
+
+
 class TileRenderer:
     """Draws tiles of ``scene`` on ``ctx`` with ``culling`` (hybrid switch ``switch_params``) and
     ``shading``; use it only on the thread that owns ``ctx``. ``packed``: the scene's batches as
@@ -241,31 +248,13 @@ class TileRenderer:
         self._pose: tuple[SceneState | None, ScenePose] = (None, self._base_pose)
         #: The scene's levels of detail once attached (:meth:`attach_lod`).
         self.lod: LodDraws | None = None
-        #: The batches a moving frame may draw without back faces (opaque and closed) and their boxes.
-        self._solids = (np.zeros(len(scene.batches), bool), np.zeros((len(scene.batches), 2, 3), np.float32))
 
     def attach_lod(self, tree: LodTree) -> None:
         """Upload ``tree``'s levels: from now on plain tiles and sort-last layers asked for an error
         bound draw its coarse nodes where they are within it."""
         if self.lod is not None:
             self.lod.release()
-        self.lod = LodDraws(tree, self.vertex_bounds, self.shaders)
-        chunks = self.scene.chunks
-        starts = np.minimum(chunks.batch_bounds[:-1], max(chunks.chunk_count - 1, 0))
-        boxes = self._solids[1] if not chunks.chunk_count else np.stack(
-            [np.minimum.reduceat(chunks.boxes[:, 0], starts), np.maximum.reduceat(chunks.boxes[:, 1], starts)], axis=1)
-        opaque = np.array([batch.alpha_mode == "OPAQUE" for batch in self.scene.batches], bool)
-        self._solids = (tree.batch_closed & opaque & (np.diff(chunks.batch_bounds) > 0), boxes)
-
-    def _back_culled(self, camera: Camera, size: tuple[int, int], bounds: np.ndarray,
-                     error_px: float) -> np.ndarray | None:
-        """(B,) bool the batches a ``size`` frame at ``error_px`` (0: full detail) draws without back faces
-        (None: none): a moving frame's closed solids seen from outside (:func:`back_faces_hidden`; llvmpipe
-        spends about 0.3 of a frame's CPU on the back half of a closed scan), nothing clipped away."""
-        if self.lod is None or error_px <= 0.0 or self.culler.clip is not None or self.view.discards \
-                or not self._solids[0].any():
-            return None
-        return back_faces_hidden(*self._solids, camera, size, near_far_from_bounds(camera, bounds)[0])
+        self.lod = LodDraws(tree, self.vertex_bounds, self.shaders, self.scene)
 
     def level_cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:meth:`LodDraws.cut`) for ``camera`` in a ``size`` frame within
@@ -318,10 +307,10 @@ class TileRenderer:
         coarse = self._coarse(cut, matrix, size, drawn, pose)
         # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
         target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
-        back_culled = self._back_culled(camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
-        tile = self._render(camera, target_size, target, matrix, culled, started, with_depth=False, pose=pose,
-                            moved=moved, lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples,
-                            back_culled=back_culled)
+        backless = None if self.lod is None or self.culler.clip is not None or self.view.discards else \
+            self.lod.back_culled(camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
+        tile = self._render(camera, target_size, target, matrix, culled, started, False, pose, moved=moved,
+                            lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples, backless=backless)
         if not resolved:
             return dataclasses.replace(tile, rect=whole)
         resolving = time.perf_counter()
@@ -408,14 +397,13 @@ class TileRenderer:
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
                 started: float, with_depth: bool, pose: ScenePose, moved: DrawRuns | None = None,
                 blended_moved: bool | None = None, lod_bias: float = 0.0,
-                coarse: DrawRuns | None = None, samples: int = 1,
-                back_culled: np.ndarray | None = None) -> RenderedTile:
+                coarse: DrawRuns | None = None, samples: int = 1, backless: np.ndarray | None = None) -> RenderedTile:
         """Draw ``culled`` in ``pose`` with the full-frame ``matrix`` scissored to ``rect`` and read the
         rect back (colour, and window depth when ``with_depth``); ``started`` is when the tile's work
         began; ``moved``: the runs of moved batches the tile keeps (None: those batches whole), of
         which ``blended_moved`` picks (:meth:`_draw`); textures read with ``lod_bias``; ``coarse``: the
         runs of coarse levels of detail to draw too (:class:`node.gl.lod_draws.LodDraws`); ``samples``
-        multisamples (depth layers: always 1); ``back_culled``: (B,) the batches drawn without back faces."""
+        multisamples (depth layers: always 1); ``backless``: (B,) the batches drawn without back faces."""
         width, height = size
         samples = 1 if with_depth else samples
         target = self.framebuffers.get((width, height), samples)
@@ -425,7 +413,7 @@ class TileRenderer:
         target.use()
         target.clear(*self._background, 1.0, depth=1.0, viewport=gl_box)
         self._use_camera(camera, lod_bias)
-        self._draw(target, culled, pose, matrix, moved, blended_moved, coarse, back_culled)
+        self._draw(target, culled, pose, matrix, moved, blended_moved, coarse, backless)
         framebuffer = self.framebuffers.get((width, height))
         if samples > 1:
             framebuffer.viewport = (0, 0, width, height)
@@ -543,14 +531,14 @@ class TileRenderer:
 
     def _draw(self, framebuffer: moderngl.Framebuffer, culled: TileCull, pose: ScenePose,
               view_proj: np.ndarray, moved: DrawRuns | None = None, blended_moved: bool | None = None,
-              coarse: DrawRuns | None = None, back_culled: np.ndarray | None = None) -> None:
+              coarse: DrawRuns | None = None, backless: np.ndarray | None = None) -> None:
         """Issue the draw calls batch by batch in batch order (opaque and masked first, blended last),
         each with its object's matrices: one multi-draw-indirect over each culled batch's commands
         (without :attr:`multi_draw` one draw per index run), one draw per run of ``moved`` for a moved
         batch, or of the whole batch when ``moved`` is None, of those moved batches only the blended
         (``blended_moved`` True) or the others (False; None: all); then a batch's ``coarse`` runs of
         its levels of detail (:attr:`lod`'s commands); batches ``pose`` hides are left out. The culled
-        and coarse runs of unmoved batches ``back_culled`` (B,) marks are drawn without back faces."""
+        and coarse runs of unmoved batches ``backless`` (B,) marks are drawn without back faces."""
         ctx = self.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
@@ -576,10 +564,8 @@ class TileRenderer:
             if (moved_owner := owner if pose.moved[owner] else -1) != model:
                 model = moved_owner
                 self._use_model(pose, model, view_proj)
-            if (cull := back_culled is not None and bool(back_culled[number]) and kind != WHOLE
-                    and moved_owner < 0) != culling:
-                culling = cull
-                (ctx.enable if cull else ctx.disable)(moderngl.CULL_FACE)
+            culling = cull_back_faces(ctx, backless is not None and bool(backless[number]) and kind != WHOLE
+                                      and moved_owner < 0, culling)
             if kind == WHOLE:
                 vertex_array = self.shaders.vertex_arrays[key]
                 for run_first, run_count in whole[number]:
@@ -597,8 +583,7 @@ class TileRenderer:
         if self._blending:
             framebuffer.depth_mask = True
             ctx.disable(moderngl.BLEND)
-        if culling:
-            ctx.disable(moderngl.CULL_FACE)
+        cull_back_faces(ctx, False, culling)
 
     def _use_camera(self, camera: Camera, lod_bias: float = 0.0) -> None:
         """Set what shading takes from the camera (eye, key light) and the draw (the textures' LOD
