@@ -111,8 +111,8 @@ def test_a_watch_link_only_watches(coordinator_factory, tmp_path):
     coordinator = coordinator_factory("--scene", "builtin:spheres", "--size", "160x120", "--local-nodes", "1")
     base = coordinator.url
     created = call(base, "/api/sessions", {"scene": "builtin:traffic", "size": [200, 100]})
-    wait_until(lambda: call(base, f"/api/sessions/{created['id']}")["state"] == "ready", seconds(120),
-               "the node to load the session's scene")
+    wait_until(lambda: all(s["state"] == "ready" for s in call(base, "/api/sessions")), seconds(120),
+               "the node to load the session's scene and the shared one's (after it: the new session goes first)")
     before = watched_state(base, created["id"])
     wait_ms = seconds(60) * 1000
     with viewer_page(tmp_path / "profile", 900, 600) as (page, errors):
