@@ -78,7 +78,8 @@ def test_panel_says_at_rest_and_explains_every_figure_on_hover(chromium, coordin
     explained = {**EXPLAINED, "a bar's render phase": (f"#nodes li:nth-child({widest}) .seg.render",
                                                        r"render [\d.]+ ms: drawing its tiles")}
     for what, (selector, words) in explained.items():
-        page.hover(selector)
+        page.wait_for_selector(selector, state="visible", timeout=wait_ms)   # the rest line: back at rest (a
+        page.hover(selector)                                                # node's calibration may draw again)
         title = page.evaluate(HOVER_TITLE_JS, selector)
         assert title is not None and re.search(words, title), f"hovering {what} ({selector}) shows {title!r}"
 
