@@ -94,7 +94,7 @@ class NodeClient:
         self.worker = worker or GLWorker(settings.culling, settings.face_limit, settings.scene_memory_mb << 20,
                                          SceneFetcher(settings.coordinator, settings.token, settings.scene_cache_dir),
                                          shading=settings.shading, cache=settings.cache)
-        self.protocol = NodeProtocol(settings.name, settings.token or "", settings.slowdown)
+        self.protocol = NodeProtocol(settings.name, settings.token or "", settings.slowdown, settings.host)
         self._sleep = sleep
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="tessera-encode")
         self.renderer_name = ""

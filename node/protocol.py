@@ -152,8 +152,8 @@ class _FrameTiles:
 
 
 class NodeProtocol:
-    """One node's protocol state across its connections: ``name``, ``token`` and the emulated
-    ``slowdown`` it says hello with; :attr:`node_id` and :attr:`welcomed` from the coordinator's
+    """One node's protocol state across its connections: ``name``, ``token``, the emulated
+    ``slowdown`` and the ``host`` it says hello with; :attr:`node_id` and :attr:`welcomed` from the coordinator's
     welcome; :attr:`tiles_dropped` counts tiles skipped for a cancelled frame.
 
     Per connection: :meth:`connect`, then :meth:`receive_text` for each text message and
@@ -164,8 +164,8 @@ class NodeProtocol:
     connection; the scene state and the loads waiting or under way do not.
     """
 
-    def __init__(self, name: str, token: str = "", slowdown: float = 1.0) -> None:
-        self.name, self.token, self.slowdown = name, token, slowdown
+    def __init__(self, name: str, token: str = "", slowdown: float = 1.0, host: str = "") -> None:
+        self.name, self.token, self.slowdown, self.host = name, token, slowdown, host
         self.node_id: int | None = None
         self.welcomed = False
         self.tiles_dropped = 0
@@ -195,7 +195,7 @@ class NodeProtocol:
         self._running.clear()
         capabilities = messages.Capabilities(slowdown=self.slowdown, calibrate=True, depth=True)
         return messages.NodeHello(name=self.name, token=self.token, renderer=renderer, version=PROTOCOL_VERSION,
-                                  capabilities=capabilities)
+                                  capabilities=capabilities, host=self.host)
 
     def receive_text(self, text: str) -> None:
         """Take a text message: a cancel or the welcome takes effect now, a load waits to be handed

@@ -4,6 +4,7 @@ environment (every ``--flag`` is also ``TESSERA_<FLAG>``; the command line wins)
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import socket
 import sys
@@ -46,6 +47,20 @@ parse_size = size_parser(1, MAX_SIDE)
 ENV_PREFIX = "TESSERA_"
 
 
+#: The kernel's id of this boot: one per machine, the same in every container on it.
+BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
+
+
+def default_host() -> str:
+    """This machine, as nodes that share its cores name it alike: a digest of the kernel's boot id
+    (containers on one host see the same), else the host name."""
+    try:
+        boot = BOOT_ID.read_text().strip()
+    except OSError:
+        return socket.gethostname()[:64]
+    return hashlib.sha256(boot.encode()).hexdigest()[:16]
+
+
 def default_name() -> str:
     """In a Compose container, its name without the project (``node_2``: :mod:`node.container_name`);
     elsewhere ``hostname-pid``. Unique per process, readable in the coordinator's stats."""
@@ -61,6 +76,7 @@ class NodeSettings:
     name: str = field(default_factory=default_name)
     token: str | None = None
     slowdown: float = 1.0
+    host: str = field(default_factory=default_host)
     render_once: Path | None = None
     scene: str = DEFAULT_SCENE
     camera: Path | None = None
@@ -163,6 +179,12 @@ def parse_msaa(text: str) -> int:
     return value
 
 
+def parse_host_id(text: str) -> str:
+    if not 0 < len(text) <= 64:
+        raise argparse.ArgumentTypeError(f"host id must be 1 to 64 characters, got {len(text)}")
+    return text
+
+
 def parse_coordinator(text: str) -> str:
     if not text.startswith(("ws://", "wss://")):
         raise argparse.ArgumentTypeError(f"coordinator must be a ws:// or wss:// URL, got {text!r}")
@@ -190,6 +212,9 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--token", None, "shared secret the coordinator expects")
     add("--slowdown", 1.0, "emulate a node this many times slower (sleeps (F-1) x render time per tile)",
         type=parse_slowdown)
+    add("--host-id", None, "the machine this node runs on, as the coordinator counts cores: a new session's scene is "
+        "loaded by one node of a machine at a time, by nodes of other machines at once (default: this kernel's "
+        "boot id, the same in every container on it)", dest="host", metavar="ID", type=parse_host_id)
     add("--render-once", None, "render one full frame to this PNG and exit (no coordinator)", type=Path,
         metavar="OUT.png")
     add("--scene", DEFAULT_SCENE, "scene file (glTF/GLB/OBJ/PLY/STL) or builtin:NAME, for --render-once")

@@ -290,7 +290,7 @@ class RenderService(SessionPersistence, ServiceReport):
         self._next_node_id += 1
         self.nodes[link.node_id] = link
         link.send(Welcome(node_id=link.node_id))
-        self.scheduler.add_node(link.node_id, time.monotonic(), local)
+        self.scheduler.add_node(link.node_id, time.monotonic(), local, hello.host)
         self.apply()   # the scene to load (sort-last: every node's share of the new partition)
         log.info("node %d (%s) joined: %s", link.node_id, name, renderer)
         return link

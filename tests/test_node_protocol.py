@@ -6,10 +6,15 @@ a load holding back only the jobs of its own scene received after it (issue 19).
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+
+import pytest
 
 from node.protocol import CANCELLED_MEMORY, Draw, Load, Measure, NodeAction, NodeProtocol, Send
 from node.scene.loading import load_scene
 from node.scene.mesh import SceneError as SceneLoadError
+from node.settings import parse_settings
 from tessera.scene.state import ObjectState, SceneState
 from tessera.wire.messages import LoadScene, NodeHello, RenderError, SceneError, SceneReady, TilesDropped
 from tessera.wire.protocol import PROTOCOL_VERSION
@@ -80,6 +85,20 @@ def loads(actions: list[NodeAction]) -> list[LoadScene]:
 
 def sent(actions: list[NodeAction]) -> list:
     return [a.message for a in actions if isinstance(a, Send)]
+
+
+def test_the_hello_names_the_machine_every_node_on_it_names_alike():
+    """The host id is the kernel's boot id (one per machine, the same in a container on it), so
+    another process here says the same; ``--host-id`` names another machine; a bad one is refused."""
+    here = parse_settings([], {}).host
+    other = subprocess.run([sys.executable, "-c", "from node.settings import default_host; print(default_host())"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    assert here and here == other
+    assert NodeProtocol("n1", host=here).connect("llvmpipe").host == here
+    assert parse_settings(["--host-id", "rack-2"], {}).host == "rack-2"
+    assert parse_settings([], {"TESSERA_HOST_ID": "rack-3"}).host == "rack-3"
+    with pytest.raises(SystemExit):
+        parse_settings(["--host-id", "x" * 65], {})
 
 
 def test_connect_says_hello_and_the_welcome_takes_effect_at_once():

@@ -100,6 +100,40 @@ def test_a_new_sessions_scene_is_loaded_by_one_node_after_the_other_fastest_firs
     assert not [a for a in s.drain() if isinstance(a, LoadScene)] and s.sessions["big"].loads_waiting == []
 
 
+def test_nodes_of_other_machines_load_a_new_sessions_scene_at_once_and_one_by_one_on_each():
+    """Nodes 1 and 2 share machine a, 3 is on b, 4 said no machine: one node of each machine loads
+    the scene at once (b's share no cores with a's); a's second node after a's first. A node of a
+    machine whose first node draws a big scene's first frame alone waits for that frame; the other
+    machine's do not."""
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    for node_id, host in ((1, "a"), (2, "a"), (3, "b"), (4, "")):
+        s.add_node(node_id, 0.0, host=host)
+        s.node_ready(node_id, 0.0)
+    s.drain()
+    s.add_session("big", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    assert set(s.drain()) == {LoadScene(1, None, "library/scan.ply"), LoadScene(3, None, "library/scan.ply"),
+                              LoadScene(4, None, "library/scan.ply")}
+    s.node_ready(3, 1.0, session_id="big")
+    assert not [a for a in s.drain() if isinstance(a, LoadScene)], "machine a still loads"
+    s.node_ready(1, 1.5, session_id="big")
+    assert [a for a in s.drain() if isinstance(a, LoadScene)] == [LoadScene(2, None, "library/scan.ply")]
+
+    s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
+    s.add_session("p", CONFIG, StaticBalancer(), "library/scan.ply", 0.0)
+    s.set_camera(camera(), 0.0, session_id="p")
+    for node_id, host in ((1, "a"), (2, "a"), (3, "b"), (4, "b")):
+        s.add_node(node_id, 0.0, host=host)
+    assert {a for a in s.drain() if isinstance(a, LoadScene) and a.scene == "library/scan.ply"} == {
+        LoadScene(1, None, "library/scan.ply"), LoadScene(3, None, "library/scan.ply")}
+    s.node_holds(1, 24_769_300)
+    s.node_ready(1, 1.0, session_id="p")
+    assert not [a for a in s.drain() if isinstance(a, LoadScene) and a.scene == "library/scan.ply"]
+    s.node_holds(3, 990_000)    # b's first node holds a small scene: b's next loads at once
+    s.node_ready(3, 1.1, session_id="p")
+    assert [a for a in s.drain() if isinstance(a, LoadScene) and a.scene == "library/scan.ply"] == [
+        LoadScene(4, None, "library/scan.ply")]
+
+
 def test_each_sessions_frames_have_its_size_scene_and_camera_and_only_nodes_holding_its_scene():
     s = FrameScheduler(CONFIG, StaticBalancer(), scene="builtin:spheres")
     s.add_session("b", SchedulerConfig(size=(40, 30), max_fps=1e6, settle_frames=0, still_codec=None),

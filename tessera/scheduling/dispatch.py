@@ -281,37 +281,47 @@ class FrameDispatch:
             self._expected = None
         return self._expected is not None
 
-    def _load_next(self, session: SessionFrames) -> None:
-        """Tell the next node of ``session.loads_waiting`` to load the session's scene. A new
-        session's scene is loaded by one node at a time (:meth:`add_session`): a large scene's parse
-        and upload then hold up one node's tiles of the other sessions, not every node's at once, and
-        its first node is ready sooner than when all parse it side by side on shared cores. So are
-        nodes that join while one loads it (local nodes started with the coordinator: after a
-        restart the first of them draws the session's first frame while the others wait)."""
-        if session.loads_waiting:
-            node_id = session.loads_waiting.pop(0)
-            session.loading.add(node_id)
-            self._actions.append(LoadScene(node_id, None, session.scene_key))
+    def _start_load(self, session: SessionFrames, node_id: int) -> None:
+        """Tell waiting node ``node_id`` to load the session's scene."""
+        session.loads_waiting.remove(node_id)
+        session.loading.add(node_id)
+        self._actions.append(LoadScene(node_id, None, session.scene_key))
+
+    def _load_next(self, session: SessionFrames, held_hosts: Collection[str] = ()) -> None:
+        """Tell the first node of ``session.loads_waiting`` on each machine (:attr:`NodeSchedule.host`)
+        where no node loads the session's scene now, and not one of ``held_hosts``, to load it. A
+        new session's scene is loaded by one node of a machine at a time (:meth:`add_session`): a
+        large scene's parse and upload then hold up one node's tiles of the other sessions, not
+        every node's at once, and its first node is ready sooner than when all parse it side by
+        side on shared cores. So are nodes that join while one loads it (local nodes started with
+        the coordinator: after a restart the first of them draws the session's first frame while
+        the others wait). Nodes on other machines share no cores with it: they load at once."""
+        busy = {self.nodes[i].host for i in session.loading if i in self.nodes} | set(held_hosts)
+        for node_id in list(session.loads_waiting):
+            host = self.nodes[node_id].host if node_id in self.nodes else ""
+            if host not in busy:
+                busy.add(host)
+                self._start_load(session, node_id)
 
     def _load_next_free(self, session: SessionFrames) -> None:
-        """:meth:`_load_next` unless a node loads the session's scene now, a node holding it (a big
-        scene: :data:`HOLD_LOADS_TRIANGLES`) draws its first frame whole, or (the coordinator's own
-        session) another session awaits its first frame: those loads wait until that frame is out
-        (on shared cores a second node's upload of the scene, or every node's read of the
-        coordinator's built-in scene, took the first node's cores while it loaded and drew a
-        24.8M-triangle model). A first frame cut into pieces (:meth:`_pieces`: other sessions keep
-        the nodes busy) is shared by the next node once it holds the scene: that node loads at once."""
-        if session.loading & self.nodes.keys():
-            return
-        if (session.ready and session.camera is not None and not session.demand.published_any
-                and not session.pieces_in_flight
-                and any(self.nodes[i].triangles >= HOLD_LOADS_TRIANGLES for i in session.ready if i in self.nodes)):
-            return
+        """:meth:`_load_next`, but a machine where a node holding the session's scene (a big scene:
+        :data:`HOLD_LOADS_TRIANGLES`) draws its first frame whole loads no more of it, nor (the
+        coordinator's own session) does any while another session awaits its first frame: those
+        loads wait until that frame is out (on shared cores a second node's upload of the scene, or
+        every node's read of the coordinator's built-in scene, took the first node's cores while it
+        loaded and drew a 24.8M-triangle model). A first frame cut into pieces (:meth:`_pieces`:
+        other sessions keep the nodes busy) is shared by the next node once it holds the scene: that
+        node loads at once."""
         if session.id == DEFAULT_SESSION and any(   # (not a scene switch, a simulation's next step: no starving)
                 other is not session and other.awaits_first_frame and not other.replaced
                 for other in self.sessions.values()):
             return
-        self._load_next(session)
+        held: set[str] = set()
+        if (session.ready and session.camera is not None and not session.demand.published_any
+                and not session.pieces_in_flight):
+            held = {self.nodes[i].host for i in session.ready
+                    if i in self.nodes and self.nodes[i].triangles >= HOLD_LOADS_TRIANGLES}
+        self._load_next(session, held)
 
     def _load_waiting(self) -> None:
         """:meth:`_load_next_free` of every session (a first frame went out, or will not come)."""

@@ -55,8 +55,8 @@ class NodeSchedule:
     none yet, or unsure after a failed tile); ``lead_s``: how long before its last tile ends it is
     sent the next (its round trip: answer time − dispatch time − busy time of tiles sent to it
     while it owed nothing, smoothed); ``fresh``: such a tile in flight and when it went; ``local``:
-    it connected from the coordinator's machine (loopback); the rest is the last complete frame's
-    roll-up."""
+    it connected from the coordinator's machine (loopback); ``host``: the machine it runs on, as it
+    said (:attr:`tessera.wire.messages.NodeHello.host`); the rest is the last complete frame's roll-up."""
 
     node_id: int
     slot: int
@@ -74,6 +74,7 @@ class NodeSchedule:
     lead_s: float | None = None
     fresh: tuple[tuple[int, int], float] | None = None
     local: bool = False
+    host: str = ""
     outstanding: dict[tuple[int, int], float] = field(default_factory=dict)
     dropped: dict[tuple[int, int], None] = field(default_factory=dict)
     last_tiles: list[list[int]] = field(default_factory=list)

@@ -147,8 +147,9 @@ class FrameScheduler(FrameDispatch):
         """Tell every node still waiting to load the session's scene to load it now, side by side
         (a mesh sent as arrays, issue 33: read from memory in milliseconds, not parsed from a file)."""
         session = self.sessions.get(session_id)
-        while session is not None and session.loads_waiting:
-            self._load_next(session)
+        if session is not None:
+            for node_id in list(session.loads_waiting):
+                self._start_load(session, node_id)
 
     def rest(self, session_id: str) -> None:
         """The session's state is drawn once more at most (a frame owed or in flight), with no
@@ -245,12 +246,12 @@ class FrameScheduler(FrameDispatch):
         self.sessions[session_id].set_groups(boxes, counts, bounds, owners)
 
     # ----------------------------------------------------------------- node events
-    def add_node(self, node_id: int, now: float, local: bool = False) -> NodeSchedule:
+    def add_node(self, node_id: int, now: float, local: bool = False, host: str = "") -> NodeSchedule:
         """A node connected (ready for a session once it has loaded that session's scene, told after
-        the node loading it, if one is; the coordinator's own session's last); ``local``: from the
-        coordinator's machine."""
+        the node of its ``host`` loading it, if one is; the coordinator's own session's last);
+        ``local``: from the coordinator's machine."""
         node = self.table.add(node_id, now)
-        node.local = local
+        node.local, node.host = local, host
         # The sessions opened for a scene first, the coordinator's own last: a node reads and uploads
         # its scenes in the order it is told them.
         for session in sorted(self.sessions.values(), key=lambda s: s.id == DEFAULT_SESSION):

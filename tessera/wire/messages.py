@@ -216,7 +216,9 @@ class Capabilities(BaseModel):
 
 
 class NodeHello(Message):
-    """A node's first message; a node of another protocol version is refused for that alone."""
+    """A node's first message; a node of another protocol version is refused for that alone.
+    ``host``: the machine whose cores it shares (nodes in containers on one host name the same; ""
+    from a node that does not say: counted as one machine with every other such node)."""
 
     kind = "hello"
     name: Text
@@ -224,6 +226,7 @@ class NodeHello(Message):
     renderer: Text = "unknown"
     version: Int
     capabilities: Capabilities = Capabilities()
+    host: Annotated[Text, Field(max_length=64)] = ""
 
     @model_validator(mode="before")
     @classmethod
