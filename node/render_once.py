@@ -181,7 +181,8 @@ def draw_picture(renderer: TileRenderer, camera: Camera, size: tuple[int, int], 
 
 def _render_points(settings: NodeSettings, cloud: PointCloud, camera: Camera) -> int:
     """``--render-once`` of a point cloud (issue 36): the interactive frame within ``--point-budget``
-    or the still of every point, splats of at least ``--point-size``, shaded by EDL."""
+    or the still (every point in view down to the spacing on screen of
+    :data:`tessera.points.budget.STILL_SPACING_PX`), splats of at least ``--point-size``, shaded by EDL."""
     assert settings.render_once is not None
     try:
         ctx = create_gl_context()
@@ -191,10 +192,16 @@ def _render_points(settings: NodeSettings, cloud: PointCloud, camera: Camera) ->
             frame = renderer.render_frame(camera, settings.size, point_budget=settings.point_budget)
             pixels, drawn = frame.pixels, f"{frame.points} points drawn (budget {settings.point_budget})"
         else:
-            still = accumulate_still(lambda subsample: renderer.render_frame(camera, settings.size,
-                                                                             subsample=subsample).pixels,
-                                     settings.size, settings.still_plan)
-            pixels, drawn = still.mean(), f"every point, {still.count} jittered sample{'s' if still.count > 1 else ''}"
+            points: list[int] = []
+
+            def sample(subsample: Subsample | None) -> np.ndarray:
+                frame = renderer.render_frame(camera, settings.size, subsample=subsample)
+                points.append(frame.points)
+                return frame.pixels
+
+            still = accumulate_still(sample, settings.size, settings.still_plan)
+            pixels, drawn = still.mean(), (f"{max(points)} points a sample (down to {renderer.still_spacing_px:g} px "
+                                           f"apart), {still.count} jittered sample{'s' if still.count > 1 else ''}")
         render_ms = (time.perf_counter() - started) * 1e3
         settings.render_once.write_bytes(encode_png(pixels))
     except (SceneError, GLUnavailableError) as exc:

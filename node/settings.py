@@ -264,7 +264,7 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "detail)", type=parse_lod_error, metavar="PX")
     add("--point-budget", DEFAULT_POINT_BUDGET, "--render-once --interactive of a point cloud draws at most this "
         "many points, as a serving node draws a moving frame with the coordinator's --point-budget (the still "
-        "draws every point)", type=parse_point_budget, metavar="N")
+        "draws every point in view down to points 0.5 px apart on screen)", type=parse_point_budget, metavar="N")
     add("--point-size", DEFAULT_POINT_SIZE, "--render-once of a point cloud draws each point as a square at least "
         "this many pixels wide (the coordinator's --point-size)", type=parse_point_size, metavar="PX")
     parser.add_argument("--interactive", action="store_true",

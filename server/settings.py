@@ -332,7 +332,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                              f"longer and falls back when they are quick (default {defaults.target_fps:g})")
     parser.add_argument("--point-budget", type=parse_point_budget, metavar="N",
                         help="point clouds: a moving frame draws at most this many points, the octree's nodes "
-                             "nearest and largest on screen first; the still after it draws every point "
+                             "nearest and largest on screen first; the still after it draws every point in view "
+                             "down to points 0.5 px apart on screen "
                              f"(default {defaults.point_budget})")
     parser.add_argument("--point-size", type=number_parser(0.0, above=True, maximum=MAX_POINT_SIZE, note=" px"),
                         metavar="PX", help="point clouds: each point is a square at least this many pixels wide, "

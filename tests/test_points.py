@@ -27,7 +27,7 @@ from node.scene.point_files import PointArrays, is_point_file, read_points
 from node.scene.points import NODE_GRID_BITS, PointCloud, _runs_gathered, _spread_bits, build_octree
 from tessera.compositing.eye_dome import eye_dome, guarded_rect, shade_region
 from tessera.geometry import Camera, Rect
-from tessera.points.budget import refinement, select_nodes
+from tessera.points.budget import pixel_scale, refinement, select_nodes, still_nodes
 from tessera.wire.messages import ShareSpec
 
 UTM = np.array([500000.0, 4000000.0, 100.0])
@@ -135,6 +135,35 @@ def test_the_budget_takes_the_nearest_first_and_keeps_parents(cloud: PointCloud)
     assert distance[deep & chosen].mean() < distance[deep & everything & ~chosen].mean()
     words = refinement(tree, chosen)
     assert (words[~chosen] == 0).all() and words[0] != 0
+
+
+def test_the_still_draws_each_place_down_to_its_spacing_on_screen(cloud: PointCloud) -> None:
+    """A still's nodes: those in view, closed under parents, each below the root there because its
+    parent's points lie more than the spacing apart on screen, and each in view left out under a
+    chosen parent because they do not; a spacing of 0 is every node in view, a finer one draws more."""
+    tree, spacing = cloud.world_tree, cloud.nodes.spacing
+    centre = cloud.bounds.mean(axis=0)
+    camera = Camera(tuple(centre + np.array([-150.0, -150.0, 40.0])), tuple(centre), (0.0, 0.0, 1.0), 50.0)
+    size = (320, 180)
+    everything = select_nodes(tree, camera, size, cloud.bounds, None)
+    eye = np.asarray(camera.eye)
+    distance = np.linalg.norm(np.clip(eye, tree.boxes[:, 0], tree.boxes[:, 1]) - eye, axis=1)
+    parent_px = spacing * 2.0 ** (1 - tree.depths) * pixel_scale(camera, size) / distance
+    below_root = tree.parents >= 0
+    previous = everything
+    for spacing_px in (0.0, 0.5, 1.0, 4.0):
+        chosen = still_nodes(tree, camera, size, cloud.bounds, spacing, spacing_px=spacing_px)
+        assert chosen[0] and not (chosen & ~previous).any()
+        assert chosen[tree.parents[chosen & below_root]].all()     # closed under parents
+        assert (parent_px[chosen & below_root] > spacing_px).all()
+        left_out = everything & ~chosen & below_root
+        left_out &= chosen[np.maximum(tree.parents, 0)]
+        assert (parent_px[left_out] <= spacing_px).all()
+        previous = chosen
+    np.testing.assert_array_equal(still_nodes(tree, camera, size, cloud.bounds, spacing, spacing_px=0.0), everything)
+    assert 1 < tree.counts[previous].sum() < tree.counts[everything].sum() / 2
+    usable = np.arange(tree.node_count) < max(tree.node_count // 4, 2)
+    assert not (still_nodes(tree, camera, size, cloud.bounds, spacing, usable) & ~usable).any()
 
 
 def test_las_and_laz_files_are_read_with_their_colours(tmp_path: Path) -> None:

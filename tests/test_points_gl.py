@@ -1,6 +1,6 @@
 """Point clouds drawn (issue 36): tiles equal the whole frame bit for bit (the budget's choice shared
 by every tile, EDL with its guard band), two points 1 mm apart in UTM coordinates are two, the
-budget bounds the points drawn and the still draws them all."""
+budget bounds the points drawn and the still draws them down to its spacing on screen."""
 
 from __future__ import annotations
 
@@ -55,13 +55,17 @@ def test_tiles_equal_the_whole_frame(cloud_renderer: PointRenderer, budget: int 
         assert tile.points <= whole.points
 
 
-def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer) -> None:
+def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Within a budget, at most that many points; a still at a spacing of 0, every point in view (the
+    whole terrain); at the default spacing, fewer in a frame smaller than the cloud's points."""
     size = (160, 96)
     camera = oblique(cloud_renderer.scene.bounds)
-    everything = cloud_renderer.render_frame(camera, size)
+    still = cloud_renderer.render_frame(camera, size)
     budgeted = cloud_renderer.render_frame(camera, size, point_budget=50_000)
-    assert budgeted.points <= 50_000 < everything.points
-    assert everything.points == cloud_renderer.scene.point_count     # the whole terrain is in view
+    monkeypatch.setattr(cloud_renderer, "still_spacing_px", 0.0)
+    everything = cloud_renderer.render_frame(camera, size)
+    assert budgeted.points <= 50_000 < still.points < everything.points
+    assert everything.points == cloud_renderer.scene.point_count
 
 
 def test_points_a_millimetre_apart_in_utm_coordinates_stay_apart(ctx: moderngl.Context) -> None:

@@ -24,11 +24,13 @@
   between tiles (:meth:`PointRenderer.upload_step`). Until then a frame chooses among the nodes wholly
   uploaded (for those seconds a node's tiles may choose less than another's); a still's sample
   copies the rest first.
-- The still draws every node (no budget); its samples are jittered and accumulated as the mesh
-  renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`). A tile given a ``stop``
-  is drawn in pieces of :data:`PIECE_POINTS` (the same runs in the same order: the same pixels) and
-  given up between two once ``stop`` says so (:class:`DrawStopped`): a node drops a still's sample
-  whose frame was cancelled (the camera moved) within a piece, not after every point in view.
+- The still draws every node in view down to the level whose points lie :data:`STILL_SPACING_PX`
+  apart on screen (no budget, :func:`tessera.points.budget.still_nodes`); its samples are jittered
+  and accumulated as the mesh renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`).
+  A tile given a ``stop`` is drawn in pieces of :data:`PIECE_POINTS` (the same runs in the same
+  order: the same pixels) and given up between two once ``stop`` says so (:class:`DrawStopped`): a
+  node drops a still's sample whose frame was cancelled (the camera moved) within a piece, not
+  after every point in view.
 
 Needs GL 4.3 (multi-draw-indirect with base instances): Mesa llvmpipe and NVIDIA have it.
 """
@@ -54,7 +56,14 @@ from tessera.balancers.projection import project_boxes
 from tessera.compositing.eye_dome import guarded_rect, shade_region
 from tessera.decomposition.data_partition import covering_rect
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, near_far_from_bounds, view_projection
-from tessera.points.budget import DEFAULT_POINT_SIZE, pixel_scale, refinement, select_nodes
+from tessera.points.budget import (
+    DEFAULT_POINT_SIZE,
+    STILL_SPACING_PX,
+    pixel_scale,
+    refinement,
+    select_nodes,
+    still_nodes,
+)
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, jitter_matrix
 from tessera.wire.messages import MAX_POINT_SIZE
 
@@ -133,6 +142,8 @@ class PointRenderer:
     among the nodes that are (a still's sample copies them all first). Raises SceneError below GL 4.3."""
 
     lod = None
+    #: A still draws each place down to the level whose points lie this many pixels apart (0: every point).
+    still_spacing_px = STILL_SPACING_PX
 
     def __init__(self, ctx: moderngl.Context, cloud: PointCloud, background: Sequence[float] = DEFAULT_BACKGROUND,
                  point_size: float = DEFAULT_POINT_SIZE, first_points: int | None = None) -> None:
@@ -227,16 +238,21 @@ class PointRenderer:
 
     def choose(self, camera: Camera, size: tuple[int, int], budget: int | None,
                stop: Callable[[], bool] | None = None) -> np.ndarray:
-        """(M,) bool the frame's nodes within ``budget`` (None: all in view, every point uploaded
+        """(M,) bool the frame's nodes within ``budget`` (None: a still's, every node in view down to
+        :attr:`still_spacing_px`, :func:`tessera.points.budget.still_nodes`, every point uploaded
         first, :meth:`upload_all` with ``stop``) among the nodes on the GL side, their refinement
         written to the node buffer; the last frame's kept for its other tiles while no more nodes
         arrived."""
         if budget is None and not self.complete:
             self.upload_all(stop)
         usable = self._usable
-        key = (camera, size, budget, None if usable is None else self.uploaded)
+        key = (camera, size, budget, self.still_spacing_px, None if usable is None else self.uploaded)
         if key != self._frame_key:
-            self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget, usable)
+            if budget is None:
+                self._chosen = still_nodes(self._world_tree, camera, size, self.scene.bounds, self.scene.nodes.spacing,
+                                           usable, self.still_spacing_px)
+            else:
+                self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget, usable)
             self._node_rows["refine"] = refinement(self._world_tree, self._chosen)
             self.node_info.write(self._node_rows.tobytes())
             self._frame_key = key

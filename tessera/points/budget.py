@@ -12,6 +12,12 @@ its subtree out), as long as the running count stays within the budget: a prefix
 the choice is closed under parents — a coarse level is always drawn under its finer ones (each
 level is a subsample of the one below, :mod:`node.scene.points`).
 
+A still (no budget, :func:`still_nodes`) draws every node in view down to the level whose points
+lie at most :data:`STILL_SPACING_PX` apart on screen where they lie: finer levels add points to
+pixels that hold several already, and with the depth test they only choose which of them a pixel
+shows (a cloud far larger than a frame's pixels then costs a still what its pixels need, not every
+point in view per sample).
+
 Splat sizes follow the choice (:func:`refinement`): where a node's child in an octant is chosen
 too, its points there are drawn at the finer spacing (one level deep; deeper, the child's coarsest).
 """
@@ -31,6 +37,10 @@ from tessera.geometry import Camera
 DEFAULT_POINT_BUDGET = 300_000
 #: The smallest splat side in pixels (``--point-size``).
 DEFAULT_POINT_SIZE = 2.0
+#: A still draws each place down to the first level whose points lie at most this many pixels apart
+#: on screen (:func:`still_nodes`). Measured on the 100M-point terrain (docs, benchmarks 'Point
+#: clouds'): see there for the PSNR against the still of every point and the points a sample draws.
+STILL_SPACING_PX = 0.5
 #: Most octant depths a node's refinement word holds (4 bits each).
 MAX_REFINE = 15
 
@@ -109,6 +119,24 @@ def select_nodes(tree: PointTree, camera: Camera, size: tuple[int, int], bounds:
     taken = int(np.searchsorted(np.cumsum(tree.counts[order]), budget, side="right"))
     chosen = np.zeros(tree.node_count, bool)
     chosen[order[:taken]] = True
+    return chosen
+
+
+def still_nodes(tree: PointTree, camera: Camera, size: tuple[int, int], bounds: np.ndarray, spacing: float,
+                usable: np.ndarray | None = None, spacing_px: float = STILL_SPACING_PX) -> np.ndarray:
+    """(M,) bool: the nodes a still of a ``size`` frame seen by ``camera`` draws (module docstring):
+    those in view (:func:`select_nodes` with no budget) whose parent's points, ``spacing`` × 2^(1 −
+    depth) apart (``spacing``: the root's, world units), lie more than ``spacing_px`` pixels apart
+    at the node's subtree box's nearest point (the root always; a node with the eye in its box
+    always); closed under parents."""
+    chosen = select_nodes(tree, camera, size, bounds, None, usable)
+    lo, hi = tree.boxes[:, 0], tree.boxes[:, 1]
+    eye = np.asarray(camera.eye, np.float64)
+    distance = np.linalg.norm(np.clip(eye, lo, hi) - eye, axis=1)
+    parent_spacing = spacing * np.exp2(1.0 - tree.depths) * pixel_scale(camera, size)
+    chosen &= (tree.depths == 0) | (parent_spacing > spacing_px * distance)
+    for ids in tree.by_depth()[1:]:
+        chosen[ids] &= chosen[tree.parents[ids]]
     return chosen
 
 

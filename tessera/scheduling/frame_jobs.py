@@ -111,8 +111,9 @@ class FrameJob:
     highlight: str | None = None
     #: Its levels-of-detail bound, px (None: full detail; stills always are).
     lod_error_px: float | None = None
-    #: A point cloud's frame (issue 36): its point budget (None: every point, a still's), the smallest
-    #: splat side (px) and, where the coordinator shades the merged frame (sort-last), near and far.
+    #: A point cloud's frame (issue 36): its point budget (None: a still's, every point in view down
+    #: to its spacing on screen), the smallest splat side (px) and, where the coordinator shades the
+    #: merged frame (sort-last), near and far.
     point_budget: int | None = None
     point_size: float | None = None
     eye_dome: tuple[float, float] | None = None
