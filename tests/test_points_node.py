@@ -2,11 +2,13 @@
 sample of every point in view stops between two pieces of its draw and is answered with
 ``tiles_dropped``, and the next frame's tile is drawn at once. A node holds a cloud (and draws it)
 once its coarse levels are on the GL side; the rest follows between tiles. A cloud's entry in the
-cache is opened by the node itself, checked beside the upload (rebuilt when it fails)."""
+cache is opened by the node itself, checked in the order it is uploaded (rebuilt when its first
+blocks fail; a later block that fails is never drawn)."""
 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import threading
 from pathlib import Path
@@ -19,8 +21,10 @@ from node.client import NodeClient
 from node.gl import point_renderer, worker
 from node.gl.point_renderer import PointRenderer
 from node.gl.worker import GLWorker
+from node.scene import cache, point_cache
 from node.scene.cache_folder import CacheFolder
 from node.scene.ingest import read_scene
+from node.scene.mesh import SceneError
 from node.scene.read_process import ready_entry
 from node.settings import NodeSettings
 from tessera.geometry import Camera, Rect
@@ -175,3 +179,48 @@ def test_a_cloud_in_the_cache_is_opened_by_the_node_and_a_corrupt_one_built_agai
     assert any(m.startswith("reading") for m in messages), "the entry was built again"
     assert ready_entry(spec, 4096, None, folder) == entry
     np.testing.assert_array_equal(again, clean)
+
+
+def test_a_cloud_is_held_once_its_first_blocks_pass_and_no_unchecked_point_is_drawn(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cloud's entry is checked in the order it is uploaded: one whose later block is corrupt is
+    held at once (not built again first), its points copied up to that block and no further, the
+    entry removed (the next load builds it again); a still, which needs every point, fails."""
+    monkeypatch.setattr(cache, "BLOCK_BYTES", 1 << 20)
+    monkeypatch.setattr(point_cache, "BLOCK_BYTES", 1 << 20)
+    monkeypatch.setattr(worker, "FIRST_UPLOAD_POINTS", 110_000)     # the root node and more
+    monkeypatch.setattr(point_renderer, "UPLOAD_STEP_POINTS", 100_000)
+    spec = str(write_points(tmp_path / "cloud.ply"))
+    folder = CacheFolder(tmp_path / "cache")
+    entry = read_scene(spec, spec, 4096, None, lambda fraction, message: None, folder)
+    positions = np.load(entry / "positions.npy", mmap_mode="r+")
+    bad = (4 << 20) // 12 + 10           # a point of the fifth 1 MiB block of positions
+    positions[bad, 0] += 30.0
+    positions.flush()
+    del positions
+    assert list(itertools.islice(point_cache.checked_prefixes(entry), 4)) == [0, 87_381, 174_762, 262_144]
+    camera = Camera(tuple(CAMERA["eye"]), tuple(CAMERA["target"]), (0.0, 0.0, 1.0), 50.0)
+
+    async def run() -> tuple[list[str], int, int, str]:
+        messages: list[str] = []
+        gl = GLWorker(cache=folder)
+        await gl.start()
+        try:
+            await gl.load(LoadScene(scene=spec), lambda fraction, message: messages.append(message))
+            renderer = gl._scenes.find(spec).renderer
+            assert isinstance(renderer, PointRenderer)
+            assert renderer.uploaded == 110_000
+            tile = await gl.render(camera, (64, 48), Rect(0, 0, 64, 48), 0, points=(POINTS, None))
+            while gl._uploads:
+                await asyncio.sleep(0.01)
+            with pytest.raises(SceneError) as still:
+                await gl.render(camera, (64, 48), Rect(0, 0, 64, 48), 0, points=(None, None))
+            return messages, tile.points, renderer.uploaded, str(still.value)
+        finally:
+            await asyncio.to_thread(gl.close)
+
+    messages, points, uploaded, reason = asyncio.run(run())
+    assert not any(m.startswith("reading") for m in messages), "held from the entry, not built again"
+    assert points > 0 and 110_000 < uploaded <= (4 << 20) // 12 < bad, f"{uploaded} points copied"
+    assert "checksum" in reason
+    assert not entry.exists(), "the corrupt entry removed"

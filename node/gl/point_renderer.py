@@ -23,7 +23,9 @@
   levels: nodes are stored in hierarchy order) and holds it; the rest follows a step at a time
   between tiles (:meth:`PointRenderer.upload_step`). Until then a frame chooses among the nodes wholly
   uploaded (for those seconds a node's tiles may choose less than another's); a still's sample
-  copies the rest first.
+  copies the rest first. A cloud whose cache entry is being checked (``checked``,
+  :class:`node.scene.point_cache.PointCheck`) copies only the points that passed: nothing unchecked
+  is drawn.
 - The still draws every node in view down to the level whose points lie :data:`STILL_SPACING_PX`
   apart on screen (no budget, :func:`tessera.points.budget.still_nodes`); its samples are jittered
   and accumulated as the mesh renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`).
@@ -51,6 +53,7 @@ from node.gl.context import draw_indirect, finish
 from node.gl.renderer import RenderedTile, validate_rect
 from node.scene.mesh import SceneError
 from node.scene.pages import release_pages
+from node.scene.point_cache import PointCheck
 from node.scene.points import PointCloud
 from tessera.balancers.projection import project_boxes
 from tessera.compositing.eye_dome import guarded_rect, shade_region
@@ -76,6 +79,8 @@ UPLOAD_POINTS = 1 << 19
 FIRST_UPLOAD_POINTS = 4_000_000
 #: Points copied by one :meth:`PointRenderer.upload_step`: 32 MB, 20-60 ms of CPU on llvmpipe.
 UPLOAD_STEP_POINTS = 1 << 21
+#: Seconds a still's upload waits for the entry's check before it looks at its ``stop`` again.
+CHECK_WAIT_S = 0.05
 #: Points drawn between two looks at a draw's ``stop``: 20-40 ms of CPU on llvmpipe (0.2-0.35 µs a point).
 PIECE_POINTS = 100_000
 
@@ -146,7 +151,8 @@ class PointRenderer:
     still_spacing_px = STILL_SPACING_PX
 
     def __init__(self, ctx: moderngl.Context, cloud: PointCloud, background: Sequence[float] = DEFAULT_BACKGROUND,
-                 point_size: float = DEFAULT_POINT_SIZE, first_points: int | None = None) -> None:
+                 point_size: float = DEFAULT_POINT_SIZE, first_points: int | None = None,
+                 checked: PointCheck | None = None) -> None:
         if ctx.version_code < 430:
             raise SceneError(f"{cloud.name}: point clouds need GL 4.3 (multi-draw-indirect), this GL is "
                              f"{ctx.version_code}")
@@ -157,6 +163,7 @@ class PointRenderer:
         self.positions = ctx.buffer(reserve=max(count * 12, 12))
         self.colors = ctx.buffer(reserve=max(count * 4, 4))
         self.uploaded = 0
+        self.checked = checked
         self._usable: np.ndarray | None = np.zeros(nodes.count, bool)
         self._upload_to(count if first_points is None else min(first_points, count))
         self.node_info = ctx.buffer(reserve=max(nodes.count * 20, 20))
@@ -208,8 +215,14 @@ class PointRenderer:
 
     def _upload_to(self, end: int) -> None:
         """Copy points up to ``end`` to the GL (the mapped pages handed back), the nodes whose
-        points all arrived made usable."""
+        points all arrived made usable; with a ``checked`` entry, only those that passed their
+        check (SceneError when none more can: it failed)."""
         cloud = self.scene
+        check = self.checked
+        if check is not None and end > check.points:
+            if check.failed is not None and check.points <= self.uploaded:
+                raise SceneError(f"{cloud.name}: {check.failed}")
+            end = check.points
         for first in range(self.uploaded, end, UPLOAD_POINTS):
             last = min(first + UPLOAD_POINTS, end)
             self.positions.write(np.ascontiguousarray(cloud.positions[first:last], np.float32), offset=first * 12)
@@ -230,11 +243,13 @@ class PointRenderer:
         return self.complete
 
     def upload_all(self, stop: Callable[[], bool] | None = None) -> None:
-        """Copy the points not on the GL side yet, a step at a time; DrawStopped once ``stop()`` is
-        true between two steps."""
+        """Copy the points not on the GL side yet, a step at a time (waiting for their check);
+        DrawStopped once ``stop()`` is true between two steps."""
         while not self.upload_step():
             if stop is not None and stop():
                 raise DrawStopped(f"stopped uploading at point {self.uploaded} of {self.scene.point_count}")
+            if self.checked is not None:
+                self.checked.wait(self.uploaded + 1, CHECK_WAIT_S)
 
     def choose(self, camera: Camera, size: tuple[int, int], budget: int | None,
                stop: Callable[[], bool] | None = None) -> np.ndarray:

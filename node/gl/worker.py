@@ -41,7 +41,7 @@ from node.gl.resident import ResidentScene, ResidentScenes, SceneKey, estimated_
 from node.gl.shading import ShadingOptions
 from node.gl.shared import SharedGL
 from node.gl.view_tools import ViewTools
-from node.scene.cache import CacheError, open_entry
+from node.scene.cache import CacheError, open_entry, remove_entry
 from node.scene.cache_folder import CacheFolder
 from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
@@ -51,7 +51,7 @@ from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
 from node.scene.octree import DEFAULT_FACE_LIMIT
-from node.scene.point_cache import is_points_entry, open_points_entry
+from node.scene.point_cache import PointCheck, is_points_entry, open_points_entry
 from node.scene.points import PointCloud
 from node.scene.read_process import READ_IN_PROCESS_BYTES, SceneReaderProcess, reads_in_process, ready_entry
 from node.scene.shares import keep_share
@@ -217,13 +217,22 @@ class GLWorker:
         scene, entry, unchecked = await loop.run_in_executor(reader, self._read, request, progress, False)
         # An entry found in the cache is checked (its CRCs) in a thread of its own while the GL thread
         # uploads it, and the levels the cache holds are read and checked in the loader thread; the
-        # scene is held (drawn) only once its entry passed.
+        # scene is held (drawn) only once its entry passed. A point cloud's entry is checked in the
+        # order it is uploaded: held once its node table and first points passed, the rest copied
+        # as it passes (issue 36: the first frame of 100M points waited for 1.5 GB of CRCs).
+        points_check = None
+        if unchecked and entry is not None and isinstance(scene, PointCloud):
+            points_check = PointCheck(entry)
+            if not await self._first_points_checked(points_check, scene.point_count):
+                log.warning("scene cache entry %s fails its check (%s); building it again", entry, points_check.failed)
+                scene, entry, _ = await loop.run_in_executor(reader, self._read, request, progress, True)
+                points_check = None
         check = loop.run_in_executor(self._checker, self._check, entry, scene.name) \
-            if unchecked and entry is not None else None
+            if unchecked and entry is not None and not isinstance(scene, PointCloud) else None
         levels = loop.run_in_executor(self._loader, self._cached_levels, entry, scene) \
             if request.levels and entry is not None and isinstance(scene, SceneData) else None
         try:
-            made = await self._call(self._upload, key, request, scene, entry, progress)
+            made = await self._call(self._upload, key, request, scene, entry, progress, points_check)
             if check is not None and not await check:
                 await self._call(made.renderer.release)
                 log.warning("scene cache entry %s fails its check; building it again", entry)
@@ -234,7 +243,7 @@ class GLWorker:
                 made = await self._call(self._upload, key, request, scene, entry, progress)
             loaded: LoadedScene = await self._call(self._hold, made)
             if isinstance(made.renderer, PointRenderer) and not made.renderer.complete:
-                task = loop.create_task(self._upload_rest(key, made.renderer))
+                task = loop.create_task(self._upload_rest(key, made.renderer, entry))
                 self._uploads.add(task)
                 task.add_done_callback(self._uploads.discard)
         except BaseException:
@@ -252,14 +261,32 @@ class GLWorker:
                                              levels=found[0], group_levels=found[1])
         return loaded
 
-    async def _upload_rest(self, key: SceneKey, renderer: PointRenderer) -> None:
+    async def _first_points_checked(self, check: PointCheck, count: int) -> bool:
+        """Start ``check`` in the checking thread; whether the node table and the points a node
+        copies first (:data:`FIRST_UPLOAD_POINTS`, of ``count``) passed."""
+        loop = asyncio.get_running_loop()
+        running = loop.run_in_executor(self._checker, check.run)
+        running.add_done_callback(lambda done: done.cancelled() or done.exception())
+        return bool(await loop.run_in_executor(None, check.wait, min(FIRST_UPLOAD_POINTS, count)))
+
+    async def _upload_rest(self, key: SceneKey, renderer: PointRenderer, entry: Path | None) -> None:
         """Copy the points of the cloud held as ``key`` not on the GL side yet, a step at a time,
-        each a call of its own on the GL thread (tiles are drawn between two); until the scene is
-        released or the worker closes."""
+        each a call of its own on the GL thread (tiles are drawn between two), each once its points
+        passed their check (a check that fails stops the copy, the entry ``entry`` removed: moving
+        frames draw the points copied, a still fails, the next load builds it again); until the
+        scene is released or the worker closes."""
         started = time.perf_counter()
+        loop, check = asyncio.get_running_loop(), renderer.checked
         try:
-            while not self._closing and await self._call(self._upload_step, key, renderer):
-                pass
+            while not self._closing:
+                if check is not None and not await loop.run_in_executor(None, check.wait, renderer.uploaded + 1):
+                    log.warning("scene cache entry %s fails its check (%s): %d of %d points drawn, the entry "
+                                "removed", entry, check.failed, renderer.uploaded, renderer.scene.point_count)
+                    if entry is not None:
+                        remove_entry(entry)
+                    return
+                if not await self._call(self._upload_step, key, renderer):
+                    break
         except RuntimeError:   # the GL thread stopped (close)
             if not self._closing:
                 raise
@@ -376,8 +403,9 @@ class GLWorker:
         return scene, made if isinstance(made, Path) else None, unchecked
 
     def _upload(self, key: SceneKey, request: LoadScene, scene: SceneData | PointCloud, entry: Path | None,
-                progress: ProgressCallback) -> ResidentScene:
-        """On the GL thread: upload ``scene`` (not held yet: :meth:`_hold`)."""
+                progress: ProgressCallback, points_check: PointCheck | None = None) -> ResidentScene:
+        """On the GL thread: upload ``scene`` (not held yet: :meth:`_hold`); a point cloud only as far
+        as ``points_check`` passed its entry (None: checked, or read into memory)."""
         assert self._ctx is not None
         if is_mesh_spec(key[0]) and not self.meshes.live(key[0]):
             raise SceneError(f"{key[0]}: superseded by a newer mesh while it was read")
@@ -386,7 +414,8 @@ class GLWorker:
         renderer: TileRenderer | PointRenderer
         if isinstance(scene, PointCloud):
             progress(0.9, f"uploading {scene.point_count} points in {scene.nodes.count} octree nodes")
-            renderer = PointRenderer(self._ctx, scene, background, first_points=FIRST_UPLOAD_POINTS)
+            renderer = PointRenderer(self._ctx, scene, background, first_points=FIRST_UPLOAD_POINTS,
+                                     checked=points_check)
             planning = None
         else:
             progress(0.9, f"uploading {scene.triangle_count} triangles in {scene.chunks.chunk_count} chunks")

@@ -82,12 +82,17 @@ class EntryInfo:
 
 def _crcs(array: np.ndarray) -> list[int]:
     """CRC-32 of each :data:`BLOCK_BYTES` block of ``array``'s bytes (C order), pages handed back as read."""
+    return [block_crc(array, block) for block in range(max(-(-array.nbytes // BLOCK_BYTES), 1))]
+
+
+def block_crc(array: np.ndarray, block: int) -> int:
+    """CRC-32 of block ``block`` (:data:`BLOCK_BYTES` each) of ``array``'s bytes (C order), its pages
+    handed back as read."""
     flat = array.reshape(-1).view(np.uint8) if array.size else np.zeros(0, np.uint8)
-    crcs = []
-    for first in range(0, max(flat.size, 1), BLOCK_BYTES):
-        crcs.append(zlib.crc32(flat[first:first + BLOCK_BYTES]))
-        release_pages(flat, first, min(first + BLOCK_BYTES, flat.size))
-    return crcs
+    first = block * BLOCK_BYTES
+    crc = zlib.crc32(flat[first:first + BLOCK_BYTES])
+    release_pages(flat, first, min(first + BLOCK_BYTES, flat.size))
+    return crc
 
 
 def _material_json(material: SurfaceMaterial, texture_id: Callable[[np.ndarray | None], int | None]) -> dict[str, Any]:

@@ -15,13 +15,14 @@ hold none there.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+import threading
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from node.scene.cache import CacheError, Progress, read_arrays, read_table, write_arrays
+from node.scene.cache import BLOCK_BYTES, CacheError, Progress, block_crc, read_arrays, read_table, write_arrays
 from node.scene.cache_folder import CacheFolder, checked_entry, share_name
 from node.scene.mesh import SceneError
 from node.scene.point_files import read_points
@@ -86,6 +87,75 @@ def open_points_entry(directory: Path, name: str, verify: bool = True) -> PointC
                                                             tuple(float(w) for w in share["weights"])))
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise CacheError(f"{directory.name}: inconsistent table ({type(exc).__name__}: {exc})") from None
+
+
+def checked_prefixes(directory: Path) -> Iterator[int]:
+    """Check the CRCs of the point cloud entry ``directory`` in the order a node uploads it (raises
+    CacheError at the first that fails): every array but the positions and colours (the node
+    table), then those two a block at a time, the one covering fewer points first; after each
+    block, yields how many of the first points have both passed (last: every point). A node draws
+    a point once it passed (:class:`node.gl.point_renderer.PointRenderer`'s ``checked``)."""
+    table, arrays = read_arrays(directory, False, POINTS_ENTRY_FORMAT)
+    try:
+        for name, array in arrays.items():
+            crcs = list(table["files"][name]["crc32"])
+            if name not in ("positions", "colors") and [block_crc(array, b) for b in range(len(crcs))] != crcs:
+                raise CacheError(f"{directory.name}: {name}.npy fails its checksum (corrupt)")
+        positions, colors = arrays["positions"], arrays["colors"]
+        wanted = {name: list(table["files"][name]["crc32"]) for name in ("positions", "colors")}
+    except (KeyError, TypeError) as exc:
+        raise CacheError(f"{directory.name}: inconsistent table ({type(exc).__name__}: {exc})") from None
+    count = int(positions.shape[0])
+    for name, array in (("positions", positions), ("colors", colors)):
+        if len(wanted[name]) != max(-(-array.nbytes // BLOCK_BYTES), 1):
+            raise CacheError(f"{directory.name}: {name}.npy has {len(wanted[name])} checksums for {array.nbytes} bytes")
+    done = {"positions": 0, "colors": 0}
+
+    def covered(name: str) -> int:
+        """The first points whose rows in ``name`` lie in the blocks checked."""
+        array = positions if name == "positions" else colors
+        whole = done[name] >= len(wanted[name])
+        return count if whole else min(count, done[name] * BLOCK_BYTES // max(array.strides[0], 1))
+
+    while left := [name for name in done if done[name] < len(wanted[name])]:
+        name = min(left, key=covered)
+        if block_crc(positions if name == "positions" else colors, done[name]) != wanted[name][done[name]]:
+            raise CacheError(f"{directory.name}: {name}.npy fails its checksum (corrupt)")
+        done[name] += 1
+        yield min(covered("positions"), covered("colors"))
+
+
+class PointCheck:
+    """The check of a point cloud entry ``directory`` (:func:`checked_prefixes`), :meth:`run` in a
+    thread of its own while others read how far it got: :attr:`points` (the first points that
+    passed), :attr:`failed` (why it failed; None: it did not) and :meth:`wait` for more."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.points = 0
+        self.failed: str | None = None
+        self._changed = threading.Condition()
+
+    def run(self) -> bool:
+        """Check the entry, telling those who wait after each block; whether it passed."""
+        try:
+            for points in checked_prefixes(self.directory):
+                with self._changed:
+                    self.points = points
+                    self._changed.notify_all()
+        except CacheError as exc:
+            with self._changed:
+                self.failed = str(exc)
+                self._changed.notify_all()
+            return False
+        return True
+
+    def wait(self, points: int, timeout: float | None = None) -> bool:
+        """Whether the first ``points`` points passed, waiting up to ``timeout`` s (None: until they
+        did or the check failed)."""
+        with self._changed:
+            self._changed.wait_for(lambda: self.points >= points or self.failed is not None, timeout)
+            return self.points >= points
 
 
 def share_nodes(cloud: PointCloud, weights: Sequence[float], index: int) -> np.ndarray:
