@@ -24,8 +24,8 @@ file of your own. Then, in a fresh scene cache folder:
   (``first_answer_s``: right after the first frame, on the warm-up, a still's samples under way);
   ``--rests`` times, the camera rests for ``--rest-s`` (a still begins) and moves again:
   ``resume_s``, the seconds from the first input after the rest to the first frame that answers
-  one; then one camera's moving frame against the still of the same camera (PSNR) and the
-  still's seconds; and the peak memory of the coordinator and its nodes together (PSS: the pages
+  one; then one camera's moving frame against the still of the same camera (PSNR), the
+  still's seconds and its samples; and the peak memory of the coordinator and its nodes together (PSS: the pages
   they share, the mapped cache, counted once; their RSS summed; and each process's peak RSS).
 
 Figures depend on what else runs: the table prints the load average beside them.
@@ -317,10 +317,12 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
             moving = client.get(f"/api/sessions/{session}/frame.png", params={"after": first}).content
             asked = time.perf_counter()
             try:
-                still: bytes | None = client.get(f"/api/sessions/{session}/frame.png", timeout=args.still_s,
-                                                 params={"after": first, "still": "true"}).content
+                answer = client.get(f"/api/sessions/{session}/frame.png", timeout=args.still_s,
+                                    params={"after": first, "still": "true"})
+                still: bytes | None = answer.content
+                samples: int | None = int(answer.headers.get("x-frame-samples", 0))
             except httpx.TimeoutException:
-                still = None
+                still, samples = None, None
             still_s = time.perf_counter() - asked
     finally:
         peaks = memory.stop()
@@ -330,7 +332,7 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
     return {"budget": budget, "first_frame_s": round(first_s, 2), "warmup": warmup, "paths": paths,
             "rest_s": args.rest_s, "resume_s": resume, **peaks,
             "psnr_moving_vs_still": None if similar is None else round(similar, 2),
-            "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}",
+            "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}", "still_samples": samples,
             "load": round(os.getloadavg()[0], 1)}
 
 
@@ -381,7 +383,8 @@ def report(result: dict[str, Any]) -> str:
                      f"(first answered in {run['warmup']['first_answer_s']} s); moving again after a rest of "
                      f"{run['rest_s']:g} s: first frame in {run['resume_s']} s; worst fps "
                      f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
-                     f"dB (still {run['still_s']} s); peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
+                     f"dB (still {run['still_s']} s, {run['still_samples']} samples); "
+                     f"peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
                      f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed; each process's peak RSS "
                          f"{run['peak_rss_each_mb'][:6]} MB); load {run['load']}")
     return "\n".join(lines)
