@@ -5,11 +5,15 @@ widget's front end bundles the viewer's own modules."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
+from typing import Any
 
 import pytest
+from jupyter_client.manager import KernelManager
 
+from bench.processes import REPO
 from tessera.client import Tessera
 from tessera.client.frames import ViewSocket
 from tessera.client.notebook import ACK_TIMEOUT_S, WINDOW, CommRelay, TesseraView
@@ -92,3 +96,55 @@ def test_the_view_is_an_anywidget_of_the_viewers_modules(coordinator_factory):
             view.session.show(transport="carrier-pigeon")
         view.close()
         direct.close()
+
+
+def _statuses(client: Any, comm_id: str, timeout: float) -> list[str]:
+    """The statuses the kernel publishes for one comm message to ``comm_id`` (until its idle)."""
+    message = client.session.msg("comm_msg", {"comm_id": comm_id, "data": {"method": "custom",
+                                                                          "content": {"type": "latency"}}})
+    client.shell_channel.send(message)
+    statuses: list[str] = []
+    while not statuses or statuses[-1] != "idle":
+        reply = client.get_iopub_msg(timeout=timeout)
+        if reply["msg_type"] == "status" and reply["parent_header"].get("msg_id") == message["header"]["msg_id"]:
+            statuses.append(reply["content"]["execution_state"])
+    return statuses
+
+
+def _run(client: Any, code: str, timeout: float) -> str:
+    """Run ``code`` in the kernel; what it printed."""
+    out: list[str] = []
+
+    def hook(message: dict) -> None:
+        if message["msg_type"] == "stream":
+            out.append(message["content"]["text"])
+        elif message["msg_type"] == "error":
+            out.append("\n".join(message["content"]["traceback"]))
+
+    reply = client.execute_interactive(code, timeout=timeout, output_hook=hook)
+    assert reply["content"]["status"] == "ok", "".join(out)
+    return "".join(out)
+
+
+def test_the_kernel_answers_a_comm_views_messages_without_busy(coordinator_factory, tmp_path):
+    # Each page message is a shell request: busy and idle would flip JupyterLab's kernel status (and
+    # restyle the page) twice a frame. A real ipykernel: the view's comm gets idle only, another
+    # widget's comm both, and the view's comm both again once the view is closed.
+    coordinator = coordinator_factory("--size", "64x48")
+    manager = KernelManager(kernel_name="python3")
+    manager.start_kernel(cwd=str(tmp_path), env={**os.environ, "PYTHONPATH": str(REPO)})
+    client = manager.client()
+    client.start_channels()
+    try:
+        client.wait_for_ready(timeout=seconds(60))
+        view_id, slider_id = _run(client, "import ipywidgets\nfrom tessera.client import Tessera\n"
+                                  f"view = Tessera({coordinator.url!r}).view('builtin:spheres', width=64, height=48)\n"
+                                  "slider = ipywidgets.IntSlider()\n"
+                                  "print(view.comm.comm_id, slider.comm.comm_id)", seconds(60)).split()
+        assert _statuses(client, view_id, seconds(30)) == ["idle"]
+        assert _statuses(client, slider_id, seconds(30)) == ["busy", "idle"]
+        _run(client, "view.close()", seconds(30))
+        assert _statuses(client, view_id, seconds(30)) == ["busy", "idle"]
+    finally:
+        client.stop_channels()
+        manager.shutdown_kernel(now=True)

@@ -30,6 +30,7 @@ import traitlets
 
 from tessera.client.errors import TesseraError
 from tessera.client.frames import ViewSocket, view_socket_url
+from tessera.client.kernel_status import quiet, unquiet
 from tessera.client.widget_bundle import widget_module
 
 #: Frames sent through the comm and not yet acknowledged by the page, at most.
@@ -193,6 +194,8 @@ class TesseraView(anywidget.AnyWidget):
             self.relay = CommRelay(lambda: ViewSocket(connection.url, session.id, connection.token, connection.timeout),
                                    lambda message: self.send({"type": "control", "message": message}),
                                    self._send_frame)
+            # One message a frame from the page: without a busy and an idle shown for each.
+            quiet(self.comm.comm_id)
         self.on_msg(self._from_page)
 
     def _send_frame(self, frame: bytes, waited_s: float) -> None:
@@ -227,4 +230,7 @@ class TesseraView(anywidget.AnyWidget):
         relay = getattr(self, "relay", None)   # None too for a view whose arguments were refused
         if relay is not None:
             relay.stop()
+            comm = getattr(self, "comm", None)
+            if comm is not None:
+                unquiet(comm.comm_id)
         super().close()
