@@ -11,6 +11,9 @@ no route to the coordinator: JupyterHub, VS Code remote, Colab and SSH tunnels c
 Transport ``"direct"``: the page opens the coordinator's viewer socket itself (one hop less; the
 page must reach the coordinator and be one of its ``--allowed-origins``).
 
+The page's messages to the view's comm get no ``busy`` status from the kernel, only the ``idle``
+(:mod:`tessera.client.kernel_status`): JupyterLab restyles the page at every status change.
+
 While a cell runs, the kernel reads no comm message (the page's acknowledgements and input wait);
 frames still go out, one per :data:`ACK_TIMEOUT_S` once the window is full.
 """

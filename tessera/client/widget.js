@@ -3,12 +3,13 @@
 // size rule). Frames and input travel through the kernel's comm by default: binary TFRM messages
 // as buffers, each acknowledged once drawn so the kernel sends the next (jupyter_rfb's throttle);
 // with transport "direct" the page opens the coordinator's viewer socket itself.
-// Through the comm every message from the page is a kernel request, and the kernel tells the page
-// it went busy and idle for each, which JupyterLab shows (toolbar, status bar, tab icon): at 60
-// camera messages a second that work took the page's main thread and the CPU the render nodes
-// need. So the comm view sends at most COMM_INPUT_WINDOW.inFlight cameras not yet answered by a
-// frame, the newest camera waiting meanwhile, and what the page sends while taking a frame rides
-// with that frame's acknowledgement: about one message a frame.
+// Through the comm every message from the page is a kernel request (the kernel relays it, and
+// Jupyter's server carries it and the kernel's idle back): the comm view sends at most
+// COMM_INPUT_WINDOW.inFlight cameras not yet answered by a frame, the newest camera waiting
+// meanwhile, and what the page sends while taking a frame rides with that frame's acknowledgement:
+// about one message a frame. The kernel publishes no busy for these messages
+// (tessera/client/kernel_status.py): JupyterLab restyled its kernel indicators, the tab's icon and
+// title at every busy and idle, twice a frame, on the CPU the render nodes draw with.
 
 import { Compositor } from "./compositor.js";
 import { Connection } from "./connection.js";
