@@ -50,7 +50,7 @@ from PIL import Image
 
 from bench.images import psnr
 from bench.live import ScriptedViewer, render_once
-from bench.processes import PYTHON, REPO, orbit, process_tree, show_result, start_coordinator
+from bench.processes import PYTHON, REPO, cpu_seconds, orbit, process_tree, show_result, start_coordinator
 from bench.sessions import move, open_session, session_figures, wait_session_ready
 from tessera.cli_values import size_parser
 
@@ -68,10 +68,41 @@ def peak_mb(pid: int) -> float:
     return 0.0
 
 
+def node_pids(coordinator_pid: int) -> list[int]:
+    """The coordinator's local node processes."""
+    return [pid for pid in process_tree(coordinator_pid)[1:] if b"node" in Path(f"/proc/{pid}/cmdline").read_bytes()
+            and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1] == str(coordinator_pid)]
+
+
+def machine_busy_s() -> float:
+    """CPU seconds the whole machine spent not idle since boot (/proc/stat: all but idle and iowait)."""
+    fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(fields[:8]) - fields[3] - fields[4]) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_sample(coordinator_pid: int, nodes: list[int]) -> dict[str, Any]:
+    """CPU seconds so far of the coordinator, each node, this process (the scripted viewer) and
+    the whole machine, with the wall clock (s)."""
+    return {"at": time.perf_counter(), "coordinator": cpu_seconds([coordinator_pid]),
+            "nodes": [cpu_seconds([pid]) for pid in nodes], "viewer": cpu_seconds([os.getpid()]),
+            "machine": machine_busy_s()}
+
+
+def cpu_per_frame(before: dict[str, Any], after: dict[str, Any], frames: float) -> dict[str, Any]:
+    """Between two :func:`cpu_sample`\\ s: CPU ms a frame of the coordinator, each node, the viewer, all
+    of them and the whole machine (others' work included), and the cores the machine had busy."""
+    per = 1000.0 / max(frames, 1.0)
+    nodes = [(b - a) * per for a, b in zip(before["nodes"], after["nodes"], strict=True)]
+    ours = {key: (after[key] - before[key]) * per for key in ("coordinator", "viewer")}
+    return {"node_cpu_ms": [round(v, 1) for v in nodes], "coordinator_cpu_ms": round(ours["coordinator"], 1),
+            "viewer_cpu_ms": round(ours["viewer"], 1), "session_cpu_ms": round(sum(nodes) + sum(ours.values()), 1),
+            "machine_cpu_ms": round((after["machine"] - before["machine"]) * per, 1),
+            "machine_cores_busy": round((after["machine"] - before["machine"]) / (after["at"] - before["at"]), 2)}
+
+
 def node_peaks(coordinator_pid: int) -> list[dict[str, float]]:
     """Each local node's peak memory and its scene reader children's (MiB)."""
-    nodes = [pid for pid in process_tree(coordinator_pid)[1:] if b"node" in Path(f"/proc/{pid}/cmdline").read_bytes()
-             and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1] == str(coordinator_pid)]
+    nodes = node_pids(coordinator_pid)
     return [{"node_mb": round(peak_mb(pid), 1),
              "readers_mb": round(max((peak_mb(child) for child in process_tree(pid)[1:]), default=0.0), 1)}
             for pid in nodes]
@@ -190,13 +221,20 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
                         bounds.append(summary["lod_error_px"] or 0.0)
 
                 sampler = threading.Thread(target=sample, daemon=True)
+                pids = node_pids(coordinator.process.pid)
                 started = time.perf_counter()
                 sampler.start()
+                cpu_before: dict[str, Any] = {}
+                timer = threading.Timer(1.0, lambda: cpu_before.update(cpu_sample(coordinator.process.pid, pids)))
+                timer.start()
                 move([viewer], started + args.moving_s, args.input_hz, 8.0, threading.Event())
+                timer.join()
+                cpu_after = cpu_sample(coordinator.process.pid, pids)
                 ended = time.perf_counter()
                 stop.set()
                 sampler.join()
                 figures = session_figures(viewer, started + 1.0, ended)
+                cpu = cpu_per_frame(cpu_before, cpu_after, figures["fps"] * (ended - started - 1.0))
                 camera = orbit(viewer.camera, 0.05)
                 first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
                 response = client.get(f"/api/sessions/{session}/frame.png", params={"after": first})
@@ -214,7 +252,7 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
             "busy_ms": round(float(np.median(busy)), 1) if busy else None,
             "bound_px": round(float(np.median(bounds)), 2) if bounds else None,
             "bound_max_px": round(float(np.max(bounds)), 2) if bounds else None,
-            "settled_s": round(settled_s, 1), "calibrated": calibrated,
+            "settled_s": round(settled_s, 1), "calibrated": calibrated, **cpu,
             "psnr_vs_full": round(psnr(image, full), 2)}
 
 
@@ -292,6 +330,10 @@ def report(result: dict[str, Any]) -> str:
                 lines.append(f"  {mode:10s} {key}: {f['fps']:.1f} fps, latency p50 {f['latency_p50_ms']:.0f} ms "
                              f"({f['latency_p50_frames']:.1f} frames), {f['triangles_per_frame']} triangles/frame, "
                              f"busy {f['busy_ms']} ms, bound {f['bound_px']} px, PSNR {f['psnr_vs_full']} dB")
+                if "node_cpu_ms" in f:
+                    lines.append(f"  {'':10s} CPU ms a frame: nodes {f['node_cpu_ms']}, coordinator "
+                                 f"{f['coordinator_cpu_ms']}, viewer {f['viewer_cpu_ms']}, machine "
+                                 f"{f['machine_cpu_ms']} ({f['machine_cores_busy']} cores busy)")
     return "\n".join(lines)
 
 
