@@ -80,6 +80,30 @@ def test_hierarchy_finds_exactly_the_boxes_a_flat_test_keeps(bunny):
             assert result.chunks_tested <= result.nodes_visited <= bvh.node_count
 
 
+def test_hidden_ranges_are_left_out_and_their_subtrees_not_walked(bunny):
+    """Chunks a frame's coarse levels stand in for: the cull keeps exactly the flat test's chunks
+    outside them, the terminal nodes still cover every chunk once, and a tree hidden whole is one
+    node's test (a tile drawn at coarse levels walked the tree for chunks it left out)."""
+    _, _, split, bvh, bounds = bunny
+    rng = np.random.default_rng(9)
+    count = split.chunk_count
+    for camera in random_cameras(bounds, 6, seed=8):
+        for rect in GRID_TILES[::4] + random_tiles(rng, 3, SIZE):
+            planes = tile_frustum_planes(camera, SIZE, rect, bounds)
+            cuts = np.unique(rng.integers(0, count + 1, 12))
+            first, end = cuts[0:-1:2], cuts[1::2]
+            hidden_chunks = range_members(first, end)
+            result = cull(bvh, planes, (first.astype(np.int64), end.astype(np.int64)))
+            plain = cull(bvh, planes)
+            assert np.array_equal(result.visible_chunks, np.setdiff1d(plain.visible_chunks, hidden_chunks))
+            covered = range_members(bvh.first_chunk[result.terminal_nodes], bvh.end_chunk[result.terminal_nodes])
+            assert np.array_equal(np.sort(covered), np.arange(count)), "terminal nodes are not a cut"
+            assert result.nodes_visited <= plain.nodes_visited
+    everything = cull(bvh, tile_frustum_planes(camera, SIZE, GRID_TILES[5], bounds),
+                      (np.array([0]), np.array([count])))
+    assert everything.visible_count == 0 and everything.nodes_visited == 1
+
+
 def test_bvh_nodes_cover_contiguous_chunk_ranges_and_contain_their_children(bunny):
     _, _, split, bvh, _ = bunny
     assert bvh.node_count == 2 * split.chunk_count - 1 and bvh.chunk_count == split.chunk_count

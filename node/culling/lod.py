@@ -20,10 +20,11 @@ join as the whole frame (they meet on the groups' locked borders, :mod:`node.sce
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from node.culling.bvh import merge_touching
 from node.scene.lod import LodTree
 from tessera.geometry import Camera
 from tessera.screen_error import error_scales
@@ -32,11 +33,17 @@ from tessera.screen_error import error_scales
 @dataclass(frozen=True, slots=True, eq=False)
 class LodCut:
     """A frame's levels: ``nodes`` (K,) int64 the coarse clusters drawn (sorted), ``blocked_first`` /
-    ``blocked_end`` (J,) int64 the chunk ranges they stand in for (not drawn at full detail), sorted."""
+    ``blocked_end`` (J,) int64 the chunk ranges they stand in for (not drawn at full detail), sorted;
+    ``hidden`` the same ranges with touching ones merged (what the chunk tree's traversal skips:
+    :func:`node.culling.bvh.cull`)."""
 
     nodes: np.ndarray
     blocked_first: np.ndarray
     blocked_end: np.ndarray
+    hidden: tuple[np.ndarray, np.ndarray] = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden", merge_touching(self.blocked_first, self.blocked_end))
 
     @classmethod
     def full(cls) -> LodCut:

@@ -197,7 +197,7 @@ class TileCuller:
 
     def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray, lod: LodCut | None) -> TileCull:
         started = time.perf_counter()
-        result = cull(self.bvh, planes)
+        result = cull(self.bvh, planes, None if lod is None else lod.hidden)
         first, end = result.visible_first, result.visible_end
         if lod is not None:
             first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
