@@ -20,8 +20,10 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
   coordinator's own scene (one session, no still), a scripted viewer orbits the camera at
   ``--input-hz`` for ``--moving-s`` at ``--moving-size``: frames per second, input → frame
   latency (p50, ms and frame intervals), the triangles the nodes drew per frame (summed over the
-  nodes with a tile in it), the nodes' busy time per frame, the bound in use; then the moving
-  frame of the last camera against ``--render-once --interactive`` at full detail (PSNR).
+  nodes with a tile in it), the nodes' busy time per frame, the bound in use, the CPU ms a frame of
+  the coordinator, each node, the scripted viewer and the whole machine (others' work included;
+  from 1 s after the motion began); then the moving frame of the last camera against
+  ``--render-once --interactive`` at full detail (PSNR).
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
