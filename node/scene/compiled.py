@@ -7,6 +7,8 @@ every mesh where numba is missing, take the numpy passes (:mod:`node.scene.octre
 - :func:`sorted_faces`: the faces renumbered to the new vertex order and sorted by their lowest
   vertex, then by number, as one counting sort (two linear passes on two threads, no keys sorted);
 - :func:`radix_sort`: the vertices' 64-bit keys (code above number) sorted in three passes;
+- :func:`face_records`: a binary PLY's faces copied from the file's records (a count byte and three
+  4-byte indices each), three bytes-to-index loads where numpy copies unaligned strided fields;
 - :func:`face_pass`: each chunk's box and the smooth vertex normals in one pass: a face's normal is
   the cross product of two edges in float32 (twice its area), summed at its corners in float64 (as
   the numpy pass does), so a vertex's normal does not depend on the order of its faces.
@@ -141,12 +143,28 @@ def _build(jit: Any) -> Any:
             out[slots[bucket]] = key
             slots[bucket] += 1
 
+    @jit
+    def face_records(data: np.ndarray, first: int, end: int, out: np.ndarray) -> tuple[bool, int]:
+        """Faces [first, end) of a PLY's records of 13 bytes (a 1-byte count, three 4-byte little-endian
+        indices) in ``data`` (uint8) into ``out`` (F, 3) uint32: (all counts 3, largest index)."""
+        triangles, largest = True, np.uint32(0)
+        for face in range(first, end):
+            base = face * 13
+            triangles = triangles and data[base] == 3
+            for corner in range(3):
+                at = base + 1 + 4 * corner
+                value = (np.uint32(data[at]) | (np.uint32(data[at + 1]) << np.uint32(8))
+                         | (np.uint32(data[at + 2]) << np.uint32(16)) | (np.uint32(data[at + 3]) << np.uint32(24)))
+                out[face, corner] = value
+                largest = max(largest, value)
+        return triangles, int(largest)
+
     class Kernels:
         pass
 
-    kernels = Kernels()
+    kernels: Any = Kernels()
     kernels.lowest_counts, kernels.scatter, kernels.sweep, kernels.unit = lowest_counts, scatter, sweep, unit
-    kernels.radix_pass = radix_pass
+    kernels.radix_pass, kernels.face_records = radix_pass, face_records
     return kernels
 
 
@@ -183,6 +201,23 @@ def sorted_faces(faces: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.nd
                                                                              new_faces, face_order)
                  for (first, end), slots in zip(halves, (first_slot, second_slot), strict=True)])
     return new_faces, face_order, groups, vertices
+
+
+def face_records(records: np.ndarray) -> tuple[np.ndarray, bool, int]:
+    """A binary PLY's face ``records`` (F,) of a 1-byte count and three 4-byte indices (13 bytes, as
+    numpy maps them from the file), copied on two threads: (faces (F, 3) uint32, whether every count is
+    3, the largest index; a negative one wraps to a large one, as numpy's copy does)."""
+    kernels = _compiled()
+    data = records.view(np.uint8)
+    out = np.empty((records.size, 3), np.uint32)
+    half = records.size // 2
+    results: list[tuple[bool, int]] = []
+
+    def copy(first: int, end: int) -> Callable[[], None]:
+        return lambda: results.append(kernels.face_records(data, first, end, out))
+
+    _on_threads([copy(0, half), copy(half, records.size)])
+    return out, all(triangles for triangles, _ in results), max(largest for _, largest in results)
 
 
 def _on_threads(works: list[Callable[[], None]]) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from node.scene import compiled
 from node.scene.face_pass import for_blocks
 from node.scene.mesh import SceneError
 
@@ -137,6 +138,14 @@ def _faces(records: np.ndarray, vertex_count: int, path: Path) -> np.ndarray | N
     """(F, 3) uint32 indices of the face ``records`` (a count and three indices each), copied a
     block at a time on every core; None when some face is not a triangle. Raises SceneError when an
     index is out of range (a negative one wraps to a large one in the copy)."""
+    if records.dtype.itemsize == 13 and records.dtype["v"].itemsize == 12 and records.flags.c_contiguous \
+            and compiled.available(len(records)):
+        out, all_triangles, most = compiled.face_records(records)
+        if not all_triangles:
+            return None
+        if most >= vertex_count:
+            raise SceneError(f"{path}: face indices out of range (0..{vertex_count - 1})")
+        return out
     out = np.empty((len(records), 3), np.uint32)
     triangles, largest = [True], [0]
 
