@@ -143,9 +143,9 @@ class PointCheck:
                 with self._changed:
                     self.points = points
                     self._changed.notify_all()
-        except CacheError as exc:
+        except (CacheError, OSError, ValueError) as exc:     # whatever stops it: those who wait are told
             with self._changed:
-                self.failed = str(exc)
+                self.failed = str(exc) or type(exc).__name__
                 self._changed.notify_all()
             return False
         return True
