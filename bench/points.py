@@ -140,8 +140,9 @@ def ingest(cloud: Path, cache: Path) -> dict[str, Any]:
     out = subprocess.run(["nice", "-n", "10", PYTHON, "-c", INGEST, str(cloud), str(cache)], cwd=REPO,
                          capture_output=True, text=True, check=True)
     figures = json.loads(out.stdout.strip().splitlines()[-1])
-    figures["points_per_s"] = figures["points"] / figures["wall_s"]
-    figures["points_per_cpu_s"] = figures["points"] / figures["cpu_s"]
+    figures["built"] = figures["read_s"] is not None     # else the cache held an entry: hashed and opened only
+    figures["points_per_s"] = figures["points"] / figures["wall_s"] if figures["built"] else None
+    figures["points_per_cpu_s"] = figures["points"] / figures["cpu_s"] if figures["built"] else None
     return {key: round(value, 2) if isinstance(value, float) else value for key, value in figures.items()}
 
 
@@ -368,10 +369,14 @@ def report(result: dict[str, Any]) -> str:
     ingest_figures = result["ingest"]
     lines = [f"{result['cloud']}: {ingest_figures['points']} points, {result['bytes'] / 1e6:.0f} MB, "
              f"{result['nodes']} nodes, {result['size'][0]}x{result['size'][1]}",
-             f"ingest: {ingest_figures['points_per_s'] / 1e6:.2f} M points/s ({ingest_figures['wall_s']:.1f} s; read "
-             f"{ingest_figures['read_s']} s; {ingest_figures['cpu_s']:.1f} CPU s, "
-             f"{ingest_figures['points_per_cpu_s'] / 1e6:.2f} M/CPU s; peak {ingest_figures['peak_mb']:.0f} MB; "
-             f"{ingest_figures['nodes']} octree nodes; load {ingest_figures['load']})",
+             (f"ingest: {ingest_figures['points_per_s'] / 1e6:.2f} M points/s ({ingest_figures['wall_s']:.1f} s; read "
+              f"{ingest_figures['read_s']} s; {ingest_figures['cpu_s']:.1f} CPU s, "
+              f"{ingest_figures['points_per_cpu_s'] / 1e6:.2f} M/CPU s; peak {ingest_figures['peak_mb']:.0f} MB; "
+              f"{ingest_figures['nodes']} octree nodes; load {ingest_figures['load']})"
+              if ingest_figures["built"] else
+              f"ingest: none, the cache held the cloud (the file hashed and the entry opened in "
+              f"{ingest_figures['wall_s']:.1f} s; {ingest_figures['nodes']} octree nodes; "
+              f"load {ingest_figures['load']})"),
              f"{'budget':>10} {'path':>9} {'fps':>6} {'lat ms':>7} {'points':>9} {'busy ms':>8} {'CPU ms':>7} "
              f"{'fps 2c':>6} {'load':>5}"]
     for run in result["runs"]:
