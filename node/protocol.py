@@ -160,8 +160,9 @@ class NodeProtocol:
     :meth:`next_action` until it gives None (more comes with the next message or the end of a
     load); the results of the work it hands out go back through :meth:`scene_loaded`,
     :meth:`scene_failed`, :meth:`tile_failed`, :meth:`draw_stopped`, :meth:`encoding_failed` and
-    :meth:`calibration_failed`, which give the message to send. The cancel memory outlives a
-    connection; the scene state and the loads waiting or under way do not.
+    :meth:`calibration_failed`, which give the message to send. Nothing of a connection outlives
+    it: not the cancel memory (a restarted coordinator numbers its frames from the start again),
+    the scene state or the loads waiting or under way.
     """
 
     def __init__(self, name: str, token: str = "", slowdown: float = 1.0, host: str = "") -> None:
@@ -182,9 +183,10 @@ class NodeProtocol:
 
     def connect(self, renderer: str) -> messages.NodeHello:
         """A new connection (attempt) of the node whose GL renderer is ``renderer``: not welcomed
-        yet, no scene state, no work waiting (loads under way are forgotten); returns the hello to
-        send first."""
+        yet, no cancelled frames, no scene state, no work waiting (loads under way are forgotten);
+        returns the hello to send first."""
         self.welcomed = False
+        self._cancelled.clear()
         self._replica = StateReplica()
         self._jobs.clear()
         self._picks.clear()

@@ -241,14 +241,24 @@ def test_tiles_of_a_cancelled_frame_are_dropped_and_reported_once_the_frame_is_t
     assert protocol.tiles_dropped == 6
 
 
-def test_the_cancel_memory_outlives_a_connection_and_keeps_the_newest_frames():
+def test_the_cancel_memory_keeps_the_newest_frames():
     protocol = connected(json.dumps({"type": "cancel", "frames": list(range(CANCELLED_MEMORY + 1))}))
-    protocol.connect("llvmpipe")
     protocol.receive_text(render(0, tiles=1))
     protocol.receive_text(render(CANCELLED_MEMORY, tiles=1))
     actions = drain(protocol)
     assert drawn(actions) == [(0, 0)], "the oldest cancel was forgotten"
     assert sent(actions) == [TilesDropped(frame=CANCELLED_MEMORY, tiles=(0,))]
+
+
+def test_a_new_connection_forgets_the_cancelled_frames():
+    """A coordinator restarted on the same address numbers its frames from the start again: a frame
+    the old one cancelled is a new frame of the new one, drawn (reporting it dropped would be a
+    protocol error the coordinator closes the node for)."""
+    protocol = connected(json.dumps({"type": "cancel", "frames": [3]}))
+    protocol.connect("llvmpipe")
+    protocol.receive_text(render(3, tiles=2))
+    actions = drain(protocol)
+    assert drawn(actions) == [(3, 0), (3, 1)] and sent(actions) == []
 
 
 def test_a_cancelled_frames_state_is_still_applied_in_message_order():

@@ -151,6 +151,8 @@ def test_nodes_and_viewer_reconnect_after_a_coordinator_restart(how: str, proces
         assert frame_id >= frame_after
         assert_matches_reference(image, render_once(SCENE, target, SIZE, tmp_path), f"frame {frame_id} after {how}")
         nodes = client.get("/api/stats").json()["nodes"]
-        assert sorted(n["name"] for n in nodes) == ["restart-1", "restart-2"], nodes
+        assert sorted(n["name"] for n in nodes) == ["restart-1", "restart-2"], (nodes, coordinator.proc.output())
     for proc in (first.proc, coordinator.proc):
         assert "Traceback" not in proc.output(), proc.output()
+    for proc in processes[1:3]:   # the nodes: each reconnected once, for the restart, and was never closed
+        assert proc.output().count("connected to ws://") == 2, proc.output()
