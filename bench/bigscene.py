@@ -52,7 +52,16 @@ from PIL import Image
 
 from bench.images import psnr
 from bench.live import ScriptedViewer, render_once
-from bench.processes import PYTHON, REPO, cpu_seconds, orbit, process_tree, show_result, start_coordinator
+from bench.processes import (
+    PYTHON,
+    REPO,
+    cpu_seconds,
+    local_node_pids,
+    orbit,
+    process_tree,
+    show_result,
+    start_coordinator,
+)
 from bench.sessions import move, open_session, session_figures, wait_session_ready
 from tessera.cli_values import size_parser
 
@@ -68,12 +77,6 @@ def peak_mb(pid: int) -> float:
     except OSError:
         pass
     return 0.0
-
-
-def node_pids(coordinator_pid: int) -> list[int]:
-    """The coordinator's local node processes."""
-    return [pid for pid in process_tree(coordinator_pid)[1:] if b"node" in Path(f"/proc/{pid}/cmdline").read_bytes()
-            and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1] == str(coordinator_pid)]
 
 
 def machine_busy_s() -> float:
@@ -104,7 +107,7 @@ def cpu_per_frame(before: dict[str, Any], after: dict[str, Any], frames: float) 
 
 def node_peaks(coordinator_pid: int) -> list[dict[str, float]]:
     """Each local node's peak memory and its scene reader children's (MiB)."""
-    nodes = node_pids(coordinator_pid)
+    nodes = local_node_pids(coordinator_pid)
     return [{"node_mb": round(peak_mb(pid), 1),
              "readers_mb": round(max((peak_mb(child) for child in process_tree(pid)[1:]), default=0.0), 1)}
             for pid in nodes]
@@ -223,7 +226,7 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
                         bounds.append(summary["lod_error_px"] or 0.0)
 
                 sampler = threading.Thread(target=sample, daemon=True)
-                pids = node_pids(coordinator.process.pid)
+                pids = local_node_pids(coordinator.process.pid)
                 started = time.perf_counter()
                 sampler.start()
                 cpu_before: dict[str, Any] = {}

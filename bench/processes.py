@@ -167,6 +167,21 @@ def process_tree(pid: int) -> list[int]:
     return tree
 
 
+def local_node_pids(coordinator_pid: int) -> list[int]:
+    """The coordinator's local node processes: its direct children running ``-m node`` (not what
+    they start in turn, nor a short-lived helper such as ``ldconfig``)."""
+    pids = []
+    for pid in process_tree(coordinator_pid)[1:]:
+        try:
+            command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            parent = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]
+        except (OSError, IndexError):
+            continue
+        if parent == str(coordinator_pid) and b"node" in command:
+            pids.append(pid)
+    return pids
+
+
 def cpu_seconds(pids: Sequence[int]) -> float:
     """User + system CPU seconds of ``pids`` (/proc utime + stime; processes that ended count 0)."""
     total = 0

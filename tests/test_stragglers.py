@@ -15,7 +15,7 @@ import httpx
 import pytest
 
 from bench import frozen as frozen_bench
-from bench.processes import process_tree
+from bench.processes import local_node_pids
 from tests.conftest import seconds
 from tests.integration_support import camera_moving, stats, wait_ready_nodes, wait_until
 
@@ -27,7 +27,7 @@ def test_a_frozen_node_is_worked_around_and_rejoins(coordinator_factory):
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_ready_nodes(client, 3)
         camera = client.get("/api/camera").json()["camera"]
-        nodes = [pid for pid in process_tree(coordinator.proc.process.pid) if pid != coordinator.proc.process.pid]
+        nodes = local_node_pids(coordinator.proc.process.pid)
         assert len(nodes) == 3, nodes
         with camera_moving(coordinator.url, camera):
             wait_until(lambda: all(n["tiles_rendered"] > 0 for n in stats(client)["nodes"]), seconds(60),
@@ -73,7 +73,7 @@ def test_a_node_silent_past_the_heartbeat_is_dropped_and_rejoins_by_itself(coord
     with httpx.Client(base_url=coordinator.url, timeout=seconds(30)) as client:
         wait_ready_nodes(client, 2)
         wait_until(lambda: stats(client)["settled"], seconds(60), "nothing left to render")
-        pid = next(p for p in process_tree(coordinator.proc.process.pid) if p != coordinator.proc.process.pid)
+        pid = local_node_pids(coordinator.proc.process.pid)[0]
         arguments = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
         name = arguments[arguments.index(b"--name") + 1].decode()
 
