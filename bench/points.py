@@ -16,11 +16,13 @@ file of your own. Then, in a fresh scene cache folder:
   resident memory;
 - ``first_frame_s``: a coordinator with ``--local-nodes N`` (the cache kept) and a session opened on
   the cloud: seconds from ``POST /api/sessions`` to its first frame;
-- for each budget of ``--budgets`` (the coordinator's ``--point-budget``), along each camera path of
+- for each budget of ``--budgets`` (the coordinator's ``--point-budget``, where its loop starts; with
+  ``--fixed-budget`` the budget of every frame), along each camera path of
   ``--paths`` (:data:`PATHS`: oblique, overhead, near the ground looking across, close to the
   middle), a scripted viewer orbits the camera at ``--input-hz`` for ``--moving-s`` at ``--size``:
   frames per second, input → frame latency, the points the busiest node drew per frame, the nodes'
-  busy time, and the seconds from its first input to the first frame that answers one
+  busy time, the point budget the session's loop used (``budget_in_use``: least, median, most), and
+  the seconds from its first input to the first frame that answers one
   (``first_answer_s``: right after the first frame, on the warm-up, a still's samples under way);
   ``--rests`` times, the camera rests for ``--rest-s`` (a still begins) and moves again:
   ``resume_s``, the seconds from the first input after the rest to the first frame that answers
@@ -219,6 +221,7 @@ class MemoryPeak:
 def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tuple[Any, str]:
     flags = ["--local-nodes", str(args.nodes), "--scenes-dir", str(cloud.parent), "--frame-wait-s", "600",
              "--size", f"{args.size[0]}x{args.size[1]}", "--point-budget", str(budget),
+             *(["--point-budget-min", str(budget), "--point-budget-max", str(budget)] if args.fixed_budget else []),
              "--session-idle-timeout-s", "86400"]    # a still of every point may take longer than the default
     return start_coordinator(flags, log_level="warning", timeout=120,
                              env={"TESSERA_SCENE_CACHE_DIR": str(cache), "TESSERA_SCENE_MEMORY_MB": "20000"})
@@ -227,18 +230,23 @@ def start(args: argparse.Namespace, cloud: Path, cache: Path, budget: int) -> tu
 def move(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: list[list[float]], path: str,
          seconds: float, args: argparse.Namespace, pid: int) -> dict[str, Any]:
     """``viewer`` moving the camera along ``path`` for ``seconds``: its figures, the points the
-    busiest node drew and its busy time (medians over the samples of the stats), and the CPU
+    busiest node drew and its busy time (medians over the samples of the stats), the point budget
+    the session's loop used (least, median, most of those samples; None before the loop), and the CPU
     milliseconds a frame cost the coordinator ``pid`` and its nodes together (all their threads: what
     the load of other work does not change) with the frame rate two idle cores would allow."""
     points: list[float] = []
     busy: list[float] = []
+    budgets: list[float] = []
     stop = threading.Event()
 
     def sample() -> None:
         while not stop.wait(0.5):
-            nodes = client.get(f"/api/sessions/{session}/stats").json()["nodes"]
+            stats = client.get(f"/api/sessions/{session}/stats").json()
+            nodes = stats["nodes"]
             points.append(max((n.get("points", 0) for n in nodes), default=0))
             busy.append(max((n["busy_ms"] for n in nodes), default=0.0))
+            if stats.get("point_budget") is not None:   # the coordinator's loop (before it: a fixed budget)
+                budgets.append(stats["point_budget"])
 
     sampler = threading.Thread(target=sample, daemon=True)
     first_input = viewer.seq + 1
@@ -263,6 +271,7 @@ def move(client: httpx.Client, viewer: ScriptedViewer, session: str, bounds: lis
             **{k: round(v, 2) for k, v in figures.items()}, "cpu_ms_per_frame": round(cpu_ms, 1),
             "fps_two_idle_cores": round(2000.0 / cpu_ms, 1) if cpu_ms > 0 else None,
             "points_per_frame": round(float(np.median(points)), 0) if points else None,
+            "budget_in_use": [round(float(np.percentile(budgets, q))) for q in (0, 50, 100)] if budgets else None,
             "busy_ms": round(float(np.median(busy)), 1) if busy else None, "load": round(os.getloadavg()[0], 1)}
 
 
@@ -378,12 +387,13 @@ def report(result: dict[str, Any]) -> str:
               f"{ingest_figures['wall_s']:.1f} s; {ingest_figures['nodes']} octree nodes; "
               f"load {ingest_figures['load']})"),
              f"{'budget':>10} {'path':>9} {'fps':>6} {'lat ms':>7} {'points':>9} {'busy ms':>8} {'CPU ms':>7} "
-             f"{'fps 2c':>6} {'load':>5}"]
+             f"{'fps 2c':>6} {'budget in use':>25} {'load':>5}"]
     for run in result["runs"]:
         for row in run["paths"]:
             lines.append(f"{run['budget']:>10} {row['path']:>9} {row['fps']:>6} {row['latency_p50_ms']:>7} "
                          f"{row['points_per_frame']!s:>9} {row['busy_ms']!s:>8} {row['cpu_ms_per_frame']:>7} "
-                         f"{row['fps_two_idle_cores']!s:>6} {row['load']:>5}")
+                         f"{row['fps_two_idle_cores']!s:>6} {budget_range(row.get('budget_in_use')):>25} "
+                         f"{row['load']:>5}")
         lines.append(f"{run['budget']:>10}: first frame {run['first_frame_s']} s; warm-up fps {run['warmup']['fps']} "
                      f"(first answered in {run['warmup']['first_answer_s']} s); moving again after a rest of "
                      f"{run['rest_s']:g} s: first frame in {run['resume_s']} s; worst fps "
@@ -393,6 +403,11 @@ def report(result: dict[str, Any]) -> str:
                      f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed; each process's peak RSS "
                          f"{run['peak_rss_each_mb'][:6]} MB); load {run['load']}")
     return "\n".join(lines)
+
+
+def budget_range(budgets: list[int] | None) -> str:
+    """The budget in use along a path: "least / median / most", "fixed" before the loop."""
+    return "fixed" if budgets is None else " / ".join(str(b) for b in budgets)
 
 
 def parse_paths(text: str) -> list[str]:
@@ -412,7 +427,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nodes", type=int, default=3)
     parser.add_argument("--size", type=size_parser(16, 8192), default=(1280, 720))
     parser.add_argument("--budgets", type=lambda text: [parse_point_budget(v) for v in text.split(",")],
-                        default=[500_000])
+                        default=[500_000], help="the coordinator's --point-budget of each run: where the "
+                        "budget starts (its loop then follows --target-fps)")
+    parser.add_argument("--fixed-budget", action="store_true",
+                        help="each run's budget fixed (--point-budget-min and -max the same): no loop")
     parser.add_argument("--paths", type=parse_paths, default=list(PATHS),
                         help=f"camera paths, of {', '.join(PATHS)} (default all)")
     parser.add_argument("--moving-s", type=float, default=8.0)

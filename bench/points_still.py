@@ -7,7 +7,9 @@
 The cloud's scene cache entry is built (or found in ``--cache``) and drawn by one
 :class:`node.gl.point_renderer.PointRenderer` as ``--render-once`` draws a still: for each camera of
 ``--paths`` (``bench.points``' cameras, turned 1 radian), a still of a fixed ``--samples`` jittered
-samples of every point in view (spacing 0), then one at each of ``--spacings`` (pixels): the points
+samples of every point in view (spacing 0), then one at each of ``--spacings`` (pixels; the
+spacing alone, where the still as shipped draws every point up to
+:data:`tessera.points.budget.STILL_EVERY_POINT_MAX` in view): the points
 a sample draws, the CPU seconds a sample costs (this process, all its threads: llvmpipe's too) and
 the PSNR of that still against the still of every point.
 """
@@ -38,6 +40,7 @@ def still(
 ) -> tuple[np.ndarray, int, float]:
     """(the still's (h, w, 3) uint8 picture, points a sample drew, CPU s a sample) at ``spacing_px``."""
     renderer.still_spacing_px = spacing_px
+    renderer.still_every_point_max = 0     # the spacing alone, however few the points in view
     drawn: list[int] = []
 
     def sample(subsample: Any) -> np.ndarray:

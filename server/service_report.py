@@ -63,6 +63,7 @@ class ServiceReport:
             "still_samples": still_figures(latest, frames.demand.still_plan),
             "settled": session.settled,
             "lod_error_px": frames.lod_bound,
+            "point_budget": frames.point_budget,
             "loading": self.scene_on_nodes(session.scene)["loading"],
             "scene": session.name,
             "scene_state": session.scene_state(),

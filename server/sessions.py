@@ -266,7 +266,8 @@ class Session:
                 "node_busy_ms": round(self.service.scheduler.fair.busy_ms(self.id, now), 3), "state": self.state,
                 "error": self.error, "camera": self.camera.to_json() if self.camera else None,
                 "idle_s": round(self.idle_for(now), 1), "wall": self.wall.to_json() if self.wall else None,
-                "lod_error_px": self.frames.lod_bound, **self.service.scene_on_nodes(self.scene)}
+                "lod_error_px": self.frames.lod_bound,
+                "point_budget": self.frames.point_budget, **self.service.scene_on_nodes(self.scene)}
 
 
 def fit_size(size: tuple[int, int], largest: tuple[int, int], smallest: int = 16) -> tuple[int, int]:

@@ -328,13 +328,21 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                         help="the most that bound is raised to while frames are slower than --target-fps "
                              f"(default {defaults.lod_max_error_px:g})")
     parser.add_argument("--target-fps", type=POSITIVE,
-                        help="the moving frame rate levels of detail aim at: the bound rises while frames take "
-                             f"longer and falls back when they are quick (default {defaults.target_fps:g})")
+                        help="the moving frame rate levels of detail and the point budget aim at: the bound rises (the "
+                             "budget falls) while frames take longer and falls back when they are quick "
+                             f"(default {defaults.target_fps:g})")
     parser.add_argument("--point-budget", type=parse_point_budget, metavar="N",
                         help="point clouds: a moving frame draws at most this many points, the octree's nodes "
-                             "nearest and largest on screen first; the still after it draws every point in view "
-                             "down to points 0.5 px apart on screen "
-                             f"(default {defaults.point_budget})")
+                             "nearest and largest on screen first, a budget that starts here and follows "
+                             "--target-fps between --point-budget-min and --point-budget-max; the still after it "
+                             f"draws every point in view (default {defaults.point_budget})")
+    parser.add_argument("--point-budget-min", type=parse_point_budget, metavar="N",
+                        help="the fewest points the budget is lowered to while moving frames are slower than "
+                             f"--target-fps (default {defaults.point_budget_min}, or --point-budget where fewer)")
+    parser.add_argument("--point-budget-max", type=parse_point_budget, metavar="N",
+                        help="the most points the budget is raised to while moving frames are quicker than "
+                             f"--target-fps (default {defaults.point_budget_max}; set both bounds to --point-budget "
+                             "for a fixed budget)")
     parser.add_argument("--point-size", type=number_parser(0.0, above=True, maximum=MAX_POINT_SIZE, note=" px"),
                         metavar="PX", help="point clouds: each point is a square at least this many pixels wide, "
                                            f"wider where its level's spacing is (default {defaults.point_size:g})")

@@ -152,7 +152,7 @@ def test_the_still_draws_each_place_down_to_its_spacing_on_screen(cloud: PointCl
     below_root = tree.parents >= 0
     previous = everything
     for spacing_px in (0.0, 0.5, 1.0, 4.0):
-        chosen = still_nodes(tree, camera, size, cloud.bounds, spacing, spacing_px=spacing_px)
+        chosen = still_nodes(tree, camera, size, cloud.bounds, spacing, spacing_px=spacing_px, every_point_max=0)
         assert chosen[0] and not (chosen & ~previous).any()
         assert chosen[tree.parents[chosen & below_root]].all()     # closed under parents
         assert (parent_px[chosen & below_root] > spacing_px).all()
@@ -164,6 +164,24 @@ def test_the_still_draws_each_place_down_to_its_spacing_on_screen(cloud: PointCl
     assert 1 < tree.counts[previous].sum() < tree.counts[everything].sum() / 2
     usable = np.arange(tree.node_count) < max(tree.node_count // 4, 2)
     assert not (still_nodes(tree, camera, size, cloud.bounds, spacing, usable) & ~usable).any()
+
+
+def test_the_still_draws_every_point_in_view_where_they_are_few_enough(cloud: PointCloud) -> None:
+    """Up to ``every_point_max`` points in view the still draws them all (the picture of every
+    point); one fewer, it draws down to its spacing on screen."""
+    tree, spacing = cloud.world_tree, cloud.nodes.spacing
+    centre = cloud.bounds.mean(axis=0)
+    camera = Camera(tuple(centre + np.array([-150.0, -150.0, 40.0])), tuple(centre), (0.0, 0.0, 1.0), 50.0)
+    size = (320, 180)
+    everything = select_nodes(tree, camera, size, cloud.bounds, None)
+    in_view = int(tree.counts[everything].sum())
+    np.testing.assert_array_equal(still_nodes(tree, camera, size, cloud.bounds, spacing), everything)
+    np.testing.assert_array_equal(still_nodes(tree, camera, size, cloud.bounds, spacing, every_point_max=in_view),
+                                  everything)
+    spaced = still_nodes(tree, camera, size, cloud.bounds, spacing, every_point_max=in_view - 1, spacing_px=4.0)
+    np.testing.assert_array_equal(spaced, still_nodes(tree, camera, size, cloud.bounds, spacing, every_point_max=0,
+                                                      spacing_px=4.0))
+    assert tree.counts[spaced].sum() < in_view
 
 
 def test_las_and_laz_files_are_read_with_their_colours(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ from node.gl.point_renderer import PointRenderer
 from node.scene.point_files import PointArrays
 from node.scene.points import build_octree
 from tessera.geometry import Camera, Rect, default_camera
+from tessera.points.budget import STILL_EVERY_POINT_MAX
 
 pytestmark = pytest.mark.gl
 
@@ -56,15 +57,16 @@ def test_tiles_equal_the_whole_frame(cloud_renderer: PointRenderer, budget: int 
 
 
 def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Within a budget, at most that many points; a still at a spacing of 0, every point in view (the
-    whole terrain); at the default spacing, fewer in a frame smaller than the cloud's points."""
+    """Within a budget, at most that many points; a still of a cloud whose points in view are fewer
+    than :data:`STILL_EVERY_POINT_MAX`, every point in view (the whole terrain); above it, at the
+    default spacing, fewer in a frame smaller than the cloud's points."""
     size = (160, 96)
     camera = oblique(cloud_renderer.scene.bounds)
-    still = cloud_renderer.render_frame(camera, size)
-    budgeted = cloud_renderer.render_frame(camera, size, point_budget=50_000)
-    monkeypatch.setattr(cloud_renderer, "still_spacing_px", 0.0)
     everything = cloud_renderer.render_frame(camera, size)
-    assert budgeted.points <= 50_000 < still.points < everything.points
+    budgeted = cloud_renderer.render_frame(camera, size, point_budget=50_000)
+    monkeypatch.setattr(cloud_renderer, "still_every_point_max", 0)
+    spaced = cloud_renderer.render_frame(camera, size)
+    assert budgeted.points <= 50_000 < spaced.points < everything.points < STILL_EVERY_POINT_MAX
     assert everything.points == cloud_renderer.scene.point_count
 
 

@@ -76,6 +76,7 @@ def test_the_moving_frame_keeps_to_the_budget(coordinator_factory, survey, tmp_p
         drawn = wait_until(lambda: [int(node["points"]) for node in stats(client)["nodes"] if "points" in node],
                            seconds(30), "each node's points drawn")
         assert 0 < max(drawn) <= BUDGET, f"{drawn} points drawn with a budget of {BUDGET}"
+        assert stats(client)["point_budget"] >= BUDGET, "the budget in use, where the loop started at most"
         assert_matches_reference(moving, render_once(str(survey), camera, SIZE, tmp_path, point_budget=BUDGET),
                                  "the moving frame within the point budget")
     finally:

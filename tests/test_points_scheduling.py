@@ -1,6 +1,6 @@
-"""A point cloud's frames on the coordinator (issue 36): moving frames carry the point budget and
-size, stills every point; sort-last frames carry near and far for the EDL after the merge, and a
-hybrid session turns sort-first. Pure: the frame scheduler, no network."""
+"""A point cloud's frames on the coordinator (issue 36): moving frames carry the point budget (which
+follows their frame times) and size, stills every point; sort-last frames carry near and far for the
+EDL after the merge, and a hybrid session turns sort-first. Pure: the frame scheduler, no network."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from tessera.geometry import Camera, near_far_from_bounds
 from tessera.scheduling.actions import RenderTiles
 from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.scheduler import FrameScheduler, SchedulerConfig
+from tessera.wire.protocol import TileHeader, state_tag
 
 BOUNDS = np.array([[500000.0, 4000000.0, 90.0], [500300.0, 4000300.0, 130.0]])
 CAMERA = Camera((500150.0, 3999800.0, 300.0), (500150.0, 4000150.0, 100.0), (0.0, 0.0, 1.0))
@@ -50,3 +51,35 @@ def test_a_hybrid_session_of_a_point_cloud_turns_sort_first() -> None:
     session.set_points(BOUNDS)
     assert session.config.mode == "sort-first" and session.mode.name == "sort-first"
     assert session.mode.depth_request(session.mode.partition([1], {1: 1.0}, 0.0, lambda: None)) is None
+
+
+def moving_budgets(s: FrameScheduler, render_ms: float, frames: int) -> list[int]:
+    """The point budgets of ``frames`` moving frames, each drawn by the node in ``render_ms``."""
+    budgets = []
+    for k in range(frames):
+        eye = (CAMERA.eye[0] + k, CAMERA.eye[1], CAMERA.eye[2])
+        s.set_camera(Camera(eye, CAMERA.target, CAMERA.up), float(k))
+        for action in [a for a in s.drain() if isinstance(a, RenderTiles)]:
+            budgets.append(action.message.point_budget)
+            job = s.in_flight[action.message.frame]
+            for tile in action.message.tiles:
+                header = TileHeader(action.message.frame, tile.tile, tile.rect, job.codec, render_ms, 0.0, 0.0,
+                                    state_tag(None))
+                s.tile_arrived(action.node_id, header, b"", float(k))
+                s.tile_sent(action.node_id, action.message.frame, tile.tile, 0.0)
+    return budgets
+
+
+def test_the_budget_follows_the_moving_frames_times_within_its_bounds() -> None:
+    s = FrameScheduler(SchedulerConfig(size=(320, 180), max_fps=1e6, settle_frames=0, still_codec=None,
+                                       point_budget=300_000, point_budget_min=100_000, point_budget_max=1_000_000,
+                                       target_fps=10.0), StaticBalancer())
+    session = s.sessions["default"]
+    session.set_points(BOUNDS)
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    slow = moving_budgets(s, 250.0, 12)
+    assert slow[0] == 300_000 and slow[-1] == 100_000 and slow == sorted(slow, reverse=True)
+    assert session.point_budget == 100_000
+    quick = moving_budgets(s, 5.0, 40)
+    assert quick == sorted(quick) and quick[-1] == 1_000_000

@@ -47,8 +47,14 @@ export function fpsText(stats) {
   return atRest(stats) ? "at rest" : fixed(Number(stats.fps), 1);
 }
 
-/** The levels-of-detail figure from the stats' `lod_error_px`: "≤ 0.5 px", or "full" (every triangle drawn). */
+/** The detail figure: a point cloud's moving frames' budget from the stats' `point_budget` ("≤ 300k
+ * points"), else the levels-of-detail bound from `lod_error_px` ("≤ 0.5 px"), or "full" (every triangle drawn). */
 export function detailText(stats) {
+  const points = Number(stats.point_budget);
+  if (stats.point_budget != null && Number.isFinite(points)) {
+    const count = points >= 1e6 ? `${fixed(points / 1e6, 2)}M` : `${Math.round(points / 1e3)}k`;
+    return `≤ ${count} points`;
+  }
   const bound = Number(stats.lod_error_px);
   return stats.lod_error_px != null && Number.isFinite(bound) ? `≤ ${fixed(bound, 2)} px` : "full";
 }

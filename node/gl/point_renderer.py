@@ -26,8 +26,9 @@
   copies the rest first. A cloud whose cache entry is being checked (``checked``,
   :class:`node.scene.point_cache.PointCheck`) copies only the points that passed: nothing unchecked
   is drawn.
-- The still draws every node in view down to the level whose points lie :data:`STILL_SPACING_PX`
-  apart on screen (no budget, :func:`tessera.points.budget.still_nodes`); its samples are jittered
+- The still draws every point in view up to :data:`STILL_EVERY_POINT_MAX`, beyond that every node
+  in view down to the level whose points lie :data:`STILL_SPACING_PX` apart on screen (no budget,
+  :func:`tessera.points.budget.still_nodes`); its samples are jittered
   and accumulated as the mesh renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`).
   A tile given a ``stop`` is drawn in pieces of :data:`PIECE_POINTS` (the same runs in the same
   order: the same pixels) and given up between two once ``stop`` says so (:class:`DrawStopped`): a
@@ -61,6 +62,7 @@ from tessera.decomposition.data_partition import covering_rect
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, near_far_from_bounds, view_projection
 from tessera.points.budget import (
     DEFAULT_POINT_SIZE,
+    STILL_EVERY_POINT_MAX,
     STILL_SPACING_PX,
     pixel_scale,
     refinement,
@@ -147,7 +149,9 @@ class PointRenderer:
     among the nodes that are (a still's sample copies them all first). Raises SceneError below GL 4.3."""
 
     lod = None
-    #: A still draws each place down to the level whose points lie this many pixels apart (0: every point).
+    #: A still draws every point in view up to this many, beyond that each place down to the level
+    #: whose points lie ``still_spacing_px`` pixels apart (0: every point).
+    still_every_point_max = STILL_EVERY_POINT_MAX
     still_spacing_px = STILL_SPACING_PX
 
     def __init__(self, ctx: moderngl.Context, cloud: PointCloud, background: Sequence[float] = DEFAULT_BACKGROUND,
@@ -261,11 +265,12 @@ class PointRenderer:
         if budget is None and not self.complete:
             self.upload_all(stop)
         usable = self._usable
-        key = (camera, size, budget, self.still_spacing_px, None if usable is None else self.uploaded)
+        key = (camera, size, budget, self.still_spacing_px, self.still_every_point_max,
+               None if usable is None else self.uploaded)
         if key != self._frame_key:
             if budget is None:
                 self._chosen = still_nodes(self._world_tree, camera, size, self.scene.bounds, self.scene.nodes.spacing,
-                                           usable, self.still_spacing_px)
+                                           usable, self.still_spacing_px, self.still_every_point_max)
             else:
                 self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget, usable)
             self._node_rows["refine"] = refinement(self._world_tree, self._chosen)

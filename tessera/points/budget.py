@@ -12,11 +12,12 @@ its subtree out), as long as the running count stays within the budget: a prefix
 the choice is closed under parents — a coarse level is always drawn under its finer ones (each
 level is a subsample of the one below, :mod:`node.scene.points`).
 
-A still (no budget, :func:`still_nodes`) draws every node in view down to the level whose points
-lie at most :data:`STILL_SPACING_PX` apart on screen where they lie: finer levels add points to
-pixels that hold several already, and with the depth test they only choose which of them a pixel
-shows (a cloud far larger than a frame's pixels then costs a still what its pixels need, not every
-point in view per sample).
+A still (no budget, :func:`still_nodes`) draws every point in view where they are at most
+:data:`STILL_EVERY_POINT_MAX` (it then equals the picture of every point); beyond, every node in
+view down to the level whose points lie at most :data:`STILL_SPACING_PX` apart on screen where they
+lie: finer levels add points to pixels that hold several already, and with the depth test they only
+choose which of them a pixel shows (a cloud far larger than a frame's pixels then costs a still what
+its pixels need, not every point in view per sample).
 
 Splat sizes follow the choice (:func:`refinement`): where a node's child in an octant is chosen
 too, its points there are drawn at the finer spacing (one level deep; deeper, the child's coarsest).
@@ -42,6 +43,12 @@ DEFAULT_POINT_SIZE = 2.0
 #: the 100M-point terrain a sample draws 5-11M of 78-85M points in view (7-16x less CPU), the still
 #: 41.5-44 dB from the still of every point; on the 20M one 43-57 dB (1 px: 37-47 dB).
 STILL_SPACING_PX = 0.5
+#: A still draws every point in view where the nodes in view hold at most this many points
+#: (:func:`still_nodes`): it then converges to the picture of every point. Measured (docs, benchmarks
+#: 'Point clouds', 1280x720, llvmpipe): on a 10M-point terrain, 3-9.4M points in view, every point
+#: costs a sample 0.6-1.7 s of CPU, 1-1.9 times the 0.5 px still's (43.7-58.5 dB from it); a
+#: 20M-point one's 16-19M in view cost 2.4-2.8 s, up to 3.7 times; the 100M one's 78-85M, 16-18 s.
+STILL_EVERY_POINT_MAX = 10_000_000
 #: Most octant depths a node's refinement word holds (4 bits each).
 MAX_REFINE = 15
 
@@ -124,13 +131,17 @@ def select_nodes(tree: PointTree, camera: Camera, size: tuple[int, int], bounds:
 
 
 def still_nodes(tree: PointTree, camera: Camera, size: tuple[int, int], bounds: np.ndarray, spacing: float,
-                usable: np.ndarray | None = None, spacing_px: float = STILL_SPACING_PX) -> np.ndarray:
+                usable: np.ndarray | None = None, spacing_px: float = STILL_SPACING_PX,
+                every_point_max: int = STILL_EVERY_POINT_MAX) -> np.ndarray:
     """(M,) bool: the nodes a still of a ``size`` frame seen by ``camera`` draws (module docstring):
-    those in view (:func:`select_nodes` with no budget) whose parent's points, ``spacing`` × 2^(1 −
-    depth) apart (``spacing``: the root's, world units), lie more than ``spacing_px`` pixels apart
-    at the node's subtree box's nearest point (the root always; a node with the eye in its box
-    always); closed under parents."""
+    those in view (:func:`select_nodes` with no budget), all of them where they hold at most
+    ``every_point_max`` points, else those whose parent's points, ``spacing`` × 2^(1 − depth) apart
+    (``spacing``: the root's, world units), lie more than ``spacing_px`` pixels apart at the node's
+    subtree box's nearest point (the root always; a node with the eye in its box always); closed
+    under parents."""
     chosen = select_nodes(tree, camera, size, bounds, None, usable)
+    if int(tree.counts[chosen].sum()) <= every_point_max:
+        return chosen
     lo, hi = tree.boxes[:, 0], tree.boxes[:, 1]
     eye = np.asarray(camera.eye, np.float64)
     distance = np.linalg.norm(np.clip(eye, lo, hi) - eye, axis=1)

@@ -14,6 +14,11 @@ from tessera.scheduling.lod_control import (
     DEFAULT_TARGET_FPS,
     LodControl,
 )
+from tessera.scheduling.point_budget_control import (
+    DEFAULT_POINT_BUDGET_MAX,
+    DEFAULT_POINT_BUDGET_MIN,
+    PointBudgetControl,
+)
 from tessera.scheduling.refinement import DEFAULT_MAX_STILL_SAMPLES, DEFAULT_STILL_TARGET_DB, StillPlan
 from tessera.wire.codec import Codec
 
@@ -31,7 +36,10 @@ class SchedulerConfig:
     ``mode``: one of :data:`MODES`, ``depth_strip`` the hybrid's border strip (px);
     ``background``: the clear colour, linear RGB in [0, 1] (None: the default), which the depth
     modes' merge paints where no node drew; ``lod_error_px``, ``lod_max_error_px`` and
-    ``target_fps``: a moving frame's levels-of-detail bound (:mod:`tessera.scheduling.lod_control`)."""
+    ``target_fps``: a moving frame's levels-of-detail bound (:mod:`tessera.scheduling.lod_control`);
+    ``point_budget`` (where it starts), ``point_budget_min`` and ``point_budget_max`` and
+    ``target_fps``: a point cloud's moving frames' budget
+    (:mod:`tessera.scheduling.point_budget_control`)."""
 
     size: tuple[int, int] = (1280, 720)
     codec: Codec = Codec.JPEG
@@ -55,8 +63,11 @@ class SchedulerConfig:
     lod_error_px: float = DEFAULT_LOD_ERROR_PX
     lod_max_error_px: float = DEFAULT_LOD_MAX_ERROR_PX
     target_fps: float = DEFAULT_TARGET_FPS
-    #: A point cloud's moving frames draw at most this many points; every splat at least this wide (px).
+    #: A point cloud's moving frames draw at most this many points (where the loop starts, within
+    #: the min and max); every splat at least this wide (px).
     point_budget: int = DEFAULT_POINT_BUDGET
+    point_budget_min: int = DEFAULT_POINT_BUDGET_MIN
+    point_budget_max: int = DEFAULT_POINT_BUDGET_MAX
     point_size: float = DEFAULT_POINT_SIZE
 
     def __post_init__(self) -> None:
@@ -65,9 +76,9 @@ class SchedulerConfig:
         if self.max_in_flight < 1:
             raise ValueError("max_in_flight must be >= 1")
         LodControl(self.lod_error_px, self.lod_max_error_px, self.target_fps)   # raises for a bad bound
-        if self.point_budget < 1 or not self.point_size > 0.0:
-            raise ValueError(f"point_budget must be >= 1 and point_size > 0, got {self.point_budget}, "
-                             f"{self.point_size}")
+        PointBudgetControl(self.point_budget, self.point_budget_min, self.point_budget_max, self.target_fps)
+        if not self.point_size > 0.0:
+            raise ValueError(f"point_size must be > 0, got {self.point_size}")
         if not self.max_fps > 0.0:
             raise ValueError("max_fps must be > 0")
         assert self.still_plan   # its checks raise ValueError

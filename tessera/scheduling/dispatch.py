@@ -398,6 +398,9 @@ class FrameDispatch:
                 node.last_tiles, node.last_readback = [], []
         busy_ms = {n: sum(r[0].values()) for n, r in rollup.items()}
         if not job.still:
-            session.lod.frame_done(max(busy_ms.values(), default=0.0) / 1e3)
+            slowest_s = max(busy_ms.values(), default=0.0) / 1e3
+            session.lod.frame_done(slowest_s)
+            if session.point_bounds is not None:
+                session.points.frame_done(slowest_s)
         if not (job.still or job.one_by_one) and session.mode.take_timings(job.frame_id, timings):
             session.stats.record_balance(busy_ms)

@@ -75,17 +75,54 @@ class LodControl:
         """An interactive frame took ``busy_s`` seconds of its slowest node."""
         if self.floor_px <= 0.0 or busy_s < 0.0:
             return
-        self.smoothed_s = busy_s if self.smoothed_s is None else \
-            (1.0 - SMOOTHING) * self.smoothed_s + SMOOTHING * busy_s
+        self.smoothed_s = smoothed(self.smoothed_s, busy_s)
         self.frames_since_step += 1
-        interval = 1.0 / self.target_fps
-        if self.frames_since_step < HOLD and not (self.smoothed_s > FAR * interval and self.bound_px < self.ceiling_px):
-            return
-        if self.smoothed_s > SLOW * interval and self.bound_px < self.ceiling_px:
-            step = STEP * STEP if self.smoothed_s > FAR * interval else STEP
-            self.bound_px = min(self.ceiling_px, self.bound_px * step)
-        elif self.smoothed_s < QUICK * interval and self.bound_px > self.floor_px:
-            self.bound_px = max(self.floor_px, self.bound_px / STEP)
-        else:
-            return
-        self.frames_since_step = 0
+        steps = pace_steps(self.smoothed_s, 1.0 / self.target_fps, self.frames_since_step,
+                           self.bound_px < self.ceiling_px, self.bound_px > self.floor_px)
+        if steps:
+            self.bound_px = min(self.ceiling_px, max(self.floor_px, self.bound_px * STEP ** steps if steps > 0
+                                                                   else self.bound_px / STEP))
+            self.frames_since_step = 0
+
+
+@dataclass
+class FramePace:
+    """The frame times of one loop aiming at ``target_fps``: the smoothed time (s) and the frames
+    since its last step (:func:`pace_steps`)."""
+
+    target_fps: float
+    smoothed_s: float | None = None
+    frames_since_step: int = 0
+
+    def steps(self, busy_s: float, can_coarsen: bool, can_refine: bool) -> int:
+        """A frame took ``busy_s`` seconds: the steps its loop takes now (:func:`pace_steps`)."""
+        self.smoothed_s = smoothed(self.smoothed_s, busy_s)
+        self.frames_since_step += 1
+        steps = pace_steps(self.smoothed_s, 1.0 / self.target_fps, self.frames_since_step, can_coarsen, can_refine)
+        if steps:
+            self.frames_since_step = 0
+        return steps
+
+
+def smoothed(previous_s: float | None, busy_s: float) -> float:
+    """The smoothed frame time (s) after a frame of ``busy_s`` (the first frame's own time)."""
+    return busy_s if previous_s is None else (1.0 - SMOOTHING) * previous_s + SMOOTHING * busy_s
+
+
+def pace_steps(smoothed_s: float, interval_s: float, frames_since_step: int, can_coarsen: bool,
+               can_refine: bool) -> int:
+    """How many factors of :data:`STEP` a moving picture's coarseness moves by after a frame (the
+    module docstring's loop, shared by :class:`LodControl` and the point budget's
+    :class:`tessera.scheduling.point_budget_control.PointBudgetControl`): 2 when the smoothed frame
+    time ``smoothed_s`` is over :data:`FAR` target intervals ``interval_s`` (any frame), 1 over
+    :data:`SLOW`, −1 under :data:`QUICK` (each :data:`HOLD` frames after the last step at the
+    soonest), 0 inside the band or where the coarseness cannot move that way (``can_coarsen``,
+    ``can_refine``)."""
+    far = smoothed_s > FAR * interval_s and can_coarsen
+    if frames_since_step < HOLD and not far:
+        return 0
+    if smoothed_s > SLOW * interval_s and can_coarsen:
+        return 2 if far else 1
+    if smoothed_s < QUICK * interval_s and can_refine:
+        return -1
+    return 0

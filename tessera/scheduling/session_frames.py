@@ -24,6 +24,7 @@ from tessera.scheduling.frame_jobs import FrameJob
 from tessera.scheduling.frame_stats import FrameStats
 from tessera.scheduling.lod_control import LodControl
 from tessera.scheduling.node_table import NodeSchedule
+from tessera.scheduling.point_budget_control import PointBudgetControl
 from tessera.scheduling.refinement import ONE_FRAME
 from tessera.scheduling.render_demand import RenderDemand
 from tessera.tools.clipping import ClipState
@@ -61,6 +62,9 @@ class SessionFrames:
         #: Nodes that hold the levels of detail of its scene, and its moving frames' bound.
         self.levels: set[int] = set()
         self.lod = LodControl(config.lod_error_px, config.lod_max_error_px, config.target_fps)
+        #: A point cloud's moving frames' budget (issue 36), from their frame times as the bound.
+        self.points = PointBudgetControl(config.point_budget, config.point_budget_min, config.point_budget_max,
+                                         config.target_fps)
         #: Nodes yet to be told to load the scene, one after the other (the scheduler's ``_load_next``).
         self.loads_waiting: list[int] = []
         #: Nodes told to load the scene that have not answered yet (a node joining meanwhile waits its turn).
@@ -184,7 +188,7 @@ class SessionFrames:
 
     def set_points(self, bounds: np.ndarray) -> None:
         """The scene is a point cloud of ``bounds`` (2, 3) (issue 36): moving frames draw within the
-        point budget, stills every point; sort-last frames are shaded after the merge. A hybrid
+        point budget (:attr:`points`), stills every point; sort-last frames are shaded after the merge. A hybrid
         session turns sort-first (a hybrid tile's strip has no depth beyond it to shade from)."""
         self.point_bounds = np.asarray(bounds, np.float64)
         if self.config.mode == "hybrid":
@@ -194,10 +198,15 @@ class SessionFrames:
 
     def _points_job(self, job: FrameJob, camera: Camera, still: bool) -> None:
         assert self.point_bounds is not None
-        job.point_budget = None if still else self.config.point_budget
+        job.point_budget = None if still else self.points.budget
         job.point_size = self.config.point_size
         if self.config.mode == "sort-last":
             job.eye_dome = near_far_from_bounds(camera, self.point_bounds)
+
+    @property
+    def point_budget(self) -> int | None:
+        """The points a moving frame of its point cloud draws at most now (None: a mesh)."""
+        return None if self.point_bounds is None else self.points.budget
 
     @property
     def lod_bound(self) -> float | None:

@@ -97,6 +97,12 @@ test("the detail figure says the levels-of-detail bound, or full detail", () => 
   assert.equal(detailText({}), "full");
 });
 
+test("the detail figure of a point cloud says its moving frames' point budget", () => {
+  assert.equal(detailText({ point_budget: 300000, lod_error_px: 0.5 }), "≤ 300k points");
+  assert.equal(detailText({ point_budget: 1500000 }), "≤ 1.50M points");
+  assert.equal(detailText({ point_budget: null, lod_error_px: null }), "full");
+});
+
 test("the loading line says the stage and how many nodes hold the scene", () => {
   assert.equal(loadingText(null), "");
   assert.equal(loadingText({ fraction: 0.42, message: "reading big.ply", nodes_ready: 1, nodes: 3 }),
