@@ -112,8 +112,8 @@ def test_990k_scan_splits_into_chunks_under_the_limit():
     assert np.all(split.bounds[:, 0] >= positions.min(axis=0)) and np.all(split.bounds[:, 1] <= positions.max(axis=0))
 
 
-@pytest.mark.parametrize("mesh", ["random", "990k scan"])
-def test_compiled_passes_split_as_numpy_does(mesh, monkeypatch):
+@pytest.mark.parametrize(("mesh", "face_limit"), [("random", 192), ("random", 1), ("random", 7), ("990k scan", 192)])
+def test_compiled_passes_split_as_numpy_does(mesh, face_limit, monkeypatch):
     """Big meshes take the compiled passes (node.scene.compiled): the very same orders, chunks,
     boxes and normals as the numpy passes (a mesh's picture does not depend on its size's path)."""
     if mesh == "random":
@@ -124,11 +124,11 @@ def test_compiled_passes_split_as_numpy_does(mesh, monkeypatch):
     splits = []
     for threshold in (1 << 62, 1):
         monkeypatch.setattr(compiled, "COMPILED_FACES", threshold)
-        split = octree_split(positions, faces, face_limit=192, normals=True)
+        split = octree_split(positions, faces, face_limit=face_limit, normals=True)
         splits.append((split, moved_split(split, positions * np.float32(1.5), normals=True)))
     assert compiled.available(len(faces))
     for numpy_split, compiled_split in zip(*splits, strict=True):
         for field in ("vertex_order", "face_order", "faces", "starts", "ends", "bounds", "depths", "normals",
                       "positions"):
             assert np.array_equal(getattr(numpy_split, field), getattr(compiled_split, field)), field
-    check_split(positions, faces, splits[1][0], 192)
+    check_split(positions, faces, splits[1][0], face_limit)

@@ -152,7 +152,7 @@ Splitter = Callable[[MeshBatch, int], ChunkSplit]
 
 def octree_chunks(batch: MeshBatch, face_limit: int) -> ChunkSplit:
     """The default :data:`Splitter`: ``batch`` split by octree (:func:`node.scene.octree.octree_split`)."""
-    return octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None)
+    return octree_split(batch.positions, batch.faces, face_limit, normals=batch.normals is None, face_order=False)
 
 
 def split_batches(batches: Sequence[MeshBatch], face_limit: int = DEFAULT_FACE_LIMIT,

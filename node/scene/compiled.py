@@ -6,7 +6,11 @@ every mesh where numba is missing, take the numpy passes (:mod:`node.scene.octre
 
 - :func:`sorted_faces`: the faces renumbered to the new vertex order and sorted by their lowest
   vertex, then by number, as one counting sort (two linear passes on two threads, no keys sorted);
-- :func:`radix_sort`: the vertices' 64-bit keys (code above number) sorted in three passes;
+- :func:`sorted_vertices`: the vertices' Morton codes and sort keys (code above number) made in one
+  pass on two threads, sorted by :func:`radix_sort` (three passes), and unpacked into the order, the
+  sorted codes and each vertex's new number in one more;
+- :func:`octree_cells`: the adaptive octree's leaves found depth first, a cell's children by binary
+  searches in its groups' sorted codes (the numpy pass walks every group at every level);
 - :func:`face_records`: a binary PLY's faces copied from the file's records (a count byte and three
   4-byte indices each), three bytes-to-index loads where numpy copies unaligned strided fields;
 - :func:`face_pass`: each chunk's box and the smooth vertex normals in one pass: a face's normal is
@@ -72,6 +76,7 @@ def _build(jit: Any) -> Any:
     def scatter(faces: np.ndarray, first: int, end: int, rank: np.ndarray, lowest: np.ndarray,
                 next_slot: np.ndarray, new_faces: np.ndarray, face_order: np.ndarray) -> None:
         last = np.uint32(rank.size - 1)
+        ordered = face_order.size > 0
         for face in range(first, end):
             low = lowest[face]
             slot = next_slot[low]
@@ -79,7 +84,25 @@ def _build(jit: Any) -> Any:
             new_faces[slot, 0] = rank[min(faces[face, 0], last)]
             new_faces[slot, 1] = rank[min(faces[face, 1], last)]
             new_faces[slot, 2] = rank[min(faces[face, 2], last)]
-            face_order[slot] = face
+            if ordered:
+                face_order[slot] = face
+
+    @jit
+    def slot_starts(first_counts: np.ndarray, second_counts: np.ndarray, first_slot: np.ndarray,
+                    second_slot: np.ndarray, groups: np.ndarray, vertices: np.ndarray) -> int:
+        """Each vertex's first slot for the first and the second half's faces, and the groups (first
+        slot, vertex) of the vertices some face has as its lowest; returns how many groups."""
+        total, group = 0, 0
+        for vertex in range(first_counts.size):
+            in_first, in_second = first_counts[vertex], second_counts[vertex]
+            first_slot[vertex] = total
+            second_slot[vertex] = total + in_first
+            if in_first + in_second > 0:
+                groups[group] = total
+                vertices[group] = vertex
+                group += 1
+            total += in_first + in_second
+        return group
 
     @jit
     def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, boxes: np.ndarray,
@@ -159,24 +182,95 @@ def _build(jit: Any) -> Any:
                 largest = max(largest, value)
         return triangles, int(largest)
 
+    @jit
+    def morton_keys(points: np.ndarray, first: int, end: int, lo: np.ndarray, scale: np.ndarray, top: float,
+                    spread: np.ndarray, item_bits: int, keys: np.ndarray) -> int:
+        """Keys (code << item_bits | number) of points [first, end) into ``keys``; the largest code.
+        A coordinate's cell is clipped to [0, top] (NaN to 0), as numpy's clip and clipped take do."""
+        largest = np.uint64(0)
+        for point in range(first, end):
+            code = np.uint64(0)
+            for axis in range(3):
+                cell = (np.float64(points[point, axis]) - lo[axis]) * scale[axis]
+                index = 0 if not cell >= 0.0 else int(top) if cell > top else int(cell)
+                code |= spread[index] << np.uint64(2 - axis)
+            largest = max(largest, code)
+            keys[point] = (code << np.uint64(item_bits)) | np.uint64(point)
+        return int(largest)
+
+    @jit
+    def unpack_keys(keys: np.ndarray, first: int, end: int, item_bits: int, order: np.ndarray,
+                    rank: np.ndarray) -> None:
+        mask = np.uint64((1 << item_bits) - 1)
+        for slot in range(first, end):
+            item = np.int64(keys[slot] & mask)
+            order[slot] = item
+            rank[item] = slot
+            keys[slot] >>= np.uint64(item_bits)
+
+    @jit
+    def octree_cells(codes: np.ndarray, group_faces: np.ndarray, face_total: int, face_limit: int, max_depth: int,
+                     starts: np.ndarray, ends: np.ndarray, depths: np.ndarray) -> int:
+        """The leaves, depth first (so by first face), into ``starts``/``ends``/``depths`` when they
+        have room (else only counted); returns how many."""
+        groups = codes.size
+        room = starts.size
+        stack = np.empty((8 * (max_depth + 1) + 1, 3), np.int64)   # (first group, end group, depth)
+        bounds = np.empty(9, np.int64)
+        stack[0, 0], stack[0, 1], stack[0, 2] = 0, groups, 0
+        top, count = 1, 0
+        while top > 0:
+            top -= 1
+            g0, g1, depth = stack[top, 0], stack[top, 1], stack[top, 2]
+            f0 = group_faces[g0]
+            f1 = group_faces[g1] if g1 < groups else face_total
+            if f1 - f0 <= face_limit or depth == max_depth:
+                for first in range(f0, f1, face_limit if f1 - f0 > face_limit else max(f1 - f0, 1)):
+                    if count < room:
+                        starts[count], ends[count], depths[count] = first, min(first + face_limit, f1), depth
+                    count += 1
+                continue
+            shift = np.uint64(3 * (max_depth - depth - 1))
+            cell = codes[g0] >> (shift + np.uint64(3))
+            bounds[0] = g0
+            for child in range(8):
+                below = ((cell << np.uint64(3)) + np.uint64(child + 1)) << shift   # the next child's first code
+                low, high = bounds[child], g1
+                while low < high:
+                    middle = (low + high) >> 1
+                    if codes[middle] < below:
+                        low = middle + 1
+                    else:
+                        high = middle
+                bounds[child + 1] = low
+            for child in range(7, -1, -1):
+                if bounds[child + 1] > bounds[child]:
+                    stack[top, 0], stack[top, 1], stack[top, 2] = bounds[child], bounds[child + 1], depth + 1
+                    top += 1
+        return count
+
     class Kernels:
         pass
 
     kernels: Any = Kernels()
     kernels.lowest_counts, kernels.scatter, kernels.sweep, kernels.unit = lowest_counts, scatter, sweep, unit
+    kernels.slot_starts = slot_starts
     kernels.radix_pass, kernels.face_records = radix_pass, face_records
+    kernels.morton_keys, kernels.unpack_keys, kernels.octree_cells = morton_keys, unpack_keys, octree_cells
     return kernels
 
 
-def sorted_faces(faces: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def sorted_faces(faces: np.ndarray, rank: np.ndarray, face_order: bool = True) -> tuple[
+        np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """``faces`` (F, 3) uint32 numbering old vertices, renumbered by ``rank`` (V,) uint32 (old vertex
     → new) and sorted by their lowest new vertex, then by number: (new faces (F, 3) uint32, face
-    order (F,) int64: new face k is old face ``order[k]``, the first new face of each group of one
-    lowest vertex (G,) int64, and those vertices (G,) int64). Indices past the last vertex are taken
-    as the last (as ``take(mode="clip")``).
+    order (F,) int64: new face k is old face ``order[k]`` (None unless ``face_order``), the first new
+    face of each group of one lowest vertex (G,) int64, and those vertices (G,) int64). Indices past
+    the last vertex are taken as the last (as ``take(mode="clip")``).
 
     A counting sort in two halves of the faces on two threads: each half counts its faces per lowest
-    vertex, and the second half's faces of a vertex go after the first half's."""
+    vertex, and the second half's faces of a vertex go after the first half's. Slots are 4-byte
+    numbers where the faces allow (the scattering pass's random accesses touch half the memory)."""
     kernels = _compiled()
     faces = np.ascontiguousarray(faces, np.uint32)
     face_total, vertex_total = faces.shape[0], rank.size
@@ -185,22 +279,61 @@ def sorted_faces(faces: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.nd
     counts = [np.zeros(vertex_total, np.uint32) for _ in halves]
     _on_threads([lambda first=first, end=end, count=count: kernels.lowest_counts(faces, first, end, rank, lowest, count)
                  for (first, end), count in zip(halves, counts, strict=True)])
-    total = counts[0].astype(np.int64)
-    total += counts[1]
-    vertices = np.flatnonzero(total)
-    first_slot = np.empty(vertex_total, np.int64)
-    first_slot[0] = 0
-    np.cumsum(total[:-1], out=first_slot[1:])
-    del total
-    groups = first_slot.take(vertices)
-    second_slot = first_slot + counts[0]
+    slot_type = np.uint32 if face_total < 1 << 32 else np.int64
+    first_slot, second_slot = np.empty(vertex_total, slot_type), np.empty(vertex_total, slot_type)
+    groups, vertices = np.empty(vertex_total, np.int64), np.empty(vertex_total, np.int64)
+    group_count = kernels.slot_starts(counts[0], counts[1], first_slot, second_slot, groups, vertices)
     del counts
     new_faces = np.empty((face_total, 3), np.uint32)
-    face_order = np.empty(face_total, np.int64)
+    order = np.empty(face_total if face_order else 0, np.int64)
     _on_threads([lambda first=first, end=end, slots=slots: kernels.scatter(faces, first, end, rank, lowest, slots,
-                                                                             new_faces, face_order)
+                                                                             new_faces, order)
                  for (first, end), slots in zip(halves, (first_slot, second_slot), strict=True)])
-    return new_faces, face_order, groups, vertices
+    return new_faces, order if face_order else None, groups[:group_count], vertices[:group_count]
+
+
+def sorted_vertices(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: int,
+                    spread: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``points`` (N, 3) float32 sorted stably by their Morton codes at ``depth`` in the box [lo, hi]
+    (3,) float64, as :func:`node.scene.octree.sorted_by_code` of :func:`node.scene.octree.morton_codes`
+    sorts them (``spread`` (2**depth,) uint64: each cell index's bits three apart): (order (N,) int64,
+    sorted codes (N,) uint64, rank (N,) uint32: point ``order[k]``'s new number is k); None when a code
+    and a point's number do not fit one 64-bit key."""
+    kernels = _compiled()
+    points = np.ascontiguousarray(points, np.float32)
+    count = len(points)
+    item_bits = max(1, int(count - 1).bit_length())
+    if 3 * depth + item_bits > 64:
+        return None
+    cells = 1 << depth
+    scale = cells / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    keys = np.empty(count, np.uint64)
+    halves = [(0, count // 2), (count // 2, count)]
+    largest: list[int] = []
+    _on_threads([lambda first=first, end=end: largest.append(kernels.morton_keys(
+        points, first, end, np.asarray(lo, np.float64), scale, float(cells - 1), spread, item_bits, keys))
+        for first, end in halves])
+    keys = radix_sort(keys, item_bits, max(max(largest).bit_length(), 1))
+    order = np.empty(count, np.int64)
+    rank = np.empty(count, np.uint32)
+    _on_threads([lambda first=first, end=end: kernels.unpack_keys(keys, first, end, item_bits, order, rank)
+                 for first, end in halves])
+    return order, keys, rank
+
+
+def octree_cells(codes: np.ndarray, group_faces: np.ndarray, face_total: int, face_limit: int,
+                 max_depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`node.scene.octree._cells` compiled: (starts, ends, depths) (C,) int64 of the adaptive
+    octree's leaves over groups of faces of one code (``codes`` (G,) uint64 sorted, group g's first
+    face ``group_faces[g]`` (G,) int64), the same arrays, found depth first."""
+    kernels = _compiled()
+    codes = np.ascontiguousarray(codes, np.uint64)
+    group_faces = np.ascontiguousarray(group_faces, np.int64)
+    none = np.zeros(0, np.int64)
+    count = kernels.octree_cells(codes, group_faces, face_total, face_limit, max_depth, none, none, none)
+    starts, ends, depths = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count, np.int64)
+    kernels.octree_cells(codes, group_faces, face_total, face_limit, max_depth, starts, ends, depths)
+    return starts, ends, depths
 
 
 def face_records(records: np.ndarray) -> tuple[np.ndarray, bool, int]:

@@ -78,7 +78,7 @@ class ChunkSplit:
     """
 
     vertex_order: np.ndarray
-    face_order: np.ndarray
+    face_order: np.ndarray | None
     faces: np.ndarray
     starts: np.ndarray
     ends: np.ndarray
@@ -98,7 +98,8 @@ class ChunkSplit:
 
     def reorder(self, faces: np.ndarray) -> np.ndarray:
         """The old (F, 3) index buffer with faces in chunk order, still numbering the old vertices
-        (same dtype as ``faces``)."""
+        (same dtype as ``faces``); needs :attr:`face_order`."""
+        assert self.face_order is not None, "split without its face order"
         return np.ascontiguousarray(faces[self.face_order])
 
 
@@ -172,10 +173,12 @@ def sorted_by_code(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEFAULT_FACE_LIMIT,
-                 max_depth: int = MAX_DEPTH, normals: bool = False) -> ChunkSplit:
+                 max_depth: int = MAX_DEPTH, normals: bool = False, face_order: bool = True) -> ChunkSplit:
     """Split a mesh (``positions`` (V, 3) float32, ``faces`` (F, 3) integer) into octree chunks of
     at most ``face_limit`` faces each; every face lands in exactly one chunk. ``normals``: also its
-    smooth vertex normals, in the new vertex order (:mod:`node.scene.face_pass`)."""
+    smooth vertex normals, in the new vertex order (:mod:`node.scene.face_pass`); ``face_order``:
+    keep :attr:`ChunkSplit.face_order` (an ingest, which needs only the new faces, skips it: 8 bytes
+    a face written at random)."""
     if face_limit < 1:
         raise ValueError(f"face_limit must be ≥ 1, got {face_limit}")
     if not 0 <= max_depth <= MAX_DEPTH:
@@ -190,9 +193,14 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
         return ChunkSplit(np.arange(vertex_total), empty, np.zeros((0, 3), np.uint32), empty, empty,
                           np.zeros((0, 2, 3), np.float32), empty, None, positions)
 
-    vertex_order, vertex_codes = sorted_by_code(morton_codes(positions, *octree_root(positions), max_depth))
-    rank = np.empty(vertex_total, np.uint32)
-    rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
+    lo, hi = octree_root(positions)
+    fused = compiled.sorted_vertices(positions, lo, hi, max_depth, _SPREAD) if compiled.available(face_total) else None
+    if fused is not None:
+        vertex_order, vertex_codes, rank = fused
+    else:
+        vertex_order, vertex_codes = sorted_by_code(morton_codes(positions, lo, hi, max_depth))
+        rank = np.empty(vertex_total, np.uint32)
+        rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
     moved = np.empty_like(positions)
 
     def move(first: int, end: int, points: np.ndarray = np.ascontiguousarray(positions).view(_POINT_RECORD).reshape(-1),
@@ -202,11 +210,12 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     for_blocks(vertex_total, move)
     del move
     if compiled.available(face_total):   # the same arrays in two compiled passes
-        new_faces, face_order, groups, lowest = compiled.sorted_faces(faces, rank)
+        new_faces, kept_order, groups, lowest = compiled.sorted_faces(faces, rank, face_order)
         del rank
-        starts, ends, depths = _cells(vertex_codes.take(lowest), groups, face_total, face_limit, max_depth)
+        starts, ends, depths = compiled.octree_cells(vertex_codes.take(lowest), groups, face_total, face_limit,
+                                                     max_depth)
         swept = face_pass(moved, new_faces, starts, normals)
-        return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
+        return ChunkSplit(vertex_order, kept_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
     # Faces sorted by their first vertex in the new order, then by number: one sort of keys that hold both.
     item_bits = max(1, int(face_total - 1).bit_length())
     renumbered = np.empty((face_total, 3), np.uint32)
@@ -222,16 +231,16 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     for_blocks(face_total, renumber)
     del renumber, rank
     keys.sort()
-    face_order = np.empty(face_total, np.int64)
+    order = np.empty(face_total, np.int64)
     new_faces = np.empty((face_total, 3), np.uint32)
     group_start = np.empty(face_total, bool)
 
     def reorder(first: int, end: int, rows: np.ndarray = renumbered.view(_FACE_RECORD).reshape(-1),
                 new_rows: np.ndarray = new_faces.view(_FACE_RECORD).reshape(-1), keys: np.ndarray = keys,
                 group_start: np.ndarray = group_start) -> None:
-        order = face_order[first:end]
-        np.bitwise_and(keys[first:end], np.uint64((1 << item_bits) - 1), out=order, casting="unsafe")
-        rows.take(order, out=new_rows[first:end], mode="clip")
+        rows_order = order[first:end]
+        np.bitwise_and(keys[first:end], np.uint64((1 << item_bits) - 1), out=rows_order, casting="unsafe")
+        rows.take(rows_order, out=new_rows[first:end], mode="clip")
         lowest = keys[max(first - 1, 0):end] >> np.uint64(item_bits)
         group_start[first] = first == 0 or lowest[0] != lowest[1]
         np.not_equal(lowest[1 + (first > 0):], lowest[(first > 0):-1], out=group_start[first + 1:end])
@@ -243,7 +252,8 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     del keys, group_start
     starts, ends, depths = _cells(group_codes, groups, face_total, face_limit, max_depth)
     swept = face_pass(moved, new_faces, starts, normals)
-    return ChunkSplit(vertex_order, face_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
+    return ChunkSplit(vertex_order, order if face_order else None, new_faces, starts, ends, swept.boxes, depths,
+                      swept.normals, moved)
 
 
 def moved_split(split: ChunkSplit, positions: np.ndarray, normals: bool = False) -> ChunkSplit:
