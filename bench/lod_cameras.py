@@ -1,0 +1,148 @@
+"""The moving frame's picture at levels of detail from many cameras (issue 32): where it loses PSNR.
+
+``python -m bench.lod_cameras --scene FILE [--cache-dir DIR] [--size 1280x720] [--bounds 1,1.5]
+[--orbit 8] [--near 4] [--quality 60] [--json OUT]``
+
+The scene and its levels come from the scene cache as a node reads them (built there first if need
+be: a big model's levels take minutes). In one process, a :class:`node.gl.renderer.TileRenderer`
+with its defaults draws whole frames (the moving frame's anti-aliasing) from ``--orbit`` cameras
+around the default one (:func:`bench.paths.orbit_around`, one turn) and ``--near`` more at half its
+distance, a quarter turn apart from 20°. Per camera: the full-detail frame; ``codec_db``, its JPEG
+at ``--quality`` (the interactive codec's default) against it; and per bound of ``--bounds`` (pixels,
+as ``--lod-error-px``): the triangles drawn, ``levels_db`` the frame at that bound against full
+detail, ``moving_db`` its JPEG against full detail (what ``bench.bigscene`` measures of a session's
+moving frame) and ``silhouette_share``, the part of the levels' squared error on the model's pixels
+within one pixel of the background in either frame (``silhouette_px``: their share of the frame's
+pixels); the rest is the inside of the model, its shading.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from bench.images import psnr
+from bench.paths import orbit_around
+from node.gl.context import create_gl_context
+from node.gl.renderer import TileRenderer
+from node.scene.cache_folder import CacheFolder
+from node.scene.data import SceneData
+from node.scene.fetch import DEFAULT_CACHE_DIR
+from node.scene.ingest import cached_levels, open_cached, read_scene
+from node.scene.lod import read_lod
+from node.scene.octree import DEFAULT_FACE_LIMIT
+from tessera.cli_values import size_parser
+from tessera.geometry import Camera, default_camera
+from tessera.scheduling.config import SchedulerConfig
+from tessera.wire.codec import Codec, encode
+
+
+def cameras(scene: SceneData, size: tuple[int, int], orbit: int, near: int) -> list[tuple[str, Camera]]:
+    """``orbit`` cameras on one turn around the default camera's target at its distance, then ``near``
+    at half the distance, a quarter turn apart from 20°: (name, camera)."""
+    base = default_camera(scene.bounds, aspect=size[0] / size[1])
+    around = [Camera.from_json(c) for c in orbit_around(base, orbit)["frames"]] if orbit else []
+    named = [(f"orbit {round(360 * k / orbit)}°", camera) for k, camera in enumerate(around)]
+    eye, target = np.asarray(base.eye, np.float64), np.asarray(base.target, np.float64)
+    for k in range(near):
+        angle = math.radians(20 + 90 * k)
+        c, s = math.cos(angle), math.sin(angle)
+        offset = (eye - target) * 0.5
+        turned = np.array([c * offset[0] + s * offset[2], offset[1], -s * offset[0] + c * offset[2]])
+        named.append((f"half {20 + 90 * k}°", Camera(eye=tuple((target + turned).tolist()), target=base.target,
+                                                     up=base.up, fovy_deg=base.fovy_deg)))
+    return named
+
+
+def jpeg(pixels: np.ndarray, quality: int) -> np.ndarray:
+    """``pixels`` (h, w, 3) uint8 through the interactive codec at ``quality`` and back."""
+    return np.asarray(Image.open(io.BytesIO(encode(pixels, Codec.JPEG, quality))).convert("RGB"))
+
+
+def silhouette(pixels: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """(h, w) bool the pixels of the model (not ``background`` (3,) uint8) within one pixel (3 × 3)
+    of a background pixel."""
+    empty = np.all(pixels == background, axis=2)
+    padded = np.pad(empty, 1)
+    h, w = pixels.shape[:2]
+    near = np.zeros((h, w), bool)
+    for dy in range(3):
+        for dx in range(3):
+            near |= padded[dy:dy + h, dx:dx + w]
+    return near & ~empty
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    folder = CacheFolder(args.cache_dir, 1 << 40)
+    progress = lambda fraction, message: None  # noqa: E731
+    made = read_scene(str(args.scene), str(args.scene), DEFAULT_FACE_LIMIT, None, progress, folder)
+    scene = open_cached(made, str(args.scene))
+    assert isinstance(scene, SceneData) and isinstance(made, Path), "a mesh file"
+    levels = cached_levels(made, folder, progress)
+    if levels is None:
+        raise SystemExit(f"{args.scene}: no batch big enough for levels of detail")
+    ctx = create_gl_context()
+    renderer = TileRenderer(ctx, scene, packed=scene.geometry)
+    renderer.attach_lod(read_lod(levels))
+    background = np.round(np.asarray(renderer.background) * 255.0).astype(np.uint8)
+    rows = []
+    for name, camera in cameras(scene, args.size, args.orbit, args.near):
+        full = renderer.render_frame(camera, args.size).pixels
+        row: dict[str, Any] = {"camera": name, "codec_db": round(psnr(jpeg(full, args.quality), full), 2)}
+        for bound in args.bounds:
+            frame = renderer.render_frame(camera, args.size, lod_error_px=bound)
+            error = ((frame.pixels.astype(np.float64) - full) ** 2).sum(axis=2)
+            edge = silhouette(full, background) | silhouette(frame.pixels, background)
+            row[f"{bound:g}px"] = {
+                "triangles": frame.triangles, "levels_db": round(psnr(frame.pixels, full), 2),
+                "moving_db": round(psnr(jpeg(frame.pixels, args.quality), full), 2),
+                "silhouette_share": round(float(error[edge].sum() / max(error.sum(), 1.0)), 3),
+                "silhouette_px": round(float(edge.mean()), 4)}
+        rows.append(row)
+        print(report_row(row), flush=True)
+    renderer.release()
+    ctx.release()
+    return {"scene": str(args.scene), "size": list(args.size), "quality": args.quality, "cameras": rows}
+
+
+def report_row(row: dict[str, Any]) -> str:
+    parts = [f"{row['camera']:>10}: JPEG alone {row['codec_db']:5.1f} dB"]
+    for key, value in row.items():
+        if isinstance(value, dict):
+            parts.append(f"{key} {value['triangles'] / 1e6:.2f}M tri, levels {value['levels_db']:5.1f} dB, "
+                         f"after JPEG {value['moving_db']:5.1f} dB, silhouettes {value['silhouette_share']:.0%} "
+                         f"of the error on {value['silhouette_px']:.1%} of the pixels")
+    return " | ".join(parts)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.lod_cameras", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", type=Path, required=True, help="a mesh file (PLY, glTF, …)")
+    parser.add_argument("--cache-dir", type=Path, default=DEFAULT_CACHE_DIR,
+                        help=f"the scene cache folder (default {DEFAULT_CACHE_DIR}, the nodes')")
+    parser.add_argument("--size", type=size_parser(16, 16384), default=(1280, 720), help="the frames' size")
+    parser.add_argument("--bounds", type=lambda text: [float(v) for v in text.split(",")], default=[1.0, 1.5],
+                        help="error bounds in pixels (as --lod-error-px)")
+    parser.add_argument("--orbit", type=int, default=8, help="cameras on a turn around the default one")
+    parser.add_argument("--near", type=int, default=4, help="cameras at half the default one's distance")
+    parser.add_argument("--quality", type=int, default=SchedulerConfig().interactive_quality,
+                        help="JPEG quality of the moving frame (default: the interactive codec's)")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    result = measure(args)
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
