@@ -336,6 +336,32 @@ def octree_cells(codes: np.ndarray, group_faces: np.ndarray, face_total: int, fa
     return starts, ends, depths
 
 
+def float16_bits(values: np.ndarray) -> np.ndarray:
+    """``values`` (any shape) float32 as float16, rounded as numpy's ``astype(np.float16)`` rounds them
+    (the same bits; numba has no float16): for tests and small arrays, :func:`interleave` packs."""
+    from node.scene import compiled_packing  # numba's: imported where it is installed
+
+    bits = np.ascontiguousarray(values, np.float32).view(np.uint32)
+    out = np.empty(bits.shape, np.uint16)
+    compiled_packing.halves(bits.reshape(-1), out.reshape(-1))
+    return out.view(np.float16)
+
+
+def interleave(positions: np.ndarray, normals: np.ndarray, rows: np.ndarray) -> None:
+    """Vertices ``rows`` (N,) of a :class:`node.scene.packing.VertexLayout` dtype (position then
+    normal first, its stride a whole number of 4-byte words) given their position and normal from
+    ``positions`` and ``normals`` (N, 3) float32 (normals rounded to float16 as numpy rounds them,
+    padding zero), in one compiled pass where numpy's field assignments take two and a conversion."""
+    from node.scene import compiled_packing  # numba's: imported where it is installed
+
+    if not len(positions) == len(normals) == len(rows) or rows.dtype.itemsize % 4:
+        raise ValueError(f"{len(positions)} positions, {len(normals)} normals for {len(rows)} vertices of "
+                         f"{rows.dtype.itemsize} bytes")
+    words = rows.view(np.uint8).reshape(len(rows), rows.dtype.itemsize).view(np.uint32)
+    compiled_packing.interleave(np.ascontiguousarray(positions, np.float32).view(np.uint32),
+                       np.ascontiguousarray(normals, np.float32).view(np.uint32), words)
+
+
 def face_records(records: np.ndarray) -> tuple[np.ndarray, bool, int]:
     """A binary PLY's face ``records`` (F,) of a 1-byte count and three 4-byte indices (13 bytes, as
     numpy maps them from the file), copied on two threads: (faces (F, 3) uint32, whether every count is

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.scene import compiled
 from node.scene.face_pass import for_blocks
 from node.scene.mesh import MeshBatch
 
@@ -92,10 +93,15 @@ def pack_vertices(batches: Sequence[MeshBatch], layout: VertexLayout | None = No
     for batch in batches:
         assert batch.normals is not None, "normals are computed before packing"
 
-        def fill(start: int, end: int, batch: MeshBatch = batch, offset: int = first) -> None:
+        fast = compiled.available(batch.vertex_count) and batch.normals.dtype == np.float32
+
+        def fill(start: int, end: int, batch: MeshBatch = batch, offset: int = first, fast: bool = fast) -> None:
             rows = out[offset + start:offset + end]
-            rows["position"] = batch.positions[start:end]
-            rows["normal"] = batch.normals[start:end]
+            if fast:
+                compiled.interleave(batch.positions[start:end], batch.normals[start:end], rows)
+            else:
+                rows["position"] = batch.positions[start:end]
+                rows["normal"] = batch.normals[start:end]
             if layout.uvs and batch.uvs is not None:
                 rows["uv"] = batch.uvs[start:end]
             if layout.colors:
