@@ -33,6 +33,7 @@ import os
 import shutil
 import zlib
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,8 @@ TREE_PREFIX = "bvh-"
 #: Bytes a CRC-32 covers.
 BLOCK_BYTES = 16 << 20
 TABLE = "table.json"
+#: Arrays an entry's writer writes (and checksums) at once.
+WRITERS = 2
 #: ``progress(fraction 0…1, message)``.
 Progress = Callable[[float, str], None]
 
@@ -121,12 +124,16 @@ def write_arrays(directory: Path, arrays: Mapping[str, np.ndarray], table: Mappi
     it first wins)."""
     temporary = directory.with_name(f".{directory.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")
     temporary.mkdir(parents=True)
+
+    def write(name: str, array: np.ndarray) -> dict[str, Any]:
+        np.save(temporary / f"{name}.npy", array, allow_pickle=False)
+        return {"dtype": array.dtype.descr if array.dtype.names else array.dtype.str,
+                "shape": list(array.shape), "crc32": _crcs(array)}
+
     try:
-        files = {}
-        for name, array in arrays.items():
-            np.save(temporary / f"{name}.npy", array, allow_pickle=False)
-            files[name] = {"dtype": array.dtype.descr if array.dtype.names else array.dtype.str,
-                           "shape": list(array.shape), "crc32": _crcs(array)}
+        # Two at a time: the writes' copies into the page cache and zlib's CRCs release the GIL.
+        with ThreadPoolExecutor(WRITERS) as pool:
+            files = dict(zip(arrays, pool.map(write, arrays, arrays.values()), strict=True))
         size = sum(path.stat().st_size for path in temporary.iterdir())
         (temporary / TABLE).write_text(json.dumps({**table, "files": files, "bytes": size}))
         try:
