@@ -88,10 +88,10 @@ def _build(jit: Any) -> Any:
                 face_order[slot] = face
 
     @jit
-    def slot_starts(first_counts: np.ndarray, second_counts: np.ndarray, first_slot: np.ndarray,
-                    second_slot: np.ndarray, groups: np.ndarray, vertices: np.ndarray) -> int:
+    def slot_starts(first_counts: np.ndarray, second_counts: np.ndarray, codes: np.ndarray, first_slot: np.ndarray,
+                    second_slot: np.ndarray, groups: np.ndarray, group_codes: np.ndarray) -> int:
         """Each vertex's first slot for the first and the second half's faces, and the groups (first
-        slot, vertex) of the vertices some face has as its lowest; returns how many groups."""
+        slot, vertex's code) of the vertices some face has as its lowest; returns how many groups."""
         total, group = 0, 0
         for vertex in range(first_counts.size):
             in_first, in_second = first_counts[vertex], second_counts[vertex]
@@ -99,7 +99,7 @@ def _build(jit: Any) -> Any:
             second_slot[vertex] = total + in_first
             if in_first + in_second > 0:
                 groups[group] = total
-                vertices[group] = vertex
+                group_codes[group] = codes[vertex]
                 group += 1
             total += in_first + in_second
         return group
@@ -260,13 +260,14 @@ def _build(jit: Any) -> Any:
     return kernels
 
 
-def sorted_faces(faces: np.ndarray, rank: np.ndarray, face_order: bool = True) -> tuple[
+def sorted_faces(faces: np.ndarray, rank: np.ndarray, codes: np.ndarray, face_order: bool = True) -> tuple[
         np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """``faces`` (F, 3) uint32 numbering old vertices, renumbered by ``rank`` (V,) uint32 (old vertex
     → new) and sorted by their lowest new vertex, then by number: (new faces (F, 3) uint32, face
     order (F,) int64: new face k is old face ``order[k]`` (None unless ``face_order``), the first new
-    face of each group of one lowest vertex (G,) int64, and those vertices (G,) int64). Indices past
-    the last vertex are taken as the last (as ``take(mode="clip")``).
+    face of each group of one lowest vertex (G,) int64, and those vertices' ``codes`` (V,) uint64 (by
+    new number) (G,) uint64). Indices past the last vertex are taken as the last (as
+    ``take(mode="clip")``).
 
     A counting sort in two halves of the faces on two threads: each half counts its faces per lowest
     vertex, and the second half's faces of a vertex go after the first half's. Slots are 4-byte
@@ -281,15 +282,15 @@ def sorted_faces(faces: np.ndarray, rank: np.ndarray, face_order: bool = True) -
                  for (first, end), count in zip(halves, counts, strict=True)])
     slot_type = np.uint32 if face_total < 1 << 32 else np.int64
     first_slot, second_slot = np.empty(vertex_total, slot_type), np.empty(vertex_total, slot_type)
-    groups, vertices = np.empty(vertex_total, np.int64), np.empty(vertex_total, np.int64)
-    group_count = kernels.slot_starts(counts[0], counts[1], first_slot, second_slot, groups, vertices)
+    groups, group_codes = np.empty(vertex_total, np.int64), np.empty(vertex_total, np.uint64)
+    group_count = kernels.slot_starts(counts[0], counts[1], codes, first_slot, second_slot, groups, group_codes)
     del counts
     new_faces = np.empty((face_total, 3), np.uint32)
     order = np.empty(face_total if face_order else 0, np.int64)
     _on_threads([lambda first=first, end=end, slots=slots: kernels.scatter(faces, first, end, rank, lowest, slots,
                                                                              new_faces, order)
                  for (first, end), slots in zip(halves, (first_slot, second_slot), strict=True)])
-    return new_faces, order if face_order else None, groups[:group_count], vertices[:group_count]
+    return new_faces, order if face_order else None, groups[:group_count], group_codes[:group_count]
 
 
 def sorted_vertices(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: int,

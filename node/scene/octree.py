@@ -201,19 +201,12 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
         vertex_order, vertex_codes = sorted_by_code(morton_codes(positions, lo, hi, max_depth))
         rank = np.empty(vertex_total, np.uint32)
         rank[vertex_order] = np.arange(vertex_total, dtype=np.uint32)
-    moved = np.empty_like(positions)
-
-    def move(first: int, end: int, points: np.ndarray = np.ascontiguousarray(positions).view(_POINT_RECORD).reshape(-1),
-             moved_points: np.ndarray = moved.view(_POINT_RECORD).reshape(-1)) -> None:
-        points.take(vertex_order[first:end], out=moved_points[first:end], mode="clip")
-
-    for_blocks(vertex_total, move)
-    del move
-    if compiled.available(face_total):   # the same arrays in two compiled passes
-        new_faces, kept_order, groups, lowest = compiled.sorted_faces(faces, rank, face_order)
-        del rank
-        starts, ends, depths = compiled.octree_cells(vertex_codes.take(lowest), groups, face_total, face_limit,
-                                                     max_depth)
+    if compiled.available(face_total):   # the same arrays in compiled passes
+        new_faces, kept_order, groups, group_codes = compiled.sorted_faces(faces, rank, vertex_codes, face_order)
+        del rank, vertex_codes
+        starts, ends, depths = compiled.octree_cells(group_codes, groups, face_total, face_limit, max_depth)
+        del groups, group_codes
+        moved = _moved(positions, vertex_order)    # made once the sort's arrays are gone: a lower peak
         swept = face_pass(moved, new_faces, starts, normals)
         return ChunkSplit(vertex_order, kept_order, new_faces, starts, ends, swept.boxes, depths, swept.normals, moved)
     # Faces sorted by their first vertex in the new order, then by number: one sort of keys that hold both.
@@ -251,9 +244,24 @@ def octree_split(positions: np.ndarray, faces: np.ndarray, face_limit: int = DEF
     group_codes = vertex_codes.take((keys.take(groups) >> np.uint64(item_bits)).astype(np.intp))
     del keys, group_start
     starts, ends, depths = _cells(group_codes, groups, face_total, face_limit, max_depth)
+    moved = _moved(positions, vertex_order)
     swept = face_pass(moved, new_faces, starts, normals)
     return ChunkSplit(vertex_order, order if face_order else None, new_faces, starts, ends, swept.boxes, depths,
                       swept.normals, moved)
+
+
+def _moved(positions: np.ndarray, vertex_order: np.ndarray) -> np.ndarray:
+    """``positions`` (V, 3) float32 in the new vertex order (``vertex_order`` (V,) int64), taken as
+    records a block at a time on threads."""
+    moved = np.empty_like(positions)
+    points = np.ascontiguousarray(positions).view(_POINT_RECORD).reshape(-1)
+    moved_points = moved.view(_POINT_RECORD).reshape(-1)
+
+    def move(first: int, end: int) -> None:
+        points.take(vertex_order[first:end], out=moved_points[first:end], mode="clip")
+
+    for_blocks(len(positions), move)
+    return moved
 
 
 def moved_split(split: ChunkSplit, positions: np.ndarray, normals: bool = False) -> ChunkSplit:
