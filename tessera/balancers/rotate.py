@@ -23,11 +23,15 @@ Tile shares shrink round by round while frames overlap (factoring, Hummel, Schon
 flight the nodes come to a frame staggered by the last frame's tail, and with equal tiles the
 first one there pulled a tile more than the last (Lucy's orbit, 4 nodes: a frame's busiest node
 up to 1.4× the mean, per-frame efficiency 0.92). So the N tiles of round r (the r-th each node
-pulls) get effort ∝ ratioʳ, the smallest ratio in [½, 1] whose last tile still covers the error
-e of a node's earlier ones (:func:`round_ratio`; ½ is factoring's halving), e measured when a
-partition's timings come back (:func:`estimate_error`). Equal tiles (ratio 1) while
-frames come one at a time (the timings are of the last partition made: every node starts the
-next frame together, and equal tiles settle fastest), and until an estimate has been checked.
+pulls) get effort ∝ ratioʳ, the ratio being the measured error e of a partition's tiles against
+their planned efforts (the relative error of a tile weighted by its effort, :func:`estimate_error`,
+measured when its timings come back: the estimate's error, and how far the damped edges were from
+their targets), within [:data:`MIN_RATIO`, 1] (:func:`round_ratio`): each round's tiles are about
+as large as one tile's error of the round before, which is what the next round must make up;
+smaller rounds leave a frame's last tiles, and so the stagger with which the nodes come to the
+next, smaller. Equal tiles (ratio 1) while frames come one at a time (the timings are of the last
+partition made: every node starts the next frame together, and equal tiles settle fastest), and
+until an estimate has been checked.
 """
 
 from __future__ import annotations
@@ -40,15 +44,18 @@ from tessera.balancers.base import BalanceInput, Partition, Tile
 from tessera.balancers.support.load import measured_ms, speed_of
 from tessera.geometry import Rect
 
-#: Partitions whose tiles' predicted efforts are kept until their timings come back (frames in flight).
-KEPT_PREDICTIONS = 8
-#: The smallest ratio between successive rounds' shares: factoring's halving.
-MIN_RATIO = 0.5
+#: Partitions whose tiles' planned efforts are kept until their timings come back (frames in flight).
+KEPT_PLANS = 8
+#: The smallest ratio between successive rounds' shares: below it a third round's tiles would hold
+#: 2 % of a node's share, little but their per-tile overhead (read-back, encode).
+MIN_RATIO = 0.15
 
 
 def estimate_error(predicted: Sequence[float], measured: Sequence[float]) -> float:
     """How far tiles' measured times (ms) were from their predicted efforts (ms): the L1 distance
-    of the two as shares of their totals, 0 (exact) … 2; 2 when either total is not positive."""
+    of the two as shares of their totals, 0 (exact) … 2 — Σ sharesᵢ × |relative errorᵢ|, the
+    relative error of a tile weighted by its effort, when the totals agree; 2 when either total
+    is not positive."""
     p_total, m_total = sum(predicted), sum(measured)
     if not (p_total > 0.0 and m_total > 0.0):
         return 2.0
@@ -56,24 +63,13 @@ def estimate_error(predicted: Sequence[float], measured: Sequence[float]) -> flo
 
 
 def round_ratio(error: float, rounds: int) -> float:
-    """The ratio r between successive rounds' tile shares: the smallest in [:data:`MIN_RATIO`, 1]
-    whose last round still covers the ``error`` (a relative error) of a node's earlier tiles,
-    r^(rounds − 1) ≥ error × Σ_{j < rounds − 1} rʲ; 1 with one round or when none does."""
+    """The ratio r between successive rounds' tile shares: the estimate's ``error`` (the relative
+    error of a tile weighted by its effort, :func:`estimate_error`) within [:data:`MIN_RATIO`, 1],
+    so that a round's tile is about as large as the error of one tile of the round before; 1 with
+    one round."""
     if rounds < 2:
         return 1.0
-
-    def covers(r: float) -> bool:
-        return r ** (rounds - 1) >= error * sum(r ** j for j in range(rounds - 1))
-
-    if covers(MIN_RATIO):
-        return MIN_RATIO
-    if not covers(1.0):
-        return 1.0
-    low, high = MIN_RATIO, 1.0
-    for _ in range(30):
-        middle = (low + high) / 2.0
-        low, high = (low, middle) if covers(middle) else (middle, high)
-    return high
+    return float(min(max(error, MIN_RATIO), 1.0))
 
 
 def round_shares(count: int, nodes: int, ratio: float) -> list[float]:
@@ -88,8 +84,8 @@ class RotateBalancer(AdaptiveBalancer):
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        #: the last partitions' rects → (serial number, their tiles' predicted efforts in ms)
-        self.predictions: dict[tuple[Rect, ...], tuple[int, list[float]]] = {}
+        #: the last partitions' rects → (serial number, their tiles' planned efforts in ms)
+        self.planned: dict[tuple[Rect, ...], tuple[int, list[float]]] = {}
         #: partitions made, the ratio between rounds' shares of the last, and whether its rects
         #: repeated the one's before (then its timings cannot tell the two apart)
         self.serial, self.ratio, self.repeated = 0, 1.0, False
@@ -106,31 +102,40 @@ class RotateBalancer(AdaptiveBalancer):
         nodes = len(inputs.node_ids)
         count = max(nodes, min(self.params["tiles_per_node"] * nodes, min(width, height) ** 2 // 4))
         self.ratio = self.next_ratio(inputs, -(-count // nodes))
-        edges, field = self.edges(inputs, round_shares(count, nodes, self.ratio))
+        shares = round_shares(count, nodes, self.ratio)
+        edges, field = self.edges(inputs, shares)
         rects = edges.rects(inputs.size)
         effort = [field.total((r.x, r.y, r.x1, r.y1)) for r in rects]
         order = sorted(range(len(rects)), key=lambda i: (-effort[i], i))
         tiles = tuple(Tile(rects[i], None) for i in order)
         key = tuple(t.rect for t in tiles)
         self.serial += 1
-        self.repeated = key in self.predictions and self.predictions[key][0] == self.serial - 1
-        self.predictions.pop(key, None)
-        self.predictions[key] = (self.serial, [effort[i] for i in order])
-        while len(self.predictions) > KEPT_PREDICTIONS:
-            del self.predictions[next(iter(self.predictions))]
+        self.repeated = key in self.planned and self.planned[key][0] == self.serial - 1
+        self.planned.pop(key, None)
+        load, overhead = sum(effort), self.tile_overhead_ms()
+        self.planned[key] = (self.serial, [shares[i] / sum(shares) * load + overhead for i in order])
+        while len(self.planned) > KEPT_PLANS:
+            del self.planned[next(iter(self.planned))]
         return Partition(tiles, pull=True)
+
+    def tile_overhead_ms(self) -> float:
+        """What a tile costs beyond its rect's load in the field (effort ms), counted in its
+        planned effort: none here, the load field being last frame's measured tiles."""
+        return 0.0
 
     def next_ratio(self, inputs: BalanceInput, rounds: int) -> float:
         """The ratio between rounds' shares for the next partition: 1 (equal tiles) while frames
         come one at a time — the timings are of the last partition made, every node starts the
         next frame at once — or without timings of a partition of ours; else :func:`round_ratio`
-        of the error of the partition the timings are of. Its rects repeating the last but one's,
-        the ratio stays."""
-        made = self.predictions.get(tuple(t.rect for t in inputs.timings))
+        of how far the tiles the timings are of were from their planned efforts (their round's
+        share of the field's load, plus :meth:`tile_overhead_ms`): the estimate's error and what
+        kept the damped edges from their targets. Its rects repeating the last but one's, the
+        ratio stays."""
+        made = self.planned.get(tuple(t.rect for t in inputs.timings))
         if made is None:
             return 1.0
-        serial, predicted = made
+        serial, planned = made
         if serial == self.serial:
             return self.ratio if self.repeated else 1.0
-        return round_ratio(estimate_error(predicted, [measured_ms(t) * speed_of(inputs.weights, t.node_id)
-                                                      for t in inputs.timings]), rounds)
+        return round_ratio(estimate_error(planned, [measured_ms(t) * speed_of(inputs.weights, t.node_id)
+                                                    for t in inputs.timings]), rounds)
