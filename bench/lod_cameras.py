@@ -1,7 +1,7 @@
 """The moving frame's picture at levels of detail from many cameras (issue 32): where it loses PSNR.
 
 ``python -m bench.lod_cameras --scene FILE [--cache-dir DIR] [--size 1280x720] [--bounds 1,1.5]
-[--orbit 8] [--near 4] [--quality 60] [--json OUT]``
+[--orbit 8] [--near 4] [--quality 60] [--still-samples 0] [--json OUT]``
 
 The scene and its levels come from the scene cache as a node reads them (built there first if need
 be: a big model's levels take minutes). In one process, a :class:`node.gl.renderer.TileRenderer`
@@ -13,7 +13,11 @@ as ``--lod-error-px``): the triangles drawn, ``levels_db`` the frame at that bou
 detail, ``moving_db`` its JPEG against full detail (what ``bench.bigscene`` measures of a session's
 moving frame) and ``silhouette_share``, the part of the levels' squared error on the model's pixels
 within one pixel of the background in either frame (``silhouette_px``: their share of the frame's
-pixels); the rest is the inside of the model, its shading.
+pixels); the rest is the inside of the model, its shading. With ``--still-samples N``, both frames
+are compared with the converged picture too, the still of N jittered samples at full detail
+(:meth:`node.gl.renderer.TileRenderer.render_still`): ``full_still_db`` and, per bound, ``still_db``
+(the full-detail moving frame is aliased where triangles are smaller than pixels: how much of the
+levels' difference is picture lost, not aliasing changed).
 """
 
 from __future__ import annotations
@@ -98,6 +102,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     for name, camera in cameras(scene, args.size, args.orbit, args.near):
         full = renderer.render_frame(camera, args.size).pixels
         row: dict[str, Any] = {"camera": name, "codec_db": round(psnr(jpeg(full, args.quality), full), 2)}
+        still = renderer.render_still(camera, args.size, args.still_samples) if args.still_samples else None
+        if still is not None:
+            row["full_still_db"] = round(psnr(full, still), 2)
         for bound in args.bounds:
             frame = renderer.render_frame(camera, args.size, lod_error_px=bound)
             error = ((frame.pixels.astype(np.float64) - full) ** 2).sum(axis=2)
@@ -107,6 +114,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 "moving_db": round(psnr(jpeg(frame.pixels, args.quality), full), 2),
                 "silhouette_share": round(float(error[edge].sum() / max(error.sum(), 1.0)), 3),
                 "silhouette_px": round(float(edge.mean()), 4)}
+            if still is not None:
+                row[f"{bound:g}px"]["still_db"] = round(psnr(frame.pixels, still), 2)
         rows.append(row)
         print(report_row(row), flush=True)
     renderer.release()
@@ -116,11 +125,14 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
 
 def report_row(row: dict[str, Any]) -> str:
     parts = [f"{row['camera']:>10}: JPEG alone {row['codec_db']:5.1f} dB"]
+    if "full_still_db" in row:
+        parts.append(f"full detail {row['full_still_db']:5.1f} dB from the still")
     for key, value in row.items():
         if isinstance(value, dict):
             parts.append(f"{key} {value['triangles'] / 1e6:.2f}M tri, levels {value['levels_db']:5.1f} dB, "
                          f"after JPEG {value['moving_db']:5.1f} dB, silhouettes {value['silhouette_share']:.0%} "
-                         f"of the error on {value['silhouette_px']:.1%} of the pixels")
+                         f"of the error on {value['silhouette_px']:.1%} of the pixels"
+                         + (f", {value['still_db']:5.1f} dB from the still" if "still_db" in value else ""))
     return " | ".join(parts)
 
 
@@ -136,6 +148,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--near", type=int, default=4, help="cameras at half the default one's distance")
     parser.add_argument("--quality", type=int, default=SchedulerConfig().interactive_quality,
                         help="JPEG quality of the moving frame (default: the interactive codec's)")
+    parser.add_argument("--still-samples", type=int, default=0,
+                        help="compare with the still of this many samples at full detail too (0: not)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     result = measure(args)
