@@ -34,10 +34,6 @@ import numpy as np
 #: Faces from which a mesh is split by the compiled passes.
 COMPILED_FACES = 1 << 21
 
-#: Most vertices, as a share of all, that the second half of a face pass's chunks may touch for the
-#: pass to run on two threads (the rows it sums into are its own).
-SECOND_HALF_SHARE = 0.75
-
 _kernels: Any = None
 
 
@@ -109,13 +105,11 @@ def _build(jit: Any) -> Any:
         return group
 
     @jit
-    def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, first_chunk: int, end_chunk: int,
-              boxes: np.ndarray, summed: np.ndarray, first_vertex: int, normals: bool) -> None:
-        """Chunks [first_chunk, end_chunk): their boxes, and their faces' normals summed at their
-        corners into ``summed`` (row k: vertex first_vertex + k; no corner lies below it)."""
+    def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, boxes: np.ndarray,
+              summed: np.ndarray, normals: bool) -> None:
         chunks, face_total = starts.size, faces.shape[0]
         last = np.uint32(positions.shape[0] - 1)
-        for chunk in range(first_chunk, end_chunk):
+        for chunk in range(chunks):
             end = starts[chunk + 1] if chunk + 1 < chunks else face_total
             lo0 = lo1 = lo2 = np.float32(np.inf)
             hi0 = hi1 = hi2 = np.float32(-np.inf)
@@ -137,9 +131,9 @@ def _build(jit: Any) -> Any:
                     ny = np.float64(uz * vx - ux * vz)
                     nz = np.float64(ux * vy - uy * vx)
                     for corner in (ia, ib, ic):
-                        summed[corner - first_vertex, 0] += nx
-                        summed[corner - first_vertex, 1] += ny
-                        summed[corner - first_vertex, 2] += nz
+                        summed[corner, 0] += nx
+                        summed[corner, 1] += ny
+                        summed[corner, 2] += nz
             boxes[chunk, 0, 0], boxes[chunk, 0, 1], boxes[chunk, 0, 2] = lo0, lo1, lo2
             boxes[chunk, 1, 0], boxes[chunk, 1, 1], boxes[chunk, 1, 2] = hi0, hi1, hi2
 
@@ -397,35 +391,18 @@ def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray,
               normals: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """(boxes (C, 2, 3) float32, smooth unit normals (V, 3) float32 or None) of the chunks starting
     at faces ``starts`` (C,) of ``faces`` (F, 3) uint32 over ``positions`` (V, 3) float32, as
-    :func:`node.scene.face_pass.face_pass` gives them (an index past the last vertex taken as the last).
-
-    On two threads, a half of the chunks each, when the second half's corners lie in at most
-    :data:`SECOND_HALF_SHARE` of the vertices (faces in vertex order, as the octree split leaves
-    them): that half sums its normals into rows of its own, added to the first half's after. The
-    sums are exact (float32 face normals summed in float64), so their order changes no bit."""
+    :func:`node.scene.face_pass.face_pass` gives them (an index past the last vertex taken as the last)."""
     kernels = _compiled()
     positions = np.ascontiguousarray(positions, np.float32)
     faces = np.ascontiguousarray(faces, np.uint32)
     starts = np.ascontiguousarray(starts, np.int64)
-    vertex_total, chunks = len(positions), starts.size
-    boxes = np.empty((chunks, 2, 3), np.float32)
-    summed = np.zeros((vertex_total if normals else 0, 3), np.float64)
-    middle = int(np.searchsorted(starts, len(faces) // 2))
-    halves = 0 < middle < chunks and starts[middle] < len(faces)
-    lowest = min(int(faces[starts[middle]:].min()), vertex_total - 1) if halves else 0
-    if not halves or vertex_total - lowest > SECOND_HALF_SHARE * vertex_total:
-        kernels.sweep(positions, faces, starts, 0, chunks, boxes, summed, 0, normals)
-    else:
-        upper = np.zeros((vertex_total - lowest if normals else 0, 3), np.float64)
-        _on_threads([lambda: kernels.sweep(positions, faces, starts, 0, middle, boxes, summed, 0, normals),
-                     lambda: kernels.sweep(positions, faces, starts, middle, chunks, boxes, upper, lowest, normals)])
-        summed[lowest:] += upper
-        del upper
+    boxes = np.empty((starts.size, 2, 3), np.float32)
+    summed = np.zeros((len(positions) if normals else 0, 3), np.float64)
+    kernels.sweep(positions, faces, starts, boxes, summed, normals)
     if not normals:
         return boxes, None
-    unit = np.empty((vertex_total, 3), np.float32)
-    half = vertex_total // 2
-    _on_threads([lambda: kernels.unit(summed[:half], unit[:half]), lambda: kernels.unit(summed[half:], unit[half:])])
+    unit = np.empty((len(positions), 3), np.float32)
+    kernels.unit(summed, unit)
     return boxes, unit
 
 
