@@ -46,7 +46,8 @@ def test_the_relay_keeps_to_its_window_and_forwards_the_pages_input(coordinator_
             for step in range(12):   # the page turns the camera; it acknowledges nothing yet
                 eye = [camera["eye"][0] + 0.05 * (step + 1), *camera["eye"][1:]]
                 relay.forward({"type": "camera", "camera": {**camera, "eye": eye}, "seq": step + 1})
-                time.sleep(0.05)
+                # a frame for each camera until the window is full
+                wait_until(lambda n=min(step + 1, WINDOW): len(frames) >= n, seconds(30), f"frame {step + 1}")
             wait_until(lambda: len(frames) >= WINDOW, seconds(30), "the window's frames")
             with lock:
                 early = [at for at, _ in frames if at - frames[0][0] < ACK_TIMEOUT_S * 0.8]

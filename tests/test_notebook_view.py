@@ -5,7 +5,7 @@ camera, and the view shows the still badge and its stats line."""
 
 from __future__ import annotations
 
-import time
+import json
 
 import numpy as np
 import pytest
@@ -71,9 +71,11 @@ def test_the_notebook_view_shows_frames_through_the_comm_and_a_drag_moves_the_ca
             x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
             page.mouse.move(x, y)
             page.mouse.down()
-            for step in range(1, 9):
+            for step in range(1, 9):   # each step once the view has taken the last (its camera changed)
+                camera = page.evaluate(f"() => JSON.stringify(({VIEW_STATE_JS})().camera)")
                 page.mouse.move(x + 12 * step, y + 2 * step, steps=2)
-                time.sleep(0.03)
+                page.wait_for_function(f"() => JSON.stringify(({VIEW_STATE_JS})().camera) !== {json.dumps(camera)}",
+                                       timeout=wait_ms, polling=20)
             page.mouse.up()
             moved = wait_until(lambda: session.camera if session.camera.eye != before.eye else None, seconds(30),
                                "the drag to move the session's camera")

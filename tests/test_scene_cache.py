@@ -28,6 +28,7 @@ from node.scene.mesh import SceneError
 from tessera.geometry import Rect
 from tessera.wire.messages import ShareSpec
 from tests.conftest import scene_path, seconds
+from tests.integration_support import wait_until
 
 BUNNY = "bunny/bun_zipper.ply"
 LUCY = "large_scan/stanford_lucy_240k.ply"
@@ -233,10 +234,8 @@ def test_a_builder_killed_midway_leaves_no_entry_and_the_next_builds_it(tmp_path
     child = multiprocessing.get_context("spawn").Process(target=build_and_hang,
                                                          args=(str(scene_path(BUNNY)), str(root)))
     child.start()
-    deadline = time.monotonic() + seconds(60)
-    while not list(root.glob(".*.tmp/" + TABLE)) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert list(root.glob(".*.tmp/" + TABLE)), "the builder wrote its whole entry, not yet renamed"
+    wait_until(lambda: list(root.glob(".*.tmp/" + TABLE)), seconds(60),
+               "the builder to write its whole entry, not yet renamed", interval=0.05)
     child.kill()
     child.join()
     assert not [p for p in root.iterdir() if not p.name.startswith(".") and (p / TABLE).exists()], \
