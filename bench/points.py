@@ -27,8 +27,11 @@ file of your own. Then, in a fresh scene cache folder:
   ``--rests`` times, the camera rests for ``--rest-s`` (a still begins) and moves again:
   ``resume_s``, the seconds from the first input after the rest to the first frame that answers
   one; then one camera's moving frame against the still of the same camera (PSNR), the
-  still's seconds and its samples; and the peak memory of the coordinator and its nodes together (PSS: the pages
-  they share, the mapped cache, counted once; their RSS summed; and each process's peak RSS).
+  still's seconds and its samples; with ``--every-point-s``, the still of every point that follows
+  it where it left points out (seconds after the first still, samples, PSNR of the moving frame
+  and of the first still against it; ``--save DIR``: its PNG and camera, for ``--render-once``);
+  and the peak memory of the coordinator and its nodes together (PSS: the pages they share, the
+  mapped cache, counted once; their RSS summed; and each process's peak RSS).
 
 Figures depend on what else runs: the table prints the load average beside them.
 """
@@ -334,16 +337,50 @@ def session_run(args: argparse.Namespace, cloud: Path, cache: Path, budget: int)
             except httpx.TimeoutException:
                 still, samples = None, None
             still_s = time.perf_counter() - asked
+            every = None if still is None else every_point_still(client, session, int(answer.headers["x-frame-id"]),
+                                                                 args, camera)
     finally:
         peaks = memory.stop()
         coordinator.stop(timeout=60.0)
     moving_image = np.asarray(Image.open(io.BytesIO(moving)).convert("RGB"))
-    similar = None if still is None else psnr(moving_image, np.asarray(Image.open(io.BytesIO(still)).convert("RGB")))
+    still_image = None if still is None else np.asarray(Image.open(io.BytesIO(still)).convert("RGB"))
+    similar = None if still_image is None else psnr(moving_image, still_image)
+    if every is not None and isinstance(every.get("image"), np.ndarray):
+        image = every.pop("image")
+        every["psnr_moving_db"] = round(psnr(moving_image, image), 2)
+        every["psnr_first_still_db"] = round(psnr(still_image, image), 2)
     return {"budget": budget, "first_frame_s": round(first_s, 2), "warmup": warmup, "paths": paths,
             "rest_s": args.rest_s, "resume_s": resume, **peaks,
             "psnr_moving_vs_still": None if similar is None else round(similar, 2),
             "still_s": round(still_s, 2) if still is not None else f"over {args.still_s:g}", "still_samples": samples,
-            "load": round(os.getloadavg()[0], 1)}
+            "every_point": every, "load": round(os.getloadavg()[0], 1)}
+
+
+def every_point_still(client: httpx.Client, session: str, still_id: int, args: argparse.Namespace,
+                      camera: dict[str, Any]) -> dict[str, Any] | None:
+    """With ``--every-point-s``: the still of every point that follows the first still (frame
+    ``still_id``) where that still left points in view out (the nodes' ``points_left_out``) — its
+    seconds after the first, samples and (h, w, 3) uint8 ``image`` (saved with the camera in
+    ``--save``); None when not asked for."""
+    if not args.every_point_s:
+        return None
+    left_out = sum(int(node.get("points_left_out", 0)) for node in client.get("/api/stats").json()["nodes"])
+    if not left_out:
+        return {"seconds": "none: the first still left no point out"}
+    asked = time.perf_counter()
+    try:
+        answer = client.get(f"/api/sessions/{session}/frame.png", timeout=args.every_point_s,
+                            params={"after": still_id + 1, "still": "true"})
+    except httpx.TimeoutException:
+        return {"seconds": f"over {args.every_point_s:g} s after the first"}
+    figures: dict[str, Any] = {"seconds": round(time.perf_counter() - asked, 2),
+                               "samples": int(answer.headers.get("x-frame-samples", 0)),
+                               "image": np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"))}
+    if args.save:
+        args.save.mkdir(parents=True, exist_ok=True)
+        (args.save / "every_point_still.png").write_bytes(answer.content)
+        (args.save / "camera.json").write_text(json.dumps(camera))
+    return figures
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -399,10 +436,21 @@ def report(result: dict[str, Any]) -> str:
                      f"{run['rest_s']:g} s: first frame in {run['resume_s']} s; worst fps "
                      f"{min(row['fps'] for row in run['paths'])}; PSNR moving vs still {run['psnr_moving_vs_still']} "
                      f"dB (still {run['still_s']} s, {run['still_samples']} samples); "
+                     f"{every_point_line(run.get('every_point'))}"
                      f"peak memory {run['peak_pss_mb'] / 1024:.1f} GiB PSS "
                      f"({run['peak_rss_mb'] / 1024:.1f} GiB RSS summed; each process's peak RSS "
                          f"{run['peak_rss_each_mb'][:6]} MB); load {run['load']}")
     return "\n".join(lines)
+
+
+def every_point_line(every: dict[str, Any] | None) -> str:
+    """The still of every point's figures (``--every-point-s``), or nothing."""
+    if every is None:
+        return ""
+    if "samples" not in every:
+        return f"still of every point: {every['seconds']}; "
+    return (f"still of every point {every['seconds']} s after the first ({every['samples']} samples; PSNR moving vs it "
+            f"{every['psnr_moving_db']} dB, first still vs it {every['psnr_first_still_db']} dB); ")
 
 
 def budget_range(budgets: list[int] | None) -> str:
@@ -446,6 +494,10 @@ def main(argv: list[str] | None = None) -> int:
                         "removed after); ingest figures are of a build only when it holds no entry of the cloud")
     parser.add_argument("--still-s", type=float, default=1200.0,
                         help="seconds the still may take before it is reported as not done")
+    parser.add_argument("--every-point-s", type=float, default=0.0,
+                        help="seconds the still of every point, which follows a first still that left points in view "
+                        "out, may take after it (default 0: not waited for)")
+    parser.add_argument("--save", type=Path, help="a folder for the still of every point and its camera (JSON)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))

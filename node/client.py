@@ -268,7 +268,7 @@ class NodeClient:
                 rendered = await self.worker.render(job.camera, job.size, request.rect, request.tile, state,
                                                     action.scene, Subsample.of(job.jitter, job.lod_bias),
                                                     ViewTools.of(job), job.lod_error_px or 0.0, job.window,
-                                                    (job.point_budget, job.point_size), stop)
+                                                    (job.point_budget, job.point_size, job.point_spacing_px), stop)
         except DrawStopped:
             outbox.put_nowait(self.protocol.draw_stopped(job.frame, [tile.tile for tile in action.sent]))
             return
@@ -298,7 +298,8 @@ class NodeClient:
             with self._stoppable(job.frame) as stop:
                 drawn = await self.worker.render_depth(job.camera, job.size, depth, request.tile, state, action.scene,
                                                        Subsample.of(job.jitter, job.lod_bias), ViewTools.of(job),
-                                                       job.lod_error_px or 0.0, (job.point_budget, job.point_size),
+                                                       job.lod_error_px or 0.0,
+                                                       (job.point_budget, job.point_size, job.point_spacing_px),
                                                        request.rect, job.window, stop)
         except DrawStopped:
             outbox.put_nowait(self.protocol.draw_stopped(job.frame, [request.tile]))

@@ -181,9 +181,10 @@ def draw_picture(renderer: TileRenderer, camera: Camera, size: tuple[int, int], 
 
 def _render_points(settings: NodeSettings, cloud: PointCloud, camera: Camera) -> int:
     """``--render-once`` of a point cloud (issue 36): the interactive frame within ``--point-budget``
-    or the still (every point in view up to :data:`tessera.points.budget.STILL_EVERY_POINT_MAX`,
-    beyond that down to the spacing on screen of :data:`tessera.points.budget.STILL_SPACING_PX`),
-    splats of at least ``--point-size``, shaded by EDL."""
+    or the still the coordinator converges to, of every point in view (a cloud of more than
+    :data:`tessera.points.budget.STILL_EVERY_POINT_MAX` points shows a still down to
+    :data:`tessera.points.budget.STILL_SPACING_PX` first), splats of at least ``--point-size``,
+    shaded by EDL."""
     assert settings.render_once is not None
     try:
         ctx = create_gl_context()
@@ -194,6 +195,7 @@ def _render_points(settings: NodeSettings, cloud: PointCloud, camera: Camera) ->
             pixels, drawn = frame.pixels, f"{frame.points} points drawn (budget {settings.point_budget})"
         else:
             points: list[int] = []
+            renderer.style(settings.point_size, 0.0)
 
             def sample(subsample: Subsample | None) -> np.ndarray:
                 frame = renderer.render_frame(camera, settings.size, subsample=subsample)
@@ -201,10 +203,8 @@ def _render_points(settings: NodeSettings, cloud: PointCloud, camera: Camera) ->
                 return frame.pixels
 
             still = accumulate_still(sample, settings.size, settings.still_plan)
-            pixels, drawn = still.mean(), (f"{max(points)} points a sample (every point in view up to "
-                                           f"{renderer.still_every_point_max}, else down to "
-                                           f"{renderer.still_spacing_px:g} px apart), {still.count} jittered "
-                                           f"sample{'s' if still.count > 1 else ''}")
+            pixels, drawn = still.mean(), (f"{max(points)} points a sample (every point in view), {still.count} "
+                                           f"jittered sample{'s' if still.count > 1 else ''}")
         render_ms = (time.perf_counter() - started) * 1e3
         settings.render_once.write_bytes(encode_png(pixels))
     except (SceneError, GLUnavailableError) as exc:

@@ -29,7 +29,7 @@ from tessera.cli_values import (
     size_parser,
 )
 from tessera.geometry import DEFAULT_BACKGROUND
-from tessera.points.budget import DEFAULT_POINT_BUDGET, DEFAULT_POINT_SIZE, STILL_EVERY_POINT_MAX
+from tessera.points.budget import DEFAULT_POINT_BUDGET, DEFAULT_POINT_SIZE
 from tessera.scheduling.refinement import (
     DEFAULT_MAX_STILL_SAMPLES,
     DEFAULT_STILL_SAMPLES,
@@ -264,8 +264,8 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
         "detail)", type=parse_lod_error, metavar="PX")
     add("--point-budget", DEFAULT_POINT_BUDGET, "--render-once --interactive of a point cloud draws at most this "
         "many points, as a serving node draws a moving frame within the coordinator's budget (the point_budget "
-        "of its stats); the still draws every point in view (down to points 0.5 px apart on screen where more "
-        f"than {STILL_EVERY_POINT_MAX} are in view)", type=parse_point_budget, metavar="N")
+        "of its stats); the still draws every point in view, as the coordinator's still converges to",
+        type=parse_point_budget, metavar="N")
     add("--point-size", DEFAULT_POINT_SIZE, "--render-once of a point cloud draws each point as a square at least "
         "this many pixels wide (the coordinator's --point-size)", type=parse_point_size, metavar="PX")
     parser.add_argument("--interactive", action="store_true",

@@ -501,7 +501,8 @@ class RenderService(SessionPersistence, ServiceReport):
         and shown (the converged one, refinements of enough samples) unless something changed since
         (input cancels the refinement at once); once converged, the scheduler stops the samples."""
         codec, quality = self.scheduler.sessions[job.session].codec(True)
-        done = session.refiner.submit(job.sample, job.plan, job.size, self._frame_tiles(job), codec, quality)
+        done = session.refiner.submit(job.sample, job.plan, job.size, self._frame_tiles(job), codec, quality,
+                                      refinements=job.point_spacing_px is None)
         loop = asyncio.get_running_loop()
 
         def back_to_the_loop(future: Future) -> None:

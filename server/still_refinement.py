@@ -92,20 +92,21 @@ class StillRefiner:
         self.cpu_ms = 0.0
 
     def submit(self, sample: int, plan: StillPlan, size: tuple[int, int], tiles: Tiles, codec: Codec,
-               quality: int) -> Future[Refined | None]:
+               quality: int, refinements: bool = True) -> Future[Refined | None]:
         """Add sample ``sample`` (0: a new still) of a still sampled as ``plan`` says, a ``size``
         frame, its ``tiles``; the converged mean's tiles come encoded in ``codec`` (``quality``:
-        JPEG only), a refinement's as JPEG."""
+        JPEG only), a refinement's as JPEG (none without ``refinements``: a point cloud's still of
+        every point after its first still, which stays shown until this one converged)."""
         self.pending += 1
         self._submitted = sample
-        return self._executor.submit(self._add, sample, plan, size, tiles, codec, quality)
+        return self._executor.submit(self._add, sample, plan, size, tiles, codec, quality, refinements)
 
     def taken(self) -> None:
         """The event loop took a sample's result."""
         self.pending -= 1
 
     def _add(self, sample: int, plan: StillPlan, size: tuple[int, int], tiles: Tiles, codec: Codec,
-             quality: int) -> Refined | None:
+             quality: int, refinements: bool) -> Refined | None:
         started = time.thread_time()
         try:
             if sample == 0:
@@ -118,7 +119,8 @@ class StillRefiner:
                 accumulator.add(decode(payload, tile_codec, rect.w, rect.h), rect.x, rect.y)
             accumulator.finish_sample()
             if not accumulator.converged:
-                if accumulator.count < FIRST_SHOWN or (accumulator.count > FIRST_SHOWN and self._submitted > sample):
+                if (not refinements or accumulator.count < FIRST_SHOWN
+                        or (accumulator.count > FIRST_SHOWN and self._submitted > sample)):
                     return None
                 codec, quality = Codec.JPEG, quality if codec is Codec.JPEG else REFINEMENT_QUALITY
             shown = [(rect, codec, slot, encode(accumulator.mean(rect.x, rect.y, rect.w, rect.h), codec, quality))

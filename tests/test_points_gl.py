@@ -59,7 +59,8 @@ def test_tiles_equal_the_whole_frame(cloud_renderer: PointRenderer, budget: int 
 def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer, monkeypatch: pytest.MonkeyPatch) -> None:
     """Within a budget, at most that many points; a still of a cloud whose points in view are fewer
     than :data:`STILL_EVERY_POINT_MAX`, every point in view (the whole terrain); above it, at the
-    default spacing, fewer in a frame smaller than the cloud's points."""
+    default spacing, fewer in a frame smaller than the cloud's points; at a spacing of 0 (the
+    coordinator's still of every point), every point in view again, the picture of every point."""
     size = (160, 96)
     camera = oblique(cloud_renderer.scene.bounds)
     everything = cloud_renderer.render_frame(camera, size)
@@ -68,6 +69,15 @@ def test_the_budget_bounds_the_points_drawn(cloud_renderer: PointRenderer, monke
     spaced = cloud_renderer.render_frame(camera, size)
     assert budgeted.points <= 50_000 < spaced.points < everything.points < STILL_EVERY_POINT_MAX
     assert everything.points == cloud_renderer.scene.point_count
+    cloud_renderer.style(None, 0.0)
+    try:
+        every = cloud_renderer.render_frame(camera, size)
+    finally:
+        cloud_renderer.style()
+    assert every.points == everything.points and np.array_equal(every.pixels, everything.pixels)
+    assert not np.array_equal(spaced.pixels, everything.pixels)
+    assert spaced.left_out == everything.points - spaced.points and every.left_out == everything.left_out == 0
+    assert budgeted.left_out == 0 and spaced.stats()["points_left_out"] == spaced.left_out
 
 
 def test_points_a_millimetre_apart_in_utm_coordinates_stay_apart(ctx: moderngl.Context) -> None:

@@ -83,3 +83,52 @@ def test_the_budget_follows_the_moving_frames_times_within_its_bounds() -> None:
     assert session.point_budget == 100_000
     quick = moving_budgets(s, 5.0, 40)
     assert quick == sorted(quick) and quick[-1] == 1_000_000
+
+
+
+def still_passes(left_out: int) -> list[tuple[int, float | None]]:
+    """(sample, point_spacing_px) of each still sample a point cloud's session asks for (a fixed
+    still of 3 samples, the coordinator reporting each still converged at its last), its node
+    reporting ``left_out`` points in view left out by a sample drawn at the default spacing."""
+    s = FrameScheduler(SchedulerConfig(size=(320, 180), max_fps=1e6, settle_frames=0, still_delay_ms=0.0,
+                                       still_samples=3), StaticBalancer())
+    s.sessions["default"].set_points(BOUNDS)
+    s.add_node(1, 0.0)
+    s.node_ready(1, 0.0)
+    s.set_camera(CAMERA, 0.0)
+    asked, now = [], 0.0
+    for _ in range(20):
+        now += 0.05
+        for action in [a for a in s.drain() if isinstance(a, RenderTiles)]:
+            job = s.in_flight[action.message.frame]
+            spacing = action.message.point_spacing_px
+            if job.still:
+                asked.append((job.sample, spacing))
+            for tile in action.message.tiles:
+                s.tile_arrived(1, TileHeader(job.frame_id, tile.tile, tile.rect, job.codec, 5.0, 0.0, 0.0), b"", now)
+                s.tile_sent(1, job.frame_id, tile.tile, 0.0, {"points_left_out": left_out if spacing is None else 0})
+            if job.still and job.sample == 2:
+                s.still_converged(now, job.version)
+        s.tick(now)
+    return asked
+
+
+def test_a_still_that_left_points_out_is_followed_by_a_still_of_every_point() -> None:
+    """Where a node says a still's sample (at its default spacing) left points in view out, the
+    converged still is followed by a still of every point (spacing 0), its samples from the first
+    again, and nothing after it; where none was left out, the first still is the last. A change
+    starts the first pass again."""
+    first, every = [(k, None) for k in range(3)], [(k, 0.0) for k in range(3)]
+    assert still_passes(1) == first + every
+    assert still_passes(0) == first
+    demand = FrameScheduler(SchedulerConfig(size=(320, 180), still_samples=3), StaticBalancer()).default.demand
+    demand.changed(0.0)
+    demand.started(True)
+    demand.points_left_out(demand.version - 1)
+    assert demand.still_converged(demand.version) and not demand.every_point, "left out by an older still"
+    demand.changed(1.0)
+    demand.started(True)
+    demand.points_left_out(demand.version)
+    assert demand.still_converged(demand.version) and demand.every_point
+    demand.changed(2.0)
+    assert not demand.every_point, "a change starts the first pass again"

@@ -470,6 +470,11 @@ def test_the_coordinator_refiner_shows_the_converged_mean_exactly_and_skips_a_sa
         gate.set()
         shown = [k + 1 for k, future in enumerate(waiting) if future.result() is not None]
         assert shown == [FIRST_SHOWN, samples], "the first refinement shown always, then the converged still"
+        # A point cloud's still of every point after its first still: only the converged mean is shown.
+        quiet = [refiner.submit(k, plan, (6, 4), tiles(frames[k]), Codec.PNG, 95, refinements=False).result()
+                 for k in range(samples)]
+        assert all(refined is None for refined in quiet[:-1]) and quiet[-1] is not None
+        assert np.array_equal(image(quiet[-1].tiles), accumulate(frames)), "the converged still, exact"
 
 
 def test_the_refiner_stops_an_adaptive_still_where_it_converged_and_adds_no_later_sample() -> None:

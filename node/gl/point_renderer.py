@@ -28,7 +28,8 @@
   is drawn.
 - The still draws every point in view up to :data:`STILL_EVERY_POINT_MAX`, beyond that every node
   in view down to the level whose points lie :data:`STILL_SPACING_PX` apart on screen (no budget,
-  :func:`tessera.points.budget.still_nodes`); its samples are jittered
+  :func:`tessera.points.budget.still_nodes`; a render message's spacing, :meth:`PointRenderer.style`,
+  0 in the coordinator's still of every point that follows); its samples are jittered
   and accumulated as the mesh renderer's are (:func:`tessera.scheduling.refinement.accumulate_still`).
   A tile given a ``stop`` is drawn in pieces of :data:`PIECE_POINTS` (the same runs in the same
   order: the same pixels) and given up between two once ``stop`` says so (:class:`DrawStopped`): a
@@ -125,12 +126,14 @@ void main() {
 
 @dataclass(frozen=True, slots=True)
 class PointTile(RenderedTile):
-    """A tile of a point cloud: also the ``points`` it drew (``triangles`` is 0; chunks are octree nodes)."""
+    """A tile of a point cloud: also the ``points`` it drew and, a still's, the points in view its
+    frame's choice ``left_out`` (``triangles`` is 0; chunks are octree nodes)."""
 
     points: int = 0
+    left_out: int = 0
 
     def stats(self) -> dict[str, Any]:
-        return {**RenderedTile.stats(self), "points": self.points}
+        return {**RenderedTile.stats(self), "points": self.points, "points_left_out": self.left_out}
 
 
 def draw_pieces(counts: np.ndarray) -> np.ndarray:
@@ -187,6 +190,8 @@ class PointRenderer:
         self._framebuffer: moderngl.Framebuffer | None = None
         self._frame_key: tuple[Any, ...] | None = None
         self._chosen = np.zeros(nodes.count, bool)
+        #: Points in view the last still's choice left out (0 for a moving frame's).
+        self.left_out = 0
 
     @property
     def background(self) -> tuple[float, float, float]:
@@ -203,6 +208,12 @@ class PointRenderer:
     def nbytes(self) -> int:
         """What the cloud is counted for: its GL buffers and its arrays held in memory."""
         return self.positions.size + self.colors.size + self.node_info.size + self.commands.size + self.scene.nbytes
+
+    def style(self, point_size: float | None = None, spacing_px: float | None = None) -> None:
+        """A frame's smallest splat side and a still's spacing on screen (px; 0: every point in view;
+        None: :data:`DEFAULT_POINT_SIZE` and :data:`STILL_SPACING_PX`), as the render message says."""
+        self.point_size = DEFAULT_POINT_SIZE if point_size is None else point_size
+        self.still_spacing_px = STILL_SPACING_PX if spacing_px is None else spacing_px
 
     def use_tools(self, tools: Any) -> None:
         """Clip planes and highlights are not drawn on point clouds: a frame asking to cut one is refused."""
@@ -260,19 +271,23 @@ class PointRenderer:
         """(M,) bool the frame's nodes within ``budget`` (None: a still's, every node in view down to
         :attr:`still_spacing_px`, :func:`tessera.points.budget.still_nodes`, every point uploaded
         first, :meth:`upload_all` with ``stop``) among the nodes on the GL side, their refinement
-        written to the node buffer; the last frame's kept for its other tiles while no more nodes
-        arrived."""
+        written to the node buffer, a still's points in view left out in :attr:`left_out`; the last
+        frame's kept for its other tiles while no more nodes arrived."""
         if budget is None and not self.complete:
             self.upload_all(stop)
         usable = self._usable
         key = (camera, size, budget, self.still_spacing_px, self.still_every_point_max,
                None if usable is None else self.uploaded)
         if key != self._frame_key:
+            tree = self._world_tree
             if budget is None:
-                self._chosen = still_nodes(self._world_tree, camera, size, self.scene.bounds, self.scene.nodes.spacing,
+                self._chosen = still_nodes(tree, camera, size, self.scene.bounds, self.scene.nodes.spacing,
                                            usable, self.still_spacing_px, self.still_every_point_max)
+                seen = select_nodes(tree, camera, size, self.scene.bounds, None, usable)
+                self.left_out = int(tree.counts[seen & ~self._chosen].sum())
             else:
-                self._chosen = select_nodes(self._world_tree, camera, size, self.scene.bounds, budget, usable)
+                self._chosen = select_nodes(tree, camera, size, self.scene.bounds, budget, usable)
+                self.left_out = 0
             self._node_rows["refine"] = refinement(self._world_tree, self._chosen)
             self.node_info.write(self._node_rows.tobytes())
             self._frame_key = key
@@ -349,7 +364,8 @@ class PointRenderer:
         pixels = shade_region(color, depth, drawn, rect, near, far)
         done = time.perf_counter()
         return PointTile(rect, pixels, (rendered - started) * 1e3 + (done - rendered) * 1e3, 0.0, 0,
-                            int(chosen.sum()), int((~chosen).sum()), 0.0, "points", points=points)
+                            int(chosen.sum()), int((~chosen).sum()), 0.0, "points", points=points,
+                            left_out=self.left_out)
 
     def render_layer(self, camera: Camera, size: tuple[int, int], point_budget: int | None = None,
                      subsample: Subsample | None = None, stop: Callable[[], bool] | None = None
@@ -371,7 +387,7 @@ class PointRenderer:
         color, depth, points = self._draw(camera, size, rect, chosen, subsample, stop)
         return PointTile(rect, np.ascontiguousarray(color), (time.perf_counter() - started) * 1e3, 0.0, 0,
                             int(chosen.sum()), int((~chosen).sum()), 0.0, "points",
-                            np.ascontiguousarray(depth), points=points)
+                            np.ascontiguousarray(depth), points=points, left_out=self.left_out)
 
     def render_frame(self, camera: Camera, size: tuple[int, int], state: Any = None,
                      subsample: Subsample | None = None, lod_error_px: float = 0.0,

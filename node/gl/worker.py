@@ -58,7 +58,6 @@ from node.scene.shares import keep_share
 from node.settings import DEFAULT_SCENE_MEMORY_MB
 from tessera.compositing.layers import BlendLayer, DepthLayer
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect
-from tessera.points.budget import DEFAULT_POINT_SIZE
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
 from tessera.tools.picking import PickHit
@@ -68,9 +67,9 @@ from tessera.wire.pick_messages import Pick
 
 log = logging.getLogger("tessera.node")
 
-#: A frame's point cloud settings (issue 36): its point budget (None: every point) and smallest
-#: splat side in px (None: the default).
-PointStyle = tuple[int | None, float | None]
+#: A frame's point cloud settings (issue 36): its point budget (None: a still's), smallest splat
+#: side in px and a still's spacing on screen in px (0: every point in view) (None: the defaults).
+PointStyle = tuple[int | None, float | None, float | None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -457,7 +456,7 @@ class GLWorker:
                      state: SceneState | None = None, scene: str | None = None,
                      subsample: Subsample | None = None, tools: ViewTools | None = None,
                      lod_error_px: float = 0.0, window: Rect | None = None,
-                     points: PointStyle = (None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
+                     points: PointStyle = (None, None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
         """Render ``rect`` of ``scene`` (a spec; None: the scene loaded last) in scene ``state``
         (None: the base pose), as ``subsample`` of a still (None: a plain frame, at the levels of
         detail within ``lod_error_px``), with the frame's ``tools`` (clip, highlight; None: none), in
@@ -471,13 +470,13 @@ class GLWorker:
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, slot: Hashable,
                 state: SceneState | None, scene: str | None, subsample: Subsample | None,
                 tools: ViewTools | None, lod_error_px: float, window: Rect | None,
-                points: PointStyle = (None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
+                points: PointStyle = (None, None, None), stop: Callable[[], bool] | None = None) -> RenderedTile:
         renderer = self._scenes.find(scene).renderer
         renderer.use_tools(tools)
         if isinstance(renderer, PointRenderer):
             if window is not None:
                 raise ValueError("pictures over a window's side are not drawn of point clouds")
-            renderer.point_size = points[1] or DEFAULT_POINT_SIZE
+            renderer.style(*points[1:])
             return renderer.render_tile(camera, size, rect, subsample=subsample, point_budget=points[0], stop=stop)
         return renderer.render_tile(camera, size, rect, slot, state=state, subsample=subsample,
                                     lod_error_px=lod_error_px, window=window)
@@ -485,7 +484,7 @@ class GLWorker:
     async def render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                            state: SceneState | None, scene: str | None = None,
                            subsample: Subsample | None = None, tools: ViewTools | None = None,
-                           lod_error_px: float = 0.0, points: PointStyle = (None, None),
+                           lod_error_px: float = 0.0, points: PointStyle = (None, None, None),
                            area: Rect | None = None, window: Rect | None = None,
                            stop: Callable[[], bool] | None = None) -> DepthRender:
         """Tile ``tile_id`` of a depth ``request`` of ``scene`` (None: the scene loaded last) in
@@ -501,7 +500,7 @@ class GLWorker:
 
     def _render_depth(self, camera: Camera, size: tuple[int, int], request: DepthRequest, tile_id: int,
                       state: SceneState | None, scene: str | None, subsample: Subsample | None,
-                      tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None),
+                      tools: ViewTools | None, lod_error_px: float, points: PointStyle = (None, None, None),
                       area: Rect | None = None, window: Rect | None = None,
                       stop: Callable[[], bool] | None = None) -> DepthRender:
         held = self._scenes.find(scene, request.share if request.mode == "sort-last" else None)
@@ -513,7 +512,7 @@ class GLWorker:
                 raise ValueError("point clouds are drawn in the sort-first and sort-last modes, not hybrid")
             if window is not None or (area is not None and area != Rect(0, 0, *size)):
                 raise ValueError("a point cloud's sort-last layer is drawn over the whole frame")
-            renderer.point_size = points[1] or DEFAULT_POINT_SIZE
+            renderer.style(*points[1:])
             layer = renderer.render_layer(camera, size, points[0], subsample, stop)
             return DepthRender(layer, None, None, 0.0, share)
         assert held.planning is not None

@@ -17,7 +17,9 @@ A still (no budget, :func:`still_nodes`) draws every point in view where they ar
 view down to the level whose points lie at most :data:`STILL_SPACING_PX` apart on screen where they
 lie: finer levels add points to pixels that hold several already, and with the depth test they only
 choose which of them a pixel shows (a cloud far larger than a frame's pixels then costs a still what
-its pixels need, not every point in view per sample).
+its pixels need, not every point in view per sample). A spacing of 0 draws every point in view: the
+still the coordinator refines next for a cloud of more than :data:`STILL_EVERY_POINT_MAX` points
+(:mod:`tessera.scheduling.render_demand`), which ``--render-once`` makes.
 
 Splat sizes follow the choice (:func:`refinement`): where a node's child in an octant is chosen
 too, its points there are drawn at the finer spacing (one level deep; deeper, the child's coarsest).

@@ -112,9 +112,11 @@ class FrameJob:
     #: Its levels-of-detail bound, px (None: full detail; stills always are).
     lod_error_px: float | None = None
     #: A point cloud's frame (issue 36): its point budget (None: a still's, every point in view down
-    #: to its spacing on screen), the smallest splat side (px) and, where the coordinator shades the
-    #: merged frame (sort-last), near and far.
+    #: to its spacing on screen), a still's spacing on screen (px; 0: every point in view; None: the
+    #: node's default), the smallest splat side (px) and, where the coordinator shades the merged
+    #: frame (sort-last), near and far.
     point_budget: int | None = None
+    point_spacing_px: float | None = None
     point_size: float | None = None
     eye_dome: tuple[float, float] | None = None
     job: str | None = None
@@ -173,7 +175,7 @@ class FrameJob:
                       depth=self.depth, scene=self.scene, jitter=None if sub is None else sub.offset,
                       lod_bias=None if sub is None else sub.lod_bias, clip=self.clip, highlight=self.highlight,
                       lod_error_px=self.lod_error_px, window=self.window, point_budget=self.point_budget,
-                      point_size=self.point_size)
+                      point_spacing_px=self.point_spacing_px, point_size=self.point_size)
 
     def pull_next(self) -> list[int]:
         """The next tiles to pull (tile rotation): the head of the pull queue, with the pieces of the

@@ -5,8 +5,11 @@ still moves, and, in the still codec, after nothing changed for ``still_delay_s`
 interactive frame is in flight: the progressive still's samples one frame after the other
 (:mod:`tessera.scheduling.refinement`: a fixed count, or an adaptive still's until the coordinator
 says it converged, :meth:`RenderDemand.still_converged`); a sample may start while the one before
-is in flight (the frame scheduler caps how many), so that no node idles between them. Pure: the
-clock comes in as ``now`` (s)."""
+is in flight (the frame scheduler caps how many), so that no node idles between them. A point
+cloud's still that left points in view out (issue 36: too many in view, drawn down to a spacing on
+screen; :meth:`RenderDemand.points_left_out`) is refined in a second pass once it converged: a still
+of every point, of the same plan, whose samples start from the first again
+(:attr:`RenderDemand.every_point`). Pure: the clock comes in as ``now`` (s)."""
 
 from __future__ import annotations
 
@@ -23,7 +26,9 @@ SETTLE_GRACE_S = 0.05
 class RenderDemand:
     """Versions of the state: ``version`` rises with every change (at ``changed_at``); the newest
     version a frame started with, whose still's every sample started, whose still is being
-    refined (:attr:`refinement`: its samples started), a published frame showed."""
+    refined (:attr:`refinement`: its samples started), a published frame showed, whose still
+    left points out (a converged one is then followed by a still of every point: :attr:`every_point`
+    while that pass is refined)."""
 
     def __init__(self, settle_frames: int, still_delay_s: float, still_frames: bool,
                  still_samples: StillPlan | int = 1) -> None:
@@ -36,12 +41,16 @@ class RenderDemand:
         self._refining = 0
         self._published = 0
         self._settle_left = 0
+        self._left_out = 0
+        #: The still being refined is a point cloud's still of every point (issue 36).
+        self.every_point = False
 
     def changed(self, now: float) -> None:
         """Something that needs a new frame changed at ``now``."""
         self.version += 1
         self.changed_at = now
         self._settle_left = self.settle_frames
+        self.every_point = False
 
     def rest(self) -> None:
         """No settle frames and no still for the current version: only its frame, if not started."""
@@ -57,13 +66,24 @@ class RenderDemand:
 
     def still_converged(self, version: int) -> bool:
         """The coordinator found the still of ``version`` converged (an adaptive still's estimate
-        reached its target): no more samples are owed. False when that still is not the one being
+        reached its target): no more samples are owed, or, where that still left points out, the
+        still of every point's are, from its first. False when that still is not the one being
         refined (the state changed since) or was already done."""
         if version != self.version or self._refining != version or self.refinement.finished:
             return False
+        if self._left_out == version and not self.every_point:
+            self.every_point = True
+            self.refinement.restart()
+            self._still = min(self._still, version - 1)
+            return True
         self.refinement.finish()
         self._still = version
         return True
+
+    def points_left_out(self, version: int) -> None:
+        """A sample of the still of ``version`` left points in view out (a node said so)."""
+        if not self.every_point:
+            self._left_out = max(self._left_out, version)
 
     def owed(self, now: float, animating: bool, partition_moving: bool, interactive_in_flight: bool,
              ignore_quiet: bool = False) -> str | None:

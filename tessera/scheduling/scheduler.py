@@ -384,13 +384,17 @@ class FrameScheduler(FrameDispatch):
 
     def tile_sent(self, node_id: int, frame_id: int, tile_id: int, send_ms: float,
                   counters: dict[str, float | str] | None = None) -> None:
-        """A node's ``tile_sent``: how long the tile took to send, and its per-tile counters."""
+        """A node's ``tile_sent``: how long the tile took to send, and its per-tile counters (a
+        point cloud's still sample that left points in view out says so: ``points_left_out``)."""
         job = self.in_flight.get(frame_id)
         if job is None:
             job = next((s.awaiting_send[frame_id] for s in self.sessions.values() if frame_id in s.awaiting_send),
                        None)
         if job is not None:
             job.record_send(node_id, tile_id, max(float(send_ms), 0.0), counters)
+            session = self.sessions.get(job.session)
+            if session is not None and job.still and (counters or {}).get("points_left_out"):
+                session.demand.points_left_out(job.version)
             self._take_timings(job)
 
     def tile_failed(self, node_id: int, frame_id: int, tile_id: int, now: float) -> None:

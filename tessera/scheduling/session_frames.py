@@ -188,8 +188,10 @@ class SessionFrames:
 
     def set_points(self, bounds: np.ndarray) -> None:
         """The scene is a point cloud of ``bounds`` (2, 3) (issue 36): moving frames draw within the
-        point budget (:attr:`points`), stills every point; sort-last frames are shaded after the merge. A hybrid
-        session turns sort-first (a hybrid tile's strip has no depth beyond it to shade from)."""
+        point budget (:attr:`points`), stills every point in view (where too many are in view, in a
+        second pass after the first still converged: :meth:`RenderDemand.points_left_out`);
+        sort-last frames are shaded after the merge. A hybrid session turns sort-first (a hybrid
+        tile's strip has no depth beyond it to shade from)."""
         self.point_bounds = np.asarray(bounds, np.float64)
         if self.config.mode == "hybrid":
             self.config = dataclasses.replace(self.config, mode="sort-first")
@@ -199,6 +201,7 @@ class SessionFrames:
     def _points_job(self, job: FrameJob, camera: Camera, still: bool) -> None:
         assert self.point_bounds is not None
         job.point_budget = None if still else self.points.budget
+        job.point_spacing_px = 0.0 if still and self.demand.every_point else None
         job.point_size = self.config.point_size
         if self.config.mode == "sort-last":
             job.eye_dome = near_far_from_bounds(camera, self.point_bounds)

@@ -532,14 +532,18 @@ class Render(Message):
     #: A point cloud's (issue 36): most points the frame draws (None: all), smallest splat side (px).
     point_budget: Annotated[StrictInt, Field(ge=1)] | None = None
     point_size: Annotated[StrictFloat, Field(gt=0.0, le=MAX_POINT_SIZE)] | None = None
+    #: A point cloud's still sample: the spacing on screen its levels are drawn down to (px; 0:
+    #: every point in view); None: the node's default (:func:`tessera.points.budget.still_nodes`).
+    point_spacing_px: Annotated[StrictFloat, Field(ge=0.0)] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Without ``state`` when there is none (a scene whose nodes listed no objects), without
         ``depth`` in sort-first, without ``scene``, ``jitter``, ``lod_bias``, ``clip``,
-        ``highlight``, ``lod_error_px``, ``window``, ``point_budget`` and ``point_size`` when None,
-        without a tile's ``part_of`` when None."""
+        ``highlight``, ``lod_error_px``, ``window``, ``point_budget``, ``point_size`` and
+        ``point_spacing_px`` when None, without a tile's ``part_of`` when None."""
         data = self._without_none(super().to_json(), "state", "depth", "scene", "jitter", "lod_bias", "clip",
-                                  "highlight", "lod_error_px", "window", "point_budget", "point_size")
+                                  "highlight", "lod_error_px", "window", "point_budget", "point_size",
+                                  "point_spacing_px")
         for tile in data["tiles"]:
             if tile["part_of"] is None:
                 del tile["part_of"]
