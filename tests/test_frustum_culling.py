@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.culling.bvh import build_chunk_bvh, cull, range_members
+from node.culling.bvh import build_chunk_bvh, covering_nodes, cull, range_members
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.tiles import indirect_commands
 from tessera.geometry import Camera, Rect, view_projection
@@ -118,6 +118,26 @@ def test_bvh_nodes_cover_contiguous_chunk_ranges_and_contain_their_children(bunn
     leaves = np.flatnonzero(bvh.is_leaf)
     assert np.array_equal(np.sort(bvh.first_chunk[leaves]), np.arange(split.chunk_count))
     assert np.array_equal(bvh.lo[leaves], split.bounds[bvh.first_chunk[leaves], 0])
+
+
+def test_covering_nodes_hold_every_chunk_of_the_ranges_in_few_boxes(bunny):
+    _, _, split, bvh, _ = bunny
+    count = split.chunk_count
+    rng = np.random.default_rng(3)
+    cuts = np.unique(rng.integers(0, count + 1, 12))
+    first, end = cuts[0:-1:2], cuts[1::2]
+    chunks = range_members(first, end)
+    for most in (1, 8, 64, count):
+        nodes = covering_nodes(bvh, first, end, most)
+        assert 0 < nodes.size <= most
+        held = range_members(bvh.first_chunk[nodes], bvh.end_chunk[nodes])
+        assert np.isin(chunks, held).all(), "every chunk of the ranges lies in a node"
+        assert all(np.isin(range_members(bvh.first_chunk[[n]], bvh.end_chunk[[n]]), chunks).any() for n in nodes), \
+            "no node without a chunk of the ranges"
+        assert np.all(bvh.lo[nodes].min(axis=0) <= split.bounds[chunks, 0].min(axis=0))
+    assert np.array_equal(np.sort(covering_nodes(bvh, first, end, count)), np.sort(
+        np.flatnonzero(bvh.is_leaf)[np.isin(bvh.first_chunk[bvh.is_leaf], chunks)])), "the leaves when they fit"
+    assert covering_nodes(bvh, first[:0], end[:0], 8).size == 0
 
 
 def cube_row_bvh(centers: np.ndarray, half: float = 0.25):

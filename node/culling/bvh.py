@@ -223,6 +223,19 @@ def merge_touching(first: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.n
     return first[head], end[np.append(head[1:], first.size) - 1]
 
 
+def covering_nodes(bvh: ChunkBVH, first: np.ndarray, end: np.ndarray, most: int) -> np.ndarray:
+    """(K,) int64 the nodes of ``bvh``'s deepest cut of at most ``most`` nodes (``bvh.cuts``) that hold
+    a chunk of the sorted disjoint ranges [first, end) (R,): their boxes hold those chunks' boxes,
+    ``most`` boxes at most however many chunks (the root's cut always fits)."""
+    cut = next(nodes for nodes in reversed(bvh.cuts) if nodes.size <= most)
+    if first.size == 0:
+        return cut[:0]
+    # A node [a, b) holds a chunk of the ranges where the first range ending after a starts before b.
+    after = np.searchsorted(end, bvh.first_chunk[cut], side="right")
+    holds = (after < first.size) & (first[np.minimum(after, first.size - 1)] < bvh.end_chunk[cut])
+    return cut[holds]
+
+
 def range_members(first: np.ndarray, end: np.ndarray) -> np.ndarray:
     """(K,) int64 every integer of the ranges [first[i], end[i]) (M,), concatenated in order."""
     first = np.asarray(first, dtype=np.int64)

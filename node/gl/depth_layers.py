@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.culling.bvh import ChunkBVH, cull
+from node.culling.bvh import ChunkBVH, covering_nodes, cull
 from node.culling.frustum import frustum_planes_from_matrix
 from node.gl.renderer import BlendedFragments, RenderedTile, TileRenderer
 from node.scene.data import SceneData
@@ -46,6 +46,9 @@ from tessera.geometry import Camera, Rect, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import Subsample
 from tessera.wire.messages import DepthRequest
+
+#: Most boxes a serving sort-last node projects to find the part of the frame its layer covers.
+RECT_BOXES = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,11 +113,22 @@ def sort_last_plan(chunks: PlanningScene, camera: Camera, size: tuple[int, int],
                    share: np.ndarray | None = None, area: Rect | None = None) -> LayerPlan | None:
     """The layer of a node holding chunks ``share`` (sorted ids; None: every chunk of ``chunks``,
     as a serving node holds only its share) over ``area`` of the frame (None: all of it; a
-    poster's piece): those in view there and the part of it they project to; None when none is."""
+    poster's piece): those in view there and the part of it they project to; None when none is.
+    A serving node's part is that of the chunk tree's nodes over them, :data:`RECT_BOXES` at most
+    (it holds the chunks' own: projecting the 586k chunks of a 100M-triangle model's share took
+    0.4-0.6 s of CPU a frame)."""
     area = Rect(0, 0, *size) if area is None else area
-    whole = visible_chunks(chunks, camera, size, area)
-    drawn = whole if share is None else whole[np.isin(whole, share, assume_unique=True)]
-    rect = covering_rect(chunk_bounds(chunks, drawn, camera, size), size)
+    planes = frustum_planes_from_matrix(view_projection(camera, size, chunks.bounds), size, area)
+    culled = cull(chunks.tree, planes)
+    drawn = culled.visible_chunks
+    if share is None:
+        nodes = covering_nodes(chunks.tree, culled.visible_first, culled.visible_end, RECT_BOXES)
+        boxes = np.concatenate([chunks.tree.lo[nodes], chunks.tree.hi[nodes]], axis=1)
+        bounds = project_boxes(boxes, camera, size, chunks.bounds)
+    else:
+        drawn = drawn[np.isin(drawn, share, assume_unique=True)]
+        bounds = chunk_bounds(chunks, drawn, camera, size)
+    rect = covering_rect(bounds, size)
     if rect is None:
         return None
     x0, y0, x1, y1 = max(rect.x, area.x), max(rect.y, area.y), min(rect.x1, area.x1), min(rect.y1, area.y1)
