@@ -417,7 +417,7 @@ class RenderService(SessionPersistence, ServiceReport):
         link.held_mb = message.held_mb if message.held_mb is not None else link.held_mb
         link.rss_mb = message.rss_mb if message.rss_mb is not None else link.rss_mb
         now = time.monotonic()
-        link.scene_triangles[spec] = message.triangles
+        link.scene_triangles[spec] = message.triangles + (message.points or 0)   # a point counts as a triangle
         self.allow_for_shown_scenes([link])
         showing = self._showing(message.scene)
         if not showing and self.meshes.loaded_ahead(link.node_id, message):

@@ -32,9 +32,11 @@ class SceneNode:
     """A fake node over ``/ws/node`` that holds every scene it is told to load and answers each
     render with flat tiles whose grey level says which scene they are of."""
 
-    def __init__(self, ws, hello: dict[str, Any] = HELLO, triangles: dict[str, int] | None = None) -> None:
+    def __init__(self, ws, hello: dict[str, Any] = HELLO, triangles: dict[str, int] | None = None,
+                 points: dict[str, int] | None = None) -> None:
         self.ws = ws
         self.triangles = triangles or {}   # what it says it holds of a scene (12 unless named)
+        self.points = points or {}         # the scenes it says are point clouds, and their points
         self.scenes: list[str] = []
         self.calibrations = 0
         ws.send_json(hello)
@@ -59,9 +61,10 @@ class SceneNode:
         """Answer ``message``; the render it was, if one."""
         if message["type"] == "load_scene":
             self.scenes.append(message["scene"])
+            points = {"points": self.points[message["scene"]]} if message["scene"] in self.points else {}
             self.ws.send_json({"type": "scene_ready", "scene": message["scene"], "scene_mb": 1.0,
                                "triangles": self.triangles.get(message["scene"], 12),
-                               "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}]})
+                               "bounds": BOUNDS, "objects": [{"name": "car", "bounds": BOUNDS}], **points})
         elif message["type"] == "calibrate":
             self.calibrations += 1
             self.ws.send_json({"type": "calibration", "ms": 5.0})
@@ -159,6 +162,19 @@ def test_a_node_may_owe_a_tile_for_the_largest_scene_a_session_shows_on_it_not_o
         assert set(link.scene_triangles) == {"builtin:spheres"}, "a scene no session shows is forgotten"
         assert set(link.scene_mb) == {"builtin:spheres", "builtin:cluster"}, \
             "a mesh step no session shows is forgotten; a library scene the node still holds is not"
+
+
+def test_a_node_may_owe_a_tile_of_a_point_cloud_for_its_points(client):
+    """A point counts as a triangle: a node holding a 30M-point cloud may take a minute over a tile
+    (a still's sample of every point in view takes tens of seconds on loaded llvmpipe nodes)."""
+    session_id = client.post("/api/sessions", json={"scene": "builtin:cluster"}).json()["id"]
+    with client.websocket_connect("/ws/node") as ws:
+        node = SceneNode(ws, triangles={"builtin:cluster": 0}, points={"builtin:cluster": 30_000_000})
+        first = client.put(f"/api/sessions/{session_id}/camera", json={"eye": [0, 0, 5], "target": [0, 0, 0]})
+        node.serve(lambda render: render["scene"] == "builtin:cluster" and render["frame"] >= first.json()["frame"])
+        service = client.app.state.service
+        (held,) = service.scheduler.nodes.values()
+        assert service.scheduler.table.allowed_s(held, 5.0) == 60.0
 
 
 def test_a_watcher_gets_frames_but_cannot_steer_and_a_closed_session_drops_its_viewers(client):

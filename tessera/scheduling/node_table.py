@@ -31,7 +31,9 @@ TILE_TIME_DECAY = 0.9
 #: The slowest a node is taken to draw the scene it holds, triangles a second: before its tiles of a
 #: big scene were timed, a node may owe one for its triangles at this rate (a 33M-triangle share of
 #: the 100M-triangle model: 66 s) before it counts as silent. The first frame of that model in
-#: sort-last took three llvmpipe nodes sharing 2 loaded cores over 20 s (issue 31).
+#: sort-last took three llvmpipe nodes sharing 2 loaded cores over 20 s (issue 31). A point cloud's
+#: points count as triangles (issue 36): a still's sample of every point of a 100M-point survey took
+#: a node's tile over 20 s on three nodes sharing 2 loaded cores, and the node was let go.
 SLOWEST_TRIANGLES_PER_S = 500_000.0
 
 #: Slots for node indices in viewer frames (u16 on the wire).
