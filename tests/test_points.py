@@ -11,6 +11,7 @@ import laspy
 import numpy as np
 import pytest
 
+from node.scene import compiled
 from node.scene.cache import CacheError
 from node.scene.cache_folder import CacheFolder
 from node.scene.ingest import open_cached, read_scene
@@ -84,6 +85,21 @@ def test_morton_spreading_and_run_gathering_match_their_plain_definitions() -> N
     target = np.array([2, 0, 2, 1, 0])
     per_point = np.repeat(target, runs)
     np.testing.assert_array_equal(_runs_gathered(target, starts, runs), np.argsort(per_point, kind="stable"))
+
+
+def test_a_big_cloud_takes_the_compiled_keys_and_gets_the_same_octree(cloud: PointCloud,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """From :data:`node.scene.compiled.COMPILED_FACES` points the Morton keys are made and sorted
+    by numba's pass (a threshold lowered here): the very same cloud as numpy's."""
+    pytest.importorskip("numba")
+    monkeypatch.setattr(compiled, "COMPILED_FACES", 1000)
+    assert compiled.available(120_000)
+    big = build_octree(PointArrays(survey(120_000)), "terrain.laz", quiet)
+    for field in ("positions", "colors", "centre", "bounds"):
+        np.testing.assert_array_equal(getattr(big, field), getattr(cloud, field))
+    for field in ("first", "centres"):
+        np.testing.assert_array_equal(getattr(big.nodes, field), getattr(cloud.nodes, field))
+    np.testing.assert_array_equal(big.nodes.tree.boxes, cloud.nodes.tree.boxes)
 
 
 def test_the_root_is_an_even_subsample_and_nodes_hold_their_points(cloud: PointCloud) -> None:

@@ -199,6 +199,26 @@ def _build(jit: Any) -> Any:
         return int(largest)
 
     @jit
+    def point_keys(world: np.ndarray, first: int, end: int, lo: np.ndarray, scale: float, top: float, flip: int,
+                   index_bits: int, keys: np.ndarray) -> None:
+        """Keys ((code ^ flip) << index_bits | number) of points [first, end) of ``world`` (N, 3)
+        float64 into ``keys``: a coordinate's cell ``(w - lo) * scale`` clipped to [0, top] and
+        floored, its 21 low bits spread three apart, axis a's at bit a (:func:`node.scene.points.build_octree`)."""
+        for point in range(first, end):
+            code = np.uint64(0)
+            for axis in range(3):
+                cell = (world[point, axis] - lo[axis]) * scale
+                cell = min(max(cell, 0.0), top)
+                x = np.uint64(np.uint32(cell)) & np.uint64(0x1FFFFF)
+                x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+                x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+                x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+                x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+                x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+                code |= x << np.uint64(axis)
+            keys[point] = ((code ^ np.uint64(flip)) << np.uint64(index_bits)) | np.uint64(point)
+
+    @jit
     def unpack_keys(keys: np.ndarray, first: int, end: int, item_bits: int, order: np.ndarray,
                     rank: np.ndarray) -> None:
         mask = np.uint64((1 << item_bits) - 1)
@@ -257,6 +277,7 @@ def _build(jit: Any) -> Any:
     kernels.slot_starts = slot_starts
     kernels.radix_pass, kernels.face_records = radix_pass, face_records
     kernels.morton_keys, kernels.unpack_keys, kernels.octree_cells = morton_keys, unpack_keys, octree_cells
+    kernels.point_keys = point_keys
     return kernels
 
 
@@ -320,6 +341,23 @@ def sorted_vertices(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, depth: i
     _on_threads([lambda first=first, end=end: kernels.unpack_keys(keys, first, end, item_bits, order, rank)
                  for first, end in halves])
     return order, keys, rank
+
+
+def sorted_point_keys(world: np.ndarray, lo: np.ndarray, scale: float, levels: int, flip: int,
+                      index_bits: int) -> np.ndarray:
+    """A point cloud's sort keys (N,) uint64, sorted: each point's Morton code over ``levels`` bits a
+    side, ``flip`` XORed in, above its number (``index_bits``), as :func:`node.scene.points.build_octree`'s
+    numpy pass makes and sorts them — codes made on two threads, then :func:`radix_sort`."""
+    kernels = _compiled()
+    world = np.ascontiguousarray(world, np.float64)
+    count = len(world)
+    keys = np.empty(count, np.uint64)
+    lo = np.asarray(lo, np.float64)
+    top = float((1 << levels) - 1)
+    _on_threads([lambda first=first, end=end: kernels.point_keys(world, first, end, lo, scale, top, flip,
+                                                                 index_bits, keys)
+                 for first, end in ((0, count // 2), (count // 2, count))])
+    return radix_sort(keys, index_bits, 3 * levels)
 
 
 def octree_cells(codes: np.ndarray, group_faces: np.ndarray, face_total: int, face_limit: int,

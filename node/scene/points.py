@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from node.scene import compiled
 from node.scene.cache import Progress
 from node.scene.chunks import PrimitiveGroups
 from node.scene.mesh import SceneError
@@ -225,15 +226,19 @@ def build_octree(points: PointArrays, name: str, progress: Progress) -> PointClo
     index_bits = max(int(count - 1).bit_length(), 1)
     levels = min((64 - index_bits) // 3, MAX_LEVEL)
     cells = 1 << levels
-    code = np.zeros(count, np.uint64)
-    for axis in range(3):
-        cell = (world[:, axis] - lo[axis]) * (cells / cube)
-        np.clip(cell, 0, cells - 1, out=cell)      # non-negative: the cast floors
-        code |= _spread_bits(cell.astype(np.uint32)) << np.uint64(axis)
-    code ^= np.uint64(CODE_MASK & ((1 << (3 * levels)) - 1))
+    flip = CODE_MASK & ((1 << (3 * levels)) - 1)
     progress(0.4, f"sorting {count} points ({time.perf_counter() - started:.1f} s)")
-    keys = np.sort((code << np.uint64(index_bits)) | np.arange(count, dtype=np.uint64))
-    del code
+    if compiled.available(count):     # numba's one pass and radix sort: the same keys, a third of the CPU
+        keys = compiled.sorted_point_keys(world, lo, cells / cube, levels, flip, index_bits)
+    else:
+        code = np.zeros(count, np.uint64)
+        for axis in range(3):
+            cell = (world[:, axis] - lo[axis]) * (cells / cube)
+            np.clip(cell, 0, cells - 1, out=cell)      # non-negative: the cast floors
+            code |= _spread_bits(cell.astype(np.uint32)) << np.uint64(axis)
+        code ^= np.uint64(flip)
+        keys = np.sort((code << np.uint64(index_bits)) | np.arange(count, dtype=np.uint64))
+        del code
     order = (keys & np.uint64((1 << index_bits) - 1)).astype(np.int64)
     code = keys >> np.uint64(index_bits)
     del keys
