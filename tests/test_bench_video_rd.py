@@ -11,7 +11,11 @@ import pytest
 from websockets.extensions.permessage_deflate import PerMessageDeflate
 from websockets.frames import Frame, Opcode
 
-from bench.video_rd import bytes_at, deflated_sizes, main
+from bench.paths import orbit_around, random_cameras
+from bench.stream import References
+from bench.video_rd import bytes_at, deflated_sizes, loop_figures, main
+from node.scene.loading import load_scene
+from tessera.video.quality_control import CRF_RANGE
 
 
 def test_wire_sizes_are_what_websockets_permessage_deflate_sends():
@@ -55,3 +59,21 @@ def test_video_rd_reports_each_variants_bytes_against_the_tiles(tmp_path, capsys
 def test_video_rd_rejects_bad_variants():
     with pytest.raises(SystemExit, match="variant"):
         main(["--variants", "reopen:0"])
+
+
+@pytest.mark.gl
+def test_the_crf_loop_holds_the_video_near_the_tiles_psnr():
+    """An orbit at 10° a frame: the loop moves the CRF from where it starts and holds the video's
+    PSNR within a dB of the tiles', in fewer bytes."""
+    scene = load_scene("builtin:cluster")
+    references = References(scene, (160, 96))
+    try:
+        (camera,) = random_cameras(scene.bounds, 1, seed=0, aspect=160 / 96)
+        path = orbit_around(camera, frames=36)["frames"]
+        frames = np.stack([references.image(path[i % len(path)]) for i in range(48)])
+    finally:
+        references.release()
+    figures = loop_figures(frames, 60)
+    assert figures["changes"] >= 1 and CRF_RANGE[0] <= figures["crf"] <= CRF_RANGE[1]
+    assert abs(figures["db_diff"]) < 1.0
+    assert 0.0 < figures["ratio"] < 1.0
