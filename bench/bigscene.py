@@ -23,7 +23,8 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
   nodes with a tile in it), the nodes' busy time per frame, the bound in use, the CPU ms a frame of
   the coordinator, each node, the scripted viewer and the whole machine (others' work included;
   from 1 s after the motion began); then the moving frame of the last camera against
-  ``--render-once --interactive`` at full detail (PSNR).
+  ``--render-once --interactive`` at full detail (PSNR; with ``--msaa 1`` in the depth modes, whose
+  layers are drawn at one sample a pixel).
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
@@ -250,7 +251,8 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
     finally:
         coordinator.stop(timeout=60.0)
     image = np.asarray(Image.open(io.BytesIO(frame)).convert("RGB"))
-    full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive",
+    one_sample = ("--msaa", "1") if mode != "sort-first" else ()   # depth layers are drawn at one sample
+    full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive", *one_sample,
                        "--scene-cache-dir", str(cache))
     return {**{k: round(v, 2) for k, v in figures.items()},
             "triangles_per_frame": round(float(np.median(triangles)), 0) if triangles else None,
