@@ -237,7 +237,8 @@ def build_parser(environ: Mapping[str, str]) -> argparse.ArgumentParser:
     add("--face-limit", DEFAULT_FACE_LIMIT, "split meshes into chunks of at most this many faces at load, so that each "
         "tile draws only the chunks it sees", type=parse_face_limit)
     add("--scene-memory-mb", DEFAULT_SCENE_MEMORY_MB, "memory for the scenes a node holds at once (their vertex "
-        "and index buffers and arrays); after a load the least recently used others are released until they fit",
+        "and index buffers, levels of detail and arrays); after a load the least recently used others are released "
+        "until they fit; a scene that fits only without its levels of detail is drawn at full detail",
         type=parse_scene_memory, metavar="MB")
     add("--scene-cache-dir", DEFAULT_CACHE_DIR, "folder of the scene cache: every scene file is read once into "
         "ready-to-draw arrays kept here by its SHA-256 and mapped on the next load, by any node sharing the folder "

@@ -149,6 +149,37 @@ def test_the_least_recently_used_scenes_are_released_over_the_budget(ctx):
     assert run_with_worker(tiny, memory_bytes=1) == [], "a scene larger than the budget is refused, naming sort-last"
 
 
+def test_a_scene_holds_its_levels_of_detail_only_within_the_budget(tmp_path):
+    """Levels of detail that would take a scene over ``--scene-memory-mb`` are not held (nor built
+    again): it is drawn at full detail within the budget; with room for them, the levels the
+    cache holds are attached and a moving frame draws fewer triangles."""
+    path = str(scene_path("bunny/bun_zipper.ply"))
+    folder = CacheFolder(tmp_path / "cache")
+    camera = camera_of(path)
+
+    async def built(worker: GLWorker) -> int:
+        made: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        worker.levels_listener = lambda spec, version, tree, scene, groups: made.done() or made.set_result(tree)
+        loaded = await worker.load(LoadScene(scene=path, levels=True), no_progress)
+        await asyncio.wait_for(made, seconds(120))
+        return loaded.nbytes
+
+    scene_bytes = run_with_worker(built, cache=folder)
+
+    async def moving(worker: GLWorker) -> tuple[Any, int, int]:
+        loaded = await worker.load(LoadScene(scene=path, levels=True), no_progress)
+        coarse = await worker.render(camera, SIZE, Rect(0, 0, *SIZE), 0, scene=path, lod_error_px=4.0)
+        full = await worker.render(camera, SIZE, Rect(0, 0, *SIZE), 0, scene=path)
+        return loaded, coarse.triangles, full.triangles
+
+    roomy, coarse, full = run_with_worker(moving, cache=folder)
+    assert roomy.levels is not None and roomy.nbytes > scene_bytes
+    assert 0 < coarse < full, "the levels held draw fewer triangles while moving"
+    tight, coarse, full = run_with_worker(moving, cache=folder, memory_bytes=roomy.nbytes - 1)
+    assert tight.levels is None and tight.nbytes == tight.held_bytes == scene_bytes
+    assert coarse == full > 0, "without its levels the scene is drawn at full detail"
+
+
 class HeldFetcher(SceneFetcher):
     """A fetcher whose download lasts until the test lets it go."""
 

@@ -101,11 +101,17 @@ class ResidentScenes:
             old.renderer.release()
         self._scenes[scene.key] = scene
         self._touch(scene)
+        return self.release_over_budget(scene.key)
+
+    def release_over_budget(self, keep: SceneKey) -> list[SceneKey]:
+        """Release the least recently used scenes but ``keep``'s until the total fits the budget;
+        returns the keys released."""
         evicted = []
-        while self.total_bytes > self.budget_bytes and len(self._scenes) > 1:
-            key, victim = next(iter(self._scenes.items()))
-            del self._scenes[key]
-            victim.renderer.release()
+        while self.total_bytes > self.budget_bytes:
+            key = next((key for key in self._scenes if key != keep), None)
+            if key is None:
+                break
+            self._scenes.pop(key).renderer.release()
             evicted.append(key)
         return evicted
 

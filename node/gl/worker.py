@@ -15,7 +15,8 @@ is held once its coarse levels are uploaded, the rest copied a step at a time be
 (:data:`node.gl.point_renderer.FIRST_UPLOAD_POINTS`).
 
 A scene (or share) whose GPU buffers exceed the memory budget is refused with the reason, naming
-sort-last as the mode that serves it (its buffers are all host memory on llvmpipe).
+sort-last as the mode that serves it (its buffers are all host memory on llvmpipe); its levels of
+detail are held only where the scene with them fits the budget (else it is drawn at full detail).
 """
 
 from __future__ import annotations
@@ -153,6 +154,8 @@ class GLWorker:
         self._levels_reader = SceneReaderProcess()
         self._levels_tasks: set[asyncio.Task[None]] = set()
         self._levels_building: set[SceneKey] = set()
+        #: Scenes whose levels would take them over the budget (:meth:`_attach_levels`): not built again.
+        self._levels_refused: set[SceneKey] = set()
         self._uploads: set[asyncio.Task[None]] = set()
         self._closing = False   # close() kills the readers: a read they fail then is the stop, not a fault
         #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
@@ -253,9 +256,9 @@ class GLWorker:
         if request.levels:
             found = None if levels is None else await levels
             held = None if found is None else await self._call(self._attach_levels, key, found[0])
-            if held is None or found is None:
+            if found is None:
                 self._build_levels(key)
-            else:
+            elif held is not None:
                 loaded = dataclasses.replace(loaded, nbytes=held.nbytes, held_bytes=self._scenes.total_bytes,
                                              levels=found[0], group_levels=found[1])
         return loaded
@@ -326,9 +329,11 @@ class GLWorker:
 
     def _build_levels(self, key: SceneKey) -> None:
         """Start building the levels of detail of the scene held as ``key`` (from its cache entry;
-        nothing for a scene read into memory, or when its levels are being built already)."""
+        nothing for a scene read into memory, when its levels are being built already, or when they
+        would not fit the budget)."""
         held = self._scenes.held(key)
         if held is None or held.entry is None or self.cache is None or key in self._levels_building \
+                or key in self._levels_refused \
                 or isinstance(held.renderer, PointRenderer):   # a point cloud's octree is its levels
             return
         self._levels_building.add(key)
@@ -367,11 +372,24 @@ class GLWorker:
                     self.levels_listener(key[0], held.share_version, tree, held.renderer.scene, groups)
 
     def _attach_levels(self, key: SceneKey, tree: LodTree) -> ResidentScene | None:
-        """On the GL thread: give the scene held as ``key`` its levels (None: no longer held)."""
+        """On the GL thread: give the scene held as ``key`` its levels, releasing the least recently
+        used others over the budget; None when it is no longer held, or when with its levels it
+        would need more than the budget (it stays drawn at full detail, logged)."""
         held = self._scenes.held(key)
-        if held is not None and isinstance(held.renderer, TileRenderer):
-            held.renderer.attach_lod(tree)
-            held.nbytes = estimated_bytes(held.renderer)
+        if held is None or not isinstance(held.renderer, TileRenderer):
+            return held
+        needed, budget = held.nbytes + tree.nbytes, self._scenes.budget_bytes
+        if needed > budget:
+            self._levels_refused.add(key)
+            log.warning("levels of detail of %s not held: with them it needs %.0f MB, more than this node's "
+                        "--scene-memory-mb %.0f; it is drawn at full detail (raise --scene-memory-mb, or serve "
+                        "it in sort-last mode, where each node holds a share)", key[0], needed / (1 << 20),
+                        budget / (1 << 20))
+            return None
+        held.renderer.attach_lod(tree)
+        held.nbytes = estimated_bytes(held.renderer)
+        for spec, _ in self._scenes.release_over_budget(key):
+            log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec, budget / (1 << 20))
         return held
 
     def _read(self, request: LoadScene, progress: ProgressCallback,
