@@ -149,13 +149,23 @@ def test_the_least_recently_used_scenes_are_released_over_the_budget(ctx):
     assert run_with_worker(tiny, memory_bytes=1) == [], "a scene larger than the budget is refused, naming sort-last"
 
 
-def test_a_scene_holds_its_levels_of_detail_only_within_the_budget(tmp_path):
-    """Levels of detail that would take a scene over ``--scene-memory-mb`` are not held (nor built
-    again): it is drawn at full detail within the budget; with room for them, the levels the
-    cache holds are attached and a moving frame draws fewer triangles."""
+def test_a_scene_holds_its_levels_of_detail_only_within_the_budget(tmp_path, caplog):
+    """Levels of detail that would take a scene over ``--scene-memory-mb`` are not built (the log
+    says why) nor held: it is drawn at full detail within the budget; with room for them, the
+    levels the cache holds are attached and a moving frame draws fewer triangles."""
     path = str(scene_path("bunny/bun_zipper.ply"))
     folder = CacheFolder(tmp_path / "cache")
     camera = camera_of(path)
+
+    async def refused(worker: GLWorker) -> tuple[int, str]:
+        loaded = await worker.load(LoadScene(scene=path, levels=True), no_progress)
+        return loaded.nbytes, caplog.text   # as the load answers: no build started
+
+    with caplog.at_level("WARNING", logger="tessera.node"):
+        alone, logged = run_with_worker(refused, cache=CacheFolder(tmp_path / "tight"), memory_bytes=7 << 18)
+    assert alone <= 7 << 18, "the scene fits alone"
+    assert f"levels of detail of {path} not held: with them it needs about 2 MB, more than this node's " \
+        "--scene-memory-mb 2; it is drawn at full detail" in logged, "no levels built beyond the budget"
 
     async def built(worker: GLWorker) -> int:
         made: asyncio.Future[Any] = asyncio.get_running_loop().create_future()

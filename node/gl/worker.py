@@ -48,6 +48,7 @@ from node.scene.data import SceneData
 from node.scene.fetch import SceneFetcher
 from node.scene.ingest import kept_group_levels, open_cached, read_scene
 from node.scene.loading import BUILTIN_PREFIX, ProgressCallback
+from node.scene.lod import BYTES_PER_TRIANGLE as LEVELS_BYTES_PER_TRIANGLE
 from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, lod_name, read_lod
 from node.scene.mesh import SceneError
 from node.scene.mesh_store import MeshStore
@@ -336,6 +337,8 @@ class GLWorker:
                 or key in self._levels_refused \
                 or isinstance(held.renderer, PointRenderer):   # a point cloud's octree is its levels
             return
+        if not self._levels_fit(key, held.nbytes + LEVELS_BYTES_PER_TRIANGLE * held.renderer.scene.triangle_count):
+            return
         self._levels_building.add(key)
         task = asyncio.get_running_loop().create_task(self._levels(key, held.entry))
         self._levels_tasks.add(task)
@@ -378,19 +381,26 @@ class GLWorker:
         held = self._scenes.held(key)
         if held is None or not isinstance(held.renderer, TileRenderer):
             return held
-        needed, budget = held.nbytes + tree.nbytes, self._scenes.budget_bytes
-        if needed > budget:
-            self._levels_refused.add(key)
-            log.warning("levels of detail of %s not held: with them it needs %.0f MB, more than this node's "
-                        "--scene-memory-mb %.0f; it is drawn at full detail (raise --scene-memory-mb, or serve "
-                        "it in sort-last mode, where each node holds a share)", key[0], needed / (1 << 20),
-                        budget / (1 << 20))
+        if not self._levels_fit(key, held.nbytes + tree.nbytes):
             return None
         held.renderer.attach_lod(tree)
         held.nbytes = estimated_bytes(held.renderer)
         for spec, _ in self._scenes.release_over_budget(key):
-            log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec, budget / (1 << 20))
+            log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
+                     self._scenes.budget_bytes / (1 << 20))
         return held
+
+    def _levels_fit(self, key: SceneKey, needed: int) -> bool:
+        """Whether the scene held as ``key`` fits the budget with its levels, ``needed`` bytes in all;
+        if not, it is drawn at full detail from now on (its levels neither built nor held; logged)."""
+        budget = self._scenes.budget_bytes
+        if needed <= budget:
+            return True
+        self._levels_refused.add(key)
+        log.warning("levels of detail of %s not held: with them it needs about %.0f MB, more than this node's "
+                    "--scene-memory-mb %.0f; it is drawn at full detail (raise --scene-memory-mb, or serve it in "
+                    "sort-last mode, where each node holds a share)", key[0], needed / (1 << 20), budget / (1 << 20))
+        return False
 
     def _read(self, request: LoadScene, progress: ProgressCallback,
               verify: bool) -> tuple[SceneData | PointCloud, Path | None, bool]:
