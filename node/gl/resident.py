@@ -13,6 +13,7 @@ the per-tile culling buffers and the frame-sized framebuffer are left out.
 
 from __future__ import annotations
 
+import logging
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,6 +23,8 @@ from node.gl.depth_layers import PlanningScene
 from node.gl.point_renderer import PointRenderer
 from node.gl.renderer import TileRenderer
 from tessera.wire.messages import ShareSpec
+
+log = logging.getLogger("tessera.node")
 
 #: A loaded scene's key: its spec, and sort-last its share (index, weights; None: the whole scene).
 SceneKey = tuple[str, tuple[int, tuple[float, ...]] | None]
@@ -74,6 +77,7 @@ class ResidentScenes:
     def __init__(self, budget_bytes: int) -> None:
         self.budget_bytes = budget_bytes
         self._scenes: OrderedDict[SceneKey, ResidentScene] = OrderedDict()
+        self._levels_refused: set[SceneKey] = set()
         self._loads = 0
 
     @property
@@ -114,6 +118,22 @@ class ResidentScenes:
             self._scenes.pop(key).renderer.release()
             evicted.append(key)
         return evicted
+
+    def levels_fit(self, key: SceneKey, needed: int) -> bool:
+        """Whether the scene of ``key`` fits the budget with its levels of detail, ``needed`` bytes in
+        all; if not, it is drawn at full detail from now on (its levels refused: :meth:`levels_refused`; logged)."""
+        if needed <= self.budget_bytes:
+            return True
+        self._levels_refused.add(key)
+        log.warning("levels of detail of %s not held: with them it needs about %.0f MB, more than this node's "
+                    "--scene-memory-mb %.0f; it is drawn at full detail (raise --scene-memory-mb, or serve it in "
+                    "sort-last mode, where each node holds a share)", key[0], needed / (1 << 20),
+                    self.budget_bytes / (1 << 20))
+        return False
+
+    def levels_refused(self, key: SceneKey) -> bool:
+        """Whether the levels of detail of the scene of ``key`` were found not to fit (:meth:`levels_fit`)."""
+        return key in self._levels_refused
 
     def holds(self, key: SceneKey) -> bool:
         """Whether the scene of ``key`` is held: one membership test, which any thread may make

@@ -155,8 +155,6 @@ class GLWorker:
         self._levels_reader = SceneReaderProcess()
         self._levels_tasks: set[asyncio.Task[None]] = set()
         self._levels_building: set[SceneKey] = set()
-        #: Scenes whose levels would take them over the budget (:meth:`_attach_levels`): not built again.
-        self._levels_refused: set[SceneKey] = set()
         self._uploads: set[asyncio.Task[None]] = set()
         self._closing = False   # close() kills the readers: a read they fail then is the stop, not a fault
         #: Told (on the event loop) of each scene whose levels of detail were attached: its spec,
@@ -334,10 +332,11 @@ class GLWorker:
         would not fit the budget)."""
         held = self._scenes.held(key)
         if held is None or held.entry is None or self.cache is None or key in self._levels_building \
-                or key in self._levels_refused \
+                or self._scenes.levels_refused(key) \
                 or isinstance(held.renderer, PointRenderer):   # a point cloud's octree is its levels
             return
-        if not self._levels_fit(key, held.nbytes + LEVELS_BYTES_PER_TRIANGLE * held.renderer.scene.triangle_count):
+        expected = held.nbytes + LEVELS_BYTES_PER_TRIANGLE * held.renderer.scene.triangle_count
+        if not self._scenes.levels_fit(key, expected):
             return
         self._levels_building.add(key)
         task = asyncio.get_running_loop().create_task(self._levels(key, held.entry))
@@ -381,7 +380,7 @@ class GLWorker:
         held = self._scenes.held(key)
         if held is None or not isinstance(held.renderer, TileRenderer):
             return held
-        if not self._levels_fit(key, held.nbytes + tree.nbytes):
+        if not self._scenes.levels_fit(key, held.nbytes + tree.nbytes):
             return None
         held.renderer.attach_lod(tree)
         held.nbytes = estimated_bytes(held.renderer)
@@ -389,18 +388,6 @@ class GLWorker:
             log.info("scene %s released: the scenes held exceed --scene-memory-mb %.0f", spec,
                      self._scenes.budget_bytes / (1 << 20))
         return held
-
-    def _levels_fit(self, key: SceneKey, needed: int) -> bool:
-        """Whether the scene held as ``key`` fits the budget with its levels, ``needed`` bytes in all;
-        if not, it is drawn at full detail from now on (its levels neither built nor held; logged)."""
-        budget = self._scenes.budget_bytes
-        if needed <= budget:
-            return True
-        self._levels_refused.add(key)
-        log.warning("levels of detail of %s not held: with them it needs about %.0f MB, more than this node's "
-                    "--scene-memory-mb %.0f; it is drawn at full detail (raise --scene-memory-mb, or serve it in "
-                    "sort-last mode, where each node holds a share)", key[0], needed / (1 << 20), budget / (1 << 20))
-        return False
 
     def _read(self, request: LoadScene, progress: ProgressCallback,
               verify: bool) -> tuple[SceneData | PointCloud, Path | None, bool]:
