@@ -53,7 +53,8 @@ rasterizer (llvmpipe, where multisampling costs several one-sample frames: see t
 (:class:`node.gl.shading.AntialiasingChoice`): the same projection over a viewport kx × ky times as
 large, so block (i, j) is pixel (i, j)'s samples (the pair, 2 × 1, ¼ pixel left and right of its
 centre, one draw); these frames (and ``--msaa filter``'s one sample) are resolved by
-:func:`tessera.antialiasing.resolve_grid`, the filtered ones drawn with a guard band of one pixel
+:func:`tessera.antialiasing.resolve_grid` (the filtered ones by a compiled pass once loaded,
+:mod:`node.gl.resolve`), the filtered ones drawn with a guard band of one pixel
 (clipped to the frame) so that the filtered tile is still that region of the filtered whole frame,
 and with their texture LOD bias.
 
@@ -86,6 +87,7 @@ from node.gl.image_lighting import prefiltered_environment
 from node.gl.lod_draws import LodDraws
 from node.gl.materials import SAMPLER_UNITS, UNIT_CEIL, UNIT_FLOOR, UNIT_LUT, UNIT_SPECULAR, SceneMaterials
 from node.gl.programs import ShaderPrograms
+from node.gl.resolve import resolve
 from node.gl.shading import ShaderVariant, ShadingOptions, resolve_antialiasing
 from node.gl.shared import SharedGL
 from node.gl.view_tools import ViewTools, ViewToolsGL
@@ -94,7 +96,7 @@ from node.scene.data import SceneData
 from node.scene.lod import LodTree
 from node.scene.packing import PackedGeometry, pack
 from node.scene.pose import ScenePose
-from tessera.antialiasing import FILTERED_LOD_BIAS, guarded, resolve_grid
+from tessera.antialiasing import FILTERED_LOD_BIAS, guarded
 from tessera.geometry import DEFAULT_BACKGROUND, Camera, Rect, look_at, view_projection
 from tessera.scene.state import SceneState
 from tessera.scheduling.refinement import StillPlan, Subsample, accumulate_still, grid_subsample, jitter_matrix
@@ -314,7 +316,7 @@ class TileRenderer:
         if not resolved:
             return dataclasses.replace(tile, rect=whole)
         resolving = time.perf_counter()
-        pixels = resolve_grid(tile.pixels, rect, drawn, (kx, ky), filtered)
+        pixels = resolve(tile.pixels, rect, drawn, (kx, ky), filtered)
         return dataclasses.replace(tile, rect=whole, pixels=pixels,
                                    render_ms=tile.render_ms + (time.perf_counter() - resolving) * 1e3)
 
