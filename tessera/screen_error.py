@@ -54,17 +54,17 @@ def error_scales(camera: Camera, size: tuple[int, int], boxes: np.ndarray) -> np
     half_y = math.tan(math.radians(camera.fovy_deg) / 2.0)
     half_x = half_y * size[0] / size[1]
     rotation = look_at(camera.eye, camera.target, camera.up)[:3, :3]   # world → view, looking down −z
-    # The corners in view space, one (N, 8) array a coordinate: the min corner's, plus the box's
-    # extent along the axes each corner steps (a product of (N, 3) by (3, 8): 2-3x faster than
-    # rotating (N, 8, 3) corners).
+    # The corners in view space, one (8, N) array a coordinate: the min corner's plus the box's
+    # extent along the axes each corner steps ((8, 3) by (3, N) products), their extremes taken
+    # row by row: 2.5-3.5x faster than rotating and reducing (N, 8, 3) corners.
     lowest = (boxes[:, 0] - eye) @ rotation.T
     extent = boxes[:, 1] - boxes[:, 0]
-    side, up, back = (lowest[:, row, None] + (extent * rotation[row]) @ _CORNERS.T for row in range(3))
+    side, up, back = (lowest[:, row] + _CORNERS @ (extent * rotation[row]).T for row in range(3))
     depth = -back
-    ahead = np.all(depth > 0.0, axis=1)
+    ahead = np.all(depth > 0.0, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(ahead[:, None], depth, 1.0)
-        tx = np.where(ahead, np.minimum((np.abs(side) / depth).max(axis=1), half_x), half_x)
-        ty = np.where(ahead, np.minimum((np.abs(up) / depth).max(axis=1), half_y), half_y)
+        depth = np.where(ahead, depth, 1.0)
+        tx = np.where(ahead, np.minimum((np.abs(side) / depth).max(axis=0), half_x), half_x)
+        ty = np.where(ahead, np.minimum((np.abs(up) / depth).max(axis=0), half_y), half_y)
         scale = pixels_per_unit(camera, size) * (1.0 + tx * tx + ty * ty) / distance
     return np.where(distance > 0.0, scale, np.inf).reshape(shape)
