@@ -3,8 +3,8 @@ its first frame with no scene cache (ingest included) and after a restart (cache
 peak memory, then the picture moving with levels of detail on and off.
 
 ``python -m bench.bigscene --scene PATH [--nodes 3] [--size 640x360] [--modes sort-first,sort-last]
-[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--peer] [--cache-dir DIR]
-[--warm-runs 1] [--json OUT]``
+[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--orbit 8] [--near 4] [--peer]
+[--cache-dir DIR] [--warm-runs 1] [--json OUT]``
 
 For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
 
@@ -22,9 +22,13 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
   latency (p50, ms and frame intervals), the triangles the nodes drew per frame (summed over the
   nodes with a tile in it), the nodes' busy time per frame, the bound in use, the CPU ms a frame of
   the coordinator, each node, the scripted viewer and the whole machine (others' work included;
-  from 1 s after the motion began); then the moving frame of the last camera against
+  from 1 s after the motion began); then the moving frame (the session's bound kept from the
+  motion) from the last camera turned 0.05 rad and, with ``--orbit`` and ``--near``, from the
+  cameras of ``bench.lod_cameras`` around it (eight on a turn, four at half the distance) against
   ``--render-once --interactive`` at full detail (PSNR; with ``--msaa 1`` in the depth modes, whose
-  layers are drawn at one sample a pixel).
+  layers are drawn at one sample a pixel) and against that frame through the same JPEG (the
+  interactive quality: the moving frame a user would get without levels), each camera's and the
+  worst camera's.
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
@@ -53,6 +57,7 @@ from PIL import Image
 
 from bench.images import psnr
 from bench.live import ScriptedViewer, render_once
+from bench.lod_cameras import cameras_around, jpeg
 from bench.processes import (
     PYTHON,
     REPO,
@@ -65,6 +70,8 @@ from bench.processes import (
 )
 from bench.sessions import move, open_session, session_figures, wait_session_ready
 from tessera.cli_values import size_parser
+from tessera.geometry import Camera
+from tessera.scheduling.config import SchedulerConfig
 
 SIZE_TEXT = "{}x{}"
 
@@ -241,26 +248,39 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
                 sampler.join()
                 figures = session_figures(viewer, started + 1.0, ended)
                 cpu = cpu_per_frame(cpu_before, cpu_after, figures["fps"] * (ended - started - 1.0))
-                camera = orbit(viewer.camera, 0.05)
-                first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
-                response = client.get(f"/api/sessions/{session}/frame.png", params={"after": first})
-                if response.headers.get("x-frame-still") == "1" or int(response.headers.get("x-frame-samples", 0)) > 1:
-                    raise RuntimeError("the frame compared is not a moving frame")
-                frame = response.content
+                base = Camera.from_json(orbit(viewer.camera, 0.05))
+                named = cameras_around(base, args.orbit, args.near) if args.orbit else [("last", base)]
+                frames = [(name, camera.to_json(), moving_frame(client, session, camera.to_json()))
+                          for name, camera in named]
                 viewer.stop()
     finally:
         coordinator.stop(timeout=60.0)
-    image = np.asarray(Image.open(io.BytesIO(frame)).convert("RGB"))
     one_sample = ("--msaa", "1") if mode != "sort-first" else ()   # depth layers are drawn at one sample
-    full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive", *one_sample,
-                       "--scene-cache-dir", str(cache))
+    compared = []
+    for name, camera, image in frames:
+        full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive", *one_sample,
+                           "--scene-cache-dir", str(cache))
+        compared.append({"camera": name, "psnr_vs_full": round(psnr(image, full), 2),
+                         "psnr_vs_full_jpeg": round(psnr(image, jpeg(full, SchedulerConfig().interactive_quality)), 2)})
     return {**{k: round(v, 2) for k, v in figures.items()},
             "triangles_per_frame": round(float(np.median(triangles)), 0) if triangles else None,
             "busy_ms": round(float(np.median(busy)), 1) if busy else None,
             "bound_px": round(float(np.median(bounds)), 2) if bounds else None,
             "bound_max_px": round(float(np.max(bounds)), 2) if bounds else None,
             "settled_s": round(settled_s, 1), "calibrated": calibrated, **cpu,
-            "psnr_vs_full": round(psnr(image, full), 2)}
+            "psnr_vs_full": compared[0]["psnr_vs_full"], "psnr_vs_full_jpeg": compared[0]["psnr_vs_full_jpeg"],
+            "worst_vs_full": min(compared, key=lambda c: c["psnr_vs_full"]),
+            "worst_vs_full_jpeg": min(compared, key=lambda c: c["psnr_vs_full_jpeg"]), "cameras": compared}
+
+
+def moving_frame(client: httpx.Client, session: str, camera: dict[str, Any]) -> np.ndarray:
+    """The session's next frame after its camera is put at ``camera`` (a moving frame: at the
+    levels of detail of the bound in use), (h, w, 3) uint8."""
+    first = client.put(f"/api/sessions/{session}/camera", json=camera).json()["frame"]
+    response = client.get(f"/api/sessions/{session}/frame.png", params={"after": first})
+    if response.headers.get("x-frame-still") == "1" or int(response.headers.get("x-frame-samples", 0)) > 1:
+        raise RuntimeError("the frame compared is not a moving frame")
+    return np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"))
 
 
 PEER = r"""
@@ -336,7 +356,13 @@ def report(result: dict[str, Any]) -> str:
             if key.startswith("moving"):
                 lines.append(f"  {mode:10s} {key}: {f['fps']:.1f} fps, latency p50 {f['latency_p50_ms']:.0f} ms "
                              f"({f['latency_p50_frames']:.1f} frames), {f['triangles_per_frame']} triangles/frame, "
-                             f"busy {f['busy_ms']} ms, bound {f['bound_px']} px, PSNR {f['psnr_vs_full']} dB")
+                             f"busy {f['busy_ms']} ms, bound {f['bound_px']} px, PSNR {f['psnr_vs_full']} dB "
+                             f"({f['psnr_vs_full_jpeg']} dB against full detail's JPEG)")
+                if len(f.get("cameras", ())) > 1:
+                    raw, coded = f["worst_vs_full"], f["worst_vs_full_jpeg"]
+                    lines.append(f"  {'':10s} worst of {len(f['cameras'])} cameras: {raw['psnr_vs_full']} dB "
+                                 f"({raw['camera']}), {coded['psnr_vs_full_jpeg']} dB against full detail's JPEG "
+                                 f"({coded['camera']})")
                 if "node_cpu_ms" in f:
                     lines.append(f"  {'':10s} CPU ms a frame: nodes {f['node_cpu_ms']}, coordinator "
                                  f"{f['coordinator_cpu_ms']}, viewer {f['viewer_cpu_ms']}, machine "
@@ -354,6 +380,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--moving-s", type=float, default=8.0, help="0: no moving phase")
     parser.add_argument("--moving-size", type=size_parser(16, 16384), default=(1280, 720))
     parser.add_argument("--input-hz", type=float, default=60.0)
+    parser.add_argument("--orbit", type=int, default=8,
+                        help="the moving frame compared from this many cameras on a turn (0: the last camera alone)")
+    parser.add_argument("--near", type=int, default=4, help="and from this many at half the distance")
     parser.add_argument("--peer", action="store_true", help="PyVista's first picture of the same file")
     parser.add_argument("--cache-dir", type=Path,
                         help="keep each mode's scene cache in a folder of this one; one that holds an entry "

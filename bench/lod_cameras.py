@@ -11,13 +11,16 @@ distance, a quarter turn apart from 20°. Per camera: the full-detail frame; ``c
 at ``--quality`` (the interactive codec's default) against it; and per bound of ``--bounds`` (pixels,
 as ``--lod-error-px``): the triangles drawn, ``levels_db`` the frame at that bound against full
 detail, ``moving_db`` its JPEG against full detail (what ``bench.bigscene`` measures of a session's
-moving frame) and ``silhouette_share``, the part of the levels' squared error on the model's pixels
+moving frame), ``pipeline_db`` its JPEG against the full-detail frame's JPEG at the same quality (the
+moving frame a user gets with levels against the one they would get without: same anti-aliasing,
+same codec) and ``silhouette_share``, the part of the levels' squared error on the model's pixels
 within one pixel of the background in either frame (``silhouette_px``: their share of the frame's
 pixels); the rest is the inside of the model, its shading. With ``--still-samples N``, both frames
 are compared with the converged picture too, the still of N jittered samples at full detail
 (:meth:`node.gl.renderer.TileRenderer.render_still`): ``full_still_db`` and, per bound, ``still_db``
 (the full-detail moving frame is aliased where triangles are smaller than pixels: how much of the
-levels' difference is picture lost, not aliasing changed).
+levels' difference is picture lost, not aliasing changed). The last lines give the worst camera
+of each figure and how many cameras keep :data:`GOAL_DB` (``worst`` in the JSON).
 """
 
 from __future__ import annotations
@@ -49,11 +52,18 @@ from tessera.geometry import Camera, default_camera
 from tessera.scheduling.config import SchedulerConfig
 from tessera.wire.codec import Codec, encode
 
+#: The issue's goal for the moving frame against full detail (dB).
+GOAL_DB = 38.0
+
 
 def cameras(scene: SceneData, size: tuple[int, int], orbit: int, near: int) -> list[tuple[str, Camera]]:
-    """``orbit`` cameras on one turn around the default camera's target at its distance, then ``near``
-    at half the distance, a quarter turn apart from 20°: (name, camera)."""
-    base = default_camera(scene.bounds, aspect=size[0] / size[1])
+    """:func:`cameras_around` the scene's default camera for frames of ``size``."""
+    return cameras_around(default_camera(scene.bounds, aspect=size[0] / size[1]), orbit, near)
+
+
+def cameras_around(base: Camera, orbit: int, near: int) -> list[tuple[str, Camera]]:
+    """``orbit`` cameras on one turn around ``base``'s target at its distance (the first ``base``
+    itself), then ``near`` at half the distance, a quarter turn apart from 20°: (name, camera)."""
     around = [Camera.from_json(c) for c in orbit_around(base, orbit)["frames"]] if orbit else []
     named = [(f"orbit {round(360 * k / orbit)}°", camera) for k, camera in enumerate(around)]
     eye, target = np.asarray(base.eye, np.float64), np.asarray(base.target, np.float64)
@@ -101,7 +111,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     rows = []
     for name, camera in cameras(scene, args.size, args.orbit, args.near):
         full = renderer.render_frame(camera, args.size).pixels
-        row: dict[str, Any] = {"camera": name, "codec_db": round(psnr(jpeg(full, args.quality), full), 2)}
+        full_jpeg = jpeg(full, args.quality)
+        row: dict[str, Any] = {"camera": name, "codec_db": round(psnr(full_jpeg, full), 2)}
         still = renderer.render_still(camera, args.size, args.still_samples) if args.still_samples else None
         if still is not None:
             row["full_still_db"] = round(psnr(full, still), 2)
@@ -109,9 +120,10 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             frame = renderer.render_frame(camera, args.size, lod_error_px=bound)
             error = ((frame.pixels.astype(np.float64) - full) ** 2).sum(axis=2)
             edge = silhouette(full, background) | silhouette(frame.pixels, background)
+            moving = jpeg(frame.pixels, args.quality)
             row[f"{bound:g}px"] = {
                 "triangles": frame.triangles, "levels_db": round(psnr(frame.pixels, full), 2),
-                "moving_db": round(psnr(jpeg(frame.pixels, args.quality), full), 2),
+                "moving_db": round(psnr(moving, full), 2), "pipeline_db": round(psnr(moving, full_jpeg), 2),
                 "silhouette_share": round(float(error[edge].sum() / max(error.sum(), 1.0)), 3),
                 "silhouette_px": round(float(edge.mean()), 4)}
             if still is not None:
@@ -120,7 +132,40 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         print(report_row(row), flush=True)
     renderer.release()
     ctx.release()
-    return {"scene": str(args.scene), "size": list(args.size), "quality": args.quality, "cameras": rows}
+    summary = worst(rows)
+    print(report_worst(summary), flush=True)
+    return {"scene": str(args.scene), "size": list(args.size), "quality": args.quality, "cameras": rows,
+            "worst": summary}
+
+
+def worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Of :func:`measure`'s camera rows: per figure (``codec_db``, and per bound ``levels_db``,
+    ``moving_db``, ``pipeline_db``, ``still_db`` where measured) the worst camera's dB and name and
+    how many cameras keep :data:`GOAL_DB`; per bound the most triangles a camera drew."""
+    def least(values: list[tuple[float, str]]) -> dict[str, Any]:
+        db, camera = min(values)
+        return {"db": db, "camera": camera, "at_goal": sum(v >= GOAL_DB for v, _ in values), "of": len(values)}
+
+    summary: dict[str, Any] = {"codec_db": least([(row["codec_db"], row["camera"]) for row in rows])}
+    for key in [k for k, v in rows[0].items() if isinstance(v, dict)] if rows else ():
+        figures = [k for k in ("levels_db", "moving_db", "pipeline_db", "still_db") if k in rows[0][key]]
+        summary[key] = {figure: least([(row[key][figure], row["camera"]) for row in rows]) for figure in figures}
+        summary[key]["max_triangles"] = max(row[key]["triangles"] for row in rows)
+    return summary
+
+
+def report_worst(summary: dict[str, Any]) -> str:
+    """:func:`worst`'s figures, a line each."""
+    def text(least: dict[str, Any]) -> str:
+        return f"{least['db']:5.1f} dB ({least['camera']}), {least['at_goal']}/{least['of']} cameras >= {GOAL_DB:g}"
+
+    lines = [f"worst camera: JPEG alone {text(summary['codec_db'])}"]
+    for key, figures in summary.items():
+        if key != "codec_db":
+            lines.append(f"  {key} ({figures['max_triangles'] / 1e6:.2f}M tri at most): "
+                         + "; ".join(f"{figure} {text(least)}" for figure, least in figures.items()
+                                     if isinstance(least, dict)))
+    return "\n".join(lines)
 
 
 def report_row(row: dict[str, Any]) -> str:
@@ -130,7 +175,8 @@ def report_row(row: dict[str, Any]) -> str:
     for key, value in row.items():
         if isinstance(value, dict):
             parts.append(f"{key} {value['triangles'] / 1e6:.2f}M tri, levels {value['levels_db']:5.1f} dB, "
-                         f"after JPEG {value['moving_db']:5.1f} dB, silhouettes {value['silhouette_share']:.0%} "
+                         f"after JPEG {value['moving_db']:5.1f} dB, JPEG against JPEG {value['pipeline_db']:5.1f} dB, "
+                         f"silhouettes {value['silhouette_share']:.0%} "
                          f"of the error on {value['silhouette_px']:.1%} of the pixels"
                          + (f", {value['still_db']:5.1f} dB from the still" if "still_db" in value else ""))
     return " | ".join(parts)
