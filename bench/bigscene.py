@@ -3,8 +3,8 @@ its first frame with no scene cache (ingest included) and after a restart (cache
 peak memory, then the picture moving with levels of detail on and off.
 
 ``python -m bench.bigscene --scene PATH [--nodes 3] [--size 640x360] [--modes sort-first,sort-last]
-[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--orbit 8] [--near 4] [--peer]
-[--cache-dir DIR] [--warm-runs 1] [--json OUT]``
+[--lod on,off] [--moving-s 8] [--input-hz 60] [--moving-size 1280x720] [--orbit 8] [--near 4]
+[--lod-max-error-px PX] [--interactive-quality Q] [--peer] [--cache-dir DIR] [--warm-runs 1] [--json OUT]``
 
 For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
 
@@ -28,7 +28,8 @@ For each mode (``--mode`` of the coordinator), in a fresh scene cache folder:
   ``--render-once --interactive`` at full detail (PSNR; with ``--msaa 1`` in the depth modes, whose
   layers are drawn at one sample a pixel) and against that frame through the same JPEG (the
   interactive quality: the moving frame a user would get without levels), each camera's and the
-  worst camera's.
+  worst camera's. ``--lod-max-error-px`` and ``--interactive-quality`` are passed to the
+  coordinator (the moving phase's) when given.
 
 ``--peer``: PyVista (``pip install pyvista``), as a user would open the same file in one process:
 seconds to its first picture at ``--size`` (read included), the next frame after a 5° turn, and
@@ -210,6 +211,11 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
     its frames'), at ``--moving-size``, without a still (the frame compared is a moving one), once
     every node holds it and has been calibrated."""
     extra = [] if lod == "on" else ["--lod-error-px", "0"]
+    if args.lod_max_error_px is not None:
+        extra += ["--lod-max-error-px", f"{args.lod_max_error_px:g}"]
+    if args.interactive_quality is not None:
+        extra += ["--interactive-quality", str(args.interactive_quality)]
+    quality = args.interactive_quality or SchedulerConfig().interactive_quality
     coordinator, url = start(args, mode, cache, "--scene", str(Path(args.scene).resolve()), "--still-codec", "none",
                              *extra, size=args.moving_size)
     try:
@@ -261,13 +267,13 @@ def moving(args: argparse.Namespace, mode: str, cache: Path, lod: str) -> dict[s
         full = render_once(str(Path(args.scene).resolve()), camera, args.moving_size, "--interactive", *one_sample,
                            "--scene-cache-dir", str(cache))
         compared.append({"camera": name, "psnr_vs_full": round(psnr(image, full), 2),
-                         "psnr_vs_full_jpeg": round(psnr(image, jpeg(full, SchedulerConfig().interactive_quality)), 2)})
+                         "psnr_vs_full_jpeg": round(psnr(image, jpeg(full, quality)), 2)})
     return {**{k: round(v, 2) for k, v in figures.items()},
             "triangles_per_frame": round(float(np.median(triangles)), 0) if triangles else None,
             "busy_ms": round(float(np.median(busy)), 1) if busy else None,
             "bound_px": round(float(np.median(bounds)), 2) if bounds else None,
             "bound_max_px": round(float(np.max(bounds)), 2) if bounds else None,
-            "settled_s": round(settled_s, 1), "calibrated": calibrated, **cpu,
+            "settled_s": round(settled_s, 1), "calibrated": calibrated, **cpu, "quality": quality,
             "psnr_vs_full": compared[0]["psnr_vs_full"], "psnr_vs_full_jpeg": compared[0]["psnr_vs_full_jpeg"],
             "worst_vs_full": min(compared, key=lambda c: c["psnr_vs_full"]),
             "worst_vs_full_jpeg": min(compared, key=lambda c: c["psnr_vs_full_jpeg"]), "cameras": compared}
@@ -380,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--moving-s", type=float, default=8.0, help="0: no moving phase")
     parser.add_argument("--moving-size", type=size_parser(16, 16384), default=(1280, 720))
     parser.add_argument("--input-hz", type=float, default=60.0)
+    parser.add_argument("--lod-max-error-px", type=float, help="the coordinator's (default: its default)")
+    parser.add_argument("--interactive-quality", type=int, help="the coordinator's (default: its default)")
     parser.add_argument("--orbit", type=int, default=8,
                         help="the moving frame compared from this many cameras on a turn (0: the last camera alone)")
     parser.add_argument("--near", type=int, default=4, help="and from this many at half the distance")

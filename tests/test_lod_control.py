@@ -6,7 +6,17 @@ from __future__ import annotations
 
 import pytest
 
-from tessera.scheduling.lod_control import FAR, HOLD, QUICK, SLOW, STEP, LodControl
+from tessera.scheduling.lod_control import (
+    DEFAULT_LOD_ERROR_PX,
+    DEFAULT_LOD_MAX_ERROR_PX,
+    DEFAULT_TARGET_FPS,
+    FAR,
+    HOLD,
+    QUICK,
+    SLOW,
+    STEP,
+    LodControl,
+)
 
 TARGET_FPS = 10.0
 INTERVAL = 1.0 / TARGET_FPS
@@ -55,3 +65,16 @@ def test_without_levels_of_detail_there_is_no_bound():
     control = LodControl(0.0, 2.0, TARGET_FPS)
     control.frame_done(10.0)
     assert control.bound is None and control.bound_px == 0.0
+
+
+def test_the_default_ceiling_is_the_bound_measured_to_hold_38_db_one_step_above_the_floor():
+    """Issue 32: at 0.75 px the moving frame stays 38 dB from full detail (same AA) at every camera of
+    bench.lod_cameras on the big models; at 1.5 px (the ceiling before) 35.3 dB. Frames far too slow
+    take the default floor to 0.75 px in one step and no further (before: 1.125, then 1.5 px)."""
+    control = LodControl(DEFAULT_LOD_ERROR_PX, DEFAULT_LOD_MAX_ERROR_PX, DEFAULT_TARGET_FPS)
+    assert control.bound_px == 0.5
+    bounds = []
+    for _ in range(3):
+        control.frame_done(10.0)
+        bounds.append(control.bound_px)
+    assert bounds == [0.75, 0.75, 0.75]

@@ -27,12 +27,12 @@ from dataclasses import dataclass
 #: format 3), the Pan scan, four cameras at both sizes: worst 48.1 dB at 0.5 px, 42.7 dB at 1 px
 #: (llvmpipe's pair); 39.5 and 36.9 dB with 4x MSAA, a GPU's (docs: benchmarks, Big models).
 DEFAULT_LOD_ERROR_PX = 0.5
-#: The most it is raised to, px (``--lod-max-error-px``): frame rate bought with at most a dB or two.
-#: The 24.8M-triangle model, a whole 1280x720 frame from three cameras (docs: benchmarks, Big
-#: models): 1.5 px draws 0.66-1.77M triangles against 1.33-2.43M at 1 px, 38.3-42.2 dB from full
-#: detail against 40.8-44.4 dB (39.7 / 36.0 / 35.8 dB against 40.5 / 37.3 / 36.5 dB after the
-#: interactive JPEG, which alone costs 42.0 / 38.6 / 37.8 dB); 2 px falls to 37.7 dB from near.
-DEFAULT_LOD_MAX_ERROR_PX = 1.5
+#: The most it is raised to, px (``--lod-max-error-px``): the coarsest bound whose moving frame stays
+#: 38 dB from the full-detail frame of the same camera (same anti-aliasing, before the codec) at
+#: every one of ``bench.lod_cameras``' twelve cameras on the 24.8M- and 8.9M-triangle models, the
+#: Pan scan and the bunny: worst 38.6 / 40.5 / 46.0 / 49.5 dB at 0.75 px, 37.0 / 39.0 dB on the big
+#: models at 1 px and 35.3 / 37.4 dB at 1.5 px, the default before (docs: benchmarks, Big models).
+DEFAULT_LOD_MAX_ERROR_PX = 0.75
 #: The moving frame rate it aims at (``--target-fps``).
 DEFAULT_TARGET_FPS = 15.0
 #: Factor the bound moves by in one step.
