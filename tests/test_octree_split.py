@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from node.scene import compiled
+from node.scene.face_pass import face_pass
 from node.scene.octree import MAX_DEPTH, ChunkSplit, morton_codes, moved_split, octree_root, octree_split
 from tests.culling_support import scan_mesh
 
@@ -132,3 +133,33 @@ def test_compiled_passes_split_as_numpy_does(mesh, face_limit, monkeypatch):
                       "positions"):
             assert np.array_equal(getattr(numpy_split, field), getattr(compiled_split, field)), field
     check_split(positions, faces, splits[1][0], face_limit)
+
+
+@pytest.mark.parametrize("sorted_faces", [True, False])
+def test_compiled_face_pass_on_two_threads_sums_as_numpy_does(sorted_faces, monkeypatch):
+    """The compiled face pass splits the chunks in two parts, each thread summing the normals of
+    its own vertices (shared vertices at the parts' border, faces sorted by their lowest vertex or in
+    any order): the same boxes and normals, bit for bit, as the numpy pass."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(7)
+    positions = rng.normal(size=(5_000, 3)).astype(np.float32)
+    faces = rng.integers(0, 5_000, size=(60_000, 3)).astype(np.uint32)
+    if sorted_faces:
+        faces = faces[np.argsort(faces.min(axis=1), kind="stable")]
+    starts = np.unique(np.concatenate([[0], rng.integers(1, len(faces), 900)]))
+    passes = []
+    for threshold in (1 << 62, 1):
+        monkeypatch.setattr(compiled, "COMPILED_FACES", threshold)
+        passes.append(face_pass(positions, faces, starts, normals=True))
+    assert np.array_equal(passes[0].boxes, passes[1].boxes)
+    assert np.array_equal(passes[0].normals.view(np.uint32), passes[1].normals.view(np.uint32))
+
+
+@pytest.mark.parametrize("count", [0, 1, 2, 3, 4097, 200_001])
+def test_radix_sort_on_two_threads_sorts_as_numpy_does(count):
+    """:func:`node.scene.compiled.radix_sort`'s passes on two threads: numpy's sort, stable."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(count)
+    for bits in (1, 12, 13, 36):
+        keys = (rng.integers(0, 1 << bits, count, dtype=np.uint64) << np.uint64(18)) | np.arange(count, dtype=np.uint64)
+        assert np.array_equal(compiled.radix_sort(keys.copy(), 18, bits), np.sort(keys)), bits

@@ -105,11 +105,36 @@ def _build(jit: Any) -> Any:
         return group
 
     @jit
-    def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, boxes: np.ndarray,
-              summed: np.ndarray, normals: bool) -> None:
+    def sweep(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray, first_chunk: int, end_chunk: int,
+              vertex_lo: int, vertex_hi: int, boxes: np.ndarray, summed: np.ndarray, normals: bool) -> None:
+        """Boxes of chunks [first_chunk, end_chunk) and, with ``normals``, the face normals summed at
+        the corners in [vertex_lo, vertex_hi) of every face that has one there, in face order: the
+        faces before the first chunk are scanned for such corners (faces sorted by their lowest
+        vertex have none there once vertex_lo is at most the first chunk's lowest vertex)."""
         chunks, face_total = starts.size, faces.shape[0]
         last = np.uint32(positions.shape[0] - 1)
-        for chunk in range(chunks):
+        lo_vertex, hi_vertex = np.uint32(vertex_lo), np.uint32(vertex_hi)
+
+        def add_normal(ia: np.uint32, ib: np.uint32, ic: np.uint32) -> None:
+            ax, ay, az = positions[ia, 0], positions[ia, 1], positions[ia, 2]
+            ux, uy, uz = positions[ib, 0] - ax, positions[ib, 1] - ay, positions[ib, 2] - az
+            vx, vy, vz = positions[ic, 0] - ax, positions[ic, 1] - ay, positions[ic, 2] - az
+            nx = np.float64(uy * vz - uz * vy)
+            ny = np.float64(uz * vx - ux * vz)
+            nz = np.float64(ux * vy - uy * vx)
+            for corner in (ia, ib, ic):
+                if lo_vertex <= corner < hi_vertex:
+                    summed[corner, 0] += nx
+                    summed[corner, 1] += ny
+                    summed[corner, 2] += nz
+
+        if normals and 0 < first_chunk < chunks and vertex_lo < vertex_hi:
+            for face in range(starts[first_chunk]):
+                ia, ib, ic = min(faces[face, 0], last), min(faces[face, 1], last), min(faces[face, 2], last)
+                if max(ia, max(ib, ic)) < lo_vertex or min(ia, min(ib, ic)) >= hi_vertex:
+                    continue
+                add_normal(ia, ib, ic)
+        for chunk in range(first_chunk, end_chunk):
             end = starts[chunk + 1] if chunk + 1 < chunks else face_total
             lo0 = lo1 = lo2 = np.float32(np.inf)
             hi0 = hi1 = hi2 = np.float32(-np.inf)
@@ -125,21 +150,13 @@ def _build(jit: Any) -> Any:
                 hi1 = max(hi1, max(ay, max(by, cy)))
                 hi2 = max(hi2, max(az, max(bz, cz)))
                 if normals:
-                    ux, uy, uz = bx - ax, by - ay, bz - az
-                    vx, vy, vz = cx - ax, cy - ay, cz - az
-                    nx = np.float64(uy * vz - uz * vy)
-                    ny = np.float64(uz * vx - ux * vz)
-                    nz = np.float64(ux * vy - uy * vx)
-                    for corner in (ia, ib, ic):
-                        summed[corner, 0] += nx
-                        summed[corner, 1] += ny
-                        summed[corner, 2] += nz
+                    add_normal(ia, ib, ic)
             boxes[chunk, 0, 0], boxes[chunk, 0, 1], boxes[chunk, 0, 2] = lo0, lo1, lo2
             boxes[chunk, 1, 0], boxes[chunk, 1, 1], boxes[chunk, 1, 2] = hi0, hi1, hi2
 
     @jit
-    def unit(summed: np.ndarray, out: np.ndarray) -> None:
-        for vertex in range(summed.shape[0]):
+    def unit(summed: np.ndarray, first: int, end: int, out: np.ndarray) -> None:
+        for vertex in range(first, end):
             x, y, z = summed[vertex, 0], summed[vertex, 1], summed[vertex, 2]
             length = np.sqrt(x * x + y * y + z * z)
             inverse = 1.0 / length if length > 0.0 else 0.0
@@ -148,19 +165,20 @@ def _build(jit: Any) -> Any:
             out[vertex, 2] = z * inverse
 
     @jit
-    def radix_pass(keys: np.ndarray, out: np.ndarray, shift: int, bits: int) -> None:
-        buckets = 1 << bits
-        mask = np.uint64(buckets - 1)
+    def radix_counts(keys: np.ndarray, first: int, end: int, shift: int, bits: int, counts: np.ndarray) -> None:
+        """How many of keys [first, end) fall in each bucket of bits [shift, shift + bits), into ``counts``."""
+        mask = np.uint64((1 << bits) - 1)
         shift64 = np.uint64(shift)
-        slots = np.zeros(buckets, np.int64)
-        for i in range(keys.size):
-            slots[(keys[i] >> shift64) & mask] += 1
-        total = 0
-        for bucket in range(buckets):
-            count = slots[bucket]
-            slots[bucket] = total
-            total += count
-        for i in range(keys.size):
+        for i in range(first, end):
+            counts[(keys[i] >> shift64) & mask] += 1
+
+    @jit
+    def radix_scatter(keys: np.ndarray, first: int, end: int, shift: int, bits: int, slots: np.ndarray,
+                      out: np.ndarray) -> None:
+        """Keys [first, end) into ``out`` at their bucket's next slot (``slots``, advanced)."""
+        mask = np.uint64((1 << bits) - 1)
+        shift64 = np.uint64(shift)
+        for i in range(first, end):
             key = keys[i]
             bucket = (key >> shift64) & mask
             out[slots[bucket]] = key
@@ -275,7 +293,7 @@ def _build(jit: Any) -> Any:
     kernels: Any = Kernels()
     kernels.lowest_counts, kernels.scatter, kernels.sweep, kernels.unit = lowest_counts, scatter, sweep, unit
     kernels.slot_starts = slot_starts
-    kernels.radix_pass, kernels.face_records = radix_pass, face_records
+    kernels.radix_counts, kernels.radix_scatter, kernels.face_records = radix_counts, radix_scatter, face_records
     kernels.morton_keys, kernels.unpack_keys, kernels.octree_cells = morton_keys, unpack_keys, octree_cells
     kernels.point_keys = point_keys
     return kernels
@@ -435,24 +453,44 @@ def face_pass(positions: np.ndarray, faces: np.ndarray, starts: np.ndarray,
     faces = np.ascontiguousarray(faces, np.uint32)
     starts = np.ascontiguousarray(starts, np.int64)
     boxes = np.empty((starts.size, 2, 3), np.float32)
-    summed = np.zeros((len(positions) if normals else 0, 3), np.float64)
-    kernels.sweep(positions, faces, starts, boxes, summed, normals)
+    vertex_total = len(positions)
+    summed = np.zeros((vertex_total if normals else 0, 3), np.float64)
+    # Two parts of the chunks, each part's thread summing the normals of its own vertices (those
+    # below the second part's lowest vertex, and the rest), in face order: the same sums, bit for bit.
+    middle = int(np.searchsorted(starts, faces.shape[0] // 2))
+    parts = [(0, starts.size, 0, vertex_total)]
+    if 0 < middle < starts.size and starts[middle] < faces.shape[0]:
+        split = min(int(faces[starts[middle]:].min()), vertex_total - 1)
+        parts = [(0, middle, 0, split), (middle, starts.size, split, vertex_total)]
+    _on_threads([lambda part=part: kernels.sweep(positions, faces, starts, *part, boxes, summed, normals)
+                 for part in parts])
     if not normals:
         return boxes, None
-    unit = np.empty((len(positions), 3), np.float32)
-    kernels.unit(summed, unit)
+    unit = np.empty((vertex_total, 3), np.float32)
+    half = vertex_total // 2
+    _on_threads([lambda first=first, end=end: kernels.unit(summed, first, end, unit)
+                 for first, end in ((0, half), (half, vertex_total))])
     return boxes, unit
 
 
 def radix_sort(keys: np.ndarray, shift: int, bits: int) -> np.ndarray:
     """``keys`` (N,) uint64 sorted (stably) by their bits [shift, shift + bits), in passes of at most
-    12 bits (4096 buckets, each pass's writes stay in cache); the sorted array (``keys`` reused as
-    scratch). Equal to ``numpy.sort`` when the bits below ``shift`` already ascend."""
+    12 bits (4096 buckets, each pass's writes stay in cache), each pass on two threads (the second
+    half's keys of a bucket after the first half's); the sorted array (``keys`` reused as scratch).
+    Equal to ``numpy.sort`` when the bits below ``shift`` already ascend."""
     kernels = _compiled()
     passes = max(1, -(-bits // 12))
     step = -(-bits // passes)
     source, target = keys, np.empty_like(keys)
+    halves = ((0, keys.size // 2), (keys.size // 2, keys.size))
     for first in range(shift, shift + bits, step):
-        kernels.radix_pass(source, target, first, min(step, shift + bits - first))
+        width = min(step, shift + bits - first)
+        counts = np.zeros((2, 1 << width), np.int64)
+        _on_threads([lambda part=part, count=count, source=source, first=first, width=width: kernels.radix_counts(
+            source, *part, first, width, count) for part, count in zip(halves, counts, strict=True)])
+        slots = np.cumsum(counts.T.reshape(-1)).reshape(-1, 2).T - counts   # bucket by bucket, first half first
+        _on_threads([lambda part=part, slot=slot, source=source, target=target, first=first, width=width:
+                     kernels.radix_scatter(source, *part, first, width, slot, target)
+                     for part, slot in zip(halves, slots.copy(), strict=True)])
         source, target = target, source
     return source
