@@ -10,6 +10,7 @@ primitives under its node as extra graph nodes of random names; their geometry b
 
 from __future__ import annotations
 
+import mmap
 from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
@@ -30,8 +31,13 @@ GLTF_SUFFIXES = (".gltf", ".glb")
 def read_gltf(path: Path) -> GltfDocument:
     """The glTF document at ``path`` with its buffers (external ones read beside it); raises
     SceneError. Buffers are read only when the file has animations or vertex attributes trimesh
-    drops (:func:`node.scene.gltf_vertices.needs_vertex_extras`): nothing else here needs them."""
-    data = path.read_bytes()
+    drops (:func:`node.scene.gltf_vertices.needs_vertex_extras`): nothing else here needs them.
+    A GLB is mapped, not read: its BIN chunk's pages are read only where an accessor is."""
+    try:
+        with path.open("rb") as file:
+            data: bytes | mmap.mmap = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
+    except ValueError:   # an empty file cannot be mapped
+        data = b""
 
     def read_uri(uri: str) -> bytes:
         try:

@@ -3,7 +3,9 @@ accessors, including sparse accessors; §4.4 the GLB container), for the parts t
 hand over: the node hierarchy and the animations (:mod:`tessera.scene.animation`).
 
 Sans-I/O: :func:`read_document` takes the file's bytes and a ``read_uri(uri) -> bytes`` callback
-for external buffers (``data:`` URIs are decoded here); it never opens a file itself.
+for external buffers (``data:`` URIs are decoded here); it never opens a file itself. Given a GLB
+as a memory map (or any buffer but ``bytes``), its BIN chunk is a view of it, not a copy: a big
+model's buffer is read only where an accessor is.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import mmap
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -38,7 +41,7 @@ class GltfDocument:
     """A glTF file's JSON and its buffers' bytes (``buffers[i]`` for ``json["buffers"][i]``)."""
 
     json: dict[str, Any]
-    buffers: tuple[bytes, ...]
+    buffers: tuple[bytes | memoryview, ...]
 
     def accessor(self, index: object) -> np.ndarray:
         """Accessor ``index`` as a (count, components) array: float64 for float and normalised
@@ -114,8 +117,9 @@ class GltfDocument:
         return values
 
 
-def read_glb(data: bytes) -> tuple[dict[str, Any], bytes | None]:
-    """The JSON chunk and the BIN chunk (None if absent) of a GLB file's bytes (§4.4)."""
+def read_glb(data: bytes | mmap.mmap) -> tuple[dict[str, Any], bytes | memoryview | None]:
+    """The JSON chunk and the BIN chunk (None if absent) of a GLB file's bytes (§4.4): a slice of
+    ``bytes``, else a view of ``data`` (no copy)."""
     if len(data) < 20 or data[:4] != GLB_MAGIC:
         raise GltfError("not a GLB file (no glTF magic)")
     version, length = struct.unpack_from("<II", data, 4)
@@ -123,18 +127,21 @@ def read_glb(data: bytes) -> tuple[dict[str, Any], bytes | None]:
         raise GltfError(f"GLB version {version}; only 2 is supported")
     if length > len(data):
         raise GltfError(f"GLB is truncated: {len(data)} of {length} bytes")
-    chunks: list[tuple[int, bytes]] = []
+    chunks: list[tuple[int, int, int]] = []   # (kind, first byte, end byte)
     offset = 12
     while offset + 8 <= length:
         size, kind = struct.unpack_from("<II", data, offset)
         if offset + 8 + size > length:
             raise GltfError("GLB chunk runs past the end of the file")
-        chunks.append((kind, data[offset + 8: offset + 8 + size]))
+        chunks.append((kind, offset + 8, offset + 8 + size))
         offset += 8 + size + (-size % 4)
     if not chunks or chunks[0][0] != GLB_JSON:
         raise GltfError("GLB does not start with a JSON chunk")
-    binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == GLB_BIN else None
-    return parse_json(chunks[0][1]), binary
+    binary: bytes | memoryview | None = None
+    if len(chunks) > 1 and chunks[1][0] == GLB_BIN:
+        first, end = chunks[1][1], chunks[1][2]
+        binary = data[first:end] if isinstance(data, bytes) else memoryview(data)[first:end]
+    return parse_json(bytes(data[chunks[0][1]:chunks[0][2]])), binary
 
 
 def parse_json(data: bytes) -> dict[str, Any]:
@@ -148,15 +155,15 @@ def parse_json(data: bytes) -> dict[str, Any]:
     return document
 
 
-def read_document(data: bytes, read_uri: Callable[[str], bytes]) -> GltfDocument:
+def read_document(data: bytes | mmap.mmap, read_uri: Callable[[str], bytes]) -> GltfDocument:
     """A .gltf (JSON) or .glb file's bytes, with every buffer loaded: the GLB's own BIN chunk,
     ``data:`` URIs decoded, other URIs through ``read_uri`` (relative to the file; its errors
     propagate)."""
     if data[:4] == GLB_MAGIC:
         document, binary = read_glb(data)
     else:
-        document, binary = parse_json(data), None
-    buffers: list[bytes] = []
+        document, binary = parse_json(bytes(data)), None
+    buffers: list[bytes | memoryview] = []
     specs: Sequence[Any] = document.get("buffers", [])
     for number, spec in enumerate(specs):
         uri = spec.get("uri") if isinstance(spec, dict) else None
