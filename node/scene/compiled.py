@@ -15,7 +15,9 @@ every mesh where numba is missing, take the numpy passes (:mod:`node.scene.octre
   4-byte indices each), three bytes-to-index loads where numpy copies unaligned strided fields;
 - :func:`face_pass`: each chunk's box and the smooth vertex normals in one pass: a face's normal is
   the cross product of two edges in float32 (twice its area), summed at its corners in float64 (as
-  the numpy pass does), so a vertex's normal does not depend on the order of its faces.
+  the numpy pass does), so a vertex's normal does not depend on the order of its faces. Two threads
+  each take half the chunks and sum at their own vertices only (the second half's lowest vertex
+  divides them), each vertex's faces still in order.
 
 The functions are compiled on first use and kept by numba (``cache=True``: next to this file, or in
 the user's cache folder when this one is read-only); a process loads them in tens of milliseconds.
