@@ -33,8 +33,10 @@ tile see the same cost. ``--noise-check`` (on by default) re-times the equal spl
 end and reports how much a frame's max/mean moved. Busy time = render + read-back + encode
 (``tessera.wire.codec.encode``, JPEG q85 by default, as the nodes do); send time is not modelled (no
 network). Culling is per tile on the CPU by default (the hybrid CPU/GPU switch keeps per-slot
-history, which memoized tile times cannot honour). For figures, run it as its own process: in a
-process that already made a GL context the ``LP_NUM_THREADS`` it sets may not take effect.
+history, which memoized tile times cannot honour). ``--param NAME=VALUE`` sets a parameter of each
+chosen balancer that has it (``--param tiles_per_node=4``: rotate's and rotate-predict's tiles a
+node). For figures, run it as its own process: in a process that already made a GL context the
+``LP_NUM_THREADS`` it sets may not take effect.
 
 An animated scene (issue 11) plays along the path with ``--time-per-frame S``: camera i is drawn in
 the scene's state at ``--start-time`` + i·S seconds (its animations sampled there; memoized with
@@ -110,6 +112,21 @@ def parse_size(text: str) -> tuple[int, int]:
     if width < 1 or height < 1:
         raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
     return width, height
+
+
+def parse_param(text: str) -> tuple[str, float | int | bool]:
+    """``NAME=VALUE`` (``--param``) → (name, value): ``true``/``false`` a bool, a whole number an int,
+    else a float (the balancer coerces it to its parameter's type)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    lowered = value.strip().lower()
+    if lowered in ("true", "false"):
+        return name.strip(), lowered == "true"
+    try:
+        return name.strip(), int(lowered) if lowered.lstrip("+-").isdigit() else float(lowered)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name.strip()}: expected a number, true or false, got {value!r}") from None
 
 
 def parse_speeds(text: str) -> list[float]:
@@ -257,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--time-per-frame", type=float, metavar="S",
                         help="play the scene's animation along the path: camera i at --start-time + i*S s")
     parser.add_argument("--start-time", type=float, default=0.0, metavar="T", help="scene time of camera 0 (s)")
+    parser.add_argument("--param", type=parse_param, action="append", default=[], metavar="NAME=VALUE",
+                        help="a balancer parameter (repeatable), given to each chosen balancer that has it: "
+                             "--param tiles_per_node=4")
     parser.add_argument("--json", type=Path, help="write the figures here")
     parser.add_argument("--trace", type=Path,
                         help="write every frame here, a JSON line each: per node when it began and ended its tiles "
@@ -283,6 +303,11 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> lis
         args.in_flight = DEFAULT_IN_FLIGHT if args.lag is None else args.lag + 1
     if args.in_flight < 1:
         parser.error("--in-flight must be >= 1")
+    given = dict(args.param)
+    unused = sorted(set(given) - {key for name in names for key in BALANCERS[name].defaults})
+    if unused:
+        parser.error(f"no balancer of {', '.join(names)} takes {', '.join(unused)}")
+    args.balancer_params = {name: {k: v for k, v in given.items() if k in BALANCERS[name].defaults} for name in names}
     return names
 
 
@@ -419,7 +444,8 @@ def main(argv: list[str] | None = None) -> int:
     traces: list[dict[str, object]] = []
     for name in names:
         balancer_started, renders_before = time.perf_counter(), timer.renders
-        records, cluster = run_path(create_balancer(name), timer, cameras, size, slowdowns, weights, args.in_flight,
+        balancer = create_balancer(name, args.balancer_params[name])
+        records, cluster = run_path(balancer, timer, cameras, size, slowdowns, weights, args.in_flight,
                                     groups.__getitem__, pace_fps(args.pace, dt_ms))
         summary = summarize(records, args.skip)
         t1_ms = single_node_ms(timer, [r.camera for r in records[args.skip:]])
@@ -461,6 +487,7 @@ def main(argv: list[str] | None = None) -> int:
                 "tolerance": TOLERANCE, "lp_num_threads": args.lp_threads,
                 "clock": args.clock, "culling": args.culling, "codec": args.codec.name.lower(),
                 "jpeg_quality": args.jpeg_quality, "renderer": renderer_name, "noise": noise,
+                "balancer_params": args.balancer_params,
                 "time_per_frame": args.time_per_frame, "start_time": args.start_time,
                 "renders": timer.renders, "seconds": round(total_s, 1), "python": platform.python_version(),
                 "argv": sys.argv[1:] if argv is None else list(argv)}

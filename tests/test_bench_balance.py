@@ -369,6 +369,22 @@ def test_in_flight_and_lag_are_checked(argv: list[str]) -> None:
         check_args(parser, parser.parse_args(["--scene", "builtin:spheres", "--path", "p.json", *argv]))
 
 
+def test_a_param_goes_to_each_chosen_balancer_that_has_it() -> None:
+    parser = build_parser()
+    args = parser.parse_args(["--scene", "builtin:spheres", "--path", "p.json", "--balancers",
+                              "rotate,rotate-predict,static", "--param", "tiles_per_node=4", "--param", "history=6",
+                              "--param", "follow=false"])
+    check_args(parser, args)
+    assert args.balancer_params == {"rotate": {"tiles_per_node": 4},
+                                    "rotate-predict": {"tiles_per_node": 4, "history": 6, "follow": False},
+                                    "static": {}}
+    assert create_balancer("rotate-predict", args.balancer_params["rotate-predict"]).params["tiles_per_node"] == 4
+    for argv in (["--param", "history=6"], ["--param", "tiles_per_node"], ["--param", "tiles_per_node=four"]):
+        with pytest.raises(SystemExit):   # no chosen balancer takes it; no value; not a number
+            check_args(parser, parser.parse_args(["--scene", "builtin:spheres", "--path", "p.json",
+                                                  "--balancers", "rotate", *argv]))
+
+
 def test_pace() -> None:
     assert pace_fps("path", 40.0) == 25.0 and pace_fps("free", 40.0) == math.inf
 
