@@ -67,14 +67,14 @@ def test_without_levels_of_detail_there_is_no_bound():
     assert control.bound is None and control.bound_px == 0.0
 
 
-def test_the_default_ceiling_is_the_bound_measured_to_hold_38_db_one_step_above_the_floor():
-    """Issue 32: at 0.75 px the moving frame stays 38 dB from full detail (same AA) at every camera of
-    bench.lod_cameras on the big models; at 1.5 px (the ceiling before) 35.3 dB. Frames far too slow
-    take the default floor to 0.75 px in one step and no further (before: 1.125, then 1.5 px)."""
+def test_frames_far_too_slow_take_the_default_floor_to_the_ceiling_in_two_steps_and_no_further():
+    """Issue 32: the bound rises two steps a frame while frames take over three times the target
+    interval, from the default floor (0.5 px) to the default ceiling (1.5 px) and stops there."""
     control = LodControl(DEFAULT_LOD_ERROR_PX, DEFAULT_LOD_MAX_ERROR_PX, DEFAULT_TARGET_FPS)
-    assert control.bound_px == 0.5
+    assert control.bound_px == DEFAULT_LOD_ERROR_PX
     bounds = []
-    for _ in range(3):
+    for _ in range(4):
         control.frame_done(10.0)
         bounds.append(control.bound_px)
-    assert bounds == [0.75, 0.75, 0.75]
+    assert bounds[-1] == bounds[-2] == DEFAULT_LOD_MAX_ERROR_PX
+    assert bounds[0] == pytest.approx(DEFAULT_LOD_ERROR_PX * STEP * STEP)
