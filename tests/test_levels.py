@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from node.culling.lod import LodCut, back_faces_hidden, lod_cut, projected_errors, subtract_ranges
 from node.culling.switch import CullMode, SwitchParams
-from node.gl.renderer import TileRenderer
+from node.gl.renderer import TileRenderer, backless_batches
 from node.scene.data import SceneData
 from node.scene.loading import load_scene
 from node.scene.lod import PART_FACES, LodTree, _weld, build_lod, closed_surface, group_levels
@@ -434,3 +434,58 @@ def test_back_faces_are_hidden_only_from_outside_a_solid_clear_of_the_near_plane
                       [[-1.0, -1.0, -5.0], [1.0, 1.0, -3.0]]])     # ahead, but not closed
     closed = np.array([True, True, True, True, False])
     assert back_faces_hidden(closed, boxes, camera, size, near).tolist() == [True, True, False, False, False]
+
+
+@pytest.mark.gl
+def test_a_sort_last_share_of_a_closed_solid_is_drawn_without_back_faces(ctx, tmp_path):
+    """A share of the closed dragon is open by itself, but its levels mark its batch closed as the
+    whole dragon's (its back faces lie behind the front faces the other shares draw); moving layers
+    leave them out (a layer alone shows less), and the layers merged by depth differ from those drawn
+    with them in a few silhouette samples at most."""
+    from node.scene.cache_folder import CacheFolder
+    from node.scene.ingest import cached_levels, cached_scene, open_entry
+    from node.scene.lod import read_lod
+    from tessera.wire.messages import ShareSpec
+
+    def no_progress(fraction: float, message: str) -> None:
+        pass
+
+    folder, path, weights = CacheFolder(tmp_path), scene_path(DRAGON), (1.0, 1.0, 1.0)
+    whole = build_lod(open_entry(cached_scene(path, 192, None, folder, no_progress), "dragon"), no_progress)
+    assert whole.batch_closed.tolist() == [True]
+    size = (320, 180)
+    cameras = [default_camera(whole_bounds := load_scene(str(path)).bounds, aspect=size[0] / size[1]),
+               *random_cameras(whole_bounds, 2, seed=4)]
+    merged: dict[bool, list[tuple[np.ndarray, np.ndarray]]] = {True: [], False: []}
+    alone: dict[bool, list[np.ndarray]] = {True: [], False: []}
+    for index in range(len(weights)):
+        entry = cached_scene(path, 192, ShareSpec(version=1, index=index, weights=weights), folder, no_progress)
+        share, levels = open_entry(entry, "dragon"), cached_levels(entry, folder, no_progress)
+        assert levels is not None
+        tree = read_lod(levels)
+        assert not closed_surface(share.batches[0].faces, _weld(share.batches[0].positions)[0],
+                                  share.batches[0].positions), "a share alone is open"
+        assert tree.batch_closed.tolist() == [True], "marked closed as the whole dragon is"
+        renderer = TileRenderer(ctx, share)
+        for closed in (True, False):
+            renderer.attach_lod(dataclasses.replace(tree, batch_closed=np.array([closed])))
+            hidden = backless_batches(renderer, cameras[0], size, share.bounds, 1.0, whole=True)
+            assert (hidden is not None and hidden.tolist() == [True]) == closed
+            for number, camera in enumerate(cameras):
+                layer = renderer.render_layer(camera, size, Rect(0, 0, *size), lod_error_px=1.0)
+                assert layer.depth is not None
+                alone[closed].append(layer.pixels)
+                if index == 0:
+                    merged[closed].append((layer.pixels, layer.depth))
+                    continue
+                pixels, depth = merged[closed][number]
+                nearer = layer.depth < depth
+                merged[closed][number] = (np.where(nearer[..., None], layer.pixels, pixels),
+                                          np.where(nearer, layer.depth, depth))
+        renderer.release()
+    for (culled, _), (drawn, _) in zip(merged[True], merged[False], strict=True):
+        assert np.any(drawn != [0, 0, 0], axis=2).mean() > 0.05, "the dragon is in the frame"
+        assert np.any(culled != drawn, axis=2).mean() < 1e-3
+    # A share's layer alone shows the back faces of the far side of its cut, where another share
+    # draws the front: left out, the layers alone differ.
+    assert max(np.any(a != b, axis=2).mean() for a, b in zip(alone[True], alone[False], strict=True)) > 0.01

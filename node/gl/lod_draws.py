@@ -60,14 +60,20 @@ class LodDraws:
         self.solids = (tree.batch_closed & opaque & (np.diff(chunks.batch_bounds) > 0), boxes)
 
     def back_culled(self, camera: Camera, size: tuple[int, int], bounds: np.ndarray,
-                    error_px: float) -> np.ndarray | None:
+                    error_px: float, whole: bool = False) -> np.ndarray | None:
         """(B,) bool the batches a ``size`` frame at ``error_px`` (0: full detail) of a scene within
-        ``bounds`` draws without back faces (None: none), nothing clipped away: a moving frame's closed
-        solids seen from outside (:func:`node.culling.lod.back_faces_hidden`; llvmpipe spends about
-        0.3 of a frame's CPU on the back half of a closed scan)."""
-        if error_px <= 0.0 or not self.solids[0].any():
+        ``bounds`` (2, 3) draws without back faces (None: none), nothing clipped away: a moving frame's
+        closed solids seen from outside (:func:`node.culling.lod.back_faces_hidden`; llvmpipe spends
+        about 0.3 of a frame's CPU on the back half of a closed scan). ``whole``: the scene is a part
+        of one within ``bounds`` (a sort-last share, whose batches are marked closed as the whole
+        scene's: :func:`node.scene.ingest.whole_batches_closed`), whose batches' boxes it does not
+        know: each solid is taken to fill ``bounds``."""
+        closed, boxes = self.solids
+        if error_px <= 0.0 or not closed.any():
             return None
-        return back_faces_hidden(*self.solids, camera, size, near_far_from_bounds(camera, bounds)[0])
+        if whole:
+            boxes = np.broadcast_to(np.asarray(bounds, np.float32), boxes.shape)
+        return back_faces_hidden(closed, boxes, camera, size, near_far_from_bounds(camera, bounds)[0])
 
     def cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame

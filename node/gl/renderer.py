@@ -309,8 +309,7 @@ class TileRenderer:
         coarse = self._coarse(cut, matrix, size, drawn, pose)
         # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
         target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
-        backless = None if self.lod is None or self.culler.clip is not None or self.view.discards else \
-            self.lod.back_culled(camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
+        backless = backless_batches(self, camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
         tile = self._render(camera, target_size, target, matrix, culled, started, False, pose, moved=moved,
                             lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples, backless=backless)
         if not resolved:
@@ -385,7 +384,7 @@ class TileRenderer:
         frame, whole = size, rect
         size, rect = windowed(size, rect, window)
         pose, matrix, moved = self._posed(camera, frame, rect, state, subsample, window)
-        cut = self.level_cut(camera, frame, lod_error_px if subsample is None else 0.0)
+        cut = self.level_cut(camera, frame, error_px := lod_error_px if subsample is None else 0.0)
         if chunk_ids is None:
             culled = self.culler.cull(tuple(whole.as_list()) if slot is None else slot, matrix, size, rect, cut)
         else:
@@ -393,7 +392,8 @@ class TileRenderer:
         tile = self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None,
                             lod_bias=0.0 if subsample is None else subsample.lod_bias,
-                            coarse=self._coarse(cut, matrix, size, rect, pose))
+                            coarse=self._coarse(cut, matrix, size, rect, pose),
+                            backless=backless_batches(self, camera, frame, pose.bounds, error_px, whole=True))
         return tile if window is None else dataclasses.replace(tile, rect=whole)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
@@ -645,3 +645,12 @@ class TileRenderer:
         for resource in (self.index_buffer, self.vertex_buffer):
             resource.release()
 
+
+def backless_batches(renderer: TileRenderer, camera: Camera, frame: tuple[int, int], bounds: np.ndarray,
+                     error_px: float, whole: bool = False) -> np.ndarray | None:
+    """The batches ``renderer`` draws without back faces in a ``frame`` at ``error_px``
+    (:meth:`node.gl.lod_draws.LodDraws.back_culled`; None: none, as without levels, or with clip
+    planes or discards)."""
+    if renderer.lod is None or renderer.culler.clip is not None or renderer.view.discards:
+        return None
+    return renderer.lod.back_culled(camera, frame, bounds, error_px, whole)

@@ -24,7 +24,9 @@ from node.scene.cache import (
     Progress,
     open_entry,
     read_arrays,
+    read_table,
     remove_entry,
+    share_chunks,
     write_arrays,
     write_entry,
     write_share,
@@ -32,7 +34,17 @@ from node.scene.cache import (
 from node.scene.cache_folder import REBUILDS, CacheFolder, checked_entry, entry_name, share_name
 from node.scene.data import SceneData
 from node.scene.loading import BUILTIN_PREFIX, SUPPORTED_SUFFIXES, load_scene
-from node.scene.lod import LOD_FORMAT, GroupLevels, LodTree, build_lod, group_levels, lod_name, read_lod, write_lod
+from node.scene.lod import (
+    LOD_FORMAT,
+    GroupLevels,
+    LodTree,
+    build_lod,
+    closed_batches,
+    group_levels,
+    lod_name,
+    read_lod,
+    write_lod,
+)
 from node.scene.mesh import SceneError
 from node.scene.packing import pack
 from node.scene.point_cache import cached_points, is_points_entry, keep_point_share, load_points, open_points_entry
@@ -44,6 +56,8 @@ from tessera.wire.messages import ShareSpec
 #: The format of the primitive groups' levels kept beside a levels entry (:func:`kept_group_levels`):
 #: raise it when :func:`node.scene.lod.group_levels` changes what it gives.
 GROUP_LEVELS_FORMAT = 1
+#: The format of the entry keeping a whole scene's batches' closedness (:func:`whole_batches_closed`).
+CLOSED_FORMAT = 1
 
 
 def build_entry(source: Path, face_limit: int, sha256: str, progress: Progress,
@@ -138,13 +152,21 @@ def open_cached(read: SceneData | PointCloud | Path, spec: str) -> SceneData | P
 
 def cached_levels(entry: Path, folder: CacheFolder, progress: Progress) -> Path | None:
     """The checked levels-of-detail entry of the scene cache entry ``entry`` in ``folder``, built
-    first if need be (:mod:`node.scene.lod`); None when the scene has no batch big enough for levels."""
+    first if need be (:mod:`node.scene.lod`); None when the scene has no batch big enough for levels.
+    The levels of a sort-last share mark its batches closed as the whole scene's are
+    (:func:`whole_batches_closed`)."""
     def build(directory: Path) -> int:
         try:
             scene = open_entry(entry, entry.name, verify=False)
+            share = read_table(entry).get("share")
         except CacheError as exc:
             raise SceneError(f"{entry.name}: {exc}") from None
-        return write_lod(directory, build_lod(scene, progress))
+        tree = build_lod(scene, progress)
+        if share is not None and tree.node_count:
+            closed = whole_batches_closed(folder, entry.name, int(share["index"]), tuple(share["weights"]))
+            if closed is not None and closed.size == tree.batch_closed.size:
+                tree = dataclasses.replace(tree, batch_closed=closed)
+        return write_lod(directory, tree)
 
     for attempt in range(REBUILDS + 1):
         levels = folder.ensure(lod_name(entry.name), build, progress, LOD_FORMAT)
@@ -157,6 +179,30 @@ def cached_levels(entry: Path, folder: CacheFolder, progress: Progress) -> Path 
             continue
         return levels if tree.node_count else None
     raise AssertionError("unreachable")
+
+
+def whole_batches_closed(folder: CacheFolder, share_entry: str, index: int,
+                         weights: tuple[float, ...]) -> np.ndarray | None:
+    """(B,) bool for the B batches of the entry ``share_entry`` (share ``index`` over ``weights``):
+    whether the whole scene's batch each comes from bounds solids facing outwards
+    (:func:`node.scene.lod.closed_batches`, worked out once and kept beside the whole scene's entry);
+    None when the folder no longer holds that entry. A share of a closed solid is not closed by
+    itself, but its back faces lie behind the solid's front faces all the same, which the other
+    shares draw where this one does not: the layers merged by depth are the same without them."""
+    whole_name = share_entry.removesuffix(share_name("", weights, index))
+    found = folder.existing(whole_name) if whole_name != share_entry else None
+    if found is None:
+        return None
+    try:
+        whole = open_entry(found, whole_name, verify=False)
+        kept = folder.ensure(f"{whole_name}-closed{CLOSED_FORMAT}", lambda directory: write_arrays(
+            directory, {"closed": closed_batches(whole)}, {"format": CLOSED_FORMAT}), lambda fraction, message: None,
+            CLOSED_FORMAT)
+        closed = np.array(read_arrays(kept, True, CLOSED_FORMAT)[1]["closed"], bool)
+    except (CacheError, KeyError):
+        return None
+    present = np.unique(whole.chunks.batch[share_chunks(whole, weights, index)])
+    return closed[present] if closed.size == len(whole.batches) else None
 
 
 def group_levels_name(levels: str) -> str:

@@ -85,7 +85,7 @@ BYTES_PER_TRIANGLE = 8
 #: coarse levels with the fine level's noisy vertex normals: shading, not outlines, cost the PSNR.
 NORMAL_WEIGHT = 0.5
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 6
+LOD_FORMAT = 7
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 #: Corners whose clusters' adjacency is found at a time.
 BLOCK_CORNERS = 1 << 23
@@ -174,13 +174,20 @@ def _leaves(face_counts: np.ndarray, first: int, end: int) -> np.ndarray:
     return np.unique(np.concatenate(([0], cuts, [end - first]))) + first
 
 
+def _position_keys(positions: np.ndarray) -> np.ndarray:
+    """(V,) uint64 a hash of each of ``positions`` (V, 3) float32 bits: equal positions, equal keys."""
+    keys = np.empty(len(positions), np.uint64)
+    for first in range(0, len(positions), BLOCK_FACES):
+        bits = np.ascontiguousarray(positions[first:first + BLOCK_FACES], np.float32).view(np.uint32).astype(np.uint64)
+        keys[first:first + BLOCK_FACES] = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) \
+            ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ (bits[:, 2] * np.uint64(0x165667B19E3779F9))
+    return keys
+
+
 def _weld(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(weld (V,) int64 the id of each vertex's position, first (W,) int64 the first vertex at each):
     a scan split at texture or normal seams has borders everywhere, which would all be locked."""
-    bits = np.ascontiguousarray(positions, np.float32).view(np.uint32).astype(np.uint64)
-    key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
-        ^ (bits[:, 2] * np.uint64(0x165667B19E3779F9))
-    _, first, weld = np.unique(key, return_index=True, return_inverse=True)
+    _, first, weld = np.unique(_position_keys(positions), return_index=True, return_inverse=True)
     if not np.array_equal(positions[first[weld.reshape(-1)]], positions):   # a hash collision: exact
         rows = np.ascontiguousarray(positions, np.float32).view(np.dtype((np.void, 12))).reshape(-1)
         _, first, weld = np.unique(rows, return_index=True, return_inverse=True)
@@ -189,22 +196,36 @@ def _weld(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def closed_surface(faces: np.ndarray, weld: np.ndarray, positions: np.ndarray) -> bool:
     """Whether ``faces`` (F, 3) over ``positions`` (V, 3) bound solids facing outwards (counter-clockwise
-    seen from outside): with positions welded (``weld`` (V,) each vertex's position id), every edge is
-    met as often from a to b as from b to a, and the signed volume is positive. An edge's signed count
-    is summed, weighted by a hash of it, into one of 2^:data:`EDGE_BITS` buckets (exact integers in float64):
-    an unmatched edge leaves its bucket non-zero (another cancelling it exactly is a 1 in 2²⁰ chance)."""
+    seen from outside): with positions welded (``weld`` (V,) integers, equal for the vertices at one
+    position: :func:`_weld`'s ids or :func:`_position_keys`), every edge is met as often from a to b
+    as from b to a, and the signed volume is positive. An edge's signed count is summed, weighted by a
+    hash of it, into one of 2^:data:`EDGE_BITS` buckets (exact integers in float64): an unmatched edge
+    leaves its bucket non-zero (another cancelling it exactly is a 1 in 2²⁰ chance)."""
     sums = np.zeros(1 << EDGE_BITS)
     volume = 0.0
     for first in range(0, len(faces), BLOCK_FACES):
-        ids = weld[faces[first:first + BLOCK_FACES]].astype(np.uint64)
+        ids = np.asarray(weld)[faces[first:first + BLOCK_FACES]].astype(np.uint64)
         a, b = ids.reshape(-1), np.roll(ids, -1, axis=1).reshape(-1)
-        key = np.minimum(a, b) * np.uint64(1 << 32) + np.maximum(a, b)
+        key = (np.minimum(a, b) * np.uint64(0xD6E8FEB86659FD93)) ^ np.maximum(a, b)
         bucket = (key * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - EDGE_BITS)
         weight = ((key * np.uint64(0xC2B2AE3D27D4EB4F)) >> np.uint64(44)).astype(np.float64) + 1.0
-        sums += np.bincount(bucket.astype(np.int64), np.sign(b.astype(np.float64) - a) * weight, 1 << EDGE_BITS)
-        corners = np.asarray(positions, np.float64)[faces[first:first + BLOCK_FACES]]
+        sign = (b > a).astype(np.float64) - (b < a)
+        sums += np.bincount(bucket.astype(np.int64), sign * weight, 1 << EDGE_BITS)
+        corners = np.asarray(positions)[faces[first:first + BLOCK_FACES]].astype(np.float64)
         volume += float(np.einsum("ij,ij->", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])))
     return not sums.any() and volume > 0.0
+
+
+def closed_batches(scene: SceneData) -> np.ndarray:
+    """(B,) bool: which batches of ``scene`` bound solids facing outwards (:func:`closed_surface`, the
+    positions keyed by their hash). What a sort-last share's levels mark closed: a share of a closed
+    batch is not closed by itself (:func:`node.scene.ingest.cached_levels`)."""
+    closed = np.zeros(len(scene.batches), bool)
+    for number, batch in enumerate(scene.batches):
+        positions = np.asarray(batch.positions)
+        faces = np.asarray(batch.faces).reshape(-1, 3)
+        closed[number] = bool(len(faces)) and closed_surface(faces, _position_keys(positions), positions)
+    return closed
 
 
 def _simplify(indices: np.ndarray, limit: float, positions: np.ndarray,
