@@ -1,7 +1,7 @@
 """The moving frame's picture at levels of detail from many cameras (issue 32): where it loses PSNR.
 
 ``python -m bench.lod_cameras --scene FILE [--cache-dir DIR] [--size 1280x720] [--bounds 1,1.5]
-[--orbit 8] [--near 4] [--quality 60] [--still-samples 0] [--json OUT]``
+[--orbit 8] [--near 4] [--quality 60] [--still-samples 0] [--classes] [--json OUT]``
 
 The scene and its levels come from the scene cache as a node reads them (built there first if need
 be: a big model's levels take minutes). In one process, a :class:`node.gl.renderer.TileRenderer`
@@ -19,8 +19,12 @@ pixels); the rest is the inside of the model, its shading. With ``--still-sample
 are compared with the converged picture too, the still of N jittered samples at full detail
 (:meth:`node.gl.renderer.TileRenderer.render_still`): ``full_still_db`` and, per bound, ``still_db``
 (the full-detail moving frame is aliased where triangles are smaller than pixels: how much of the
-levels' difference is picture lost, not aliasing changed). The last lines give the worst camera
-of each figure and how many cameras keep :data:`GOAL_DB` (``worst`` in the JSON).
+levels' difference is picture lost, not aliasing changed). With ``--classes``, per bound ``classes``:
+the levels' squared error by the kind of pixel it lies on (outline, depth step inside the model,
+surface grazing, oblique or facing the eye: :mod:`bench.error_classes`, from the full-detail
+frame's depth), the PSNR over the model's pixels alone and their mean signed difference. The last
+lines give the worst camera of each figure and how many cameras keep :data:`GOAL_DB` (``worst`` in
+the JSON).
 """
 
 from __future__ import annotations
@@ -30,13 +34,14 @@ import io
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PIL import Image
 
+from bench.error_classes import CLASSES, classify, dilate, error_shares
 from bench.images import psnr
 from bench.paths import orbit_around
 from node.gl.context import create_gl_context
@@ -48,7 +53,7 @@ from node.scene.ingest import cached_levels, open_cached, read_scene
 from node.scene.lod import read_lod
 from node.scene.octree import DEFAULT_FACE_LIMIT
 from tessera.cli_values import size_parser
-from tessera.geometry import Camera, default_camera
+from tessera.geometry import Camera, Rect, default_camera, near_far_from_bounds
 from tessera.scheduling.config import SchedulerConfig
 from tessera.wire.codec import Codec, encode
 
@@ -86,13 +91,19 @@ def silhouette(pixels: np.ndarray, background: np.ndarray) -> np.ndarray:
     """(h, w) bool the pixels of the model (not ``background`` (3,) uint8) within one pixel (3 × 3)
     of a background pixel."""
     empty = np.all(pixels == background, axis=2)
-    padded = np.pad(empty, 1)
-    h, w = pixels.shape[:2]
-    near = np.zeros((h, w), bool)
-    for dy in range(3):
-        for dx in range(3):
-            near |= padded[dy:dy + h, dx:dx + w]
-    return near & ~empty
+    return dilate(empty, 1) & ~empty
+
+
+def pixel_classes(renderer: TileRenderer, camera: Camera, size: tuple[int, int], full: np.ndarray,
+                  background: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """For the full-detail frame ``full`` (h, w, 3) uint8 of ``camera``: the class of each pixel
+    (:func:`bench.error_classes.classify`) against another frame's pixels, from the depth of a
+    full-detail layer (one sample a pixel)."""
+    depth = renderer.render_layer(camera, size, Rect(0, 0, *size)).depth
+    assert depth is not None
+    near, far = near_far_from_bounds(camera, renderer.pose_of(None).bounds)
+    empty = np.all(full == background, axis=2)
+    return lambda pixels: classify(depth, empty, np.all(pixels == background, axis=2), near, far, camera.fovy_deg)
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -114,6 +125,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         full_jpeg = jpeg(full, args.quality)
         row: dict[str, Any] = {"camera": name, "codec_db": round(psnr(full_jpeg, full), 2)}
         still = renderer.render_still(camera, args.size, args.still_samples) if args.still_samples else None
+        classes_of = pixel_classes(renderer, camera, args.size, full, background) if args.classes else None
         if still is not None:
             row["full_still_db"] = round(psnr(full, still), 2)
         for bound in args.bounds:
@@ -128,6 +140,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 "silhouette_px": round(float(edge.mean()), 4)}
             if still is not None:
                 row[f"{bound:g}px"]["still_db"] = round(psnr(frame.pixels, still), 2)
+            if classes_of is not None:
+                row[f"{bound:g}px"]["classes"] = error_shares(frame.pixels, full, classes_of(frame.pixels))
         rows.append(row)
         print(report_row(row), flush=True)
     renderer.release()
@@ -178,8 +192,15 @@ def report_row(row: dict[str, Any]) -> str:
                          f"after JPEG {value['moving_db']:5.1f} dB, JPEG against JPEG {value['pipeline_db']:5.1f} dB, "
                          f"silhouettes {value['silhouette_share']:.0%} "
                          f"of the error on {value['silhouette_px']:.1%} of the pixels"
-                         + (f", {value['still_db']:5.1f} dB from the still" if "still_db" in value else ""))
+                         + (f", {value['still_db']:5.1f} dB from the still" if "still_db" in value else "")
+                         + (f"; {report_classes(value['classes'])}" if "classes" in value else ""))
     return " | ".join(parts)
+
+
+def report_classes(shares: dict[str, Any]) -> str:
+    """:func:`bench.error_classes.error_shares`' figures in a few words."""
+    return (", ".join(f"{name} {shares[name]['error']:.0%} on {shares[name]['pixels']:.1%}" for name in CLASSES)
+            + f" (error on pixels); the model's pixels {shares['model_db']:.1f} dB, mean {shares['mean']:+.2f}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -196,6 +217,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="JPEG quality of the moving frame (default: the interactive codec's)")
     parser.add_argument("--still-samples", type=int, default=0,
                         help="compare with the still of this many samples at full detail too (0: not)")
+    parser.add_argument("--classes", action="store_true",
+                        help="split each bound's error by the kind of pixel it lies on (outline, depth step, facing)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     result = measure(args)

@@ -1,7 +1,8 @@
 """bench.lod_cameras (issue 32) on the dragon: a row per camera, the levels drawing fewer triangles
 than the model at a picture close to full detail, the silhouettes' share of the error a fraction,
 each frame compared with the still too, the moving frame's JPEG against full detail's JPEG, the
-worst camera of each figure, and the figures written as JSON."""
+error split by the kind of pixel it lies on, the worst camera of each figure, and the figures
+written as JSON."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import json
 import pytest
 
 from bench import lod_cameras
+from bench.error_classes import CLASSES
 from tessera.geometry import Camera
 from tests.conftest import scene_path
 
@@ -21,7 +23,7 @@ def test_lod_cameras_reports_each_camera_and_bound(ctx, tmp_path, capsys):
     out = tmp_path / "figures.json"
     assert lod_cameras.main(["--scene", str(scene_path(DRAGON)), "--cache-dir", str(tmp_path / "cache"),
                              "--size", "320x180", "--bounds", "1,3", "--orbit", "2", "--near", "1",
-                             "--still-samples", "2", "--json", str(out)]) == 0
+                             "--still-samples", "2", "--classes", "--json", str(out)]) == 0
     figures = json.loads(out.read_text())
     assert [row["camera"] for row in figures["cameras"]] == ["orbit 0°", "orbit 180°", "half 20°"]
     for row in figures["cameras"]:
@@ -31,11 +33,16 @@ def test_lod_cameras_reports_each_camera_and_bound(ctx, tmp_path, capsys):
         assert 0.0 <= fine["silhouette_share"] <= 1.0 and 0.0 < fine["silhouette_px"] < 0.2
         assert fine["still_db"] > 25.0 and row["full_still_db"] > 25.0
         assert fine["pipeline_db"] > 25.0
+        classes = coarse["classes"]
+        assert abs(sum(classes[name]["error"] for name in CLASSES) - 1.0) < 0.01
+        assert classes["outline"]["pixels"] >= fine["silhouette_px"] and classes["facing"]["pixels"] > 0.0
+        assert classes["model_db"] < coarse["levels_db"] and abs(classes["mean"]) < 5.0
     worst = figures["worst"]["3px"]["pipeline_db"]
     assert worst["db"] == min(row["3px"]["pipeline_db"] for row in figures["cameras"]) and worst["of"] == 3
     assert figures["worst"]["3px"]["max_triangles"] == max(row["3px"]["triangles"] for row in figures["cameras"])
     printed = capsys.readouterr().out
     assert "after JPEG" in printed and "JPEG against JPEG" in printed and "worst camera" in printed
+    assert "depth_edge" in printed and "the model's pixels" in printed
 
 
 def test_worst_names_the_worst_camera_and_counts_those_at_the_goal():
