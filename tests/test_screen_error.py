@@ -12,7 +12,7 @@ import pytest
 
 from node.culling.lod import lod_cut, projected_errors
 from node.scene.lod import LodTree
-from tessera.balancers.projection import level_counts
+from tessera.balancers.projection import GroupProjector, distinct_level_boxes, level_counts, project_groups
 from tessera.geometry import Camera, view_projection
 from tessera.screen_error import error_scales, pixels_per_unit
 from tests.culling_support import random_cameras
@@ -106,3 +106,30 @@ def test_a_group_off_the_axis_in_a_wide_frame_gets_a_finer_level():
     boxes = np.stack([box.reshape(6)] * 2)[None]
     assert level_counts(errors, triangles, boxes, camera, size, bound)[0] == 100.0, "predicted at full detail"
     assert level_counts(errors, triangles, boxes, camera, size, 20.0 * bound)[0] == 1.0
+
+
+def test_levels_counted_over_their_distinct_boxes_are_the_same_counts():
+    """The coordinator keeps a scene's level boxes once each (groups share coarse clusters' boxes, a
+    level often keeps the one below's): the counts are those of every group's own boxes."""
+    rng = np.random.default_rng(5)
+    groups, levels = 60, 6
+    lo = rng.uniform(-3.0, 3.0, size=(groups, levels, 3))
+    boxes = np.concatenate([lo, lo + rng.uniform(0.01, 2.0, size=(groups, levels, 3))], axis=2)
+    boxes[:, 3:] = boxes[:, 2:3]                            # levels that keep the one below's box
+    boxes[groups // 2:, 4:] = boxes[:groups - groups // 2, 4:]   # boxes other groups share
+    errors = np.cumsum(rng.uniform(0.0, 0.05, size=(groups, levels)), axis=1)
+    errors[:, 0] = 0.0
+    triangles = np.cumsum(rng.uniform(1.0, 100.0, size=(groups, levels))[:, ::-1], axis=1)[:, ::-1].copy()
+    distinct, index = distinct_level_boxes(boxes)
+    assert len(distinct) < groups * (levels - 1) and index.shape == (groups, levels - 1)
+    projector = GroupProjector(boxes[:, 0], triangles[:, 0], BOUNDS, None, (640, 360)).with_levels(
+        errors, triangles, boxes)
+    chosen = set()
+    for camera in random_cameras(BOUNDS / 2.0, 20, seed=6, nearest=0.5, widest_deg=100.0):
+        for bound in (0.5, 2.0, 8.0):
+            counts = level_counts(errors, triangles, boxes, camera, (640, 360), bound)
+            assert np.array_equal(level_counts(errors, triangles, distinct, camera, (640, 360), bound, index), counts)
+            expected = project_groups(boxes[:, 0], counts, camera, (640, 360), BOUNDS)
+            assert np.array_equal(projector(camera, None, None, bound).weights, expected.weights)
+            chosen.update(int(np.flatnonzero(triangles[g] == counts[g])[0]) for g in range(groups))
+    assert len(chosen) >= 3, "the cameras choose levels of several depths"
