@@ -91,16 +91,20 @@ class Camera:
             value = getattr(self, name)
             if value is not None and not math.isfinite(value):
                 raise CameraError(f"camera {name} is not finite: {value!r}")
-        eye, target, up = (np.asarray(v, dtype=np.float64) for v in (self.eye, self.target, self.up))
-        forward = target - eye
-        distance = float(np.linalg.norm(forward))
-        scale = max(float(np.abs(eye).max()), float(np.abs(target).max()), 1.0)
+        # Plain floats, not numpy: a camera is made for each camera message (60 a second a viewer)
+        # and each tile a node draws, and numpy's calls on 3-vectors cost 5x these.
+        (ex, ey, ez), (tx, ty, tz), (ux, uy, uz) = self.eye, self.target, self.up
+        fx, fy, fz = tx - ex, ty - ey, tz - ez
+        distance = math.sqrt(fx * fx + fy * fy + fz * fz)
+        scale = max(abs(ex), abs(ey), abs(ez), abs(tx), abs(ty), abs(tz), 1.0)
         if distance <= 1e-9 * scale:
             raise CameraError("camera eye and target coincide")
-        up_norm = float(np.linalg.norm(up))
+        up_norm = math.sqrt(ux * ux + uy * uy + uz * uz)
         if up_norm == 0.0:
             raise CameraError("camera up vector is zero")
-        if float(np.linalg.norm(np.cross(forward / distance, up / up_norm))) < 1e-6:
+        fx, fy, fz, ux, uy, uz = fx / distance, fy / distance, fz / distance, ux / up_norm, uy / up_norm, uz / up_norm
+        cx, cy, cz = fy * uz - fz * uy, fz * ux - fx * uz, fx * uy - fy * ux
+        if math.sqrt(cx * cx + cy * cy + cz * cz) < 1e-6:
             raise CameraError("camera up vector is parallel to the view direction")
         if not 0.5 <= self.fovy_deg <= 179.0:
             raise CameraError(f"camera fovy_deg must be in [0.5, 179], got {self.fovy_deg}")
