@@ -350,10 +350,12 @@ class ViewerHub:
                 slot.put_control(*messages[frame_id])
 
     def broadcast(self, message: Message, exclude: ViewerSlot | None = None) -> None:
-        """Queue ``message`` for every viewer but ``exclude``, encoded once."""
-        text = message.to_text()
-        for slot in self.slots:
-            if slot is not exclude:
+        """Queue ``message`` for every viewer but ``exclude``, encoded once (not at all when no
+        one else watches: a lone viewer's camera messages, 60 a second, are not echoed)."""
+        others = [slot for slot in self.slots if slot is not exclude]
+        if others:
+            text = message.to_text()
+            for slot in others:
                 slot.put_control(message, text)
 
     def describe(self) -> list[dict[str, Any]]:
