@@ -60,11 +60,11 @@ def error_scales(camera: Camera, size: tuple[int, int], boxes: np.ndarray) -> np
     lowest = (boxes[:, 0] - eye) @ rotation.T
     extent = boxes[:, 1] - boxes[:, 0]
     side, up, back = (lowest[:, row] + _CORNERS @ (extent * rotation[row]).T for row in range(3))
-    depth = -back
+    depth = np.negative(back, out=back)   # in place from here on: the same values, fewer temporaries
     ahead = np.all(depth > 0.0, axis=0)
+    depth[:, ~ahead] = 1.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(ahead, depth, 1.0)
-        tx = np.where(ahead, np.minimum((np.abs(side) / depth).max(axis=0), half_x), half_x)
-        ty = np.where(ahead, np.minimum((np.abs(up) / depth).max(axis=0), half_y), half_y)
+        tx = np.where(ahead, np.minimum(np.divide(np.abs(side, out=side), depth, out=side).max(axis=0), half_x), half_x)
+        ty = np.where(ahead, np.minimum(np.divide(np.abs(up, out=up), depth, out=up).max(axis=0), half_y), half_y)
         scale = pixels_per_unit(camera, size) * (1.0 + tx * tx + ty * ty) / distance
     return np.where(distance > 0.0, scale, np.inf).reshape(shape)
