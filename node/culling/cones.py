@@ -15,6 +15,7 @@ the GL's rounding may find front-facing, is kept."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -37,3 +38,37 @@ def facing_away(cones: np.ndarray, boxes: np.ndarray, eye: np.ndarray) -> np.nda
     along = np.einsum("ij,ij->i", d, axis)
     across = np.linalg.norm(np.cross(d, axis), axis=1)
     return (cos_m > 0.0) & (cos_m * along - sin_m * across > radius)
+
+
+#: Runs of triangles as :meth:`FacingAway.of` reads them: (cones (K, 4), boxes (K, 2, 3), batch (K,)).
+Runs = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FacingAway:
+    """A frame's test of the runs that face wholly away from ``eye`` (3,), among those of the batches
+    ``backless`` (B,) bool marks (drawn with back-face culling; others are always kept): the scene's
+    chunks (``chunk_runs``) and the coarse parts (``part_runs``) of its levels."""
+
+    eye: np.ndarray
+    backless: np.ndarray
+    chunk_runs: Runs
+    part_runs: Runs
+
+    def chunks(self, ids: np.ndarray) -> np.ndarray:
+        """(n,) bool which of the chunks ``ids`` (n,) int64 face away."""
+        return self.of(ids, self.chunk_runs)
+
+    def parts(self, ids: np.ndarray) -> np.ndarray:
+        """(n,) bool which of the coarse parts ``ids`` (n,) int64 face away."""
+        return self.of(ids, self.part_runs)
+
+    def of(self, ids: np.ndarray, runs: Runs) -> np.ndarray:
+        """(n,) bool which of the ``runs`` ``ids`` (n,) int64 face away."""
+        cones, boxes, batch = runs
+        away = np.zeros(ids.shape, bool)
+        tested = np.flatnonzero(self.backless[batch[ids]] & (cones[ids, 3] > 0.0))
+        if tested.size:
+            rows = ids[tested]
+            away[tested] = facing_away(cones[rows], boxes[rows], self.eye)
+        return away
