@@ -28,18 +28,18 @@ class RotatePredictBalancer(RotateBalancer):
     name = "rotate-predict"
     uses_groups = True
     defaults: ClassVar[Mapping[str, float | int | bool]] = {
-        "tau_ms": 50.0, "min_tile_px": 16, "tiles_per_node": 3, "history": 8, "correction": 1.0, "follow": True}
+        **RotateBalancer.defaults, "tau_ms": 50.0, "history": 8, "correction": 1.0, "follow": True}
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
         self.predictor = LoadPredictor(self.params["history"], self.params["correction"])
         self.load = self.predictor
 
-    def edges(self, inputs: BalanceInput, shares: Sequence[float]) -> tuple[StripEdges, Field]:
+    def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
         """With ``follow``, :func:`follow_camera`'s edges where it gives some; ``rotate``'s otherwise."""
         followed = follow_camera(self.predictor, inputs, shares, self.params["tau_ms"],
                                  self.params["min_tile_px"]) if self.params["follow"] else None
-        return followed if followed is not None else super().edges(inputs, shares)
+        return followed if followed is not None else super().edges(inputs, shares, damped)
 
     def tile_overhead_ms(self) -> float:
         """The fitted per-tile overhead d: a tile's predicted effort is d + its rect's load, so
