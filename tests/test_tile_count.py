@@ -8,6 +8,7 @@ import pytest
 from bench.virtual_cluster import rect_sums, summed_area
 from tessera.balancers.base import BalanceInput, Partition, TileTiming
 from tessera.balancers.rotate import RotateBalancer
+from tessera.balancers.rotate_predict import RotatePredictBalancer
 from tessera.balancers.support.tile_count import (
     HISTORY,
     MIN_FRAMES,
@@ -80,7 +81,7 @@ def test_rotate_adds_a_round_of_tiles_when_frames_stay_uneven_placed_without_dam
     measured field at once (its tiles' loads within 8× of each other, the field being the last
     frame's tiles, uniform inside each), not damped from the equal split (the corner map's equal
     tiles differ 20×)."""
-    balancer = RotateBalancer()
+    balancer = RotateBalancer(efficiency_target=0.965)
     partition = balancer.partition(BalanceInput(size=SIZE, node_ids=NODES))
     counts = []
     for frame in range(SETTLE_FRAMES + MIN_FRAMES + 3):
@@ -93,7 +94,8 @@ def test_rotate_adds_a_round_of_tiles_when_frames_stay_uneven_placed_without_dam
     assert counts == [12] * (SETTLE_FRAMES + MIN_FRAMES - 1) + [16]
     loads = rect_sums(summed_area(corner_map(SIZE)), partition.rects)
     assert max(loads) <= 8.0 * min(loads)
-    fixed = RotateBalancer(efficiency_target=0.0)
+    fixed = RotateBalancer()   # rotate's default: the fixed count
+    assert RotatePredictBalancer().params["efficiency_target"] == 0.965
     partition = fixed.partition(BalanceInput(size=SIZE, node_ids=NODES))
     for _ in range(2 * MIN_FRAMES):
         partition = fixed.partition(BalanceInput(size=SIZE, node_ids=NODES, previous=partition,
