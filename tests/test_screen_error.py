@@ -71,9 +71,7 @@ def one_group(box: np.ndarray, error: float) -> LodTree:
                    batch=ints(0), own=ints(0), parent=ints(-1), boxes=box[None].astype(np.float32),
                    index_bounds=ints(0, 3), indices=np.arange(3, dtype=np.uint32), cluster_parts=ints(0, 1),
                    part_bounds=ints(0, 3), part_boxes=box[None].astype(np.float32), share_cluster=empty,
-                   share_chunk=empty, share_triangles=empty, batch_closed=np.zeros(1, bool),
-                   chunk_cones=np.full((1, 4), -1.0, np.float32), cluster_cones=np.full((1, 4), -1.0, np.float32),
-                   part_cones=np.full((1, 4), -1.0, np.float32))
+                   share_chunk=empty, share_triangles=empty, batch_closed=np.zeros(1, bool))
 
 
 def test_a_group_off_the_axis_in_a_wide_frame_gets_a_finer_level():

@@ -16,7 +16,6 @@ blended batches are one chunk each (:mod:`node.scene.chunks`), so their faces ke
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,8 +25,6 @@ from node.scene.chunks import DrawRuns, SceneChunks
 #: Chunks per group sorted as one: aligned runs of chunk ids (octree neighbours, about 1.5 k faces
 #: at the default face limit); fewer, longer draw commands than sorting single chunks.
 GROUP_CHUNKS = 8
-#: Which of some chunks (ids (n,) int64) to leave out: (n,) bool.
-Away = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,20 +50,16 @@ class ChunkGroups:
 
 
 def front_to_back(chunks: SceneChunks, groups: ChunkGroups, first: np.ndarray, end: np.ndarray,
-                  view_proj: np.ndarray, away: Away | None = None) -> DrawRuns:
+                  view_proj: np.ndarray) -> DrawRuns:
     """Draw runs of the visible chunk ranges [first[i], end[i]) (R,) sorted, disjoint: per batch in
     batch order, the groups nearest first by clip w under ``view_proj`` (4, 4) world→clip (ties by
-    group), each group's visible chunks in id order, consecutive chunks of one run merged; but the
-    chunks ``away`` marks (those that face away from the eye:
-    :class:`node.culling.cones.FacingAway`)."""
+    group), each group's visible chunks in id order, consecutive chunks of one run merged."""
     first = np.asarray(first, dtype=np.int64)
     end = np.asarray(end, dtype=np.int64)
+    if first.size == 0:
+        return chunks.runs(first, end)
     lengths = end - first
     ids = np.repeat(first - np.cumsum(lengths) + lengths, lengths) + np.arange(int(lengths.sum()))
-    if away is not None and ids.size:
-        ids = ids[~away(ids)]
-    if ids.size == 0:
-        return chunks.runs(ids, ids)
     group = groups.group[ids]
     w_row = np.asarray(view_proj, dtype=np.float64)[3]
     depth = groups.centers @ w_row[:3] + w_row[3]

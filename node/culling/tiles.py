@@ -47,7 +47,7 @@ from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.gpu import GpuBvh, GpuCuller
 from node.culling.lod import LodCut, subtract_ranges
 from node.culling.objects import MovedCuller
-from node.culling.order import Away, ChunkGroups, front_to_back
+from node.culling.order import ChunkGroups, front_to_back
 from node.culling.switch import CullDevice, CullMode, HybridCullingSwitch, SwitchParams, resolve_culling
 from node.scene.chunks import DrawRuns, SceneChunks
 from tessera.geometry import Rect
@@ -131,11 +131,10 @@ class TileCuller:
         return self.mode is not CullMode.GPU
 
     def cull(self, slot: Hashable, view_proj: np.ndarray, size: tuple[int, int], rect: Rect,
-             lod: LodCut | None = None, away: Away | None = None) -> TileCull:
+             lod: LodCut | None = None) -> TileCull:
         """Cull tile ``slot`` (any key: the tile's id), the ``rect`` part of a ``size`` frame drawn
         with the full-frame ``view_proj`` (4, 4) world→clip matrix; the chunks ``lod``'s coarse nodes
-        stand in for are left out (:attr:`takes_levels` modes only), and on the CPU those ``away``
-        marks (:func:`node.culling.order.front_to_back`)."""
+        stand in for are left out (:attr:`takes_levels` modes only)."""
         coarse = lod is not None and lod.coarse
         if self.mode is CullMode.OFF and not coarse:
             return TileCull("off", 0.0, self._all_commands, self._all_runs.batch_slices(), self._all_runs)
@@ -149,10 +148,10 @@ class TileCuller:
         if state is None:
             state = self._slots[slot] = _Slot(HybridCullingSwitch.start(self.params))
         if self.clip is not None:   # chunks wholly cut away are culled like those outside the tile
-            return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj, lod if coarse else None, away)
+            return self._cull_cpu(state, np.vstack((planes, self.clip)), view_proj, lod if coarse else None)
         if self.mode is CullMode.GPU or (state.switch.device is CullDevice.GPU and not coarse):
             return self._cull_gpu(state, planes)
-        return self._cull_cpu(state, planes, view_proj, lod if coarse else None, away)
+        return self._cull_cpu(state, planes, view_proj, lod if coarse else None)
 
     def cull_moved(self, view_proj: np.ndarray, size: tuple[int, int], rect: Rect, batches: Sequence[int],
                    models: np.ndarray) -> DrawRuns:
@@ -170,12 +169,11 @@ class TileCuller:
         self.clip = None if halfspaces is None else np.asarray(halfspaces, dtype=np.float64).reshape(-1, 4)
         self._clipped = None if self.clip is None else clipped_boxes(self.chunks.boxes, self.clip)
 
-    def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None, lod: LodCut | None = None,
-               away: Away | None = None) -> TileCull:
+    def listed(self, chunk_ids: np.ndarray, view_proj: np.ndarray | None = None, lod: LodCut | None = None) -> TileCull:
         """Draw exactly ``chunk_ids`` (K,) sorted, unique chunk ids, no culling: what a depth layer
         draws when hybrid ownership or a sort-last share decided (path "list"); nearest first under
-        the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`, leaving out
-        the chunks ``away`` marks); but the chunks ``lod``'s coarse nodes stand in for."""
+        the full-frame ``view_proj`` when given (:func:`node.culling.order.front_to_back`); but the
+        chunks ``lod``'s coarse nodes stand in for."""
         ids = np.asarray(chunk_ids, dtype=np.int64)
         if self._clipped is not None and ids.size:
             ids = ids[~self._clipped[ids]]
@@ -184,7 +182,7 @@ class TileCuller:
         if lod is not None and lod.coarse:
             first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
         runs = (self.chunks.runs(first, end) if view_proj is None
-                else front_to_back(self.chunks, self.groups, first, end, view_proj, away))
+                else front_to_back(self.chunks, self.groups, first, end, view_proj))
         return self._written("list", 0.0, runs)
 
     def _written(self, path: str, cull_ms: float, runs: DrawRuns) -> TileCull:
@@ -197,14 +195,13 @@ class TileCuller:
         assert self.gpu_bvh is not None
         return GpuCuller(self.gpu_bvh)
 
-    def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray, lod: LodCut | None,
-                  away: Away | None = None) -> TileCull:
+    def _cull_cpu(self, state: _Slot, planes: np.ndarray, view_proj: np.ndarray, lod: LodCut | None) -> TileCull:
         started = time.perf_counter()
         result = cull(self.bvh, planes, None if lod is None else lod.hidden)
         first, end = result.visible_first, result.visible_end
         if lod is not None:
             first, end = subtract_ranges(first, end, lod.blocked_first, lod.blocked_end)
-        runs = front_to_back(self.chunks, self.groups, first, end, view_proj, away)
+        runs = front_to_back(self.chunks, self.groups, first, end, view_proj)
         elapsed = time.perf_counter() - started
         if self.mode is CullMode.HYBRID and self.gpu_bvh is not None and state.switch.device is CullDevice.CPU:
             state.switch = state.switch.step(elapsed)   # a GPU stint's coarse or clipped tile leaves it be

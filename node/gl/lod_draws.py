@@ -10,7 +10,6 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from node.culling.cones import FacingAway
 from node.culling.frustum import frustum_planes_from_matrix
 from node.culling.lod import LodCut, back_faces_hidden, boxes_in_frustum, lod_cut
 from node.culling.tiles import indirect_commands
@@ -52,7 +51,7 @@ class LodDraws:
         self.commands = ctx.buffer(reserve=20 * max(1, tree.part_boxes.shape[0]))
         #: The last frame's cut, for its other tiles, and what it was made for.
         self._cut: tuple[tuple[Camera, tuple[int, int], float] | None, LodCut] = (None, LodCut.full())
-        self.chunks = chunks = scene.chunks
+        chunks = scene.chunks
         starts = np.minimum(chunks.batch_bounds[:-1], max(chunks.chunk_count - 1, 0))
         boxes = np.zeros((len(scene.batches), 2, 3), np.float32) if not chunks.chunk_count else np.stack(
             [np.minimum.reduceat(chunks.boxes[:, 0], starts), np.maximum.reduceat(chunks.boxes[:, 1], starts)], axis=1)
@@ -76,15 +75,6 @@ class LodDraws:
             boxes = np.broadcast_to(np.asarray(bounds, np.float32), boxes.shape)
         return back_faces_hidden(closed, boxes, camera, size, near_far_from_bounds(camera, bounds)[0])
 
-    def facing(self, camera: Camera, backless: np.ndarray | None) -> FacingAway | None:
-        """The frame's test of the chunks and coarse parts of the ``backless`` batches (None: none) that
-        face away from ``camera`` (:mod:`node.culling.cones`)."""
-        if backless is None or not backless.any():
-            return None
-        chunks = self.chunks
-        return FacingAway(np.asarray(camera.eye, np.float64), backless, (self.tree.chunk_cones, chunks.boxes,
-                          chunks.batch), (self.tree.part_cones, self.tree.part_boxes, self.part_batch))
-
     def cut(self, camera: Camera, size: tuple[int, int], error_px: float) -> LodCut:
         """The frame's levels (:func:`node.culling.lod.lod_cut`) for ``camera`` in a ``size`` frame
         within ``error_px`` pixels; the last frame's is kept for its other tiles."""
@@ -94,27 +84,26 @@ class LodDraws:
         return self._cut[1]
 
     def tile_runs(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
-                  clip: np.ndarray | None, skip: np.ndarray, facing: FacingAway | None = None) -> DrawRuns:
+                  clip: np.ndarray | None, skip: np.ndarray) -> DrawRuns:
         """:meth:`runs` of the tile ``rect`` of the (4, 4) full-frame ``matrix`` of a ``size`` frame, less
-        the parts wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks
-        and those ``facing`` finds facing away; nearest first by ``matrix``'s view depth (the same order
-        in every tile of the frame)."""
+        the parts wholly cut away by the (P, 4) ``clip`` planes, but those of the batches ``skip`` marks;
+        nearest first by ``matrix``'s view depth (the same order in every tile of the frame)."""
         planes = frustum_planes_from_matrix(matrix, size, rect)
         if clip is not None:
             planes = np.vstack((planes, clip))
-        return self.runs(cut, planes, skip if skip.any() else None, matrix, facing)
+        return self.runs(cut, planes, skip if skip.any() else None, matrix)
 
     @property
     def nbytes(self) -> int:
         return int(self.index_buffer.size + self.commands.size)
 
     def runs(self, cut: LodCut, planes: np.ndarray | None, skip: np.ndarray | None,
-             view_proj: np.ndarray | None = None, facing: FacingAway | None = None) -> DrawRuns:
+             view_proj: np.ndarray | None = None) -> DrawRuns:
         """The cut's clusters touching the tile of ``planes`` (None: all of them), but those of the
         batches ``skip`` (B,) marks, as index runs of this buffer (batch by batch; within a batch nearest
         first by the clip w of their boxes' centres under the (4, 4) ``view_proj``, ties by cluster;
-        None: in cluster order), of each cluster its parts touching the tile and not facing away
-        (``facing``; None: all), consecutive ones in one run; written to :attr:`commands`."""
+        None: in cluster order), of each cluster its parts touching the tile, consecutive ones in one
+        run; written to :attr:`commands`."""
         tree, nodes = self.tree, cut.nodes
         if skip is not None and nodes.size:
             nodes = nodes[~skip[tree.batch[nodes]]]
@@ -128,8 +117,6 @@ class LodDraws:
         parts = np.repeat(tree.cluster_parts[nodes] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
         if planes is not None and parts.size:
             parts = parts[boxes_in_frustum(tree.part_boxes[parts], planes)]
-        if facing is not None and parts.size:
-            parts = parts[~facing.parts(parts)]
         # A run starts at a part that does not follow the one before it in the buffer (the first of a
         # cluster drawn after another, or after a part left out) or in its batch.
         batch = self.part_batch[parts]

@@ -77,7 +77,6 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from node.culling.cones import FacingAway
 from node.culling.lod import LodCut
 from node.culling.switch import CullMode, SwitchParams
 from node.culling.tiles import TileCull, TileCuller
@@ -305,13 +304,12 @@ class TileRenderer:
             lod_bias = subsample.lod_bias
         drawn = guarded(rect, size) if filtered else rect
         pose, matrix, moved = self._posed(camera, frame, drawn, state, subsample, window)
-        cut = self.level_cut(camera, frame, error_px := lod_error_px if subsample is None else 0.0)
-        backless = backless_batches(self, camera, frame, pose.bounds, error_px)
-        facing = facing_of(self, camera, backless)
-        culled = self.culler.cull(slot, matrix, size, drawn, cut, None if facing is None else facing.chunks)
-        coarse = coarse_runs(self, cut, matrix, size, drawn, pose, facing)
+        cut = self.level_cut(camera, frame, lod_error_px if subsample is None else 0.0)
+        culled = self.culler.cull(slot, matrix, size, drawn, cut)
+        coarse = self._coarse(cut, matrix, size, drawn, pose)
         # A grid of samples: the same projection drawn over a viewport kx × ky times as large.
         target_size, target = (kx * size[0], ky * size[1]), Rect(kx * drawn.x, ky * drawn.y, kx * drawn.w, ky * drawn.h)
+        backless = backless_batches(self, camera, frame, pose.bounds, lod_error_px if subsample is None else 0.0)
         tile = self._render(camera, target_size, target, matrix, culled, started, False, pose, moved=moved,
                             lod_bias=lod_bias, coarse=coarse, samples=antialiasing.samples, backless=backless)
         if not resolved:
@@ -347,6 +345,14 @@ class TileRenderer:
             self._pose = (state, self._base_pose if state is None else ScenePose.of(self.scene, state))
         return self._pose[1]
 
+    def _coarse(self, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
+                pose: ScenePose) -> DrawRuns | None:
+        """The runs of ``cut``'s coarse nodes that touch ``rect`` (None: full detail), but those of the
+        batches ``pose`` moves or hides (they are drawn apart, at full detail)."""
+        if not cut.coarse or self.lod is None:
+            return None
+        return self.lod.tile_runs(cut, matrix, size, rect, self.culler.clip, pose.skip)
+
     def _posed(self, camera: Camera, size: tuple[int, int], rect: Rect, state: SceneState | None,
                subsample: Subsample | None = None, window: Rect | None = None) -> tuple[ScenePose, np.ndarray,
                                                                                     DrawRuns]:
@@ -379,16 +385,15 @@ class TileRenderer:
         size, rect = windowed(size, rect, window)
         pose, matrix, moved = self._posed(camera, frame, rect, state, subsample, window)
         cut = self.level_cut(camera, frame, error_px := lod_error_px if subsample is None else 0.0)
-        backless = backless_batches(self, camera, frame, pose.bounds, error_px, whole=True)
-        away = None if (facing := facing_of(self, camera, backless)) is None else facing.chunks
         if chunk_ids is None:
-            culled = self.culler.cull(tuple(whole.as_list()) if slot is None else slot, matrix, size, rect, cut, away)
+            culled = self.culler.cull(tuple(whole.as_list()) if slot is None else slot, matrix, size, rect, cut)
         else:
-            culled = self.culler.listed(chunk_ids, matrix, cut, away)
+            culled = self.culler.listed(chunk_ids, matrix, cut)
         tile = self._render(camera, size, rect, matrix, culled, started, with_depth=True, pose=pose, moved=moved,
                             blended_moved=False if blend_apart else None,
                             lod_bias=0.0 if subsample is None else subsample.lod_bias,
-                            coarse=coarse_runs(self, cut, matrix, size, rect, pose, facing), backless=backless)
+                            coarse=self._coarse(cut, matrix, size, rect, pose),
+                            backless=backless_batches(self, camera, frame, pose.bounds, error_px, whole=True))
         return tile if window is None else dataclasses.replace(tile, rect=whole)
 
     def _render(self, camera: Camera, size: tuple[int, int], rect: Rect, matrix: np.ndarray, culled: TileCull,
@@ -649,20 +654,3 @@ def backless_batches(renderer: TileRenderer, camera: Camera, frame: tuple[int, i
     if renderer.lod is None or renderer.culler.clip is not None or renderer.view.discards:
         return None
     return renderer.lod.back_culled(camera, frame, bounds, error_px, whole)
-
-
-def facing_of(renderer: TileRenderer, camera: Camera, backless: np.ndarray | None) -> FacingAway | None:
-    """The frame's test of what faces away from ``camera`` among the ``backless`` batches' chunks and
-    coarse parts (:meth:`node.gl.lod_draws.LodDraws.facing`: the GL culls those triangles anyway;
-    None: none)."""
-    return None if renderer.lod is None else renderer.lod.facing(camera, backless)
-
-
-def coarse_runs(renderer: TileRenderer, cut: LodCut, matrix: np.ndarray, size: tuple[int, int], rect: Rect,
-                pose: ScenePose, facing: FacingAway | None = None) -> DrawRuns | None:
-    """The runs of ``cut``'s coarse nodes that touch ``rect`` (None: full detail), but those of the
-    batches ``pose`` moves or hides (they are drawn apart, at full detail) and the parts ``facing``
-    finds facing away."""
-    if not cut.coarse or renderer.lod is None:
-        return None
-    return renderer.lod.tile_runs(cut, matrix, size, rect, renderer.culler.clip, pose.skip, facing)

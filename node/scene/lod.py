@@ -29,10 +29,6 @@ A batch is marked **closed** (``batch_closed``) when its faces bound solids, fac
 edge (positions welded) is met as often in one direction as in the other, and the signed volume is
 positive (:func:`closed_surface`). From outside such a batch its back faces are always behind its
 front ones, so a moving frame may leave them out (:class:`node.gl.renderer.TileRenderer`).
-
-The levels keep the **normal cones** (:mod:`node.scene.cones`) of the scene's chunks and of the coarse
-clusters and their parts: a tile leaves out the runs that face wholly away from the eye
-(:mod:`node.culling.cones`).
 """
 
 from __future__ import annotations
@@ -51,7 +47,6 @@ import numpy as np
 
 from node.scene.cache import CacheError, Progress, read_arrays, write_arrays
 from node.scene.chunks import SceneChunks
-from node.scene.cones import NO_CONE, merged_cones, normal_cones
 from node.scene.data import SceneData
 from node.scene.octree import morton_codes
 
@@ -90,7 +85,7 @@ BYTES_PER_TRIANGLE = 8
 #: coarse levels with the fine level's noisy vertex normals: shading, not outlines, cost the PSNR.
 NORMAL_WEIGHT = 0.5
 #: The format of the levels' entry (:func:`write_lod`): another is built again, never read.
-LOD_FORMAT = 8
+LOD_FORMAT = 7
 WORKERS = max(1, min(4, os.cpu_count() or 1))
 #: Corners whose clusters' adjacency is found at a time.
 BLOCK_CORNERS = 1 << 23
@@ -122,12 +117,6 @@ class LodTree:
 
     Batches: ``batch_closed`` (B,) bool: its faces bound solids, facing outwards (:func:`closed_surface`;
     False for a batch without levels).
-
-    Normal cones (:mod:`node.scene.cones`: rows axis x, y, z, cos of the half-angle, float32; cos ≤ 0:
-    none): ``chunk_cones`` (C, 4) of the scene's chunks (those of batches without levels: none),
-    ``cluster_cones`` (N, 4) of the coarse clusters (their parts' merged), ``part_cones`` (Q, 4) of
-    their parts; with the ``boxes`` of each (the scene's chunk boxes, ``boxes``, ``part_boxes``) what
-    :func:`node.culling.cones.facing_away` tests.
     """
 
     leaf_first_chunk: np.ndarray
@@ -149,9 +138,6 @@ class LodTree:
     share_chunk: np.ndarray
     share_triangles: np.ndarray
     batch_closed: np.ndarray
-    chunk_cones: np.ndarray
-    cluster_cones: np.ndarray
-    part_cones: np.ndarray
 
     @property
     def node_count(self) -> int:
@@ -384,8 +370,6 @@ class _Builder:
         self.leaf_bounds: list[np.ndarray] = []
         self.shares: list[np.ndarray] = []
         self.closed: list[int] = []
-        #: Each batch with levels: its first chunk and its chunks' normal cones (K, 4).
-        self.chunk_cones: list[tuple[int, np.ndarray]] = []
 
     def batch_levels(self, number: int, scene: SceneData, pool: ThreadPoolExecutor, progress: Progress) -> None:
         """Build the levels of batch ``number`` of ``scene``."""
@@ -400,8 +384,6 @@ class _Builder:
         if closed_surface(faces.reshape(-1, 3), weld, positions):
             self.closed.append(number)
         base = int(chunks.index_bounds[first])
-        self.chunk_cones.append((first, normal_cones(positions, faces.reshape(-1, 3),
-                                                     (chunks.index_bounds[first:end] - base) // 3)))
         corner = chunks.index_bounds[bounds] - base
         leaf_group = np.full(bounds.size - 1, -1, np.int64)
         # The level below: each cluster's indices, error, box (its group's) and id (≥ 0: a coarse
@@ -458,9 +440,8 @@ class _Builder:
         self.group_boxes.append(box)
         return len(self.group_level) - 1
 
-    def tree(self, positions_of: list[np.ndarray], chunk_count: int) -> LodTree:
-        """The DAG built; ``positions_of`` each batch's positions (V, 3) (for the parts' and clusters' boxes
-        and cones), ``chunk_count`` the scene's chunks."""
+    def tree(self, positions_of: list[np.ndarray]) -> LodTree:
+        """The DAG built; ``positions_of`` each batch's positions (V, 3) (for the parts' and clusters' boxes)."""
         counts = np.array([part.size for part in self.indices], np.int64)
         index_bounds = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
         indices = np.concatenate(self.indices) if self.indices else np.zeros(0, np.uint32)
@@ -468,8 +449,6 @@ class _Builder:
         cluster_parts, part_bounds = _parts(index_bounds)
         part_batch = np.repeat(batch, np.diff(cluster_parts))
         part_boxes = np.zeros((part_batch.size, 2, 3), np.float32)
-        part_cones = np.full((part_batch.size, 4), NO_CONE, np.float32)
-        cluster_cones = np.zeros((0, 4), np.float32)
         for number, positions in enumerate(positions_of):
             mine = np.flatnonzero(part_batch == number)
             if mine.size:
@@ -478,19 +457,12 @@ class _Builder:
                 starts = part_bounds[mine] - a
                 part_boxes[mine, 0] = np.minimum.reduceat(corners, starts, axis=0)
                 part_boxes[mine, 1] = np.maximum.reduceat(corners, starts, axis=0)
-                part_cones[mine] = normal_cones(positions, indices[a:b].reshape(-1, 3), starts // 3)
-        if batch.size:
-            cluster_cones = merged_cones(part_cones, cluster_parts[:-1])
         boxes = np.zeros((batch.size, 2, 3), np.float32)
         if batch.size:
             boxes[:, 0] = np.minimum.reduceat(part_boxes[:, 0], cluster_parts[:-1], axis=0)
             boxes[:, 1] = np.maximum.reduceat(part_boxes[:, 1], cluster_parts[:-1], axis=0)
         empty = np.zeros(0, np.int64)
         shares = np.concatenate(self.shares, axis=1) if self.shares else np.zeros((3, 0), np.int64)
-        chunk_cones = np.zeros((chunk_count, 4), np.float32)
-        chunk_cones[:, 3] = NO_CONE
-        for first, cones in self.chunk_cones:
-            chunk_cones[first:first + len(cones)] = cones
         return LodTree(
             leaf_first_chunk=np.concatenate([b[:-1] for b in self.leaf_bounds]) if self.leaf_bounds else empty,
             leaf_end_chunk=np.concatenate([b[1:] for b in self.leaf_bounds]) if self.leaf_bounds else empty,
@@ -501,8 +473,7 @@ class _Builder:
             index_bounds=index_bounds, indices=indices.astype(np.uint32),
             cluster_parts=cluster_parts, part_bounds=part_bounds, part_boxes=part_boxes,
             share_cluster=shares[0], share_chunk=shares[1], share_triangles=shares[2],
-            batch_closed=np.isin(np.arange(len(positions_of)), self.closed),
-            chunk_cones=chunk_cones, cluster_cones=cluster_cones, part_cones=part_cones)
+            batch_closed=np.isin(np.arange(len(positions_of)), self.closed))
 
 
 def _parts(index_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -552,7 +523,7 @@ def build_lod(scene: SceneData, progress: Progress) -> LodTree:
                 builder.batch_levels(number, scene, pool, progress)
     finally:
         pool.shutdown()
-    return builder.tree(positions_of, scene.chunks.chunk_count)
+    return builder.tree(positions_of)
 
 
 #: A scene's primitive groups' levels: errors, triangles and boxes (:func:`group_levels`).
