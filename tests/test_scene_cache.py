@@ -345,3 +345,27 @@ def test_the_groups_levels_are_kept_beside_the_levels_and_read_back(tmp_path, mo
     monkeypatch.setattr(ingest, "group_levels", lambda *args: calls.append(1) or group_levels(*args))
     damaged = kept_group_levels(folder, levels, tree, scene)
     assert calls == [1] and all(np.array_equal(a, b) for a, b in zip(damaged, worked_out, strict=True))
+
+
+def test_an_ingest_reads_and_writes_with_the_cyclic_collector_paused(tmp_path, monkeypatch):
+    """The cyclic collector is off while a file is read and its entry written (its digest given or
+    not), and on again after."""
+    import gc
+
+    from node.scene import ingest
+
+    collecting = []
+    reading = ingest.load_scene
+
+    def load(*args, **kwargs):
+        collecting.append(gc.isenabled())
+        return reading(*args, **kwargs)
+
+    monkeypatch.setattr(ingest, "load_scene", load)
+    folder = CacheFolder(tmp_path / "cache")
+    digest = folder.content_hash(scene_path(BUNNY), no_progress)
+    cached_scene(scene_path(BUNNY), 192, None, folder, no_progress)
+    assert collecting == [False] and gc.isenabled()
+    cached_scene(scene_path(BUNNY), 100, None, folder, no_progress, sha256=digest)   # another face limit: built
+    assert collecting == [False, False] and gc.isenabled()
+
