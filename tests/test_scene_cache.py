@@ -369,3 +369,19 @@ def test_an_ingest_reads_and_writes_with_the_cyclic_collector_paused(tmp_path, m
     cached_scene(scene_path(BUNNY), 100, None, folder, no_progress, sha256=digest)   # another face limit: built
     assert collecting == [False, False] and gc.isenabled()
 
+
+def test_a_files_digest_is_its_sha256_read_from_a_map_a_block_at_a_time(tmp_path, monkeypatch):
+    """The digest of an empty file, of one block and of several (the last one short), with the bytes
+    done reported after each block."""
+    import hashlib
+
+    from node.scene import digests
+
+    monkeypatch.setattr(digests, "HASH_BLOCK", 4096)
+    for size in (0, 100, 3 * 4096 + 5):
+        path = tmp_path / f"file-{size}"
+        path.write_bytes(np.random.default_rng(size).integers(0, 256, size, np.uint8).tobytes())
+        done: list[int] = []
+        assert digests.DigestMemo(None).digest(path, lambda bytes_done, total, done=done: done.append(bytes_done)) \
+            == hashlib.sha256(path.read_bytes()).hexdigest()
+        assert done == [min(first + 4096, size) for first in range(0, size, 4096)]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import mmap
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -69,13 +70,14 @@ class DigestMemo:
         found = self.known(path)
         if found is not None:
             return found
-        total = path.stat().st_size
-        hasher, done = hashlib.sha256(), 0
+        hasher = hashlib.sha256()
         with path.open("rb") as file:
-            while block := file.read(HASH_BLOCK):
-                hasher.update(block)
-                done += len(block)
-                progress(done, total)
+            total = os.fstat(file.fileno()).st_size
+            if total:   # hashed from a map of the file: its pages, no copy of them
+                with mmap.mmap(file.fileno(), total, access=mmap.ACCESS_READ) as mapped, memoryview(mapped) as view:
+                    for first in range(0, total, HASH_BLOCK):
+                        hasher.update(view[first:first + HASH_BLOCK])
+                        progress(min(first + HASH_BLOCK, total), total)
         sha256 = hasher.hexdigest()
         self.remember(path, sha256)
         return sha256
