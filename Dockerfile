@@ -51,9 +51,14 @@ RUN useradd --create-home --home-dir /home/tessera --uid 10001 --user-group tess
     && install -d -o tessera -g tessera /data /var/cache/tessera
 COPY --from=builder /opt/venv /opt/venv
 WORKDIR /app
+# numba's compiled kernels (a node's frame resolve, the ingest's passes) are kept in the scene cache
+# volume: the root filesystem is read-only, and without a writable cache every container start compiled
+# them again (about 2 s of CPU for the resolve). Where nothing writable is mounted there, numba falls
+# back to $XDG_CACHE_HOME, or compiles.
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
-    PYTHONDONTWRITEBYTECODE=1
+    PYTHONDONTWRITEBYTECODE=1 \
+    NUMBA_CACHE_DIR=/var/cache/tessera/numba
 USER tessera
 EXPOSE 8000
 CMD ["python", "-m", "server", "--host", "0.0.0.0"]

@@ -67,3 +67,27 @@ def test_resolve_loads_the_kernel_on_first_use_and_then_takes_it(monkeypatch: py
     assert np.array_equal(compiled.resolve(grid_3x3, Rect(0, 0, 5, 4), Rect(0, 0, 5, 4), (3, 3), False),
                           resolve_grid(grid_3x3, Rect(0, 0, 5, 4), Rect(0, 0, 5, 4), (3, 3), False))
     assert calls == [1]
+
+
+def test_the_image_keeps_numbas_kernels_in_the_nodes_scene_cache_volume(tmp_path) -> None:
+    """The root filesystem is read-only: the Dockerfile points numba's cache into the folder a node
+    container mounts its scene cache volume on, where the folder's trimming leaves it alone."""
+    import shlex
+    from pathlib import Path
+
+    import yaml
+
+    from node.scene.cache_folder import CacheFolder
+
+    repo = Path(__file__).resolve().parents[1]
+    lines = (repo / "Dockerfile").read_text().replace("\\\n", " ").splitlines()
+    env = dict(word.split("=", 1) for line in lines if line.startswith("ENV ") for word in shlex.split(line[4:]))
+    cache = Path(env["NUMBA_CACHE_DIR"])
+    node = yaml.safe_load((repo / "docker-compose.yml").read_text())["services"]["node"]
+    volume = Path(next(mount["target"] for mount in node["volumes"] if mount.get("source") == "scene-cache"))
+    assert cache.parent == volume and Path(node["environment"]["TESSERA_SCENE_CACHE_DIR"]) == volume
+    kept = tmp_path / cache.name / "node" / "gl"
+    kept.mkdir(parents=True)
+    (kept / "resolve.filtered_grid-1.py311.nbi").write_bytes(b"x" * 4096)
+    folder = CacheFolder(tmp_path, limit_bytes=1)
+    assert folder.usage() == [] and folder.trim() == [] and kept.is_dir()
