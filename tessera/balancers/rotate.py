@@ -15,15 +15,15 @@ k equal tiles per node each node usually pulls k, and when the estimate is off t
 fill the gaps. k = 3 by default: on the synthetic maps of tests/test_balancers.py nodes are ≥ 95 %
 busy from the 4th frame and ≥ 96 % once edges settle, 98.5 % on a moving hot spot, where k = 1
 (the seed's N tiles) is only as good as ``adaptive``. Each tile costs a dispatch and a read-back,
-so k is a parameter: the least, ``tiles_per_node``; with an ``efficiency_target``
-(``rotate-predict``'s default; 0 here) a loop on each frame's measured efficiency
-(:mod:`tessera.balancers.support.tile_count`) adds a tile a node, up to ``max_tiles_per_node``,
-while it stays under the target (the short frames of the bunny and the traffic, where a tile's
-fixed cost and the stagger below weigh most), and the partition of the new count is placed on the
-field undamped. Not by default here: the last measured field, uniform inside each old tile, places
-the new count poorly (a frame at 0.74 on the bunny's orbit), and the damped edges settle only
-after 4 × 200 ms (a decision after 36-57 frames of the 60-frame paths). Homogeneous clusters, as
-the seed says: speed weights only convert measured times to effort. Timings are busy time.
+so k is a parameter: the least, ``tiles_per_node``. With an ``efficiency_target`` (0 by default:
+the frames get slower by the extra tiles' fixed cost, see ``rotate-predict``) a loop on each
+frame's measured efficiency (:mod:`tessera.balancers.support.tile_count`) adds a tile a node, up to
+``max_tiles_per_node``, while it stays under the target, and the partition of the new count is
+placed on the field undamped. For ``rotate`` it does not even raise the efficiency: the last
+measured field, uniform inside each old tile, places the new count poorly (a frame at 0.74 on the
+bunny's orbit), and the damped edges settle only after 4 × 200 ms (a decision after 36-57 frames
+of the 60-frame paths). Homogeneous clusters, as the seed says: speed weights only convert
+measured times to effort. Timings are busy time.
 
 Tile shares shrink round by round while frames overlap (factoring, Hummel, Schonberg & Flynn
 1992). Longest-first list scheduling is only as even as its last tiles are small. With frames in
@@ -103,6 +103,8 @@ class RotateBalancer(AdaptiveBalancer):
         self.tile_count = TileCountLoop(self.params["tiles_per_node"], self.params["max_tiles_per_node"],
                                         self.params["efficiency_target"], self.params["tau_ms"])
         self.counted = 0
+        #: tiles a node of the last partition, and whether the loop changed it for this one
+        self.per_node, self.recounted = self.tile_count.count, False
 
     def validate_params(self) -> None:
         super().validate_params()
@@ -117,6 +119,7 @@ class RotateBalancer(AdaptiveBalancer):
         width, height = inputs.size
         nodes = len(inputs.node_ids)
         per_node = self.tiles_per_node(inputs)
+        self.recounted, self.per_node = per_node != self.per_node, per_node
         count = max(nodes, min(per_node * nodes, min(width, height) ** 2 // 4))
         self.ratio = self.next_ratio(inputs, -(-count // nodes))
         shares = round_shares(count, nodes, self.ratio)
@@ -136,11 +139,10 @@ class RotateBalancer(AdaptiveBalancer):
         return Partition(tiles, pull=True)
 
     def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
-        """``adaptive``'s edges, undamped when the count of tiles changed: the old edges, of another
-        shape, would be the equal split's, and damping from there costs a frame a third of its
-        efficiency."""
-        same = inputs.previous is not None and len(inputs.previous.tiles) == len(shares)
-        return super().edges(inputs, shares, damped and same)
+        """``adaptive``'s edges, undamped when the loop changed the tiles a node: the old edges, of
+        another shape, would be the equal split's, and damping from there costs a frame a third of
+        its efficiency."""
+        return super().edges(inputs, shares, damped and not self.recounted)
 
     def tiles_per_node(self, inputs: BalanceInput) -> int:
         """Tiles a node for the next partition: :class:`TileCountLoop`'s, fed each partition's
