@@ -54,9 +54,8 @@ class AdaptiveBalancer(Balancer):
         """Effort share of each tile, row-major: node k's speed weight."""
         return [speed_of(inputs.weights, node) for node in nodes]
 
-    def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
-        """Strip edges for ``len(shares)`` tiles, damped (or where the field puts them), and the
-        load field they were placed on."""
+    def edges(self, inputs: BalanceInput, shares: Sequence[float]) -> tuple[StripEdges, Field]:
+        """Damped strip edges for ``len(shares)`` tiles, and the load field they were placed on."""
         size = inputs.size
         counts = strip_counts(len(shares), size)
         minimum = minimum_for(size, len(shares), self.params["min_tile_px"])
@@ -68,7 +67,7 @@ class AdaptiveBalancer(Balancer):
         if not inputs.timings:
             return old, uniform
         field = self.load.field(inputs)
-        fraction = damping_fraction(inputs.elapsed_ms, self.params["tau_ms"]) if damped else 1.0
+        fraction = damping_fraction(inputs.elapsed_ms, self.params["tau_ms"])
         return place(field, size, counts, shares, old, fraction, minimum), field
 
     def partition(self, inputs: BalanceInput) -> Partition:

@@ -85,11 +85,11 @@ class AdaptivePredictBalancer(AdaptiveBalancer):
         plain = weights * load / weights.sum()
         return np.maximum(weights * (load + len(nodes) * overhead) / weights.sum() - overhead, 0.05 * plain).tolist()
 
-    def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
+    def edges(self, inputs: BalanceInput, shares: Sequence[float]) -> tuple[StripEdges, Field]:
         """With ``follow``, :func:`follow_camera`'s edges where it gives some; ``adaptive``'s otherwise."""
         followed = follow_camera(self.predictor, inputs, shares, self.params["tau_ms"],
                                  self.params["min_tile_px"]) if self.params["follow"] else None
-        return followed if followed is not None else super().edges(inputs, shares, damped)
+        return followed if followed is not None else super().edges(inputs, shares)
 
     def partition(self, inputs: BalanceInput) -> Partition:
         """``adaptive``'s partition; every frame's timings are a sample of the fit."""

@@ -15,15 +15,8 @@ k equal tiles per node each node usually pulls k, and when the estimate is off t
 fill the gaps. k = 3 by default: on the synthetic maps of tests/test_balancers.py nodes are ≥ 95 %
 busy from the 4th frame and ≥ 96 % once edges settle, 98.5 % on a moving hot spot, where k = 1
 (the seed's N tiles) is only as good as ``adaptive``. Each tile costs a dispatch and a read-back,
-so k is a parameter: the least, ``tiles_per_node``. With an ``efficiency_target`` (0 by default:
-the frames get slower by the extra tiles' fixed cost, see ``rotate-predict``) a loop on each
-frame's measured efficiency (:mod:`tessera.balancers.support.tile_count`) adds a tile a node, up to
-``max_tiles_per_node``, while it stays under the target, and the partition of the new count is
-placed on the field undamped. For ``rotate`` it does not even raise the efficiency: the last
-measured field, uniform inside each old tile, places the new count poorly (a frame at 0.74 on the
-bunny's orbit), and the damped edges settle only after 4 × 200 ms (a decision after 36-57 frames
-of the 60-frame paths). Homogeneous clusters, as the seed says: speed weights only convert
-measured times to effort. Timings are busy time.
+so k is a parameter. Homogeneous clusters, as the seed says: speed weights only convert measured
+times to effort. Timings are busy time.
 
 Tile shares shrink round by round while frames overlap (factoring, Hummel, Schonberg & Flynn
 1992). Longest-first list scheduling is only as even as its last tiles are small. With frames in
@@ -48,9 +41,7 @@ from typing import Any, ClassVar
 
 from tessera.balancers.adaptive import AdaptiveBalancer
 from tessera.balancers.base import BalanceInput, Partition, Tile
-from tessera.balancers.support.load import Field, measured_ms, speed_of
-from tessera.balancers.support.strips import StripEdges
-from tessera.balancers.support.tile_count import TileCountLoop, frame_efficiency
+from tessera.balancers.support.load import measured_ms, speed_of
 from tessera.geometry import Rect
 
 #: Partitions whose tiles' planned efforts are kept until their timings come back (frames in flight).
@@ -89,38 +80,27 @@ def round_shares(count: int, nodes: int, ratio: float) -> list[float]:
 
 class RotateBalancer(AdaptiveBalancer):
     name = "rotate"
-    defaults: ClassVar[Mapping[str, float | int | bool]] = {
-        "tau_ms": 200.0, "min_tile_px": 16, "tiles_per_node": 3, "max_tiles_per_node": 5, "efficiency_target": 0.0}
+    defaults: ClassVar[Mapping[str, float | int | bool]] = {"tau_ms": 200.0, "min_tile_px": 16, "tiles_per_node": 3}
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        #: the last partitions' rects → (serial number, their tiles' planned efforts in ms, tiles a node)
-        self.planned: dict[tuple[Rect, ...], tuple[int, list[float], int]] = {}
+        #: the last partitions' rects → (serial number, their tiles' planned efforts in ms)
+        self.planned: dict[tuple[Rect, ...], tuple[int, list[float]]] = {}
         #: partitions made, the ratio between rounds' shares of the last, and whether its rects
         #: repeated the one's before (then its timings cannot tell the two apart)
         self.serial, self.ratio, self.repeated = 0, 1.0, False
-        #: tiles a node, held by the measured efficiency; the last partition whose timings it saw
-        self.tile_count = TileCountLoop(self.params["tiles_per_node"], self.params["max_tiles_per_node"],
-                                        self.params["efficiency_target"], self.params["tau_ms"])
-        self.counted = 0
-        #: tiles a node of the last partition, and whether the loop changed it for this one
-        self.per_node, self.recounted = self.tile_count.count, False
 
     def validate_params(self) -> None:
         super().validate_params()
         if self.params["tiles_per_node"] < 1:
             raise ValueError("tiles_per_node must be >= 1")
-        if not 0.0 <= self.params["efficiency_target"] < 1.0:
-            raise ValueError("efficiency_target must be in [0, 1) (0: a fixed tiles_per_node)")
 
     def partition(self, inputs: BalanceInput) -> Partition:
         """k × N tiles (fewer on screens too small for them, never fewer than N) of
         :func:`round_shares`, heaviest first."""
         width, height = inputs.size
         nodes = len(inputs.node_ids)
-        per_node = self.tiles_per_node(inputs)
-        self.recounted, self.per_node = per_node != self.per_node, per_node
-        count = max(nodes, min(per_node * nodes, min(width, height) ** 2 // 4))
+        count = max(nodes, min(self.params["tiles_per_node"] * nodes, min(width, height) ** 2 // 4))
         self.ratio = self.next_ratio(inputs, -(-count // nodes))
         shares = round_shares(count, nodes, self.ratio)
         edges, field = self.edges(inputs, shares)
@@ -133,27 +113,10 @@ class RotateBalancer(AdaptiveBalancer):
         self.repeated = key in self.planned and self.planned[key][0] == self.serial - 1
         self.planned.pop(key, None)
         load, overhead = sum(effort), self.tile_overhead_ms()
-        self.planned[key] = (self.serial, [shares[i] / sum(shares) * load + overhead for i in order], per_node)
+        self.planned[key] = (self.serial, [shares[i] / sum(shares) * load + overhead for i in order])
         while len(self.planned) > KEPT_PLANS:
             del self.planned[next(iter(self.planned))]
         return Partition(tiles, pull=True)
-
-    def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
-        """``adaptive``'s edges, undamped when the loop changed the tiles a node: the old edges, of
-        another shape, would be the equal split's, and damping from there costs a frame a third of
-        its efficiency."""
-        return super().edges(inputs, shares, damped and not self.recounted)
-
-    def tiles_per_node(self, inputs: BalanceInput) -> int:
-        """Tiles a node for the next partition: :class:`TileCountLoop`'s, fed each partition's
-        measured efficiency once, when its timings are the newest (from ``tiles_per_node`` up to
-        ``max_tiles_per_node``, aiming at ``efficiency_target``)."""
-        self.tile_count.wait(inputs.elapsed_ms)
-        made = self.planned.get(tuple(t.rect for t in inputs.timings))
-        if made is not None and made[0] > self.counted:
-            self.counted = made[0]
-            return self.tile_count.observe(frame_efficiency(inputs.timings, inputs.node_ids, inputs.weights), made[2])
-        return self.tile_count.count
 
     def tile_overhead_ms(self) -> float:
         """What a tile costs beyond its rect's load in the field (effort ms), counted in its
@@ -171,7 +134,7 @@ class RotateBalancer(AdaptiveBalancer):
         made = self.planned.get(tuple(t.rect for t in inputs.timings))
         if made is None:
             return 1.0
-        serial, planned, _ = made
+        serial, planned = made
         if serial == self.serial:
             return self.ratio if self.repeated else 1.0
         return round_ratio(estimate_error(planned, [measured_ms(t) * speed_of(inputs.weights, t.node_id)

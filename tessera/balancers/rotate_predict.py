@@ -7,11 +7,6 @@ the heaviest-first order, is read from the predicted field; with the fitted per-
 added, it is what the estimate's measured error, and so the ratio between rounds, compares
 with the tiles' times.
 
-With an ``efficiency_target`` (0.965, say; 0 by default) the tiles a node are held by the measured
-efficiency (a tile a node more, up to ``max_tiles_per_node``, while frames stay under it;
-:mod:`tessera.balancers.support.tile_count`): the per-frame efficiency rises 0.5-1.6 points where it
-adds a tile, but the frame's busiest node, the interval and the latency grow 1-5 % (a tile's fixed
-cost), so the fixed count is the default.
 Without groups, or before a fit, it is ``rotate``. Run time: with Lucy's 2 070 groups about 11 ms
 per partition on the 2-core development machine.
 """
@@ -33,18 +28,18 @@ class RotatePredictBalancer(RotateBalancer):
     name = "rotate-predict"
     uses_groups = True
     defaults: ClassVar[Mapping[str, float | int | bool]] = {
-        **RotateBalancer.defaults, "tau_ms": 50.0, "history": 8, "correction": 1.0, "follow": True}
+        "tau_ms": 50.0, "min_tile_px": 16, "tiles_per_node": 3, "history": 8, "correction": 1.0, "follow": True}
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
         self.predictor = LoadPredictor(self.params["history"], self.params["correction"])
         self.load = self.predictor
 
-    def edges(self, inputs: BalanceInput, shares: Sequence[float], damped: bool = True) -> tuple[StripEdges, Field]:
+    def edges(self, inputs: BalanceInput, shares: Sequence[float]) -> tuple[StripEdges, Field]:
         """With ``follow``, :func:`follow_camera`'s edges where it gives some; ``rotate``'s otherwise."""
         followed = follow_camera(self.predictor, inputs, shares, self.params["tau_ms"],
                                  self.params["min_tile_px"]) if self.params["follow"] else None
-        return followed if followed is not None else super().edges(inputs, shares, damped)
+        return followed if followed is not None else super().edges(inputs, shares)
 
     def tile_overhead_ms(self) -> float:
         """The fitted per-tile overhead d: a tile's predicted effort is d + its rect's load, so
