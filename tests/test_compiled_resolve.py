@@ -91,3 +91,25 @@ def test_the_image_keeps_numbas_kernels_in_the_nodes_scene_cache_volume(tmp_path
     (kept / "resolve.filtered_grid-1.py311.nbi").write_bytes(b"x" * 4096)
     folder = CacheFolder(tmp_path, limit_bytes=1)
     assert folder.usage() == [] and folder.trim() == [] and kept.is_dir()
+
+
+def test_a_second_process_reads_the_kernel_from_numbas_cache(tmp_path) -> None:
+    """Compiled once per cache folder, not once per process (a node's start paid ~1 s of CPU for it):
+    the kernel holds no compiled function in its closure, which numba's cache cannot key."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    probe = ("import numpy as np\n"
+             "from node.gl import resolve\n"
+             "kernel = resolve.load_kernel()\n"
+             "kernel(np.zeros((3, 6, 3), np.uint8), np.empty((1, 1, 3), np.uint8), 2, 1, 14, 6, 8, 1, 1)\n"
+             "print(sum(kernel.stats.cache_hits.values()), sum(kernel.stats.cache_misses.values()))\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    runs = [subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120,
+                           check=True) for _ in range(2)]
+    (hits_first, misses_first), (hits_second, misses_second) = (tuple(map(int, run.stdout.split())) for run in runs)
+    assert (hits_first, misses_first) == (0, 1)
+    assert (hits_second, misses_second) == (1, 0)

@@ -24,6 +24,8 @@ _lock = threading.Lock()
 #: The compiled kernel once loaded; False where numba is missing or failed; None: not asked for yet.
 _kernel: Any = None
 _loading: threading.Thread | None = None
+#: The compiled row sums :func:`_build`'s kernel calls (set there).
+_block_sums: Any = None
 
 
 def resolve(pixels: np.ndarray, rect: Rect, drawn: Rect, grid: tuple[int, int], filtered: bool = True) -> np.ndarray:
@@ -89,8 +91,8 @@ def load_kernel() -> Any:
 
 
 def _build(jit: Any) -> Any:
+    global _block_sums
 
-    @jit
     def block_sums(pixels: np.ndarray, row: np.ndarray, sy: int, kx: int, ky: int, left: int, width: int) -> None:
         """``row`` ((w + 2)·3,) int32: the sample sums of the pixels of region row ``sy`` / ky that out's
         row reads, from column ``left`` − 1 to ``left`` + w (clamped to the region's ``width``)."""
@@ -111,6 +113,10 @@ def _build(jit: Any) -> Any:
                     a2 += np.int32(src[sx + i, 2])
             row[3 * q], row[3 * q + 1], row[3 * q + 2] = a0, a1, a2
 
+    # A module global, not a closure variable: numba's cache keys a kernel by its closure, and a
+    # compiled function held there made the kernel compile again in every process.
+    _block_sums = jit(block_sums)
+
     @jit
     def filtered_grid(pixels: np.ndarray, out: np.ndarray, kx: int, ky: int, centre_x: int, centre_y: int,
                       shift: int, left: int, top: int) -> None:
@@ -119,11 +125,11 @@ def _build(jit: Any) -> Any:
         # The sums of three rows at a time (those out's row reads), kept in cache, not the frame's.
         ring = np.empty((3, (w + 2) * 3), np.int32)
         for r in range(2):
-            block_sums(pixels, ring[r], min(max(top + r - 1, 0), height - 1) * ky, kx, ky, left, width)
+            _block_sums(pixels, ring[r], min(max(top + r - 1, 0), height - 1) * ky, kx, ky, left, width)
         cx, cy, half, bits = np.int32(centre_x), np.int32(centre_y), np.int32(1 << (shift - 1)), np.int32(shift)
         flat = out.reshape(h, w * 3)
         for y in range(h):
-            block_sums(pixels, ring[(y + 2) % 3], min(max(top + y + 1, 0), height - 1) * ky, kx, ky, left, width)
+            _block_sums(pixels, ring[(y + 2) % 3], min(max(top + y + 1, 0), height - 1) * ky, kx, ky, left, width)
             above, here, below, line = ring[y % 3], ring[(y + 1) % 3], ring[(y + 2) % 3], flat[y]
             for k in range(w * 3):
                 total = (above[k] + cx * above[k + 3] + above[k + 6]
