@@ -370,7 +370,7 @@ def test_an_ingest_reads_and_writes_with_the_cyclic_collector_paused(tmp_path, m
     assert collecting == [False, False] and gc.isenabled()
 
 
-def test_a_files_digest_is_its_sha256_read_from_a_map_a_block_at_a_time(tmp_path, monkeypatch):
+def test_a_files_digest_is_its_sha256_read_a_block_at_a_time(tmp_path, monkeypatch):
     """The digest of an empty file, of one block and of several (the last one short), with the bytes
     done reported after each block."""
     import hashlib

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import mmap
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -70,14 +69,16 @@ class DigestMemo:
         found = self.known(path)
         if found is not None:
             return found
-        hasher = hashlib.sha256()
-        with path.open("rb") as file:
+        hasher, done = hashlib.sha256(), 0
+        # Read into one buffer, reused: no new block of memory each time, and, unlike a map of the
+        # file, no SIGBUS that would kill the process if the file shrinks while it is hashed.
+        block = memoryview(bytearray(HASH_BLOCK))
+        with path.open("rb", buffering=0) as file:
             total = os.fstat(file.fileno()).st_size
-            if total:   # hashed from a map of the file: its pages, no copy of them
-                with mmap.mmap(file.fileno(), total, access=mmap.ACCESS_READ) as mapped, memoryview(mapped) as view:
-                    for first in range(0, total, HASH_BLOCK):
-                        hasher.update(view[first:first + HASH_BLOCK])
-                        progress(min(first + HASH_BLOCK, total), total)
+            while read := file.readinto(block):
+                hasher.update(block[:read])
+                done += read
+                progress(done, total)
         sha256 = hasher.hexdigest()
         self.remember(path, sha256)
         return sha256
